@@ -1,0 +1,97 @@
+"""Check the LQR expert: set-up time, per-action time, survival and return over seeded episodes.
+
+    python -m bench.expert_check [--first-seed 0] [--episodes 20] [--noise 0 0.05]
+
+``--noise`` adds Gaussian noise of that standard deviation to every executed action (then clips to
+the motor range), as when recording noise-injected demonstrations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+from teleop.expert import CTRL_LIMIT, LQRExpert, design_lqr, humanoid_model, load_or_design
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """Outcome of one episode."""
+
+    steps: int
+    total_return: float
+    stood: bool
+    """Whether the body stayed up until the time limit."""
+
+
+def run_episode(env: gym.Env, expert: LQRExpert, seed: int, noise: float) -> EpisodeResult:
+    """One episode from ``env.reset(seed=seed)``, with executed-action noise of std ``noise``."""
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    expert.reset(seed)
+    total, steps, terminated, truncated = 0.0, 0, False, False
+    while not (terminated or truncated):
+        action = expert.act(obs) + noise * rng.standard_normal(env.action_space.shape)
+        obs, reward, terminated, truncated, _ = env.step(np.clip(action, -CTRL_LIMIT, CTRL_LIMIT))
+        total += float(reward)
+        steps += 1
+    return EpisodeResult(steps=steps, total_return=total, stood=not terminated)
+
+
+def time_setup() -> tuple[float, float]:
+    """Seconds to design the gains from scratch, and to load them from the (warmed) cache."""
+    model = humanoid_model()
+    start = time.perf_counter()
+    design_lqr(model)
+    cold = time.perf_counter() - start
+    load_or_design(model)  # makes sure the cache file exists
+    start = time.perf_counter()
+    load_or_design(model)
+    return cold, time.perf_counter() - start
+
+
+def time_action(expert: LQRExpert, obs: np.ndarray, repeats: int = 20_000) -> float:
+    """Mean seconds per ``act`` call."""
+    start = time.perf_counter()
+    for _ in range(repeats):
+        expert.act(obs)
+    return (time.perf_counter() - start) / repeats
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print set-up time, per-action time and, per noise level, survival and returns."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--noise", type=float, nargs="+", default=[0.0])
+    args = parser.parse_args(argv)
+
+    cold, cached = time_setup()
+    print(f"set-up: {cold:.3f} s from scratch, {1e3 * cached:.1f} ms from the cache")
+    env = gym.make("Humanoid-v5")
+    expert = LQRExpert(env.unwrapped.model)
+    obs, _ = env.reset(seed=args.first_seed)
+    print(f"act: {1e6 * time_action(expert, obs):.1f} us per call")
+
+    seeds = range(args.first_seed, args.first_seed + args.episodes)
+    for noise in args.noise:
+        results = [run_episode(env, expert, seed, noise) for seed in seeds]
+        returns = np.array([r.total_return for r in results])
+        fallen = {seed: r.steps for seed, r in zip(seeds, results) if not r.stood}
+        line = (
+            f"noise {noise:<5} seeds {seeds.start}..{seeds.stop - 1}: "
+            f"stood {len(results) - len(fallen)}/{len(results)}, "
+            f"return mean {returns.mean():.1f} min {returns.min():.1f}"
+        )
+        if fallen:
+            line += f", fell (seed: steps) {fallen}"
+        print(line)
+    env.close()
+
+
+if __name__ == "__main__":
+    main()

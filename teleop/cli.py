@@ -1,0 +1,74 @@
+"""Command lines built from a stage's config dataclass: one flag per field, its help from the field.
+
+Every stage declares its settings once, as a dataclass whose fields carry `help` metadata; the
+flags, their defaults in `--help`, and the Makefile variables all follow from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import types
+import typing
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+Config = TypeVar("Config")
+
+EXIT_USAGE = 2
+EXIT_FAILURE = 1
+
+
+class UserError(Exception):
+    """A mistake in the user's input or environment: reported as one line, without a traceback."""
+
+
+def setting(default: Any, help: str, **kwargs: Any) -> Any:
+    """A config field with its `--help` text."""
+    return dataclasses.field(default=default, metadata={"help": help, **kwargs})
+
+
+def _parser_type(annotation: Any) -> Callable[[str], Any]:
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):  # `int | None`
+        annotation = next(arg for arg in typing.get_args(annotation) if arg is not type(None))
+    return {"int": int, "float": float, "str": str, "Path": Path, "bool": _boolean}.get(
+        getattr(annotation, "__name__", str(annotation)), str
+    )
+
+
+def _boolean(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected a boolean, got {text!r}")
+
+
+def parse_config(config_class: type[Config], argv: Sequence[str] | None, description: str) -> Config:
+    """Parse `argv` into `config_class`; `--help` lists each field with its default."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    hints = typing.get_type_hints(config_class)
+    for field in dataclasses.fields(config_class):
+        flag = "--" + field.name.replace("_", "-")
+        choices = field.metadata.get("choices")
+        parser.add_argument(flag, dest=field.name, type=_parser_type(hints[field.name]), default=field.default,
+                            choices=choices, metavar=field.metadata.get("metavar"),
+                            help=f"{field.metadata.get('help', '')} (default: {field.default})")
+    return config_class(**vars(parser.parse_args(argv)))
+
+
+def run_cli(main: Callable[[Config], Any], config_class: type[Config], argv: Sequence[str] | None,
+            description: str) -> int:
+    """Parse, run `main`, and turn user errors into one line on stderr and a non-zero exit code."""
+    config = parse_config(config_class, argv, description)
+    try:
+        main(config)
+    except UserError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    return 0

@@ -1,0 +1,121 @@
+"""Reading a recorded dataset back in bulk: LeRobot frames as NumPy arrays, MCAP episodes decoded.
+
+LeRobot's per-item access (`LeRobotDataset[i]`) reads a few thousand rows a second; training and
+checks need whole columns, so this reads the parquet files with Arrow directly, limited to the
+committed episodes that meta/info.json counts.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from teleop.lerobot_format import EPISODES_DIR, INFO_PATH
+from teleop.mcap_writer import METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+
+
+def read_info(root: Path) -> dict:
+    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts)."""
+    return json.loads((root / INFO_PATH).read_text())
+
+
+def read_episodes(root: Path) -> pa.Table:
+    """One row per committed episode, LeRobot's columns and this project's (seed, return, ...), no stats."""
+    committed = read_info(root)["total_episodes"]
+    tables = []
+    for path in sorted((root / EPISODES_DIR).glob("*/*.parquet")):
+        names = [name for name in pq.read_schema(path).names if not name.startswith("stats/")]
+        tables.append(pq.read_table(path, columns=names))
+    if not tables:
+        raise FileNotFoundError(f"{root} has no episode metadata ({EPISODES_DIR})")
+    episodes = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
+    return episodes.filter(pa.compute.less(episodes["episode_index"], committed))
+
+
+def column_to_numpy(column: pa.ChunkedArray) -> np.ndarray:
+    """A parquet column as an array: (rows,) for scalars, (rows, n) for fixed-size lists."""
+    array = column.combine_chunks()
+    if pa.types.is_fixed_size_list(array.type):
+        return array.flatten().to_numpy(zero_copy_only=False).reshape(len(array), array.type.list_size)
+    return array.to_numpy(zero_copy_only=False)
+
+
+def read_frames(root: Path, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The committed frames of the dataset at `root`, in index order, one array per column."""
+    info = read_info(root)
+    episodes = read_episodes(root)
+    files = sorted({
+        root / info["data_path"].format(chunk_index=chunk, file_index=file)
+        for chunk, file in zip(episodes["data/chunk_index"].to_pylist(), episodes["data/file_index"].to_pylist(),
+                               strict=True)
+    })
+    wanted = None if columns is None else list(dict.fromkeys([*columns, "index"]))
+    table = pa.concat_tables([pq.read_table(path, columns=wanted) for path in files])
+    table = table.filter(pa.compute.less(table["index"], info["total_frames"])).sort_by("index")
+    names = table.column_names if columns is None else columns
+    return {name: column_to_numpy(table[name]) for name in names}
+
+
+@dataclass
+class McapEpisode:
+    """The decoded content of one episode's MCAP file."""
+
+    metadata: dict[str, str]
+    attachments: dict[str, bytes]
+    step_times_ns: np.ndarray  # (T,) log times of the /step messages
+    steps: dict[str, np.ndarray]  # Step fields, one row per step
+    tf_times_ns: np.ndarray  # (T,)
+    body_position: np.ndarray  # (T, bodies, 3)
+    body_orientation: np.ndarray  # (T, bodies, 4), w-x-y-z like MuJoCo
+    body_frames: list[str]
+    scene_entities: list[str]  # frame ids of the /scene entities
+
+
+# Step fields read back, with the dtype of the matching LeRobot column.
+STEP_FIELDS = {
+    "frame_index": np.int64,
+    "observation": np.float64,
+    "action": np.float32,
+    "executed_action": np.float32,
+    "reward": np.float64,
+    "terminated": bool,
+    "truncated": bool,
+}
+
+
+def read_mcap_episode(path: Path) -> McapEpisode:
+    """Decode every message of `path` (which must be a finished MCAP file, with its summary)."""
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+        attachments = {record.name: bytes(record.data) for record in reader.iter_attachments()}
+        step_times, tf_times, steps, positions, orientations, frames, entities = [], [], [], [], [], [], []
+        for _, channel, message, decoded in reader.iter_decoded_messages(topics=[STEP_TOPIC, TF_TOPIC, SCENE_TOPIC]):
+            if channel.topic == STEP_TOPIC:
+                step_times.append(message.log_time)
+                steps.append({name: getattr(decoded, name) for name in STEP_FIELDS})
+            elif channel.topic == TF_TOPIC:
+                tf_times.append(message.log_time)
+                frames = [t.child_frame_id for t in decoded.transforms]
+                positions.append([(t.translation.x, t.translation.y, t.translation.z) for t in decoded.transforms])
+                orientations.append([(t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z) for t in decoded.transforms])
+            else:
+                entities += [entity.frame_id for entity in decoded.entities]
+    return McapEpisode(
+        metadata=metadata.get(METADATA_NAME, {}),
+        attachments=attachments,
+        step_times_ns=np.array(step_times, np.int64),
+        steps={name: np.array([step[name] for step in steps], dtype) for name, dtype in STEP_FIELDS.items()},
+        tf_times_ns=np.array(tf_times, np.int64),
+        body_position=np.array(positions, np.float64),
+        body_orientation=np.array(orientations, np.float64),
+        body_frames=frames,
+        scene_entities=entities,
+    )

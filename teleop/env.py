@@ -1,0 +1,90 @@
+"""Gymnasium `Humanoid-v5` helpers: construction, observation layout and body poses.
+
+Physics queries used by controllers live in `teleop.physics`; this module only knows the
+environment's shapes and names.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+ENV_ID = "Humanoid-v5"
+EPISODE_STEPS = 1000
+# LeRobot stores fps as an int; the true rate is 1 / 0.015 s = 66.67 Hz. MCAP timestamps use the
+# exact step duration (`step_duration_ns`), LeRobot timestamps are frame_index / LEROBOT_FPS.
+LEROBOT_FPS = 67
+ROBOT_TYPE = "mujoco_humanoid"
+
+
+def make_env(max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = None) -> gym.Env:
+    """Humanoid-v5 with its default observation (348 floats) and a time limit of `max_episode_steps`."""
+    if max_episode_steps <= 0:
+        raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
+    return gym.make(ENV_ID, max_episode_steps=max_episode_steps, render_mode=render_mode)
+
+
+def model_and_data(env: gym.Env) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The MuJoCo model and live data behind a (wrapped) Humanoid env."""
+    base = env.unwrapped
+    return base.model, base.data
+
+
+def step_duration_ns(env: gym.Env) -> int:
+    """Simulated time of one env step (timestep x frame_skip) in integer nanoseconds."""
+    return round(env.unwrapped.dt * 1e9)
+
+
+def mjcf_path(env: gym.Env) -> Path:
+    """The MJCF file the environment was built from."""
+    return Path(env.unwrapped.fullpath)
+
+
+def _names(model: mujoco.MjModel, kind: mujoco.mjtObj, count: int, start: int = 0) -> list[str]:
+    return [mujoco.mj_id2name(model, kind, i) for i in range(start, count)]
+
+
+def body_names(model: mujoco.MjModel) -> list[str]:
+    """The moving bodies (world excluded), in MuJoCo's order: the 13 frames shown in Foxglove."""
+    return _names(model, mujoco.mjtObj.mjOBJ_BODY, model.nbody, start=1)
+
+
+def actuator_names(model: mujoco.MjModel) -> list[str]:
+    """Actuator names, in action order."""
+    return _names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu)
+
+
+def state_dim(model: mujoco.MjModel) -> int:
+    """Length of the proprioceptive part of the observation: qpos without root x, y, then qvel."""
+    return model.nq - 2 + model.nv
+
+
+def observation_names(model: mujoco.MjModel) -> list[str]:
+    """One name per observation entry, following gymnasium's Humanoid-v5 `_get_obs` order."""
+    joints = _names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt, start=1)  # joint 0 is the free root
+    bodies = body_names(model)
+    qpos = ["root.z", "root.qw", "root.qx", "root.qy", "root.qz"] + [f"{j}.pos" for j in joints]
+    qvel = ["root.vx", "root.vy", "root.vz", "root.wx", "root.wy", "root.wz"] + [f"{j}.vel" for j in joints]
+    cinert = [f"{b}.cinert{i}" for b in bodies for i in range(10)]
+    cvel = [f"{b}.cvel{i}" for b in bodies for i in range(6)]
+    qfrc_actuator = [f"{j}.qfrc_actuator" for j in joints]
+    cfrc_ext = [f"{b}.cfrc_ext{i}" for b in bodies for i in range(6)]
+    return qpos + qvel + cinert + cvel + qfrc_actuator + cfrc_ext
+
+
+def split_observation(obs: np.ndarray, state_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(observation.state, observation.environment_state) views of one or many observations."""
+    return obs[..., :state_size], obs[..., state_size:]
+
+
+def join_observation(state: np.ndarray, environment_state: np.ndarray) -> np.ndarray:
+    """The gymnasium observation from its two stored parts."""
+    return np.concatenate([state, environment_state], axis=-1)
+
+
+def body_poses(data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (13, 3) and orientations (13, 4, MuJoCo's w-x-y-z) of the moving bodies."""
+    return data.xpos[1:].copy(), data.xquat[1:].copy()

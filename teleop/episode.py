@@ -1,0 +1,132 @@
+"""One episode in memory, and the rollout loop that fills it.
+
+The rollout is shared by the recorder, the benchmarks and evaluation, so that "recording" and
+"running the controller" differ only in what happens to the finished `Episode`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+from teleop.controllers import Controller
+from teleop.env import body_poses, model_and_data
+
+DEFAULT_TASK = "Stand still on both feet."
+
+
+@dataclass
+class Episode:
+    """Per-step arrays of one episode (T rows each) and the facts needed to reproduce it.
+
+    Row t holds the observation o_t, the label action a_t chosen from it, the executed action
+    (a_t plus injected noise, clipped), and the outcome of that step (r_t, terminated, truncated).
+    Body poses are those of o_t; they feed the MCAP 3D view only.
+    """
+
+    seed: int
+    controller: str
+    task: str
+    noise_std: float
+    observation: np.ndarray  # (T, 348) float64
+    action: np.ndarray  # (T, 17) float32
+    executed_action: np.ndarray  # (T, 17) float32
+    reward: np.ndarray  # (T,) float64
+    terminated: np.ndarray  # (T,) bool
+    truncated: np.ndarray  # (T,) bool
+    body_position: np.ndarray  # (T, 13, 3) float64, world frame
+    body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
+
+    @property
+    def length(self) -> int:
+        return len(self.reward)
+
+    @property
+    def episode_return(self) -> float:
+        return float(self.reward.sum())
+
+    @property
+    def fell(self) -> bool:
+        """The episode ended because the torso left the healthy height range."""
+        return bool(self.terminated[-1])
+
+
+def injected_noise(seed: int, steps: int, noise_std: float, action_dim: int) -> np.ndarray:
+    """The Gaussian noise added to the label actions of the episode with this seed.
+
+    Drawn from its own stream so that controllers using `seed` are not correlated with it.
+    """
+    rng = np.random.default_rng((seed, 1))
+    return noise_std * rng.standard_normal((steps, action_dim))
+
+
+class EpisodeBuffer:
+    """Preallocated storage for the longest episode, reused from one episode to the next."""
+
+    def __init__(self, env: gym.Env, max_steps: int) -> None:
+        model, _ = model_and_data(env)
+        obs_dim = env.observation_space.shape[0]
+        act_dim = env.action_space.shape[0]
+        bodies = model.nbody - 1
+        self.observation = np.empty((max_steps, obs_dim), np.float64)
+        self.action = np.empty((max_steps, act_dim), np.float32)
+        self.executed_action = np.empty((max_steps, act_dim), np.float32)
+        self.reward = np.empty(max_steps, np.float64)
+        self.terminated = np.zeros(max_steps, bool)
+        self.truncated = np.zeros(max_steps, bool)
+        self.body_position = np.empty((max_steps, bodies, 3), np.float64)
+        self.body_orientation = np.empty((max_steps, bodies, 4), np.float64)
+
+    def episode(self, steps: int, **facts: object) -> Episode:
+        """Copies of the first `steps` rows, so the buffer can be reused while they are written."""
+        arrays = {name: getattr(self, name)[:steps].copy() for name in _ARRAY_FIELDS}
+        return Episode(**facts, **arrays)
+
+
+_ARRAY_FIELDS = (
+    "observation",
+    "action",
+    "executed_action",
+    "reward",
+    "terminated",
+    "truncated",
+    "body_position",
+    "body_orientation",
+)
+
+
+def run_episode(
+    env: gym.Env,
+    controller: Controller,
+    seed: int,
+    noise_std: float = 0.0,
+    buffer: EpisodeBuffer | None = None,
+    task: str = DEFAULT_TASK,
+) -> Episode:
+    """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit."""
+    max_steps = env.spec.max_episode_steps
+    buffer = buffer or EpisodeBuffer(env, max_steps)
+    _, data = model_and_data(env)
+    low, high = env.action_space.low, env.action_space.high
+    noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
+
+    obs, _ = env.reset(seed=seed)
+    controller.reset(seed)
+    t = 0
+    while True:
+        buffer.observation[t] = obs
+        buffer.body_position[t], buffer.body_orientation[t] = body_poses(data)
+        action = controller.act(obs)
+        executed = action if noise is None else np.clip(action + noise[t], low, high).astype(np.float32)
+        obs, reward, terminated, truncated, _ = env.step(executed)
+        buffer.action[t] = action
+        buffer.executed_action[t] = executed
+        buffer.reward[t] = reward
+        buffer.terminated[t] = terminated
+        buffer.truncated[t] = truncated
+        t += 1
+        if terminated or truncated:
+            break
+    return buffer.episode(t, seed=seed, controller=controller.name, task=task, noise_std=noise_std)

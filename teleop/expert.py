@@ -1,0 +1,286 @@
+"""Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5.
+
+The design, run once at start-up (about a second) and cached on disk:
+
+1. a statically balanced pose: knees at ``LQRDesign.knee``, torso height and both hip_y angles
+   solved so that inverse dynamics leaves no vertical force and no pitch moment on the root;
+2. feed-forward control: the joint torques of that inverse dynamics, through the actuator moments;
+3. a linear model of one env step (``frame_skip`` x ``mj_step``) by central finite differences,
+   on a copy of the model whose constraint solver is converged (the env's PGS solver stops after
+   one or two iterations, which turns small differences into noise);
+4. discrete LQR on that model.
+
+State (nx = 2 nv - 2): the position error in the tangent space of ``mj_differentiatePos``
+(root x and y left out: they are translation-invariant and uncontrollable), then qvel.
+At run time the action is ``ctrl_ff - gain @ state``, clipped to the motors' range.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from teleop import physics
+
+log = logging.getLogger(__name__)
+
+CTRL_LIMIT = 0.4
+"""Every Humanoid-v5 motor accepts ctrl in [-CTRL_LIMIT, CTRL_LIMIT]."""
+
+QPOS_OBS = slice(0, 22)
+"""Where qpos[2:] sits in the 348-dim observation (root x, y are excluded by default)."""
+QVEL_OBS = slice(22, 45)
+"""Where qvel sits in the observation."""
+
+_CACHE_FORMAT = 1  # bump when design_lqr changes what it computes, so old cache files go stale
+_ROOT_XY = 2  # the free joint's leading x, y coordinates, left out of the LQR state
+_HEIGHT = 0  # index of the root height error in the position part of the state
+_VERTICAL_VEL = 2  # index of the root vertical velocity in qvel
+_PITCH = 4  # free-joint dof of the moment about the body y axis
+
+
+@dataclass(frozen=True)
+class LQRDesign:
+    """Design parameters of the standing controller; every field is part of the cache key."""
+
+    knee: float = -0.3
+    """Knee angle of the balanced pose (rad). -0.1 also stands; -0.6 does not."""
+    q_com: float = 1000.0
+    """Cost weight on the horizontal offset of the centre of mass from the feet mid-point."""
+    q_pos: float = 3.0
+    """Cost weight on root height/orientation and joint angle errors."""
+    q_vel: float = 0.1
+    """Cost weight on velocities."""
+    r: float = 10.0
+    """Cost weight on control; 1 chatters against the +-0.4 limits."""
+    height_clip: float = 0.02
+    """Run-time clip of the height error (m): reset drops the body ~12 cm, beyond the linear model."""
+    height_vel_clip: float = 0.2
+    """Run-time clip of the vertical velocity (m/s), for the same reason."""
+    fd_eps: float = 1e-6
+    """Finite-difference step of the linearisation."""
+    frame_skip: int = 5
+    """mj_step calls per env step (Humanoid-v5's default)."""
+    solver_iterations: int = 300
+    """Constraint-solver iterations of the linearisation model."""
+    solver_tolerance: float = 1e-13
+    """Constraint-solver tolerance of the linearisation model."""
+
+
+@dataclass(frozen=True)
+class LQRGains:
+    """What ``design_lqr`` produces."""
+
+    qpos_ref: np.ndarray
+    """(nq,) balanced pose (root x, y = 0)."""
+    ctrl_ff: np.ndarray
+    """(nu,) feed-forward control that holds the balanced pose."""
+    gain: np.ndarray
+    """(nu, nx) feedback matrix K: ctrl = ctrl_ff - K @ state."""
+
+
+def humanoid_model() -> mujoco.MjModel:
+    """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
+    import gymnasium.envs.mujoco  # deferred: only needed when no model is given
+
+    xml = Path(gymnasium.envs.mujoco.__file__).parent / "assets" / "humanoid.xml"
+    return mujoco.MjModel.from_xml_path(str(xml))
+
+
+def state_error(
+    model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, qvel: np.ndarray
+) -> np.ndarray:
+    """LQR state of (qpos, qvel) around qpos_ref: tangent-space position error without root x, y, then qvel."""
+    dq = np.empty(model.nv)
+    mujoco.mj_differentiatePos(model, dq, 1.0, qpos_ref, qpos)
+    return np.concatenate([dq[_ROOT_XY:], qvel])
+
+
+def balanced_pose(model: mujoco.MjModel, knee: float) -> np.ndarray:
+    """Pose with both knees at ``knee`` whose height and hip_y angles leave no vertical force or pitch moment."""
+    hips = [model.joint(f"{side}_hip_y").qposadr[0] for side in ("right", "left")]
+    knees = [model.joint(f"{side}_knee").qposadr[0] for side in ("right", "left")]
+    data = mujoco.MjData(model)
+
+    def pose(height: float, hip: float) -> np.ndarray:
+        qpos = model.qpos0.copy()
+        qpos[2], qpos[hips], qpos[knees] = height, hip, knee
+        return qpos
+
+    # Start with the feet just touching the floor, so the contacts exist from the first guess.
+    data.qpos[:] = pose(0.0, 0.0)
+    mujoco.mj_kinematics(model, data)
+    lowest = min(data.geom(g).xpos[2] - model.geom(g).size[0] for g in physics.FOOT_GEOMS)
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        data.qpos[:] = pose(*x)
+        return physics.static_inverse_dynamics(model, data)[[2, _PITCH]]
+
+    solution = scipy.optimize.root(residual, x0=[-lowest, 0.0], tol=1e-12)
+    if not solution.success:
+        raise RuntimeError(f"no balanced pose for knee={knee}: {solution.message}")
+    return pose(*solution.x)
+
+
+def feed_forward(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """Control whose actuator forces equal the joint torques that hold ``qpos`` at rest."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    torque = physics.static_inverse_dynamics(model, data)
+    moment = np.zeros((model.nu, model.nv))
+    mujoco.mju_sparse2dense(
+        moment, data.actuator_moment, data.moment_rownnz, data.moment_rowadr, data.moment_colind
+    )
+    # Only the joints are actuated; the root's residual is what balanced_pose drove to zero.
+    ctrl, *_ = np.linalg.lstsq(moment[:, 6:].T, torque[6:], rcond=None)
+    return ctrl
+
+
+def _converged_copy(model: mujoco.MjModel, design: LQRDesign) -> mujoco.MjModel:
+    """Copy of ``model`` whose Newton solver converges, so that finite differences are smooth."""
+    sim = copy.deepcopy(model)
+    sim.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    sim.opt.iterations = design.solver_iterations
+    sim.opt.tolerance = design.solver_tolerance
+    return sim
+
+
+def linearise(
+    model: mujoco.MjModel, qpos_ref: np.ndarray, ctrl_ref: np.ndarray, design: LQRDesign
+) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference Jacobians (A, B) of one env step at rest in qpos_ref under ctrl_ref."""
+    sim = _converged_copy(model, design)
+    nominal = mujoco.MjData(sim)
+    nominal.qpos[:], nominal.ctrl[:] = qpos_ref, ctrl_ref
+    mujoco.mj_forward(sim, nominal)
+    scratch = mujoco.MjData(sim)
+    nx = 2 * sim.nv - _ROOT_XY
+
+    def step(z: np.ndarray) -> np.ndarray:
+        """Next state after perturbing the nominal state by z[:nx] and its control by z[nx:]."""
+        mujoco.mj_copyData(scratch, sim, nominal)
+        dq = np.concatenate([np.zeros(_ROOT_XY), z[: sim.nv - _ROOT_XY]])
+        mujoco.mj_integratePos(sim, scratch.qpos, dq, 1.0)
+        scratch.qvel[:] += z[sim.nv - _ROOT_XY : nx]
+        scratch.ctrl[:] += z[nx:]
+        mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
+        return state_error(sim, qpos_ref, scratch.qpos, scratch.qvel)
+
+    eps = design.fd_eps
+    jac = np.stack(
+        [(step(eps * e) - step(-eps * e)) / (2 * eps) for e in np.eye(nx + sim.nu)], axis=1
+    )
+    return jac[:, :nx], jac[:, nx:]
+
+
+def design_lqr(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
+    """Balanced pose, feed-forward and LQR feedback gain for ``model`` (about a second)."""
+    qpos_ref = balanced_pose(model, design.knee)
+    ctrl_ff = feed_forward(model, qpos_ref)
+    if np.abs(ctrl_ff).max() > CTRL_LIMIT:
+        raise RuntimeError(f"feed-forward {np.abs(ctrl_ff).max():.3f} exceeds the motor range")
+    a, b = linearise(model, qpos_ref, ctrl_ff, design)
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos_ref
+    mujoco.mj_forward(model, data)
+    jac = physics.com_over_feet_jacobian(model, data)[:, _ROOT_XY:]
+    npos = model.nv - _ROOT_XY
+    q = scipy.linalg.block_diag(
+        design.q_com * jac.T @ jac + design.q_pos * np.eye(npos), design.q_vel * np.eye(model.nv)
+    )
+    r = design.r * np.eye(model.nu)
+    p = scipy.linalg.solve_discrete_are(a, b, q, r)
+    gain = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
+    return LQRGains(qpos_ref=qpos_ref, ctrl_ff=ctrl_ff, gain=gain)
+
+
+def cache_dir() -> Path:
+    """Directory of cached gains: ``$HUMANOID_BC_CACHE``, else ``~/.cache/humanoid-bc``."""
+    return Path(os.environ.get("HUMANOID_BC_CACHE", "~/.cache/humanoid-bc")).expanduser()
+
+
+def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
+    """Hash of the compiled model, the design and the MuJoCo version: equal keys, equal gains."""
+    # The MJB serialisation covers everything the XML compiles to (and Python-side edits).
+    mjb = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, mjb)
+    meta = json.dumps(
+        {"design": dataclasses.asdict(design), "mujoco": mujoco.__version__, "format": _CACHE_FORMAT},
+        sort_keys=True,
+    )
+    return hashlib.sha256(mjb.tobytes() + meta.encode()).hexdigest()
+
+
+def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
+    """``design_lqr`` through the on-disk cache: a file per (model, design) key, rebuilt when missing or stale."""
+    key = cache_key(model, design)
+    path = cache_dir() / f"lqr-{key[:16]}.npz"
+    fields = [f.name for f in dataclasses.fields(LQRGains)]
+    try:
+        with np.load(path) as cached:
+            if str(cached["key"]) == key:
+                return LQRGains(**{name: cached[name] for name in fields})
+    # Missing, truncated, or written by an older format:
+    except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as error:
+        log.debug("no usable cache at %s: %s", path, error)
+
+    gains = design_lqr(model, design)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Write-then-rename, so concurrent processes never read a half-written file.
+        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npz", delete=False) as tmp:
+            np.savez(tmp, key=key, **dataclasses.asdict(gains))
+        os.replace(tmp.name, path)
+    except OSError as error:
+        log.warning("could not cache LQR gains at %s: %s", path, error)
+    return gains
+
+
+class LQRExpert:
+    """Standing controller acting from the Humanoid-v5 observation alone.
+
+    ``qpos_ref`` is the setpoint: a teleoperation layer may shift it (lean, crouch) within the
+    region where the linear model holds; ``ctrl_ff`` and the gain stay those of the balanced pose.
+    """
+
+    name = "expert"
+
+    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign()) -> None:
+        """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's."""
+        self.model = humanoid_model() if model is None else model
+        self.design = design
+        self.gains = load_or_design(self.model, design)
+        self.qpos_ref = self.gains.qpos_ref.copy()
+        self.ctrl_ff = self.gains.ctrl_ff.copy()
+        self._qpos = self.qpos_ref.copy()
+        self._vz = self.model.nv - _ROOT_XY + _VERTICAL_VEL  # vertical velocity in the state
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: the expert is deterministic and stateless."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Action (float32, shape (nu,), within +-CTRL_LIMIT) for a 348-dim Humanoid-v5 observation."""
+        # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
+        self._qpos[:_ROOT_XY] = self.qpos_ref[:_ROOT_XY]
+        self._qpos[_ROOT_XY:] = obs[QPOS_OBS]
+        x = state_error(self.model, self.qpos_ref, self._qpos, obs[QVEL_OBS])
+        d = self.design
+        # Builtin min/max: np.clip costs microseconds per scalar call.
+        x[_HEIGHT] = min(max(x[_HEIGHT], -d.height_clip), d.height_clip)
+        x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
+        ctrl = self.ctrl_ff - self.gains.gain @ x
+        return np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)

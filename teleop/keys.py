@@ -1,0 +1,35 @@
+"""Dataset keys, in one place (LeRobot's convention: dotted names, `next.*` for step outcomes).
+
+The gymnasium observation (348 floats) is stored split in two so that LeRobot's own policies
+(ACT, Diffusion) accept the dataset, which they refuse with `observation.state` alone:
+
+- `observation.state`: qpos[2:] and qvel, the proprioceptive state (45): what encoders and an IMU give.
+- `observation.environment_state`: cinert, cvel, qfrc_actuator, cfrc_ext (303): quantities MuJoCo
+  derives from that state (body inertias and velocities, actuator and contact forces).
+
+Concatenated in that order they are the gymnasium observation, bit for bit (both float64).
+"""
+
+# LeRobot's own names (lerobot.utils.constants; a test checks they agree). Spelled out here because
+# importing lerobot pulls in torch, which the recorder's simulation process does not need.
+OBS_STATE = "observation.state"
+OBS_ENV_STATE = "observation.environment_state"
+ACTION = "action"
+REWARD = "next.reward"
+DONE = "next.done"
+TRUNCATED = "next.truncated"
+
+# The action the environment received: the label plus injected noise (DART), clipped to the bounds.
+# Deliberately not prefixed `action.`: LeRobot treats every `action*` key as a training target.
+EXECUTED_ACTION = "executed_action"
+TERMINATED = "next.terminated"
+TASK = "task"
+
+# Columns of meta/episodes/*.parquet that this project adds beside LeRobot's own.
+EPISODE_SEED = "seed"
+EPISODE_CONTROLLER = "controller"
+EPISODE_NOISE_STD = "noise_std"
+EPISODE_RETURN = "return"
+EPISODE_TERMINATED = "terminated"
+EPISODE_TRUNCATED = "truncated"
+EPISODE_MCAP = "mcap_path"

@@ -1,0 +1,270 @@
+"""Appends episodes to a LeRobot dataset (format v3.0) so that a kill -9 never costs a committed one.
+
+LeRobot's own writer keeps a parquet file open across episodes: killed before `finalize()`, that
+file has no footer and the whole dataset is unreadable. This writer keeps the v3.0 layout (see
+`teleop.lerobot_format`) but gives every episode its own finished parquet file, for its frames and
+for its metadata row, and makes `meta/info.json` the commit point:
+
+1. `stage`: data/chunk-C/file-F.parquet and meta/episodes/chunk-C/file-F.parquet (each written to a
+   `.partial` file, then renamed), and tasks.parquet if the task is new;
+2. `commit`: meta/stats.json, then meta/info.json, whose episode count makes the episode exist.
+
+The files of an uncommitted episode sort after every committed one, and LeRobot serves only the
+frames info.json counts, so the dataset stays loadable after a kill; `open` deletes them.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from teleop.cli import UserError
+from teleop.lerobot_format import (
+    CODEBASE_VERSION,
+    DEFAULT_FEATURES,
+    EPISODES_DIR,
+    EPISODES_PATH,
+    INFO_PATH,
+    STATS_PATH,
+    TASKS_PATH,
+    Stats,
+    aggregate_stats,
+    episode_stats,
+    flatten_stats,
+    hf_features,
+    new_info,
+    next_chunk_file,
+    stats_from_json,
+    stats_to_json,
+    unflatten_stats,
+)
+
+log = logging.getLogger(__name__)
+
+PARTIAL_SUFFIX = ".partial"
+
+
+class DatasetError(UserError):
+    """A dataset folder that cannot be appended to; the message is one line meant for the user."""
+
+
+def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
+    """Call `write` on a sibling `.partial` path, then rename it over `path`: readers see old or new."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    write(partial)
+    os.replace(partial, path)
+
+
+def _write_json(data: dict, path: Path) -> None:
+    write_atomically(path, lambda p: p.write_text(json.dumps(data, indent=4)))
+
+
+@dataclass(frozen=True)
+class StagedEpisode:
+    """An episode whose files are on disk but not yet counted by info.json."""
+
+    index: int
+    length: int
+    stats: Stats
+    total_tasks: int
+
+
+class LeRobotWriter:
+    """Appends episodes to one LeRobot v3.0 dataset; `open` creates it or checks it is compatible."""
+
+    def __init__(self, root: Path, info: dict, tasks: pd.DataFrame, stats: Stats | None,
+                 last_file: tuple[int, int] | None) -> None:
+        self.root = root
+        self.info = info
+        self.tasks = tasks
+        self.stats = stats
+        self._last_file = last_file
+        self._schema = hf_features(info["features"]).arrow_schema
+
+    @property
+    def total_episodes(self) -> int:
+        return self.info["total_episodes"]
+
+    @classmethod
+    def open(cls, root: Path, features: dict, fps: int, robot_type: str) -> LeRobotWriter:
+        """The writer for `root`: a new dataset if the folder is empty, else the existing one, recovered."""
+        info = new_info(fps, {**features, **DEFAULT_FEATURES}, robot_type)
+        info_path = root / INFO_PATH
+        if not info_path.exists():
+            if any(not p.name.startswith(".") for p in root.iterdir()):
+                raise DatasetError(f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); "
+                                   "choose an empty or new folder")
+            _write_json(info, info_path)
+            return cls(root, info, _empty_tasks(), None, None)
+
+        try:
+            existing = json.loads(info_path.read_text())
+        except ValueError as error:
+            raise DatasetError(f"{info_path} is not valid JSON ({error})") from None
+        problems = [f"{key} {existing.get(key)!r}, not {info[key]!r}"
+                    for key in ("codebase_version", "fps", "robot_type") if existing.get(key) != info[key]]
+        if existing.get("features") != info["features"]:
+            theirs, ours = set(existing.get("features", {})), set(info["features"])
+            detail = f"keys {sorted(theirs ^ ours)} differ" if theirs != ours else "shapes, dtypes or names differ"
+            problems.append(f"other features ({detail})")
+        if problems:
+            raise DatasetError(f"{root} holds a dataset this recorder cannot append to: {'; '.join(problems)}")
+        return cls._recovered(root, existing)
+
+    @classmethod
+    def _recovered(cls, root: Path, info: dict) -> LeRobotWriter:
+        """The writer for an existing dataset, after deleting what a killed writer left uncommitted."""
+        episodes = _remove_uncommitted(root, info)
+        stored_tasks = pd.read_parquet(root / TASKS_PATH) if info["total_tasks"] else _empty_tasks()
+        tasks = stored_tasks[stored_tasks["task_index"] < info["total_tasks"]]
+        stats_path = root / STATS_PATH
+        stats = stats_from_json(json.loads(stats_path.read_text())) if stats_path.exists() else None
+        last_file = None
+        if episodes:
+            last = episodes[-1]
+            last_file = (last["meta/episodes/chunk_index"], last["meta/episodes/file_index"])
+        writer = cls(root, info, tasks, stats, last_file)
+        if len(tasks) < len(stored_tasks):
+            writer._write_tasks()
+        if episodes and (stats is None or int(stats["index"]["count"][0]) != info["total_frames"]):
+            # stats.json is written just before info.json: a kill between the two leaves it counting an
+            # episode that was never committed, so rebuild it from the committed episodes' own statistics.
+            writer.stats = aggregate_stats([unflatten_stats(row) for row in episodes])
+            _write_json(stats_to_json(writer.stats), stats_path)
+        return writer
+
+    def stage(self, columns: dict[str, np.ndarray], task: str, extra: dict[str, Any]) -> StagedEpisode:
+        """Write the frames and metadata row of the next episode, uncommitted.
+
+        `columns` holds every non-default feature, one row per frame; `extra` adds episode-level
+        columns (seed, controller, ...) to the metadata row.
+        """
+        index, start = self.info["total_episodes"], self.info["total_frames"]
+        length = len(next(iter(columns.values())))
+        frame_index = np.arange(length, dtype=np.int64)
+        frames = {
+            **columns,
+            "timestamp": (frame_index / self.info["fps"]).astype(np.float32),
+            "frame_index": frame_index,
+            "episode_index": np.full(length, index, dtype=np.int64),
+            "index": start + frame_index,
+            "task_index": np.full(length, self._task_index(task), dtype=np.int64),
+        }
+        chunk, file = (0, 0) if self._last_file is None else next_chunk_file(*self._last_file)
+        data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
+        # Dictionary encoding, parquet's default, makes writing float columns 40 times slower.
+        write_atomically(data_path, lambda p: pq.write_table(self._frames_table(frames), p, compression="snappy",
+                                                            use_dictionary=False))
+        stats = episode_stats(frames)
+        row = {
+            "episode_index": index,
+            "tasks": [task],
+            "length": length,
+            "data/chunk_index": chunk,
+            "data/file_index": file,
+            "dataset_from_index": start,
+            "dataset_to_index": start + length,
+            **flatten_stats(stats),
+            "meta/episodes/chunk_index": chunk,
+            "meta/episodes/file_index": file,
+            **extra,
+        }
+        table = pa.Table.from_pylist([row])
+        write_atomically(self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=file),
+                         lambda p: pq.write_table(table, p, compression="snappy"))
+        self._last_file = (chunk, file)
+        return StagedEpisode(index, length, stats, total_tasks=len(self.tasks))
+
+    def commit(self, staged: StagedEpisode) -> None:
+        """Count the staged episode in stats.json and then info.json: from now on it exists."""
+        self.stats = staged.stats if self.stats is None else aggregate_stats([self.stats, staged.stats])
+        _write_json(stats_to_json(self.stats), self.root / STATS_PATH)
+        self.info["total_episodes"] = staged.index + 1
+        self.info["total_frames"] += staged.length
+        self.info["total_tasks"] = staged.total_tasks
+        self.info["splits"] = {"train": f"0:{self.info['total_episodes']}"}
+        _write_json(self.info, self.root / INFO_PATH)
+
+    def episode_column(self, name: str) -> list[Any]:
+        """Values of an episode-level column (e.g. `seed`) over the committed episodes that have it."""
+        values = []
+        for path in _episode_files(self.root):
+            if name in pq.read_schema(path).names:
+                table = pq.read_table(path, columns=["episode_index", name])
+                values += [value for index, value in zip(table["episode_index"].to_pylist(), table[name].to_pylist(),
+                                                         strict=True) if index < self.total_episodes]
+        return values
+
+    def _task_index(self, task: str) -> int:
+        if task not in self.tasks.index:
+            self.tasks.loc[task] = len(self.tasks)
+            self._write_tasks()
+        return int(self.tasks.loc[task, "task_index"])
+
+    def _write_tasks(self) -> None:
+        write_atomically(self.root / TASKS_PATH, lambda p: self.tasks.to_parquet(p))
+
+    def _frames_table(self, frames: dict[str, np.ndarray]) -> pa.Table:
+        """The episode as an Arrow table with the schema LeRobot's writer gives the same features."""
+        arrays = []
+        for field in self._schema:
+            values = np.ascontiguousarray(frames[field.name])
+            if pa.types.is_fixed_size_list(field.type):
+                flat = pa.array(values.reshape(-1), type=field.type.value_type)
+                arrays.append(pa.FixedSizeListArray.from_arrays(flat, field.type.list_size))
+            else:
+                arrays.append(pa.array(values.reshape(-1), type=field.type))
+        return pa.Table.from_arrays(arrays, schema=self._schema)
+
+
+def _empty_tasks() -> pd.DataFrame:
+    return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name="task", dtype="object"))
+
+
+def _episode_files(root: Path) -> list[Path]:
+    return sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+
+
+def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
+    """Delete partial files and every file of an episode >= total_episodes; the committed episode rows."""
+    committed = info["total_episodes"]
+    for partial in root.rglob(f"*{PARTIAL_SUFFIX}"):
+        partial.unlink()
+    rows: list[dict[str, Any]] = []
+    for path in _episode_files(root):
+        file_rows = pq.read_table(path).to_pylist()
+        indices = [row["episode_index"] for row in file_rows]
+        if min(indices) >= committed:
+            _remove(root, path)
+        elif max(indices) >= committed:
+            raise DatasetError(f"{path} mixes committed episodes with some beyond the {committed} that "
+                               "info.json counts; repair the dataset by hand")
+        else:
+            rows += file_rows
+    rows.sort(key=lambda row: row["episode_index"])
+    referenced = {root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+                  for row in rows}
+    for data_file in _data_files(root):
+        if data_file not in referenced:
+            _remove(root, data_file)
+    return rows
+
+
+def _data_files(root: Path) -> Iterable[Path]:
+    return sorted((root / "data").glob("*/*.parquet"))
+
+
+def _remove(root: Path, path: Path) -> None:
+    log.warning("removing %s: its episode was never committed", path.relative_to(root))
+    path.unlink()

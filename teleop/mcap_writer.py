@@ -1,0 +1,121 @@
+"""One MCAP file per episode: protobuf messages in zstd chunks, viewable in Foxglove's 3D panel.
+
+Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
+- `/step`  humanoid_bc.Step: observation, label and executed action, reward, terminated, truncated.
+- `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
+- `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
+  attached to its body's frame, and the floor.
+Plus an `episode` metadata record and the MJCF model as an attachment.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.CylinderPrimitive_pb2 import CylinderPrimitive
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from mcap.well_known import MessageEncoding
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from mcap_protobuf.schema import register_schema
+
+from teleop.episode import Episode
+from teleop.mcap_schema import Step
+from teleop.protobuf_wire import FrameTransformsEncoder, StepEncoder
+
+STEP_TOPIC = "/step"
+TF_TOPIC = "/tf"
+SCENE_TOPIC = "/scene"
+WORLD_FRAME = "world"
+METADATA_NAME = "episode"
+MJCF_ATTACHMENT = "model.xml"
+
+
+def _pose(position: np.ndarray, wxyz: np.ndarray) -> Pose:
+    w, x, y, z = wxyz
+    return Pose(position=Vector3(x=position[0], y=position[1], z=position[2]), orientation=Quaternion(x=x, y=y, z=z, w=w))
+
+
+def _geom_color(model: mujoco.MjModel, geom: int) -> Color:
+    material = model.geom_matid[geom]
+    r, g, b, a = model.mat_rgba[material] if material >= 0 else model.geom_rgba[geom]
+    return Color(r=r, g=g, b=b, a=a)
+
+
+def scene_update(model: mujoco.MjModel, body_frames: list[str]) -> SceneUpdate:
+    """Foxglove primitives for every geom, in its body's frame, so `/tf` alone animates the scene."""
+    entities: dict[int, SceneEntity] = {}
+    for geom in range(model.ngeom):
+        body = int(model.geom_bodyid[geom])
+        frame = WORLD_FRAME if body == 0 else body_frames[body - 1]
+        entity = entities.setdefault(body, SceneEntity(frame_id=frame, id=frame, frame_locked=True))
+        pose, size, color = model.geom_pos[geom], model.geom_size[geom], _geom_color(model, geom)
+        orientation = model.geom_quat[geom]
+        kind = model.geom_type[geom]
+        if kind == mujoco.mjtGeom.mjGEOM_PLANE:
+            entity.cubes.append(CubePrimitive(pose=_pose(pose - [0, 0, 0.005], orientation),
+                                              size=Vector3(x=2 * size[0], y=2 * size[1], z=0.01), color=color))
+        elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+            d = 2 * size[0]
+            entity.spheres.append(SpherePrimitive(pose=_pose(pose, orientation), size=Vector3(x=d, y=d, z=d), color=color))
+        elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            radius, half_length = size[0], size[1]
+            d = 2 * radius
+            entity.cylinders.append(CylinderPrimitive(pose=_pose(pose, orientation),
+                                                      size=Vector3(x=d, y=d, z=2 * half_length), color=color))
+            axis = np.empty(9)
+            mujoco.mju_quat2Mat(axis, orientation)
+            along = axis.reshape(3, 3)[:, 2] * half_length  # capsule axis is the geom's local z
+            for end in (pose + along, pose - along):
+                entity.spheres.append(SpherePrimitive(pose=_pose(end, orientation), size=Vector3(x=d, y=d, z=d), color=color))
+        else:
+            raise ValueError(f"geom {geom} has type {kind}, which the Foxglove scene does not draw")
+    return SceneUpdate(entities=list(entities.values()))
+
+
+def write_episode_mcap(
+    path: Path,
+    episode: Episode,
+    episode_index: int,
+    scene: SceneUpdate,
+    body_frames: list[str],
+    step_ns: int,
+    metadata: dict[str, str],
+    mjcf: bytes,
+) -> None:
+    """Write `episode` to `path` atomically: a finished file appears under its name, or nothing does."""
+    times_ns = np.arange(episode.length, dtype=np.int64) * step_ns
+    transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
+        times_ns, episode.body_position, episode.body_orientation)
+    steps = StepEncoder()
+    partial = path.with_name(path.name + ".partial")
+    with partial.open("wb") as stream:
+        writer = McapWriter(stream, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="humanoid-bc")
+        channels = {
+            topic: writer.register_channel(topic, MessageEncoding.Protobuf, register_schema(writer, message_type))
+            for topic, message_type in ((SCENE_TOPIC, SceneUpdate), (STEP_TOPIC, Step), (TF_TOPIC, FrameTransforms))
+        }
+        writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
+        writer.add_metadata(METADATA_NAME, metadata)
+        writer.add_message(channels[SCENE_TOPIC], log_time=0, data=scene.SerializeToString(), publish_time=0)
+        reward, terminated, truncated = episode.reward.tolist(), episode.terminated.tolist(), episode.truncated.tolist()
+        for t, time_ns in enumerate(times_ns.tolist()):
+            scalars = {"episode_index": episode_index, "frame_index": t, "reward": reward[t],
+                       "terminated": terminated[t], "truncated": truncated[t], "task": episode.task}
+            step = steps.encode(time_ns, scalars, episode.observation[t], episode.action[t], episode.executed_action[t])
+            writer.add_message(channels[STEP_TOPIC], log_time=time_ns, data=step, publish_time=time_ns, sequence=t)
+            writer.add_message(channels[TF_TOPIC], log_time=time_ns, data=transforms[t], publish_time=time_ns, sequence=t)
+        writer.finish()
+    os.replace(partial, path)

@@ -1,0 +1,185 @@
+"""A dataset folder as the recorder writes it: a LeRobot v3.0 dataset and one MCAP file per episode.
+
+    DATASET/
+      meta/, data/            LeRobot v3.0 (see teleop.lerobot_writer)
+      mcap/episode_000000.mcap
+      .recorder.lock          held while a recorder appends; a second recorder refuses
+
+An episode is written in the order parquet -> MCAP -> info.json; the last step commits it, so a
+kill at any moment leaves the committed episodes readable in both formats, and the next `open`
+removes the rest. `WriterProcess` runs a store in a child process, so that writing overlaps with
+simulation instead of stalling it.
+"""
+
+from __future__ import annotations
+
+import fcntl
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import gymnasium as gym
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+from teleop import keys
+from teleop.env import (
+    ENV_ID,
+    LEROBOT_FPS,
+    ROBOT_TYPE,
+    actuator_names,
+    body_names,
+    mjcf_path,
+    model_and_data,
+    observation_names,
+    split_observation,
+    state_dim,
+    step_duration_ns,
+)
+from teleop.episode import Episode
+from teleop.lerobot_writer import DatasetError, LeRobotWriter
+from teleop.mcap_writer import scene_update, write_episode_mcap
+
+MCAP_DIR = "mcap"
+LOCK_FILE = ".recorder.lock"
+
+
+def mcap_name(episode_index: int) -> str:
+    return f"episode_{episode_index:06d}.mcap"
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """What the environment fixes about a dataset: features, rates, bodies and the model."""
+
+    features: dict
+    body_frames: list[str]
+    scene: SceneUpdate
+    step_ns: int
+    mjcf: bytes
+
+    @property
+    def state_size(self) -> int:
+        return self.features[keys.OBS_STATE]["shape"][0]
+
+    @classmethod
+    def from_env(cls, env: gym.Env) -> DatasetSpec:
+        model, _ = model_and_data(env)
+        names = observation_names(model)
+        n = state_dim(model)
+        actions = actuator_names(model)
+        flag = {"dtype": "bool", "shape": (1,), "names": None}
+        features = {
+            keys.OBS_STATE: {"dtype": "float64", "shape": (n,), "names": names[:n]},
+            keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(names) - n,), "names": names[n:]},
+            keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
+            keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
+            keys.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
+            keys.DONE: flag,
+            keys.TERMINATED: flag,
+            keys.TRUNCATED: flag,
+        }
+        frames = body_names(model)
+        return cls(features, frames, scene_update(model, frames), step_duration_ns(env), mjcf_path(env).read_bytes())
+
+
+@dataclass(frozen=True)
+class CommittedEpisode:
+    """What the progress bar and the summary report about an episode once it is on disk."""
+
+    index: int
+    seed: int
+    length: int
+    episode_return: float
+    fell: bool
+
+
+def _lock(root: Path) -> IO[bytes]:
+    handle = (root / LOCK_FILE).open("ab")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise DatasetError(f"another recorder is writing to {root}; wait for it to finish") from None
+    return handle
+
+
+class EpisodeStore:
+    """Appends episodes to one dataset folder, holding its lock until `close`."""
+
+    def __init__(self, root: Path, spec: DatasetSpec) -> None:
+        if root.exists() and not root.is_dir():
+            raise DatasetError(f"{root} is a file, not a dataset folder")
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            self._lock = _lock(root)
+        except OSError as error:
+            raise DatasetError(f"cannot write to {root}: {error.strerror or error}") from None
+        try:
+            self.lerobot = LeRobotWriter.open(root, spec.features, LEROBOT_FPS, ROBOT_TYPE)
+            (root / MCAP_DIR).mkdir(exist_ok=True)
+        except BaseException:
+            self.close()
+            raise
+        self.root = root
+        self.spec = spec
+        self._remove_uncommitted_mcap()
+
+    @property
+    def num_episodes(self) -> int:
+        return self.lerobot.total_episodes
+
+    def next_seed(self) -> int:
+        """One past the largest seed recorded so far (0 for a new dataset): appending never repeats one."""
+        seeds = self.lerobot.episode_column(keys.EPISODE_SEED)
+        return max(seeds) + 1 if seeds else 0
+
+    def append(self, episode: Episode) -> CommittedEpisode:
+        """Write `episode` to both formats and commit it."""
+        state, environment_state = split_observation(episode.observation, self.spec.state_size)
+        columns = {
+            keys.OBS_STATE: state,
+            keys.OBS_ENV_STATE: environment_state,
+            keys.ACTION: episode.action,
+            keys.EXECUTED_ACTION: episode.executed_action,
+            keys.REWARD: episode.reward,
+            keys.DONE: episode.terminated | episode.truncated,
+            keys.TERMINATED: episode.terminated,
+            keys.TRUNCATED: episode.truncated,
+        }
+        index = self.num_episodes
+        mcap_path = Path(MCAP_DIR) / mcap_name(index)
+        facts = {
+            keys.EPISODE_SEED: episode.seed,
+            keys.EPISODE_CONTROLLER: episode.controller,
+            keys.EPISODE_NOISE_STD: float(episode.noise_std),
+            keys.EPISODE_RETURN: episode.episode_return,
+            keys.EPISODE_TERMINATED: bool(episode.terminated[-1]),
+            keys.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
+            keys.EPISODE_MCAP: str(mcap_path),
+        }
+        staged = self.lerobot.stage(columns, episode.task, facts)
+        metadata = {"episode_index": str(index), "env_id": ENV_ID, "step_duration_ns": str(self.spec.step_ns),
+                    **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP}}
+        write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
+                           self.spec.step_ns, metadata, self.spec.mjcf)
+        self.lerobot.commit(staged)
+        return CommittedEpisode(index, episode.seed, episode.length, episode.episode_return, episode.fell)
+
+    def wait_ready(self) -> None:
+        """Nothing to wait for: the store is open once constructed (see `WriterProcess`)."""
+
+    def submit(self, episode: Episode) -> list[CommittedEpisode]:
+        """Append `episode` now; the `EpisodeSink` interface."""
+        return [self.append(episode)]
+
+    def close(self) -> list[CommittedEpisode]:
+        """Release the lock; committed episodes are complete on disk at any time."""
+        self._lock.close()
+        return []
+
+    def _remove_uncommitted_mcap(self) -> None:
+        for path in (self.root / MCAP_DIR).glob("episode_*.mcap"):
+            if int(path.stem.removeprefix("episode_")) >= self.num_episodes:
+                path.unlink()
+
+

@@ -1,0 +1,148 @@
+"""Runs an `EpisodeStore` in a child process, so that writing overlaps with simulation.
+
+Encoding an episode into parquet and MCAP costs about a third of simulating it, and a writer
+thread would fight the simulation for the GIL, so the writer is a process of its own. Episodes
+go to it through a pipe, one at a time: the recorder is never more than one episode ahead, and
+memory stays flat.
+
+Crash behaviour: the child ignores Ctrl-C and stops only when the pipe closes, so every episode
+that reached it is committed even if the recorder is interrupted or killed. It holds the dataset
+lock until then, so a new recorder cannot interleave with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import traceback
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+from teleop.episode import Episode
+from teleop.lerobot_writer import DatasetError
+from teleop.store import CommittedEpisode
+
+
+class WriterProcess:
+    """The `EpisodeSink` that appends episodes to `root` from a child process."""
+
+    def __init__(self, root: Path) -> None:
+        # A fresh interpreter started with `-m`: unlike multiprocessing's spawn, it never re-imports
+        # the caller's __main__, and it inherits exactly the two pipe ends it needs.
+        episodes_in, episodes_out = os.pipe()
+        results_in, results_out = os.pipe()
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", __name__, str(root), str(episodes_in), str(results_out)],
+            pass_fds=(episodes_in, results_out),
+        )
+        os.close(episodes_in)  # the child alone reads episodes: it sees end-of-file when ours closes
+        os.close(results_out)
+        self._episodes = Connection(episodes_out, readable=False)
+        self._results = Connection(results_in, writable=False)
+        self.num_episodes = -1
+        self._next_seed = -1
+
+    def wait_ready(self) -> None:
+        """Block until the child has opened the dataset; DatasetError if it could not."""
+        kind, payload = self._receive()
+        if kind != "ready":
+            self._process.wait()
+            raise DatasetError(payload)
+        self.num_episodes, self._next_seed = payload
+
+    def next_seed(self) -> int:
+        return self._next_seed
+
+    def submit(self, episode: Episode) -> list[CommittedEpisode]:
+        """Hand `episode` over (blocks while the child is still writing the previous one)."""
+        try:
+            self._episodes.send(episode)
+        except (BrokenPipeError, ConnectionResetError):
+            self._raise_child_error()
+        return self._committed(block=False)
+
+    def close(self) -> list[CommittedEpisode]:
+        """Signal the end of the recording and wait until every episode sent is committed."""
+        if self._episodes.closed:
+            return []
+        self._episodes.close()
+        try:
+            return self._committed(block=True) if self._process.poll() is None or self._results.poll() else []
+        finally:
+            self._results.close()
+            self._process.wait()
+
+    def _receive(self) -> tuple[str, object]:
+        try:
+            return self._results.recv()
+        except (EOFError, ConnectionResetError):
+            return "error", f"the writer process died (exit code {self._process.wait()})"
+
+    def _committed(self, block: bool) -> list[CommittedEpisode]:
+        committed = []
+        while block or self._results.poll():
+            kind, payload = self._receive()
+            if kind == "committed":
+                committed.append(payload)
+                self.num_episodes += 1
+            elif kind == "closed":
+                break
+            else:
+                raise DatasetError(payload)
+        return committed
+
+    def _raise_child_error(self) -> None:
+        while True:
+            kind, payload = self._receive()
+            if kind not in ("committed", "closed"):
+                raise DatasetError(payload)
+
+
+def _send(results: Connection, kind: str, payload: object) -> None:
+    """Report to the recorder; if it is gone (killed), keep writing what it already sent."""
+    try:
+        results.send((kind, payload))
+    except (BrokenPipeError, ConnectionResetError):
+        pass
+
+
+def _serve(root: Path, episodes: Connection, results: Connection) -> None:
+    from teleop.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
+    from teleop.store import DatasetSpec, EpisodeStore
+
+    try:
+        store = EpisodeStore(root, DatasetSpec.from_env(make_env()))
+    except DatasetError as error:
+        _send(results, "error", str(error))
+        return
+    except Exception as error:
+        traceback.print_exc()
+        _send(results, "error", f"cannot open {root}: {error}")
+        return
+    try:
+        _send(results, "ready", (store.num_episodes, store.next_seed()))
+        while True:
+            try:
+                episode = episodes.recv()
+            except (EOFError, OSError):  # the recorder closed the pipe, finished or killed mid-send
+                break
+            _send(results, "committed", store.append(episode))
+        _send(results, "closed", None)
+    except Exception as error:  # report it as one line; the traceback goes to stderr for debugging
+        traceback.print_exc()
+        _send(results, "error", f"writing to {root} failed: {error}")
+    finally:
+        store.close()
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the recorder decides
+    parser = argparse.ArgumentParser(description="internal: the recorder's writer process")
+    parser.add_argument("root", type=Path)
+    parser.add_argument("episodes_fd", type=int)
+    parser.add_argument("results_fd", type=int)
+    args = parser.parse_args()
+    _serve(args.root, Connection(args.episodes_fd, writable=False), Connection(args.results_fd, readable=False))

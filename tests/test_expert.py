@@ -1,0 +1,132 @@
+"""Tests of the LQR standing expert and the physics queries it relies on (real MuJoCo)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+from teleop import physics
+from teleop.expert import CTRL_LIMIT, LQRDesign, LQRExpert, design_lqr, humanoid_model, load_or_design
+
+STANDING_RETURN = 4_900.0
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    """Humanoid-v5's model."""
+    return humanoid_model()
+
+
+@pytest.fixture(scope="module")
+def expert(model: mujoco.MjModel, tmp_path_factory: pytest.TempPathFactory) -> Iterator[LQRExpert]:
+    """An expert whose cache lives in a temporary directory, not in the user's home."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HUMANOID_BC_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield LQRExpert(model)
+
+
+@pytest.fixture()
+def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """An empty cache directory that load_or_design uses."""
+    monkeypatch.setenv("HUMANOID_BC_CACHE", str(tmp_path))
+    return tmp_path
+
+
+@pytest.mark.parametrize("seed", [0, 7, 1000])
+def test_expert_stands_a_whole_episode_from_reset(expert: LQRExpert, seed: int) -> None:
+    """From env.reset the expert stays up for all 1000 steps and earns a standing return."""
+    env = gym.make("Humanoid-v5")
+    obs, _ = env.reset(seed=seed)
+    total, steps, terminated, truncated = 0.0, 0, False, False
+    while not (terminated or truncated):
+        obs, reward, terminated, truncated, _ = env.step(expert.act(obs))
+        total += float(reward)
+        steps += 1
+    env.close()
+    assert (steps, terminated) == (1000, False)
+    assert total > STANDING_RETURN
+
+
+def test_act_is_deterministic_float32_within_the_motor_range(expert: LQRExpert) -> None:
+    """act returns the same float32 (nu,) action for the same observation, within +-0.4, even far off."""
+    env = gym.make("Humanoid-v5")
+    obs, _ = env.reset(seed=3)
+    env.close()
+    far_off = obs + np.random.default_rng(0).normal(scale=1.0, size=obs.shape)
+    for o in (obs, far_off):
+        action = expert.act(o)
+        assert action.dtype == np.float32 and action.shape == (17,)
+        assert np.all(np.abs(action) <= CTRL_LIMIT)
+        np.testing.assert_array_equal(action, expert.act(o.copy()))
+
+
+def test_balanced_pose_needs_no_vertical_force_or_pitch_moment(model: mujoco.MjModel) -> None:
+    """At the designed pose the contacts carry the whole weight with the COM over the feet."""
+    gains = design_lqr(model)
+    data = mujoco.MjData(model)
+    data.qpos[:] = gains.qpos_ref
+    residual = physics.static_inverse_dynamics(model, data)
+    weight = model.body_subtreemass[0] * -model.opt.gravity[2]
+    assert abs(residual[2]) < 1e-9 * weight
+    assert abs(residual[4]) < 1e-9 * weight
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(physics.com_over_feet(model, data), 0.0, atol=1e-9)
+    assert 1.0 < physics.torso_height(model, data) < 1.4  # inside the env's healthy range
+
+
+def test_com_over_feet_jacobian_matches_finite_differences(model: mujoco.MjModel) -> None:
+    """com_over_feet_jacobian agrees with central differences of com_over_feet in the tangent space."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(1)
+    qpos = model.qpos0 + np.r_[0.0, 0.0, 0.3, np.zeros(4), rng.uniform(-0.3, 0.3, model.nq - 7)]
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    analytic = physics.com_over_feet_jacobian(model, data)
+
+    def offset(dq: np.ndarray) -> np.ndarray:
+        data.qpos[:] = qpos
+        mujoco.mj_integratePos(model, data.qpos, dq, 1.0)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        return physics.com_over_feet(model, data)
+
+    eps = 1e-6
+    numeric = np.stack([(offset(eps * e) - offset(-eps * e)) / (2 * eps) for e in np.eye(model.nv)], 1)
+    np.testing.assert_allclose(analytic, numeric, atol=1e-6)
+
+
+def test_cache_reuses_gains_for_the_same_design(model: mujoco.MjModel, cache: Path) -> None:
+    """A second load with the same model and design reads the cached file without rewriting it."""
+    first = load_or_design(model)
+    (path,) = cache.iterdir()
+    written = path.stat().st_mtime_ns
+    second = load_or_design(model)
+    assert path.stat().st_mtime_ns == written
+    np.testing.assert_array_equal(first.gain, second.gain)
+
+
+def test_cache_is_rebuilt_when_the_design_changes(model: mujoco.MjModel, cache: Path) -> None:
+    """Changing a design parameter yields freshly designed gains, not the cached ones."""
+    default = load_or_design(model)
+    changed = dataclasses.replace(LQRDesign(), q_com=500.0)
+    rebuilt = load_or_design(model, changed)
+    assert len(list(cache.iterdir())) == 2
+    assert not np.allclose(default.gain, rebuilt.gain)
+    np.testing.assert_allclose(rebuilt.gain, design_lqr(model, changed).gain)
+
+
+def test_cache_is_rebuilt_when_the_file_is_corrupt(model: mujoco.MjModel, cache: Path) -> None:
+    """A truncated cache file is replaced by a freshly designed one."""
+    load_or_design(model)
+    (path,) = cache.iterdir()
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    gains = load_or_design(model)
+    np.testing.assert_allclose(gains.gain, design_lqr(model).gain)
+    with np.load(path) as rewritten:
+        np.testing.assert_array_equal(rewritten["gain"], gains.gain)
