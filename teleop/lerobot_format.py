@@ -82,12 +82,14 @@ def episode_stats(frames: dict[str, np.ndarray]) -> Stats:
     """Per-episode statistics of every column, with the keys and shapes of LeRobot's.
 
     LeRobot estimates quantiles from 5000-bin histograms, one feature at a time in Python (0.1 s
-    for a 1000-frame episode); `np.quantile` gives exact ones, vectorised, in 10 ms.
+    for a 1000-frame episode); `np.quantile` gives exact ones, vectorised, in 10 ms. The
+    inverted-CDF definition returns a recorded value, as LeRobot's estimate does for discrete
+    columns (flags, indices), where interpolating between values would differ by a whole step.
     """
     stats = {}
     for key, values in frames.items():
         samples = values.reshape(len(values), -1).astype(np.float64)
-        quantiles = np.quantile(samples, QUANTILES, axis=0)
+        quantiles = np.quantile(samples, QUANTILES, axis=0, method="inverted_cdf")
         stats[key] = {
             "min": samples.min(axis=0),
             "max": samples.max(axis=0),

@@ -40,6 +40,7 @@ SCENE_TOPIC = "/scene"
 WORLD_FRAME = "world"
 METADATA_NAME = "episode"
 MJCF_ATTACHMENT = "model.xml"
+_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
 
 
 def _pose(position: np.ndarray, wxyz: np.ndarray) -> Pose:
@@ -48,8 +49,10 @@ def _pose(position: np.ndarray, wxyz: np.ndarray) -> Pose:
 
 
 def _geom_color(model: mujoco.MjModel, geom: int) -> Color:
+    # MuJoCo's rule: a geom's own rgba wins over its material's unless it was left at the default.
     material = model.geom_matid[geom]
-    r, g, b, a = model.mat_rgba[material] if material >= 0 else model.geom_rgba[geom]
+    own = model.geom_rgba[geom]
+    r, g, b, a = model.mat_rgba[material] if material >= 0 and np.allclose(own, _DEFAULT_RGBA) else own
     return Color(r=r, g=g, b=b, a=a)
 
 

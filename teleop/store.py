@@ -3,20 +3,20 @@
     DATASET/
       meta/, data/            LeRobot v3.0 (see teleop.lerobot_writer)
       mcap/episode_000000.mcap
-      .recorder.lock          held while a recorder appends; a second recorder refuses
 
 An episode is written in the order parquet -> MCAP -> info.json; the last step commits it, so a
 kill at any moment leaves the committed episodes readable in both formats, and the next `open`
-removes the rest. `WriterProcess` runs a store in a child process, so that writing overlaps with
+removes the rest. A recorder holds an exclusive lock on the folder while it appends; a second one
+refuses. `WriterProcess` runs a store in a child process, so that writing overlaps with
 simulation instead of stalling it.
 """
 
 from __future__ import annotations
 
 import fcntl
+import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
 
 import gymnasium as gym
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -40,7 +40,6 @@ from teleop.lerobot_writer import DatasetError, LeRobotWriter
 from teleop.mcap_writer import scene_update, write_episode_mcap
 
 MCAP_DIR = "mcap"
-LOCK_FILE = ".recorder.lock"
 
 
 def mcap_name(episode_index: int) -> str:
@@ -93,12 +92,13 @@ class CommittedEpisode:
     fell: bool
 
 
-def _lock(root: Path) -> IO[bytes]:
-    handle = (root / LOCK_FILE).open("ab")
+def _lock(root: Path) -> int:
+    """An exclusive lock on the dataset folder itself (no lock file to leave behind), or DatasetError."""
+    handle = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        handle.close()
+        os.close(handle)
         raise DatasetError(f"another recorder is writing to {root}; wait for it to finish") from None
     return handle
 
@@ -174,7 +174,7 @@ class EpisodeStore:
 
     def close(self) -> list[CommittedEpisode]:
         """Release the lock; committed episodes are complete on disk at any time."""
-        self._lock.close()
+        os.close(self._lock)
         return []
 
     def _remove_uncommitted_mcap(self) -> None:

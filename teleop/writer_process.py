@@ -44,13 +44,13 @@ class WriterProcess:
         self._results = Connection(results_in, writable=False)
         self.num_episodes = -1
         self._next_seed = -1
+        self._error: str | None = None
 
     def wait_ready(self) -> None:
         """Block until the child has opened the dataset; DatasetError if it could not."""
         kind, payload = self._receive()
         if kind != "ready":
-            self._process.wait()
-            raise DatasetError(payload)
+            self._fail(payload)
         self.num_episodes, self._next_seed = payload
 
     def next_seed(self) -> int:
@@ -61,8 +61,8 @@ class WriterProcess:
         try:
             self._episodes.send(episode)
         except (BrokenPipeError, ConnectionResetError):
-            self._raise_child_error()
-        return self._committed(block=False)
+            self._committed(until_closed=True)  # the child stopped: collect its reason
+        return self._committed(until_closed=False)
 
     def close(self) -> list[CommittedEpisode]:
         """Signal the end of the recording and wait until every episode sent is committed."""
@@ -70,7 +70,7 @@ class WriterProcess:
             return []
         self._episodes.close()
         try:
-            return self._committed(block=True) if self._process.poll() is None or self._results.poll() else []
+            return [] if self._error else self._committed(until_closed=True)
         finally:
             self._results.close()
             self._process.wait()
@@ -81,24 +81,23 @@ class WriterProcess:
         except (EOFError, ConnectionResetError):
             return "error", f"the writer process died (exit code {self._process.wait()})"
 
-    def _committed(self, block: bool) -> list[CommittedEpisode]:
+    def _committed(self, until_closed: bool) -> list[CommittedEpisode]:
         committed = []
-        while block or self._results.poll():
+        while until_closed or self._results.poll():
             kind, payload = self._receive()
-            if kind == "committed":
-                committed.append(payload)
-                self.num_episodes += 1
-            elif kind == "closed":
+            if kind == "closed":
                 break
-            else:
-                raise DatasetError(payload)
+            if kind != "committed":
+                self._fail(payload)
+            committed.append(payload)
+            self.num_episodes += 1
         return committed
 
-    def _raise_child_error(self) -> None:
-        while True:
-            kind, payload = self._receive()
-            if kind not in ("committed", "closed"):
-                raise DatasetError(payload)
+    def _fail(self, message: str) -> None:
+        """Remember that the child stopped (so `close` just cleans up) and raise its reason."""
+        self._error = message
+        self._process.wait()
+        raise DatasetError(message)
 
 
 def _send(results: Connection, kind: str, payload: object) -> None:

@@ -1,0 +1,42 @@
+"""Shared fixtures: small real recordings (MuJoCo, LeRobot format, MCAP) in temporary folders."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+# Nothing may wait on a network, and the tests must not write caches into the user's home.
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """LQR gains and HuggingFace caches go to a temporary folder for the whole session."""
+    cache = tmp_path_factory.mktemp("caches")
+    os.environ["HUMANOID_BC_CACHE"] = str(cache / "humanoid-bc")
+    os.environ["HF_DATASETS_CACHE"] = str(cache / "hf-datasets")
+    os.environ["HF_LEROBOT_HOME"] = str(cache / "lerobot")
+
+
+SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
+
+
+@pytest.fixture(scope="session")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dataset of 3 short noisy expert episodes (seeds 0..2), written in-process."""
+    from teleop.record import RecordConfig, main
+
+    root = tmp_path_factory.mktemp("recorded") / "dataset"
+    main(RecordConfig(dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False))
+    return root
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under `root` with its content: equal snapshots mean nothing on disk changed."""
+    if root.is_file():
+        return {str(root): root.read_bytes()}
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}

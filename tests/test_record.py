@@ -1,0 +1,166 @@
+"""`make record`: appending, determinism, DART noise, and refusing bad input without touching the disk."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import SHORT_EPISODE, snapshot
+from teleop import keys
+from teleop.dataset_reader import read_episodes, read_frames, read_info
+from teleop.episode import injected_noise
+from teleop.record import RecordConfig, cli, main
+from teleop.store import DatasetSpec, EpisodeStore
+
+
+def record(root: Path, **settings: object) -> None:
+    """A short in-process recording (the writer process is exercised by the CLI and crash tests)."""
+    config = {"dataset": root, "episodes": 2, "max_steps": SHORT_EPISODE, "writer": "inline", "progress": False}
+    main(RecordConfig(**{**config, **settings}))
+
+
+def run_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    """Exit code and stderr lines of `python -m teleop.record ARGS`."""
+    code = cli(["--progress", "false", *args])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_recording_again_appends_new_seeds(recorded: Path, tmp_path: Path) -> None:
+    """A second recording adds episodes after the first, continuing the seeds, leaving the old files as they were."""
+    root = tmp_path / "dataset"
+    shutil.copytree(recorded, root)
+    before = snapshot(root / "data") | snapshot(root / "mcap")
+    record(root)
+    episodes = read_episodes(root)
+    assert episodes["episode_index"].to_pylist() == [0, 1, 2, 3, 4]
+    assert episodes[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3, 4]
+    assert read_info(root)["total_frames"] == len(read_frames(root, ["index"])["index"])
+    after = snapshot(root / "data") | snapshot(root / "mcap")
+    assert {name: after[name] for name in before} == before
+
+
+def test_same_seed_and_controller_give_identical_arrays(recorded: Path, tmp_path: Path) -> None:
+    """Re-recording seeds 0..2 with the same settings reproduces every stored array exactly."""
+    record(tmp_path / "again", episodes=3, seed=0, noise=0.05)
+    first, second = read_frames(recorded), read_frames(tmp_path / "again")
+    for key in first:
+        np.testing.assert_array_equal(first[key], second[key], err_msg=key)
+
+
+def test_noise_is_the_only_difference_between_executed_and_label(recorded: Path) -> None:
+    """Executed action = clip(label + the seed's injected noise), and the noise has the requested spread."""
+    frames = read_frames(recorded, [keys.ACTION, keys.EXECUTED_ACTION, "episode_index"])
+    deviations = []
+    for seed in range(3):
+        rows = frames["episode_index"] == seed
+        label, executed = frames[keys.ACTION][rows], frames[keys.EXECUTED_ACTION][rows]
+        noise = injected_noise(seed, len(label), 0.05, label.shape[1])
+        np.testing.assert_array_equal(executed, np.clip(label + noise, -0.4, 0.4).astype(np.float32))
+        inside = np.abs(label + noise) < 0.4
+        deviations.append((executed - label)[inside])
+    spread = np.concatenate(deviations).std()
+    assert 0.045 < spread < 0.055
+
+
+def test_clean_recording_executes_the_labels(tmp_path: Path) -> None:
+    """With NOISE=0 the executed actions are the labels."""
+    record(tmp_path / "clean", episodes=1, noise=0.0)
+    frames = read_frames(tmp_path / "clean", [keys.ACTION, keys.EXECUTED_ACTION])
+    np.testing.assert_array_equal(frames[keys.ACTION], frames[keys.EXECUTED_ACTION])
+
+
+def test_random_controller_records_falls(tmp_path: Path) -> None:
+    """The random baseline falls early; the episode is kept with terminated set."""
+    record(tmp_path / "random", episodes=1, controller="random", max_steps=1000, noise=0.0)
+    (episode,) = read_episodes(tmp_path / "random").to_pylist()
+    assert episode[keys.EPISODE_TERMINATED] and episode["length"] < 100
+    assert episode[keys.EPISODE_CONTROLLER] == "random"
+
+
+def test_cli_records_with_the_writer_process_and_prints_a_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The command line records through the writer process and ends with a one-line summary."""
+    code = cli(["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--progress", "false"])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert code == 0
+    assert "added 2 episodes (seeds 0..1), 60 frames" in out[-1]
+    assert read_info(tmp_path / "cli")["total_episodes"] == 2
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--controller", "teleport"], "unknown controller 'teleport'"),
+    (["--episodes", "0"], "EPISODES must be positive"),
+    (["--episodes", "-3"], "EPISODES must be positive"),
+    (["--noise", "-0.1"], "NOISE must be >= 0"),
+])
+def test_bad_settings_are_refused_before_touching_the_disk(
+        args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bad setting gives one error line and a non-zero exit; the dataset folder is not even created."""
+    code, err = run_cli(["--dataset", str(tmp_path / "new"), *args], capsys)
+    assert code != 0 and len(err) == 1 and message in err[0]
+    assert not (tmp_path / "new").exists()
+
+
+def test_dataset_that_is_a_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """DATASET naming a file: one error line, the file untouched."""
+    target = tmp_path / "notes.txt"
+    target.write_text("keep me")
+    code, err = run_cli(["--dataset", str(target), "--writer", "inline"], capsys)
+    assert code != 0 and len(err) == 1 and "is a file" in err[0]
+    assert target.read_text() == "keep me"
+
+
+def test_dataset_with_other_features_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A LeRobot dataset with other features is left exactly as it was."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = tmp_path / "other"
+    other = LeRobotDataset.create("local/other", fps=67, root=root, use_videos=False, robot_type="mujoco_humanoid",
+                                  features={"observation.state": {"dtype": "float32", "shape": (4,), "names": None},
+                                            "action": {"dtype": "float32", "shape": (2,), "names": None}})
+    for _ in range(3):
+        other.add_frame({"observation.state": np.zeros(4, np.float32), "action": np.ones(2, np.float32), "task": "t"})
+    other.save_episode()
+    other.finalize()
+    capsys.readouterr()  # LeRobot's own progress output
+    before = snapshot(root)
+    code, err = run_cli(["--dataset", str(root)], capsys)
+    assert code != 0 and len(err) == 1 and "other features" in err[0]
+    assert snapshot(root) == before
+
+
+def test_folder_that_is_not_a_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A non-empty folder without meta/info.json is not written into."""
+    root = tmp_path / "photos"
+    root.mkdir()
+    (root / "cat.jpg").write_bytes(b"\xff\xd8")
+    code, err = run_cli(["--dataset", str(root), "--writer", "inline"], capsys)
+    assert code != 0 and len(err) == 1 and "holds no LeRobot dataset" in err[0]
+    assert snapshot(root) == {"cat.jpg": b"\xff\xd8"}
+
+
+def test_unwritable_folder_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """A folder on a read-only file system (/sys, unwritable even for root) gives one error line."""
+    code, err = run_cli(["--dataset", "/sys/fs/humanoid_bc_dataset"], capsys)
+    assert code != 0 and len(err) == 1 and "cannot write to /sys/fs/humanoid_bc_dataset" in err[0]
+
+
+def test_second_recorder_on_the_same_dataset_refuses(recorded: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """While one recorder holds the dataset, another exits with a clear message and writes nothing."""
+    root = tmp_path / "busy"
+    shutil.copytree(recorded, root)
+    from teleop.env import make_env
+
+    holder = EpisodeStore(root, DatasetSpec.from_env(make_env()))
+    try:
+        before = snapshot(root)
+        code, err = run_cli(["--dataset", str(root)], capsys)
+        assert code != 0 and len(err) == 1 and "another recorder is writing" in err[0]
+        assert snapshot(root) == before
+    finally:
+        holder.close()
+    assert json.loads((root / "meta/info.json").read_text())["total_episodes"] == 3
