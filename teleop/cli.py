@@ -25,6 +25,10 @@ class UserError(Exception):
     """A mistake in the user's input or environment: reported as one line, without a traceback."""
 
 
+class DatasetError(UserError):
+    """A dataset folder that cannot be used as asked (missing, incompatible, locked, unwritable)."""
+
+
 def setting(default: Any, help: str, **kwargs: Any) -> Any:
     """A config field with its `--help` text."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})

@@ -8,10 +8,12 @@ info.json, same parquet schemas, same statistics keys and aggregation.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import datasets
 import numpy as np
+
+if TYPE_CHECKING:
+    import datasets
 
 CODEBASE_VERSION = "v3.0"
 INFO_PATH = "meta/info.json"
@@ -59,6 +61,7 @@ def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:
 
 def hf_features(features: dict) -> datasets.Features:
     """The HuggingFace features of the frame table (scalars and 1-D vectors, as LeRobot maps them)."""
+    import datasets  # noqa: PLC0415 - half a second: paid at the first write, not at start-up
     mapped = {}
     for key, ft in features.items():
         shape = tuple(ft["shape"])

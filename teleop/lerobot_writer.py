@@ -28,7 +28,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from teleop.cli import UserError
+from teleop.cli import DatasetError
 from teleop.lerobot_format import (
     CODEBASE_VERSION,
     DEFAULT_FEATURES,
@@ -52,10 +52,6 @@ from teleop.lerobot_format import (
 log = logging.getLogger(__name__)
 
 PARTIAL_SUFFIX = ".partial"
-
-
-class DatasetError(UserError):
-    """A dataset folder that cannot be appended to; the message is one line meant for the user."""
 
 
 def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
@@ -90,7 +86,7 @@ class LeRobotWriter:
         self.tasks = tasks
         self.stats = stats
         self._last_file = last_file
-        self._schema = hf_features(info["features"]).arrow_schema
+        self._schema: pa.Schema | None = None  # built on first use: it imports `datasets`
 
     @property
     def total_episodes(self) -> int:
@@ -217,6 +213,8 @@ class LeRobotWriter:
 
     def _frames_table(self, frames: dict[str, np.ndarray]) -> pa.Table:
         """The episode as an Arrow table with the schema LeRobot's writer gives the same features."""
+        if self._schema is None:
+            self._schema = hf_features(self.info["features"]).arrow_schema
         arrays = []
         for field in self._schema:
             values = np.ascontiguousarray(frames[field.name])

@@ -20,6 +20,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -28,7 +29,9 @@ from teleop.cli import UserError, run_cli, setting
 from teleop.controllers import CONTROLLERS, make_controller
 from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
-from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
+
+if TYPE_CHECKING:
+    from teleop.store import CommittedEpisode
 
 log = logging.getLogger(__name__)
 
@@ -97,11 +100,14 @@ def main(cfg: RecordConfig) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed."""
     validate(cfg)
     env = make_env(cfg.max_steps)
+    # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     if cfg.writer == "process":
         from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
-        sink = WriterProcess(cfg.dataset)  # starts opening the dataset while the controller is built
+        sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
     else:
+        from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
+
         sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
     summary = RecordSummary(cfg.dataset)
     start = time.perf_counter()

@@ -36,7 +36,8 @@ from teleop.env import (
     step_duration_ns,
 )
 from teleop.episode import Episode
-from teleop.lerobot_writer import DatasetError, LeRobotWriter
+from teleop.cli import DatasetError
+from teleop.lerobot_writer import LeRobotWriter
 from teleop.mcap_writer import scene_update, write_episode_mcap
 
 MCAP_DIR = "mcap"
@@ -173,8 +174,10 @@ class EpisodeStore:
         return [self.append(episode)]
 
     def close(self) -> list[CommittedEpisode]:
-        """Release the lock; committed episodes are complete on disk at any time."""
-        os.close(self._lock)
+        """Release the lock (idempotent); committed episodes are complete on disk at any time."""
+        if self._lock >= 0:
+            os.close(self._lock)
+            self._lock = -1
         return []
 
     def _remove_uncommitted_mcap(self) -> None:

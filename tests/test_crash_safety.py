@@ -18,7 +18,7 @@ from teleop import keys
 from teleop.dataset_reader import read_episodes, read_frames, read_mcap_episode
 from teleop.env import make_env
 from teleop.episode import run_episode
-from teleop.lerobot_writer import DatasetError
+from teleop.cli import DatasetError
 from teleop.record import RecordConfig, main
 from teleop.store import DatasetSpec, EpisodeStore
 

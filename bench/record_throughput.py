@@ -1,0 +1,121 @@
+"""Recording throughput against the same rollout without writing, side by side; and memory over a long run.
+
+    .venv/bin/python -m bench.record_throughput [--episodes 10] [--repeats 3] [--memory-episodes 50]
+
+Each repeat runs, back to back on the same machine: the expert rollout alone (no writing), the
+recorder with its writer process (the default), and the recorder writing inline. Throughputs are
+end to end (start-up included) and their ratios are taken within a repeat, then the median is
+reported: the machines are shared and noisy, so only side-by-side ratios mean something.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from teleop.controllers import make_controller
+from teleop.env import make_env
+from teleop.episode import EpisodeBuffer, run_episode
+from teleop.record import DEFAULT_NOISE, RecordConfig, main
+
+
+def rollout_only(episodes: int, first_seed: int) -> float:
+    """Frames/s of the expert rollout with no writing, including its set-up."""
+    start = time.perf_counter()
+    env = make_env()
+    controller = make_controller("expert", env)
+    buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
+    frames = sum(run_episode(env, controller, first_seed + i, DEFAULT_NOISE, buffer).length for i in range(episodes))
+    return frames / (time.perf_counter() - start)
+
+
+def recording(episodes: int, first_seed: int, writer: str, root: Path) -> float:
+    """Frames/s of `main` recording the same episodes into a new dataset, start-up included."""
+    start = time.perf_counter()
+    summary = main(RecordConfig(dataset=root, episodes=episodes, seed=first_seed, writer=writer, progress=False))
+    return summary.frames / (time.perf_counter() - start)
+
+
+def rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return 0.0
+
+
+def children(pid: int) -> list[int]:
+    return [int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+
+
+class MemorySampler(threading.Thread):
+    """Resident memory of this process and its writer child, sampled while a recording runs."""
+
+    def __init__(self, root: Path) -> None:
+        super().__init__(daemon=True)
+        self.root, self.samples, self.stop = root, [], threading.Event()
+
+    def run(self) -> None:
+        import os
+
+        while not self.stop.wait(0.1):
+            info = self.root / "meta/info.json"
+            committed = int(info.read_text().split('"total_episodes": ')[1].split(",")[0]) if info.exists() else 0
+            kids = children(os.getpid())
+            self.samples.append((committed, rss_mib(os.getpid()), sum(rss_mib(k) for k in kids)))
+
+
+def memory_profile(episodes: int, root: Path) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Peak (recorder, writer) RSS in MiB over the first 20 % of the episodes and over the last 20 %."""
+    sampler = MemorySampler(root)
+    sampler.start()
+    main(RecordConfig(dataset=root, episodes=episodes, progress=False))
+    sampler.stop.set()
+    sampler.join()
+    early = [s for s in sampler.samples if 1 <= s[0] <= episodes // 5]
+    late = [s for s in sampler.samples if s[0] >= episodes - episodes // 5]
+
+    def peak(samples: list) -> tuple[float, float]:
+        return max(s[1] for s in samples), max(s[2] for s in samples)
+
+    return peak(early), peak(late)
+
+
+def run(episodes: int, repeats: int, memory_episodes: int) -> str:
+    rows, ratios = [], {"process": [], "inline": []}
+    with tempfile.TemporaryDirectory() as scratch:
+        for repeat in range(repeats):
+            seed = 10_000 + repeat * episodes  # fresh seeds, the same ones for the three contenders
+            alone = rollout_only(episodes, seed)
+            process = recording(episodes, seed, "process", Path(scratch) / f"process{repeat}")
+            inline = recording(episodes, seed, "inline", Path(scratch) / f"inline{repeat}")
+            ratios["process"].append(process / alone)
+            ratios["inline"].append(inline / alone)
+            rows.append(f"| {repeat + 1} | {alone:,.0f} | {process:,.0f} ({process / alone:.2f}x) | "
+                        f"{inline:,.0f} ({inline / alone:.2f}x) |")
+        (early, late) = memory_profile(memory_episodes, Path(scratch) / "memory")
+    table = [
+        f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, NOISE={DEFAULT_NOISE}):",
+        "",
+        "| repeat | rollout, no writing | record, writer process | record, inline writer |",
+        "|---|---|---|---|",
+        *rows,
+        f"| median ratio | 1.00x | {statistics.median(ratios['process']):.2f}x | {statistics.median(ratios['inline']):.2f}x |",
+        "",
+        f"Peak resident memory of a {memory_episodes}-episode recording, MiB (recorder / writer process):",
+        f"first {memory_episodes // 5} episodes {early[0]:.0f} / {early[1]:.0f}; "
+        f"last {memory_episodes // 5} episodes {late[0]:.0f} / {late[1]:.0f}",
+    ]
+    return "\n".join(table)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per contender and repeat")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--memory-episodes", type=int, default=50)
+    args = parser.parse_args()
+    print(run(args.episodes, args.repeats, args.memory_episodes))
