@@ -10,36 +10,12 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass
 
-import gymnasium as gym
 import numpy as np
 
-from teleop.expert import CTRL_LIMIT, LQRExpert, design_lqr, humanoid_model, load_or_design
-
-
-@dataclass(frozen=True)
-class EpisodeResult:
-    """Outcome of one episode."""
-
-    steps: int
-    total_return: float
-    stood: bool
-    """Whether the body stayed up until the time limit."""
-
-
-def run_episode(env: gym.Env, expert: LQRExpert, seed: int, noise: float) -> EpisodeResult:
-    """One episode from ``env.reset(seed=seed)``, with executed-action noise of std ``noise``."""
-    rng = np.random.default_rng(seed)
-    obs, _ = env.reset(seed=seed)
-    expert.reset(seed)
-    total, steps, terminated, truncated = 0.0, 0, False, False
-    while not (terminated or truncated):
-        action = expert.act(obs) + noise * rng.standard_normal(env.action_space.shape)
-        obs, reward, terminated, truncated, _ = env.step(np.clip(action, -CTRL_LIMIT, CTRL_LIMIT))
-        total += float(reward)
-        steps += 1
-    return EpisodeResult(steps=steps, total_return=total, stood=not terminated)
+from teleop.env import make_env
+from teleop.episode import EpisodeBuffer, run_episode
+from teleop.expert import LQRExpert, design_lqr, humanoid_model, load_or_design
 
 
 def time_setup() -> tuple[float, float]:
@@ -72,19 +48,20 @@ def main(argv: list[str] | None = None) -> None:
 
     cold, cached = time_setup()
     print(f"set-up: {cold:.3f} s from scratch, {1e3 * cached:.1f} ms from the cache")
-    env = gym.make("Humanoid-v5")
+    env = make_env()
     expert = LQRExpert(env.unwrapped.model)
+    buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
     obs, _ = env.reset(seed=args.first_seed)
     print(f"act: {1e6 * time_action(expert, obs):.1f} us per call")
 
     seeds = range(args.first_seed, args.first_seed + args.episodes)
     for noise in args.noise:
-        results = [run_episode(env, expert, seed, noise) for seed in seeds]
-        returns = np.array([r.total_return for r in results])
-        fallen = {seed: r.steps for seed, r in zip(seeds, results) if not r.stood}
+        episodes = [run_episode(env, expert, seed, noise, buffer) for seed in seeds]
+        returns = np.array([e.episode_return for e in episodes])
+        fallen = {e.seed: e.length for e in episodes if e.fell}
         line = (
             f"noise {noise:<5} seeds {seeds.start}..{seeds.stop - 1}: "
-            f"stood {len(results) - len(fallen)}/{len(results)}, "
+            f"stood {len(episodes) - len(fallen)}/{len(episodes)}, "
             f"return mean {returns.mean():.1f} min {returns.min():.1f}"
         )
         if fallen:

@@ -50,9 +50,11 @@ def _boolean(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected a boolean, got {text!r}")
 
 
-def parse_config(config_class: type[Config], argv: Sequence[str] | None, description: str) -> Config:
+def parse_config(config_class: type[Config], argv: Sequence[str] | None, description: str,
+                 prog: str | None = None) -> Config:
     """Parse `argv` into `config_class`; `--help` lists each field with its default."""
-    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=prog, description=description,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     hints = typing.get_type_hints(config_class)
     for field in dataclasses.fields(config_class):
         flag = "--" + field.name.replace("_", "-")
@@ -64,9 +66,9 @@ def parse_config(config_class: type[Config], argv: Sequence[str] | None, descrip
 
 
 def run_cli(main: Callable[[Config], Any], config_class: type[Config], argv: Sequence[str] | None,
-            description: str) -> int:
+            description: str, prog: str | None = None) -> int:
     """Parse, run `main`, and turn user errors into one line on stderr and a non-zero exit code."""
-    config = parse_config(config_class, argv, description)
+    config = parse_config(config_class, argv, description, prog)
     try:
         main(config)
     except UserError as error:

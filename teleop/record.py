@@ -145,7 +145,7 @@ def _main_and_print(cfg: RecordConfig) -> None:
 
 def cli(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    return run_cli(_main_and_print, RecordConfig, argv, description=__doc__)
+    return run_cli(_main_and_print, RecordConfig, argv, description=__doc__, prog="python -m teleop.record")
 
 
 if __name__ == "__main__":

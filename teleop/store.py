@@ -118,6 +118,9 @@ class EpisodeStore:
         try:
             self.lerobot = LeRobotWriter.open(root, spec.features, LEROBOT_FPS, ROBOT_TYPE)
             (root / MCAP_DIR).mkdir(exist_ok=True)
+        except OSError as error:
+            self.close()
+            raise DatasetError(f"cannot write to {root}: {error.strerror or error}") from None
         except BaseException:
             self.close()
             raise
@@ -158,12 +161,15 @@ class EpisodeStore:
             keys.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
             keys.EPISODE_MCAP: str(mcap_path),
         }
-        staged = self.lerobot.stage(columns, episode.task, facts)
         metadata = {"episode_index": str(index), "env_id": ENV_ID, "step_duration_ns": str(self.spec.step_ns),
                     **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP}}
-        write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
-                           self.spec.step_ns, metadata, self.spec.mjcf)
-        self.lerobot.commit(staged)
+        try:
+            staged = self.lerobot.stage(columns, episode.task, facts)
+            write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
+                               self.spec.step_ns, metadata, self.spec.mjcf)
+            self.lerobot.commit(staged)
+        except OSError as error:  # disk full, folder removed...: the episode stays uncommitted
+            raise DatasetError(f"writing episode {index} to {self.root} failed: {error.strerror or error}") from None
         return CommittedEpisode(index, episode.seed, episode.length, episode.episode_return, episode.fell)
 
     def wait_ready(self) -> None:
