@@ -1,16 +1,20 @@
 """The controller interface the recorder drives, and the registry that builds one by name.
 
 Every source of actions (the LQR expert, a random baseline, keyboard teleoperation, a learned
-policy) implements `Controller`, so the recorder and the evaluator run any of them.
+policy) implements `Controller`, so the recorder and the evaluator run any of them. A name is
+either registered in `CONTROLLERS` or the path of a policy checkpoint folder (`policies/`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
+
+from policies import checkpoint_problem  # torch-free: the policies themselves are imported on use
 
 
 @runtime_checkable
@@ -55,10 +59,31 @@ CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
 }
 
 
+def _is_path(name: str) -> bool:
+    """Names that are not registered are paths if they look like one: `policies/x`, `./x`, an existing folder."""
+    return "/" in name or Path(name).is_dir()
+
+
+def check_controller(name: str) -> None:
+    """ValueError with a one-line reason unless `name` is registered or a checkpoint folder; imports no torch."""
+    if name in CONTROLLERS:
+        return
+    if not _is_path(name):
+        known = ", ".join(CONTROLLERS)
+        raise ValueError(f"unknown controller {name!r} (known: {known}, or a policy checkpoint folder)")
+    problem = checkpoint_problem(Path(name))
+    if problem:
+        raise ValueError(problem)
+
+
 def make_controller(name: str, env: gym.Env) -> Controller:
-    """Build the controller registered as `name` for `env`; ValueError names the known ones."""
-    try:
-        factory = CONTROLLERS[name]
-    except KeyError:
-        raise ValueError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})") from None
-    return factory(env)
+    """Build the controller registered as `name`, or the policy saved in folder `name`, for `env`.
+
+    ValueError for an unknown name; a `UserError` (CheckpointError) for a folder that is not a usable checkpoint.
+    """
+    if name in CONTROLLERS:
+        return CONTROLLERS[name](env)
+    check_controller(name)
+    from policies.controller import PolicyController  # noqa: PLC0415 - imports torch: only for policies
+
+    return PolicyController.load(Path(name), env)

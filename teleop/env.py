@@ -7,6 +7,7 @@ environment's shapes and names.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -20,11 +21,14 @@ LEROBOT_FPS = 67
 ROBOT_TYPE = "mujoco_humanoid"
 
 
-def make_env(max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = None) -> gym.Env:
-    """Humanoid-v5 with its default observation (348 floats) and a time limit of `max_episode_steps`."""
+def make_env(max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = None, **options: Any) -> gym.Env:
+    """Humanoid-v5 with its default observation (348 floats) and a time limit of `max_episode_steps`.
+
+    `options` go to the environment's constructor: rendering settings such as `default_camera_config`.
+    """
     if max_episode_steps <= 0:
         raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
-    return gym.make(ENV_ID, max_episode_steps=max_episode_steps, render_mode=render_mode)
+    return gym.make(ENV_ID, max_episode_steps=max_episode_steps, render_mode=render_mode, **options)
 
 
 def model_and_data(env: gym.Env) -> tuple[mujoco.MjModel, mujoco.MjData]:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from teleop.cli import UserError
 from teleop.controllers import Controller
 from teleop.env import body_poses, model_and_data
 
@@ -51,6 +52,10 @@ class Episode:
     def fell(self) -> bool:
         """The episode ended because the torso left the healthy height range."""
         return bool(self.terminated[-1])
+
+
+class NonFiniteActionError(UserError):
+    """A controller returned NaN or infinity: MuJoCo would integrate it into garbage, so the rollout stops."""
 
 
 def injected_noise(seed: int, steps: int, noise_std: float, action_dim: int) -> np.ndarray:
@@ -105,7 +110,10 @@ def run_episode(
     buffer: EpisodeBuffer | None = None,
     task: str = DEFAULT_TASK,
 ) -> Episode:
-    """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit."""
+    """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
+
+    Perturbations and rendering come with `env` as wrappers (`teleop.perturbations`, `teleop.video`).
+    """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
@@ -119,6 +127,9 @@ def run_episode(
         buffer.observation[t] = obs
         buffer.body_position[t], buffer.body_orientation[t] = body_poses(data)
         action = controller.act(obs)
+        if not np.isfinite(action).all():
+            raise NonFiniteActionError(f"controller {controller.name!r} returned a non-finite action at step {t} "
+                                       f"of the episode with seed {seed}")
         executed = action if noise is None else np.clip(action + noise[t], low, high).astype(np.float32)
         obs, reward, terminated, truncated, _ = env.step(executed)
         buffer.action[t] = action

@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from teleop.cli import UserError, run_cli, setting
-from teleop.controllers import CONTROLLERS, make_controller
+from teleop.controllers import CONTROLLERS, check_controller, make_controller
 from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
@@ -48,7 +48,8 @@ class RecordConfig:
     episodes: int = setting(50, "number of episodes to add")
     seed: int | None = setting(None, "seed of the first new episode (episode i uses SEED+i); "
                                      "default: one past the largest seed in the dataset, 0 if new")
-    controller: str = setting("expert", "who acts", choices=None, metavar="{" + ",".join(CONTROLLERS) + "}")
+    controller: str = setting("expert", "who acts: a registered controller or a policy checkpoint folder",
+                              metavar="{" + ",".join(CONTROLLERS) + "}|PATH")
     noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame")
@@ -84,8 +85,10 @@ class RecordSummary:
 
 def validate(cfg: RecordConfig) -> None:
     """Reject bad settings before anything touches the disk."""
-    if cfg.controller not in CONTROLLERS:
-        raise UserError(f"unknown controller {cfg.controller!r} (known: {', '.join(CONTROLLERS)})")
+    try:
+        check_controller(cfg.controller)
+    except ValueError as error:
+        raise UserError(str(error)) from None
     if cfg.episodes <= 0:
         raise UserError(f"EPISODES must be positive, got {cfg.episodes}")
     if cfg.max_steps <= 0:

@@ -1,0 +1,184 @@
+"""Demonstrations for behaviour cloning: a recorded dataset read in bulk into tensors, split by episode.
+
+Frames come from the parquet files through Arrow (`teleop.dataset_reader.iter_frames`), never
+through LeRobot's per-item `__getitem__`. Decoding parquet is the slow part: about 70 k rows/s on
+2 cores in a fresh process (348 float64 list elements a row, and every episode's metadata file
+to find the data files). So the decoded float32 arrays are cached as .npy files under the
+project's cache folder (`teleop.expert.cache_dir`), keyed by the dataset's path, its info.json
+and the size and modification time of every data file: recording more episodes changes the key.
+Later loads copy them out of a memory map at about 2 M rows/s.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pyarrow as pa
+import torch
+
+from policies.controller import OBSERVATION_KEYS
+from teleop import keys
+from teleop.cli import DatasetError
+from teleop.dataset_reader import iter_frames, read_info
+from teleop.env import ENV_ID, observation_names
+from teleop.expert import cache_dir
+from teleop.lerobot_format import CODEBASE_VERSION, INFO_PATH
+
+# Dataset columns concatenated into the policy's input: the gymnasium observation, in its order.
+# A dataset that records a command (keyboard teleoperation) would append that column here (it
+# then reaches `MLPSpec.input_keys`, and the normalisation covers it like any other input), and
+# `PolicyController` would take the command from its source besides the observation.
+INPUT_KEYS = OBSERVATION_KEYS
+_CACHE_FORMAT = 1  # bump when what the cache holds changes
+_ARRAYS = ("inputs", "actions", "episode_index")
+
+
+@dataclass
+class Demonstrations:
+    """Every committed frame of a dataset as tensors, in index order."""
+
+    root: Path
+    inputs: torch.Tensor  # (N, input_dim) float32: the INPUT_KEYS columns side by side
+    actions: torch.Tensor  # (N, action_dim) float32: the label actions
+    episode_index: np.ndarray  # (N,) int64
+    info: dict[str, Any]
+    seconds: float  # time to load, from files to tensors
+    from_cache: bool
+
+    @property
+    def frames(self) -> int:
+        return len(self.actions)
+
+    @property
+    def episodes(self) -> list[int]:
+        return np.unique(self.episode_index).tolist()
+
+    def identity(self) -> dict[str, Any]:
+        """What the checkpoint records about its training data."""
+        return {"path": str(self.root.resolve()), "episodes": len(self.episodes), "frames": self.frames,
+                "codebase_version": self.info.get("codebase_version"), "robot_type": self.info.get("robot_type"),
+                "fps": self.info.get("fps")}
+
+
+def check_compatible(root: Path, env: gym.Env) -> dict[str, Any]:
+    """meta/info.json of the dataset at `root`; DatasetError says in one line why it cannot train for `env`."""
+    if not (root / INFO_PATH).is_file():
+        reason = "no such folder" if not root.exists() else f"no {INFO_PATH}"
+        raise DatasetError(f"no LeRobot dataset at {root} ({reason}); record one with `make record DATASET={root}`")
+    try:
+        info = read_info(root)
+        features = info["features"]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as error:
+        raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
+    if info.get("codebase_version") != CODEBASE_VERSION:
+        raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
+    missing = [key for key in (*INPUT_KEYS, keys.ACTION) if key not in features]
+    if missing:
+        needed = ", ".join((*INPUT_KEYS, keys.ACTION))
+        raise DatasetError(f"{root} has no {', '.join(missing)} feature (it needs {needed})")
+    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
+    input_dims = [features[key]["shape"][0] for key in INPUT_KEYS]
+    recorded_action_dim = features[keys.ACTION]["shape"][0]
+    if sum(input_dims) != obs_dim or recorded_action_dim != action_dim:
+        raise DatasetError(f"{root} records {'+'.join(map(str, input_dims))} observation and {recorded_action_dim} "
+                           f"action dimensions; {ENV_ID} has {obs_dim} and {action_dim}")
+    recorded_names = [name for key in INPUT_KEYS for name in features[key].get("names") or []]
+    if recorded_names and recorded_names != observation_names(env.unwrapped.model):
+        raise DatasetError(f"{root} orders its observation differently from {ENV_ID} (feature names differ)")
+    if info.get("total_episodes", 0) < 2:
+        raise DatasetError(f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least 2 "
+                           f"(one is held out for validation)")
+    return info
+
+
+def _cache_folder(root: Path, info_text: str) -> Path:
+    """Where the decoded arrays of this version of the dataset live: <path hash>-<content hash>."""
+    files = sorted((root / "data").glob("*/*.parquet"))
+    content = json.dumps([_CACHE_FORMAT, INPUT_KEYS, info_text,
+                          [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files]])
+    path_hash = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:16]
+    return cache_dir() / "bc-frames" / f"{path_hash}-{hashlib.sha256(content.encode()).hexdigest()[:16]}"
+
+
+def _decode(root: Path, info: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The arrays read from the parquet files, inputs joined and in float32, rows placed by frame index."""
+    features = info["features"]
+    rows = info["total_frames"]
+    widths = [features[key]["shape"][0] for key in INPUT_KEYS]
+    arrays = {"inputs": np.empty((rows, sum(widths)), np.float32),
+              "actions": np.empty((rows, features[keys.ACTION]["shape"][0]), np.float32),
+              "episode_index": np.empty(rows, np.int64)}
+    filled = 0
+    for batch in iter_frames(root, [*INPUT_KEYS, keys.ACTION, "episode_index"]):
+        index = batch["index"]
+        # Recorded files hold consecutive frames: a slice assigns faster than an index array.
+        at = slice(index[0], index[-1] + 1) if len(index) and index[-1] - index[0] + 1 == len(index) else index
+        start = 0
+        for key, width in zip(INPUT_KEYS, widths, strict=True):  # float64 -> float32 in the same pass
+            arrays["inputs"][at, start:start + width] = batch[key]
+            start += width
+        arrays["actions"][at] = batch[keys.ACTION]
+        arrays["episode_index"][at] = batch["episode_index"]
+        filled += len(index)
+    if filled != rows:
+        raise DatasetError(f"{root} holds {filled} committed frames; its {INFO_PATH} counts {rows}")
+    return arrays
+
+
+def _store(folder: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write the cache folder atomically, and drop older versions of the same dataset's cache."""
+    staging: Path | None = None
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(dir=folder.parent, prefix=".partial-"))
+        for name in _ARRAYS:
+            np.save(staging / f"{name}.npy", arrays[name])
+        os.rename(staging, folder)
+    except OSError:  # no space, read-only home, or another process wrote it first: the cache is optional
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+        return
+    path_hash = folder.name.split("-")[0]
+    for old in folder.parent.glob(f"{path_hash}-*"):
+        if old != folder:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonstrations:
+    """Every committed frame of the dataset at `root`, checked against `env`, as float32 tensors."""
+    start = time.perf_counter()
+    info = check_compatible(root, env)
+    folder = _cache_folder(root, (root / INFO_PATH).read_text())
+    from_cache = cache and all((folder / f"{name}.npy").is_file() for name in _ARRAYS)
+    if from_cache:
+        # Copying out of a memory map is faster than np.load's buffered read, and gives owned, writable arrays.
+        arrays = {name: np.array(np.load(folder / f"{name}.npy", mmap_mode="r")) for name in _ARRAYS}
+    else:
+        try:
+            arrays = _decode(root, info)
+        except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
+            raise DatasetError(f"cannot read the frames of {root}: {error}") from None
+        if not (np.isfinite(arrays["inputs"]).all() and np.isfinite(arrays["actions"]).all()):
+            raise DatasetError(f"{root} holds non-finite observations or actions")
+        if cache:
+            _store(folder, arrays)
+    return Demonstrations(root=root, inputs=torch.from_numpy(arrays["inputs"]),
+                          actions=torch.from_numpy(arrays["actions"]), episode_index=arrays["episode_index"],
+                          info=info, seconds=time.perf_counter() - start, from_cache=from_cache)
+
+
+def split_by_episode(episodes: list[int], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """(train, validation) episode indices: a seeded draw of `val_fraction` of them, at least one, for validation."""
+    count = min(len(episodes) - 1, max(1, round(val_fraction * len(episodes))))
+    validation = np.random.default_rng(seed).choice(episodes, size=count, replace=False)
+    return sorted(set(episodes) - set(validation.tolist())), sorted(validation.tolist())

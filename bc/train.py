@@ -1,0 +1,274 @@
+"""`make train-bc`: behaviour cloning of the recorded actions, then an evaluation in the simulator.
+
+1. Load every committed frame of DATASET into tensors (`bc.data`), checked against Humanoid-v5.
+2. Hold out a seeded 10 % of the episodes (never single frames: neighbouring frames are nearly
+   identical, so a frame split would measure memorisation) for validation.
+3. Fit an MLP policy (`policies.mlp`) whose input normalisation comes from the training frames,
+   with Adam on the mean squared error of the actions, minibatches drawn from tensors in memory.
+   Training stops when the validation loss has not improved for PATIENCE epochs and keeps the
+   weights of the best epoch.
+4. Write the checkpoint to POLICY (weights, config, dataset identity, learning curve, TensorBoard
+   logs) through a hidden staging folder: an existing checkpoint is replaced only with
+   --overwrite and only once the new one is complete.
+5. Evaluate it on EVAL_EPISODES unseen seeds, next to the expert on the same seeds: POLICY/eval.json.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure  # the object API draws to files without choosing a GUI backend
+from torch.nn import functional as F
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from bc.data import INPUT_KEYS, Demonstrations, load_demonstrations, split_by_episode
+from bc.evaluate import EVAL_SEED, evaluate
+from policies import EVAL_FILE, checkpoint
+from policies.controller import PolicyController
+from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
+from teleop.cli import UserError, run_cli, setting
+from teleop.env import make_env
+
+LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
+    "mse": F.mse_loss,
+    "l1": F.l1_loss,
+    "huber": F.smooth_l1_loss,
+}
+LEARNING_CURVE_FILE = "learning_curve.png"
+TENSORBOARD_DIR = "tensorboard"
+
+
+@dataclass
+class TrainConfig:
+    """Settings of one behaviour-cloning run."""
+
+    dataset: Path = setting(Path("datasets/humanoid_stand"), "LeRobot dataset folder recorded by `make record`")
+    policy: Path = setting(Path("policies/bc_humanoid_stand"), "checkpoint folder to write")
+    overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
+    hidden: int = setting(256, "width of each hidden layer")
+    layers: int = setting(2, "number of hidden layers")
+    activation: str = setting("relu", "hidden activation", choices=tuple(ACTIVATIONS))
+    loss: str = setting("mse", "loss on the actions", choices=tuple(LOSSES))
+    lr: float = setting(1e-3, "Adam learning rate")
+    weight_decay: float = setting(0.0, "Adam weight decay (L2)")
+    batch_size: int = setting(256, "minibatch size")
+    epochs: int = setting(30, "maximum number of passes over the training frames")
+    patience: int = setting(5, "stop after this many epochs without a better validation loss; 0 = never stop early")
+    val_fraction: float = setting(0.1, "fraction of the episodes held out for validation (at least one)")
+    std_floor: float = setting(STD_FLOOR, "floor on the input standard deviations, in the observation's "
+                                                "units (see policies/mlp.py)")
+    seed: int = setting(0, "seed of the split, the initial weights and the minibatch order")
+    threads: int = setting(0, "torch CPU threads; 0 = one per core")
+    cache: bool = setting(True, "cache the decoded frames (.npy) to load the same dataset faster next time")
+    eval_episodes: int = setting(20, "episodes of the evaluation after training; 0 = skip it")
+    eval_seed: int = setting(EVAL_SEED, "seed of the first evaluation episode")
+    tensorboard: bool = setting(True, f"write TensorBoard logs to POLICY/{TENSORBOARD_DIR}")
+    progress: bool = setting(True, "show a progress bar")
+
+
+@dataclass
+class LearningCurves:
+    """Losses per epoch (index 0 is the first epoch) and the untrained policy's validation loss."""
+
+    initial_val_loss: float
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+
+    @property
+    def best_val_loss(self) -> float:
+        return self.val_loss[self.best_epoch]
+
+
+@dataclass
+class TrainResult:
+    """What a run produced, for the summary line and for callers (tests, benchmarks)."""
+
+    policy_dir: Path
+    policy: MLPPolicy
+    loss: str
+    train_episodes: list[int]
+    val_episodes: list[int]
+    train_frames: int
+    val_frames: int
+    curves: LearningCurves | None = None
+    load_seconds: float = 0.0
+    load_rows_per_s: float = 0.0
+    loaded_from_cache: bool = False
+    train_seconds: float = 0.0
+    evaluation: dict[str, Any] | None = None
+
+    def describe(self) -> str:
+        curves = self.curves
+        line = (f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, kept epoch "
+                f"{curves.best_epoch + 1} (validation loss {curves.best_val_loss:.3g}, untrained "
+                f"{curves.initial_val_loss:.3g}); {self.train_frames} training and {self.val_frames} validation "
+                f"frames loaded in {self.load_seconds:.2f} s ({self.load_rows_per_s:.3g} rows/s"
+                f"{', cached' if self.loaded_from_cache else ''})")
+        if self.evaluation:
+            ev = self.evaluation
+            line += (f"; evaluation on seeds {ev['seeds'][0]}..{ev['seeds'][-1]}: survival {ev['survival_rate']:.0%}, "
+                     f"return {ev['mean_return']:.1f} ± {ev['std_return']:.1f} (expert {ev['expert_mean_return']:.1f})")
+        return line
+
+
+def validate(cfg: TrainConfig) -> None:
+    """Reject bad settings before anything is read or written."""
+    positive = {"HIDDEN": cfg.hidden, "LAYERS": cfg.layers, "BATCH_SIZE": cfg.batch_size, "EPOCHS": cfg.epochs}
+    for name, value in positive.items():
+        if value <= 0:
+            raise UserError(f"{name} must be positive, got {value}")
+    if not (math.isfinite(cfg.lr) and cfg.lr > 0):
+        raise UserError(f"LR must be positive, got {cfg.lr}")
+    if not (math.isfinite(cfg.weight_decay) and cfg.weight_decay >= 0):
+        raise UserError(f"WEIGHT_DECAY must be >= 0, got {cfg.weight_decay}")
+    if not 0 < cfg.val_fraction < 1:
+        raise UserError(f"VAL_FRACTION must be between 0 and 1, got {cfg.val_fraction}")
+    if not (math.isfinite(cfg.std_floor) and cfg.std_floor > 0):
+        raise UserError(f"STD_FLOOR must be positive, got {cfg.std_floor}")
+    if cfg.patience < 0 or cfg.threads < 0 or cfg.eval_episodes < 0 or cfg.eval_seed < 0:
+        raise UserError("PATIENCE, THREADS, EVAL_EPISODES and EVAL_SEED must be >= 0")
+
+
+def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(inputs, actions) of the frames of `episodes`."""
+    mask = torch.from_numpy(np.isin(demos.episode_index, episodes))
+    return demos.inputs[mask], demos.actions[mask]
+
+
+def fit(policy: MLPPolicy, train: tuple[torch.Tensor, torch.Tensor], val: tuple[torch.Tensor, torch.Tensor],
+        cfg: TrainConfig, writer: SummaryWriter | None) -> LearningCurves:
+    """Minibatch Adam with early stopping; leaves the best epoch's weights in `policy`."""
+    loss_fn = LOSSES[cfg.loss]
+    optimiser = torch.optim.Adam(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    order = torch.Generator().manual_seed(cfg.seed)
+    x_train, y_train = train
+    x_val, y_val = val
+
+    def validation_loss() -> float:
+        policy.eval()
+        with torch.no_grad():
+            return loss_fn(policy(x_val), y_val).item()
+
+    curves = LearningCurves(initial_val_loss=validation_loss())
+    best_state = copy.deepcopy(policy.state_dict())
+    bar = tqdm(range(cfg.epochs), unit="epoch", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
+    for epoch in bar:
+        start = time.perf_counter()
+        policy.train()
+        total = 0.0
+        for batch in torch.randperm(len(x_train), generator=order).split(cfg.batch_size):
+            loss = loss_fn(policy(x_train[batch]), y_train[batch])
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            total += loss.item() * len(batch)
+        curves.train_loss.append(total / len(x_train))
+        curves.val_loss.append(validation_loss())
+        if curves.val_loss[-1] < curves.best_val_loss or epoch == 0:
+            curves.best_epoch, best_state = epoch, copy.deepcopy(policy.state_dict())
+        samples_per_s = len(x_train) / (time.perf_counter() - start)
+        bar.set_postfix(train=f"{curves.train_loss[-1]:.3g}", val=f"{curves.val_loss[-1]:.3g}",
+                        samples_per_s=f"{samples_per_s:.0f}")
+        if writer is not None:  # step = epochs completed, so step 0 can hold the untrained loss
+            if epoch == 0:
+                writer.add_scalar("loss/validation", curves.initial_val_loss, 0)
+            writer.add_scalar("loss/train", curves.train_loss[-1], epoch + 1)
+            writer.add_scalar("loss/validation", curves.val_loss[-1], epoch + 1)
+            writer.add_scalar("throughput/samples_per_s", samples_per_s, epoch + 1)
+        if cfg.patience and epoch - curves.best_epoch >= cfg.patience:
+            break
+    bar.close()
+    policy.load_state_dict(best_state)
+    return curves
+
+
+def plot_learning_curve(result: TrainResult, path: Path) -> None:
+    """Training and validation loss per epoch, log scale, the untrained loss at 0 and the kept epoch marked."""
+    curves = result.curves
+    epochs = np.arange(1, len(curves.val_loss) + 1)
+    figure = Figure(figsize=(6, 4))
+    axes = figure.subplots()
+    axes.semilogy(epochs, curves.train_loss, label="training")
+    axes.semilogy([0, *epochs], [curves.initial_val_loss, *curves.val_loss], label="validation")
+    axes.axvline(curves.best_epoch + 1, color="grey", linestyle=":", label=f"kept (epoch {curves.best_epoch + 1})")
+    axes.set_xlabel("epoch")
+    axes.set_ylabel(f"{result.loss} loss")
+    axes.set_title(f"{result.policy_dir.name}: {result.train_frames} training frames")
+    axes.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+
+
+def main(cfg: TrainConfig) -> TrainResult:
+    """Train, save and evaluate a behaviour-cloning policy as configured."""
+    validate(cfg)
+    checkpoint.check_replaceable(cfg.policy, cfg.overwrite)  # before minutes of work, not after
+    torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
+    torch.manual_seed(cfg.seed)
+
+    env = make_env()
+    demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache)
+    train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
+    train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
+    spec = MLPSpec(input_keys=INPUT_KEYS, input_dim=demos.inputs.shape[1], action_dim=demos.actions.shape[1],
+                   hidden=(cfg.hidden,) * cfg.layers, activation=cfg.activation)
+    policy = MLPPolicy(spec, env.action_space.low, env.action_space.high)
+    policy.fit_normalisation(train[0], cfg.std_floor)
+    env.close()
+    result = TrainResult(policy_dir=cfg.policy, policy=policy, loss=cfg.loss, train_episodes=train_episodes,
+                         val_episodes=val_episodes, train_frames=len(train[0]), val_frames=len(val[0]),
+                         load_seconds=demos.seconds, load_rows_per_s=demos.frames / demos.seconds,
+                         loaded_from_cache=demos.from_cache)
+
+    with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
+        writer = SummaryWriter(str(folder / TENSORBOARD_DIR)) if cfg.tensorboard else None
+        start = time.perf_counter()
+        try:
+            result.curves = fit(policy, train, val, cfg, writer)
+        finally:
+            if writer is not None:
+                writer.close()
+        result.train_seconds = time.perf_counter() - start
+        training = {**dataclasses.asdict(cfg), "kept_epoch": result.curves.best_epoch + 1,
+                    "epochs_run": len(result.curves.val_loss), "best_val_loss": result.curves.best_val_loss,
+                    "train_seconds": result.train_seconds}
+        dataset = {**demos.identity(), "train_episodes": train_episodes, "val_episodes": val_episodes,
+                   "train_frames": result.train_frames, "val_frames": result.val_frames}
+        checkpoint.save(policy, folder, training, dataset)
+        plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
+
+    if cfg.eval_episodes:
+        settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "progress": cfg.progress}
+        evaluation = evaluate(PolicyController(policy, str(cfg.policy)), **settings)
+        expert = evaluate("expert", **settings)  # the reference on the same seeds
+        evaluation["expert_mean_return"] = expert["mean_return"]
+        evaluation["expert_survival_rate"] = expert["survival_rate"]
+        evaluation["return_vs_expert"] = evaluation["mean_return"] / expert["mean_return"]
+        checkpoint.write_json(cfg.policy / EVAL_FILE, evaluation)
+        result.evaluation = evaluation
+    return result
+
+
+def _main_and_print(cfg: TrainConfig) -> None:
+    print(main(cfg).describe())
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, TrainConfig, argv, description=__doc__)
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

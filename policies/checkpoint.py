@@ -1,0 +1,123 @@
+"""Saving a policy to a checkpoint folder and rebuilding it from one (robomimic style: one call).
+
+    POLICY/
+      model.safetensors   weights and buffers: input mean/std, action bounds
+      config.json         format, the policy's spec, the training settings
+      dataset.json        the dataset's identity: path, episodes, frames, the split
+
+A checkpoint is written into a hidden sibling folder and renamed into place only once complete,
+so an interrupted or failed run never leaves a half-written checkpoint nor destroys the old one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from safetensors import SafetensorError
+from safetensors.torch import load_file
+from safetensors.torch import save as save_weights
+
+from policies import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
+from policies.mlp import MLPPolicy, MLPSpec
+from teleop.cli import UserError
+
+FORMAT = "humanoid-bc/policy"
+FORMAT_VERSION = 1
+POLICY_CLASSES = {"MLPPolicy": (MLPPolicy, MLPSpec)}
+
+
+class CheckpointError(UserError):
+    """A folder that is not a usable checkpoint, or a checkpoint that may not be replaced."""
+
+
+def write_json(path: Path, content: Any) -> None:
+    path.write_text(json.dumps(content, indent=2, default=str) + "\n")
+
+
+def save(policy: MLPPolicy, folder: Path, training: dict[str, Any], dataset: dict[str, Any]) -> None:
+    """Write the checkpoint files of `policy` into `folder` (see `staged` for putting it in place)."""
+    policy_config = {"class": type(policy).__name__, **dataclasses.asdict(policy.spec)}
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        # Bytes written here rather than by save_file, which creates the file with mode 0600.
+        weights = {name: t.contiguous() for name, t in policy.state_dict().items()}
+        (folder / WEIGHTS_FILE).write_bytes(save_weights(weights, metadata={"format": FORMAT}))
+        write_json(folder / CONFIG_FILE, {"format": FORMAT, "version": FORMAT_VERSION, "policy": policy_config,
+                                          "training": training})
+        write_json(folder / DATASET_FILE, dataset)
+    except OSError as error:  # disk full, permissions
+        raise CheckpointError(f"cannot write the checkpoint to {folder}: {error.strerror or error}") from None
+
+
+def read_config(path: Path) -> dict[str, Any]:
+    """config.json of checkpoint folder `path`, checked to be this project's format."""
+    problem = checkpoint_problem(path)
+    if problem:
+        raise CheckpointError(problem)
+    try:
+        config = json.loads((path / CONFIG_FILE).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise CheckpointError(f"{path / CONFIG_FILE} is unreadable: {error}") from None
+    if not isinstance(config, dict) or config.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (its {CONFIG_FILE} has another format)")
+    if config.get("version") != FORMAT_VERSION:
+        raise CheckpointError(f"{path} has checkpoint version {config.get('version')}; "
+                              f"this code reads {FORMAT_VERSION}")
+    return config
+
+
+def load(path: Path) -> MLPPolicy:
+    """The policy in checkpoint folder `path`, in eval mode, with its saved weights and buffers."""
+    config = read_config(path)
+    try:
+        policy_config = dict(config["policy"])
+        policy_class, spec_class = POLICY_CLASSES[policy_config.pop("class")]
+        policy = policy_class(spec_class.from_dict(policy_config))
+        policy.load_state_dict(load_file(path / WEIGHTS_FILE))
+    except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError, OSError) as error:
+        # load_state_dict's message spans many lines; the first says what is wrong.
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise CheckpointError(f"{path} is not a loadable checkpoint: {reason}") from None
+    return policy.eval()
+
+
+def check_replaceable(path: Path, overwrite: bool) -> None:
+    """Refuse, before any work, to write a checkpoint where one may not go."""
+    if not path.exists():
+        return
+    if not is_checkpoint(path):
+        raise CheckpointError(f"{path} exists and is not a policy checkpoint: refusing to replace it")
+    if not overwrite:
+        raise CheckpointError(f"{path} already holds a checkpoint; pass --overwrite true to replace it")
+
+
+@contextmanager
+def staged(path: Path, overwrite: bool) -> Iterator[Path]:
+    """A fresh hidden folder beside `path` to write into; it becomes `path` when the block succeeds."""
+    check_replaceable(path, overwrite)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Not tempfile.mkdtemp: its 0700 mode would stay on the published checkpoint.
+        staging = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.partial"
+        staging.mkdir()
+    except OSError as error:
+        raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None
+    try:
+        yield staging
+        check_replaceable(path, overwrite)  # something may have appeared there in the meantime
+        if path.exists():
+            old = staging.with_suffix(".old")
+            path.rename(old)
+            staging.rename(path)
+            shutil.rmtree(old)
+        else:
+            staging.rename(path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # still there only if the block failed

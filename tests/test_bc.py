@@ -1,0 +1,188 @@
+"""`make train-bc`: a tiny training learns, the checkpoint rebuilds the same policy, bad input is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+
+import policies
+from bc.data import INPUT_KEYS, load_demonstrations, split_by_episode
+from bc.train import LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
+from conftest import snapshot
+from policies import checkpoint
+from policies.controller import PolicyController
+from policies.mlp import STD_FLOOR
+from teleop.cli import UserError
+from teleop.controllers import make_controller
+from teleop.record import RecordConfig, validate
+
+TINY = {"hidden": 32, "epochs": 40, "batch_size": 32, "patience": 0, "eval_episodes": 0, "progress": False}
+
+
+@pytest.fixture(scope="module")
+def env() -> gym.Env:
+    """A Humanoid-v5 environment for dimensions and bounds."""
+    return gym.make("Humanoid-v5")
+
+
+@pytest.fixture(scope="module")
+def trained(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
+    """A small MLP trained on the 3-episode recording, saved with its TensorBoard logs."""
+    folder = tmp_path_factory.mktemp("policies") / "tiny"
+    return main(TrainConfig(dataset=recorded, policy=folder, **TINY))
+
+
+def train_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    """Exit code and stderr lines of `python -m bc.train ARGS` with tiny settings."""
+    tiny = ["--hidden", "8", "--epochs", "1", "--eval-episodes", "0", "--progress", "false", "--tensorboard", "false"]
+    code = cli([*tiny, *args])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_tiny_training_lowers_the_validation_loss(trained: TrainResult) -> None:
+    """On held-out episodes the kept epoch's loss is under 3/4 of the untrained policy's (0.50 measured)."""
+    curves = trained.curves
+    assert curves.best_val_loss < 0.75 * curves.initial_val_loss
+    assert curves.train_loss[-1] < curves.train_loss[0]
+
+
+def test_split_holds_out_whole_episodes(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
+    """Training and validation episodes are disjoint, cover the dataset, and the frame counts follow them."""
+    demos = load_demonstrations(recorded, env)
+    assert set(trained.train_episodes).isdisjoint(trained.val_episodes)
+    assert sorted(trained.train_episodes + trained.val_episodes) == demos.episodes
+    assert trained.val_frames == int(np.isin(demos.episode_index, trained.val_episodes).sum())
+    assert split_by_episode(list(range(50)), 0.1, seed=3) == split_by_episode(list(range(50)), 0.1, seed=3)
+    assert len(split_by_episode(list(range(50)), 0.1, seed=3)[1]) == 5
+
+
+def test_checkpoint_round_trip_gives_identical_actions(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
+    """`policies.load` rebuilds a policy whose actions equal the trained one's bit for bit."""
+    inputs = load_demonstrations(recorded, env).inputs
+    loaded = policies.load(trained.policy_dir)
+    with torch.no_grad():
+        assert torch.equal(loaded(inputs), trained.policy(inputs))
+
+
+def test_normalisation_is_in_the_state_dict(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
+    """The training frames' mean and floored std are buffers saved with the weights; constant inputs get the floor."""
+    weights = load_file(trained.policy_dir / policies.WEIGHTS_FILE)
+    demos = load_demonstrations(recorded, env)
+    train_inputs = demos.inputs[torch.from_numpy(np.isin(demos.episode_index, trained.train_episodes))].double()
+    torch.testing.assert_close(weights["input_mean"], train_inputs.mean(0).float())
+    std = train_inputs.std(0, correction=0)
+    torch.testing.assert_close(weights["input_std"], std.clamp_min(STD_FLOOR).float())
+    assert bool((weights["input_std"][std == 0] == STD_FLOOR).all()) and bool((std == 0).any())
+    assert torch.equal(weights["action_half_range"], torch.full((17,), 0.4))
+
+
+def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, recorded: Path) -> None:
+    """config.json has the resolved settings, dataset.json the data's identity; curve and logs are there."""
+    folder = trained.policy_dir
+    config = json.loads((folder / policies.CONFIG_FILE).read_text())
+    assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(INPUT_KEYS)
+    assert config["training"]["dataset"] == str(recorded) and config["training"]["lr"] == 1e-3
+    dataset = json.loads((folder / policies.DATASET_FILE).read_text())
+    assert dataset["path"] == str(recorded.resolve()) and dataset["episodes"] == 3
+    assert dataset["frames"] == trained.train_frames + trained.val_frames
+    assert (folder / LEARNING_CURVE_FILE).stat().st_size > 0
+    assert list((folder / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
+
+
+def test_saved_policy_is_a_controller(trained: TrainResult, env: gym.Env) -> None:
+    """The controller registry builds a checkpoint folder into a controller giving float32 actions within bounds."""
+    controller = make_controller(str(trained.policy_dir), env)
+    assert isinstance(controller, PolicyController)
+    action = controller.act(env.reset(seed=0)[0])
+    assert action.dtype == np.float32 and action.shape == (17,) and np.abs(action).max() <= 0.4
+    validate(RecordConfig(controller=str(trained.policy_dir)))  # the recorder accepts it too
+    with pytest.raises(UserError, match="not a policy checkpoint"):
+        validate(RecordConfig(controller=str(trained.policy_dir / TENSORBOARD_DIR)))
+
+
+def test_recorder_does_not_import_torch() -> None:
+    """Checking and building the expert or the random controller leaves torch unimported."""
+    code = ("import sys; from teleop.record import validate, RecordConfig; from teleop.controllers import "
+            "make_controller; from teleop.env import make_env; validate(RecordConfig()); "
+            "make_controller('random', make_env()); assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_failed_save_keeps_the_old_checkpoint(trained: TrainResult, tmp_path: Path) -> None:
+    """An error while writing a replacement leaves the old checkpoint and no staging folder."""
+    folder = tmp_path / "policy"
+    shutil.copytree(trained.policy_dir, folder)
+    before = snapshot(folder)
+    with pytest.raises(RuntimeError), checkpoint.staged(folder, overwrite=True) as staging:
+        checkpoint.save(trained.policy, staging, {}, {})
+        raise RuntimeError("interrupted")
+    assert snapshot(folder) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
+
+
+def test_existing_checkpoint_is_kept_without_overwrite(trained: TrainResult, recorded: Path, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Training into an existing checkpoint fails in one line and leaves it as it was; --overwrite replaces it."""
+    folder = tmp_path / "policy"
+    shutil.copytree(trained.policy_dir, folder)
+    before = snapshot(folder)
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(folder)], capsys)
+    assert code == 1 and len(err) == 1 and "--overwrite" in err[0]
+    assert snapshot(folder) == before
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(folder), "--overwrite", "true"], capsys)
+    assert code == 0
+    assert json.loads((folder / policies.CONFIG_FILE).read_text())["policy"]["hidden"] == [8, 8]
+
+
+def test_folder_that_is_not_a_checkpoint_is_never_replaced(recorded: Path, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """POLICY naming some other folder is refused even with --overwrite, and the folder is untouched."""
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "todo.txt").write_text("keep me")
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(folder), "--overwrite", "true"], capsys)
+    assert code == 1 and len(err) == 1 and "not a policy checkpoint" in err[0]
+    assert snapshot(folder) == {"todo.txt": b"keep me"}
+
+
+def edited_copy(recorded: Path, tmp_path: Path, edit: Callable[[dict], object]) -> Path:
+    """A copy of the recording whose info.json went through `edit`."""
+    root = tmp_path / "edited"
+    shutil.copytree(recorded, root)
+    info_path = root / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    edit(info)
+    info_path.write_text(json.dumps(info))
+    return root
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda info: info["features"]["action"].update(shape=[12]), "action dimensions"),
+    (lambda info: info["features"].pop("observation.environment_state"), "no observation.environment_state"),
+    (lambda info: info.update(codebase_version="v2.1"), "LeRobot v2.1 dataset"),
+    (lambda info: info.update(total_episodes=1), "at least 2"),
+])
+def test_incompatible_dataset_is_refused(recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                         edit: Callable[[dict], object], message: str) -> None:
+    """A dataset that cannot train a Humanoid-v5 policy fails in one line, and no checkpoint appears."""
+    root = edited_copy(recorded, tmp_path, edit)
+    code, err = train_cli(["--dataset", str(root), "--policy", str(tmp_path / "policy")], capsys)
+    assert code == 1 and len(err) == 1 and message in err[0]
+    assert not (tmp_path / "policy").exists()
+
+
+def test_missing_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A dataset path with nothing there fails in one line naming it."""
+    code, err = train_cli(["--dataset", str(tmp_path / "none"), "--policy", str(tmp_path / "policy")], capsys)
+    assert code == 1 and len(err) == 1 and "no LeRobot dataset" in err[0]
+    assert not (tmp_path / "policy").exists()

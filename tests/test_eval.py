@@ -1,0 +1,141 @@
+"""`make eval`: the JSON it prints, survival of a falling and a standing controller, pushes, video, bad input."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bc.evaluate import cli, evaluate
+from policies import WEIGHTS_FILE, checkpoint
+from policies.mlp import MLPPolicy, MLPSpec
+from teleop.env import make_env
+from teleop.perturbations import TorsoPushes
+from teleop.video import VideoError
+
+FIELDS = {"mean_return", "std_return", "mean_length", "survival_rate", "episodes", "seeds"}
+
+
+def eval_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], list[str]]:
+    """Exit code, stdout lines and stderr lines of `python -m bc.evaluate ARGS`."""
+    code = cli(["--progress", "false", *args])
+    out, err = capsys.readouterr()
+    return code, out.strip().splitlines(), err.strip().splitlines()
+
+
+def untrained_checkpoint(folder: Path, poison: bool = False) -> Path:
+    """A freshly initialised policy saved as a checkpoint; `poison` makes its output NaN."""
+    policy = MLPPolicy(MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,)),
+                       -0.4 * np.ones(17), 0.4 * np.ones(17))
+    if poison:
+        with torch.no_grad():
+            policy.net[-1].bias.fill_(float("nan"))
+    checkpoint.save(policy, folder, {}, {})
+    return folder
+
+
+def corrupt_checkpoint(folder: Path) -> Path:
+    """A checkpoint whose weights file is garbage."""
+    untrained_checkpoint(folder).joinpath(WEIGHTS_FILE).write_bytes(b"garbage")
+    return folder
+
+
+def test_json_last_line_has_the_fields(capsys: pytest.CaptureFixture[str]) -> None:
+    """The last stdout line is one JSON object with returns, length, survival, episodes and seeds."""
+    code, out, _ = eval_cli(["--policy", "random", "--episodes", "2", "--seed", "5"], capsys)
+    result = json.loads(out[-1])
+    assert code == 0 and FIELDS <= result.keys()
+    assert result["episodes"] == 2 and result["seeds"] == [5, 6]
+
+
+def test_random_controller_falls_at_once() -> None:
+    """Random actions survive no episode and end within a few dozen steps."""
+    result = evaluate("random", episodes=3)
+    assert result["survival_rate"] == 0.0 and result["survived"] == 0 and result["mean_length"] < 60
+
+
+def test_expert_stands_every_episode() -> None:
+    """The expert reaches the 1000-step limit on every seed with a standing return."""
+    result = evaluate("expert", episodes=2)
+    assert result["survival_rate"] == 1.0 and result["lengths"] == [1000, 1000] and result["mean_return"] > 4900
+
+
+def test_saved_policy_runs_by_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A checkpoint folder is evaluated by its path and named by it in the JSON."""
+    folder = untrained_checkpoint(tmp_path / "policy")
+    code, out, _ = eval_cli(["--policy", str(folder), "--episodes", "1"], capsys)
+    assert code == 0 and json.loads(out[-1])["policy"] == str(folder)
+
+
+def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
+    """The torso gets `force` newtons horizontally during the first `duration` of each period, seeded directions."""
+    env = TorsoPushes(make_env(), force=7.0, period=0.15, duration=0.03)  # 10-step period, 2-step pushes
+    torso = env.unwrapped.model.body("torso").id
+
+    def forces(seed: int) -> list[np.ndarray]:
+        env.reset(seed=seed)
+        applied = []
+        for _ in range(30):
+            env.step(np.zeros(17))
+            applied.append(env.unwrapped.data.xfrc_applied[torso].copy())
+        return applied
+
+    applied = forces(3)
+    pushing = [int(np.linalg.norm(f[:3]) > 0) for f in applied]
+    assert pushing == ([0] * 10 + [1, 1] + [0] * 8) + ([1, 1] + [0] * 8)
+    for force in (applied[10], applied[20]):
+        assert np.isclose(np.linalg.norm(force[:2]), 7.0) and force[2] == 0 and not force[3:].any()
+    assert not np.allclose(applied[10], applied[20])  # a new direction for each push
+    assert all(np.array_equal(a, b) for a, b in zip(applied, forces(3), strict=True))
+
+
+def test_video_has_a_frame_per_step(tmp_path: Path) -> None:
+    """VIDEO writes an MP4 of the episode, rendered offscreen: one frame after reset and after each step."""
+    import imageio.v3 as iio
+
+    path = tmp_path / "clip.mp4"
+    try:
+        result = evaluate("random", episodes=1, video=path)
+    except VideoError as error:
+        pytest.skip(f"no offscreen rendering here: {error}")
+    frames = iio.improps(path, plugin="pyav").shape[0]
+    assert frames == result["lengths"][0] + 1
+
+
+def test_non_finite_actions_stop_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A policy that outputs NaN fails in one line naming the step, not in a traceback."""
+    folder = untrained_checkpoint(tmp_path / "nan", poison=True)
+    code, out, err = eval_cli(["--policy", str(folder), "--episodes", "1"], capsys)
+    assert code == 1 and out == [] and len(err) == 1 and "non-finite action at step 0" in err[0]
+
+
+@pytest.mark.parametrize(("setup", "message"), [
+    (lambda root: root, "not a policy checkpoint"),
+    (lambda root: root / "missing", "no policy checkpoint at"),
+    (lambda root: corrupt_checkpoint(root / "corrupt"), "not a loadable checkpoint"),
+    (lambda root: "expertt", "unknown controller 'expertt'"),
+])
+def test_bad_policy_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                           setup: Callable[[Path], Path | str], message: str) -> None:
+    """A folder that is not a checkpoint, a missing one, corrupt weights or an unknown name: one line, exit 1."""
+    code, out, err = eval_cli(["--policy", str(setup(tmp_path)), "--episodes", "1"], capsys)
+    assert code == 1 and out == [] and len(err) == 1 and message in err[0]
+
+
+@pytest.mark.parametrize("args", [["--episodes", "0"], ["--push", "-1"], ["--noise", "nan"], ["--video", "x.avi"]])
+def test_bad_settings_are_refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """Impossible settings fail in one line before anything runs."""
+    code, out, err = eval_cli(["--policy", "random", *args], capsys)
+    assert code == 1 and out == [] and len(err) == 1
+
+
+def test_policy_that_does_not_fit_the_env_is_refused(tmp_path: Path) -> None:
+    """A checkpoint sized for another observation fails with a message giving both sizes."""
+    policy = MLPPolicy(MLPSpec(("observation.state", "observation.environment_state"), 45, 17, hidden=(8,)))
+    checkpoint.save(policy, tmp_path / "small", {}, {})
+    with pytest.raises(checkpoint.CheckpointError, match="45 inputs"):
+        evaluate(str(tmp_path / "small"), episodes=1)
