@@ -29,15 +29,18 @@ PUSH ?=
 VIDEO ?=
 EPOCHS ?=
 OVERWRITE ?=
+ROUNDS ?=
 
 opt = $(if $($(1)),--$(2) $($(1)))
 RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
 	$(call opt,CONTROLLER,controller) $(call opt,NOISE,noise) $(call opt,MAX_STEPS,max-steps)
 TRAIN_ARGS = --dataset $(DATASET) --policy $(POLICY) $(call opt,EPOCHS,epochs) $(call opt,OVERWRITE,overwrite)
+DAGGER_ARGS = --dataset $(DATASET) $(call opt,ROUNDS,rounds) $(call opt,EPISODES,episodes) \
+	$(call opt,OVERWRITE,overwrite)
 EVAL_ARGS = --policy $(POLICY) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
 	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
 
-.PHONY: help venv record train-bc eval pipeline test bench clean-venv
+.PHONY: help venv record train-bc eval dagger pipeline test bench clean-venv
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -60,6 +63,9 @@ train-bc: $(STAMP)  ## behaviour cloning, then evaluation: DATASET POLICY EPOCHS
 eval: $(STAMP)  ## evaluate a policy (or POLICY=expert): POLICY EPISODES SEED PUSH NOISE VIDEO
 	$(PY) -m bc.evaluate $(EVAL_ARGS)
 
+dagger: $(STAMP)  ## DAgger with the expert as oracle: DATASET ROUNDS EPISODES OVERWRITE
+	$(PY) -m bc.dagger $(DAGGER_ARGS)
+
 # Each stage runs only if its output is missing, so the pipeline can be re-run (or resumed)
 # without growing the dataset or refusing to overwrite the checkpoint.
 pipeline: $(STAMP)  ## record -> train-bc at their default sizes (stages whose output exists are skipped)
@@ -67,9 +73,7 @@ pipeline: $(STAMP)  ## record -> train-bc at their default sizes (stages whose o
 	else $(MAKE) --no-print-directory record; fi
 	@if [ -f $(POLICY)/model.safetensors ]; then echo "pipeline: $(POLICY) exists, not training"; \
 	else $(MAKE) --no-print-directory train-bc; fi
-	@$(PY) -c 'import json, sys; e = json.load(open(sys.argv[1])); \
-	print(f"pipeline: BC on seeds {e[\"seeds\"][0]}..{e[\"seeds\"][-1]}: survival {e[\"survival_rate\"]:.0%}, return {e[\"mean_return\"]:.1f} (expert {e[\"expert_mean_return\"]:.1f})")' \
-	$(POLICY)/eval.json
+	@$(PY) -m bc.report $(POLICY)
 
 test: $(STAMP)  ## run the test suite
 	$(PY) -m pytest

@@ -1,18 +1,21 @@
 """The DART table: behaviour cloning from clean and noise-injected demonstrations, beside the expert.
 
     .venv/bin/python -m bench.bc_benchmark [--noise 0 0.02 0.05 0.1] [--episodes 50] [--repeats 3]
+        [--dagger-rounds 3] [--dagger-episodes 10]
 
 For each recording noise σ: record EPISODES expert episodes (seeds 0..EPISODES-1) into
 bench/results/data/dart_<σ> unless it exists, measure loading into tensors (a fresh process, from
 the parquet files, then from the decoded cache; median of REPEATS), train `bc.train` with its
 defaults (timed from the start to a saved policy), and evaluate the policy on 20 unseen seeds
 (1000..1019) clean, with action noise 0.05, and with 10 N pushes; the expert on the same seeds
-and conditions gives the last row. Prints the table in Markdown.
+and conditions gives the last row. DAgger (`bc.dagger`) starts from the first noise level's
+demonstrations (the clean ones by default) and adds its row. Prints the table in Markdown.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import statistics
 import subprocess
 import sys
@@ -20,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bc.dagger import DaggerConfig
+from bc.dagger import main as dagger
 from bc.evaluate import evaluate
 from bc.train import TrainConfig, main as train
 from teleop.record import RecordConfig, main as record
@@ -68,14 +73,32 @@ def bench_noise(noise: float, episodes: int, repeats: int) -> tuple[str, str]:
     return row, timing
 
 
+def bench_dagger(noise: float, rounds: int, episodes: int) -> str:
+    """The DART-table row of DAgger started from the demonstrations recorded at `noise`."""
+    output = RESULTS / "data" / f"dagger_from_{noise:g}"
+    shutil.rmtree(output, ignore_errors=True)  # a fresh aggregate: the row is about exactly ROUNDS rounds
+    policy = RESULTS / "policies" / f"dagger_from_{noise:g}"
+    result = dagger(DaggerConfig(dataset=RESULTS / "data" / f"dart_{noise:g}", output=output, policy=policy,
+                                 rounds=rounds, episodes=episodes, overwrite=True, eval_episodes=0, progress=False))
+    frames = result.final.train_frames + result.final.val_frames
+    label = "clean demonstrations" if noise == 0 else f"σ = {noise:g} demonstrations"
+    results = [cell(evaluate(str(policy), **settings)) for settings in CONDITIONS.values()]
+    return (f"| DAgger, {rounds} rounds x {episodes} episodes from {label} ({frames:,} frames) | "
+            + " | ".join(results) + " |")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.02, 0.05, 0.1])
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--dagger-rounds", type=int, default=3, help="0 = no DAgger row")
+    parser.add_argument("--dagger-episodes", type=int, default=10)
     args = parser.parse_args(argv)
 
     rows, timings = zip(*(bench_noise(noise, args.episodes, args.repeats) for noise in args.noise), strict=True)
+    if args.dagger_rounds:
+        rows = (*rows, bench_dagger(args.noise[0], args.dagger_rounds, args.dagger_episodes))
     expert = [cell(evaluate("expert", **settings)) for settings in CONDITIONS.values()]
     print("Survived / 20 unseen seeds (1000..1019), mean return:\n")
     print("| policy | " + " | ".join(CONDITIONS) + " |")

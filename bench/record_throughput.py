@@ -114,7 +114,7 @@ def run(episodes: int, repeats: int, memory_episodes: int) -> str:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=10, help="episodes per contender and repeat")
+    parser.add_argument("--episodes", type=int, default=50, help="episodes per contender and repeat (a default recording)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--memory-episodes", type=int, default=50)
     args = parser.parse_args()

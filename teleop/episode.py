@@ -28,7 +28,8 @@ class Episode:
     """
 
     seed: int
-    controller: str
+    controller: str  # who acted
+    labeller: str  # who chose the `action` labels: the controller itself, or the expert in DAgger
     task: str
     noise_std: float
     observation: np.ndarray  # (T, 348) float64
@@ -39,6 +40,7 @@ class Episode:
     truncated: np.ndarray  # (T,) bool
     body_position: np.ndarray  # (T, 13, 3) float64, world frame
     body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
+    dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger
 
     @property
     def length(self) -> int:
@@ -109,10 +111,13 @@ def run_episode(
     noise_std: float = 0.0,
     buffer: EpisodeBuffer | None = None,
     task: str = DEFAULT_TASK,
+    labeller: Controller | None = None,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
-    Perturbations and rendering come with `env` as wrappers (`teleop.perturbations`, `teleop.video`).
+    The stored label of each step is the controller's action, or, with a `labeller` (DAgger), the
+    labeller's action in the state the controller led to. Perturbations and rendering come with
+    `env` as wrappers (`teleop.perturbations`, `teleop.video`).
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
@@ -122,6 +127,8 @@ def run_episode(
 
     obs, _ = env.reset(seed=seed)
     controller.reset(seed)
+    if labeller is not None:
+        labeller.reset(seed)
     t = 0
     while True:
         buffer.observation[t] = obs
@@ -130,9 +137,9 @@ def run_episode(
         if not np.isfinite(action).all():
             raise NonFiniteActionError(f"controller {controller.name!r} returned a non-finite action at step {t} "
                                        f"of the episode with seed {seed}")
+        buffer.action[t] = action if labeller is None else labeller.act(obs)
         executed = action if noise is None else np.clip(action + noise[t], low, high).astype(np.float32)
         obs, reward, terminated, truncated, _ = env.step(executed)
-        buffer.action[t] = action
         buffer.executed_action[t] = executed
         buffer.reward[t] = reward
         buffer.terminated[t] = terminated
@@ -140,4 +147,5 @@ def run_episode(
         t += 1
         if terminated or truncated:
             break
-    return buffer.episode(t, seed=seed, controller=controller.name, task=task, noise_std=noise_std)
+    return buffer.episode(t, seed=seed, controller=controller.name, task=task, noise_std=noise_std,
+                          labeller=controller.name if labeller is None else labeller.name)

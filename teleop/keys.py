@@ -28,6 +28,8 @@ TASK = "task"
 # Columns of meta/episodes/*.parquet that this project adds beside LeRobot's own.
 EPISODE_SEED = "seed"
 EPISODE_CONTROLLER = "controller"
+EPISODE_LABELLER = "labeller"
+EPISODE_DAGGER_ROUND = "dagger_round"
 EPISODE_NOISE_STD = "noise_std"
 EPISODE_RETURN = "return"
 EPISODE_TERMINATED = "terminated"

@@ -155,6 +155,8 @@ class EpisodeStore:
         facts = {
             keys.EPISODE_SEED: episode.seed,
             keys.EPISODE_CONTROLLER: episode.controller,
+            keys.EPISODE_LABELLER: episode.labeller,
+            keys.EPISODE_DAGGER_ROUND: episode.dagger_round,
             keys.EPISODE_NOISE_STD: float(episode.noise_std),
             keys.EPISODE_RETURN: episode.episode_return,
             keys.EPISODE_TERMINATED: bool(episode.terminated[-1]),

@@ -16,8 +16,9 @@ from teleop.store import DatasetSpec
 
 USER_KEYS = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.EXECUTED_ACTION, keys.REWARD,
              keys.DONE, keys.TERMINATED, keys.TRUNCATED]
-PROJECT_EPISODE_COLUMNS = {keys.EPISODE_SEED, keys.EPISODE_CONTROLLER, keys.EPISODE_NOISE_STD, keys.EPISODE_RETURN,
-                           keys.EPISODE_TERMINATED, keys.EPISODE_TRUNCATED, keys.EPISODE_MCAP}
+PROJECT_EPISODE_COLUMNS = {keys.EPISODE_SEED, keys.EPISODE_CONTROLLER, keys.EPISODE_LABELLER, keys.EPISODE_DAGGER_ROUND,
+                           keys.EPISODE_NOISE_STD, keys.EPISODE_RETURN, keys.EPISODE_TERMINATED,
+                           keys.EPISODE_TRUNCATED, keys.EPISODE_MCAP}
 
 
 @pytest.fixture(scope="module")

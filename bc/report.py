@@ -1,0 +1,40 @@
+"""The pipeline's closing table: each policy's evaluation (POLICY/eval.json) beside the expert's.
+
+    python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from policies import EVAL_FILE
+
+
+def table(policy_dirs: Sequence[Path]) -> str:
+    """A Markdown table, one row per evaluated policy and one for the expert on the first one's seeds."""
+    evaluations = {path: json.loads((path / EVAL_FILE).read_text()) for path in policy_dirs}
+    rows = ["| policy | seeds | survival | mean return | vs expert |", "|---|---|---|---|---|"]
+    for path, ev in evaluations.items():
+        rows.append(f"| {path} | {ev['seeds'][0]}..{ev['seeds'][-1]} | {ev['survival_rate']:.0%} | "
+                    f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {ev['return_vs_expert']:.1%} |")
+    first = next(iter(evaluations.values()))
+    rows.append(f"| expert (LQR) | {first['seeds'][0]}..{first['seeds'][-1]} | {first['expert_survival_rate']:.0%} | "
+                f"{first['expert_mean_return']:,.1f} | 100.0% |")
+    return "\n".join(rows)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    paths = [Path(arg) for arg in (sys.argv[1:] if argv is None else argv)]
+    missing = [str(path / EVAL_FILE) for path in paths if not (path / EVAL_FILE).is_file()]
+    if not paths or missing:
+        print(f"error: no evaluation at {', '.join(missing) or '(no folder given)'}", file=sys.stderr)
+        return 1
+    print(table(paths))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

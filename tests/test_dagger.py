@@ -1,0 +1,71 @@
+"""`make dagger`: policy rollouts labelled by the expert, appended as rounds, the demonstrations untouched."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bc.dagger import DaggerConfig, DaggerResult, cli, main
+from conftest import snapshot
+from teleop import keys
+from teleop.dataset_reader import read_episodes, read_frames
+from teleop.env import join_observation
+from teleop.expert import LQRExpert
+
+
+@pytest.fixture(scope="module")
+def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, DaggerResult, dict]:
+    """One DAgger round of 2 episodes on a copy of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("dagger")
+    demonstrations = folder / "demonstrations"
+    shutil.copytree(recorded, demonstrations)
+    before = snapshot(demonstrations)
+    output = folder / "aggregate"
+    result = main(DaggerConfig(dataset=demonstrations, output=output, policy=folder / "policy", rounds=1, episodes=2,
+                               eval_episodes=0, progress=False))
+    return demonstrations, output, result, before
+
+
+def test_rounds_are_appended_after_the_demonstrations(dagger: tuple) -> None:
+    """The aggregate holds the demonstrations (round 0) then the round's policy episodes, seeds continuing."""
+    _, output, result, _ = dagger
+    episodes = read_episodes(output).to_pylist()
+    assert [e[keys.EPISODE_DAGGER_ROUND] for e in episodes] == [0, 0, 0, 1, 1]
+    assert [e[keys.EPISODE_SEED] for e in episodes] == [0, 1, 2, 3, 4]
+    assert [e[keys.EPISODE_LABELLER] for e in episodes] == ["expert"] * 5
+    assert episodes[0][keys.EPISODE_CONTROLLER] == "expert"
+    assert all(e[keys.EPISODE_CONTROLLER] != "expert" for e in episodes[3:])  # the policy drove
+    assert [r.round for r in result.rounds] == [1]
+    assert result.rounds[0].frames == sum(e["length"] for e in episodes[3:])
+
+
+def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> None:
+    """Every DAgger frame's label is what the expert does in the stored state; what ran was the policy's action."""
+    _, output, _, _ = dagger
+    frames = read_frames(output)
+    rows = frames["episode_index"] >= 3
+    observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
+    expert = LQRExpert()
+    labels = np.stack([expert.act(obs) for obs in observations])
+    np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
+    assert not np.array_equal(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows])
+
+
+def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
+    """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate."""
+    import policies
+
+    demonstrations, output, result, before = dagger
+    assert snapshot(demonstrations) == before
+    assert result.final.train_frames + result.final.val_frames == len(read_frames(output, ["index"])["index"])
+    policies.load(result.final.policy_dir)
+
+
+def test_output_equal_to_dataset_is_refused(recorded: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """DAgger never appends to the demonstrations themselves."""
+    code = cli(["--dataset", str(recorded), "--output", str(recorded), "--progress", "false"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "OUTPUT must differ from DATASET" in err[0]
