@@ -49,8 +49,11 @@ class DaggerConfig:
     output: Path = setting(Path("datasets/humanoid_stand_dagger"), "aggregate dataset: a copy of DATASET, then "
                                                                    "every round appended")
     policy: Path = setting(Path("policies/dagger_humanoid_stand"), "checkpoint folder of the final policy")
-    rounds: int = setting(3, "rounds of roll out, label, aggregate, retrain")
+    rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
+    epochs: int = setting(30, "training epochs of every round's policy")
+    patience: int = setting(0, "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
+                               "data the validation loss says little about standing)")
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     eval_episodes: int = setting(20, "episodes of the final evaluation; 0 = skip it")
     progress: bool = setting(True, "show progress bars")
@@ -120,7 +123,8 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     result = DaggerResult()
     try:
         done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
-        quiet = {"eval_episodes": 0, "progress": False, "tensorboard": False}
+        training = {"epochs": cfg.epochs, "patience": cfg.patience}
+        quiet = {**training, "eval_episodes": 0, "progress": False, "tensorboard": False}
         with tempfile.TemporaryDirectory(prefix=".dagger-", dir=cfg.policy.parent) as scratch:
             policy_dir = Path(scratch) / f"round{done}"
             train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet))
@@ -131,7 +135,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
                     train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet))
     finally:
         store.close()
-    result.final = train(TrainConfig(dataset=cfg.output, policy=cfg.policy, overwrite=cfg.overwrite,
+    result.final = train(TrainConfig(dataset=cfg.output, policy=cfg.policy, overwrite=cfg.overwrite, **training,
                                      eval_episodes=cfg.eval_episodes, progress=cfg.progress))
     return result
 

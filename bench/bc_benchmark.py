@@ -1,7 +1,7 @@
 """The DART table: behaviour cloning from clean and noise-injected demonstrations, beside the expert.
 
     .venv/bin/python -m bench.bc_benchmark [--noise 0 0.02 0.05 0.1] [--episodes 50] [--repeats 3]
-        [--dagger-rounds 3] [--dagger-episodes 10]
+        [--dagger-rounds 6] [--dagger-episodes 10]
 
 For each recording noise σ: record EPISODES expert episodes (seeds 0..EPISODES-1) into
 bench/results/data/dart_<σ> unless it exists, measure loading into tensors (a fresh process, from
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.02, 0.05, 0.1])
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--dagger-rounds", type=int, default=3, help="0 = no DAgger row")
+    parser.add_argument("--dagger-rounds", type=int, default=6, help="0 = no DAgger row")
     parser.add_argument("--dagger-episodes", type=int, default=10)
     args = parser.parse_args(argv)
 

@@ -8,13 +8,15 @@ committed episodes that meta/info.json counts.
 from __future__ import annotations
 
 import json
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas  # noqa: F401 - pyarrow imports it on its first conversion to NumPy: pay it at import, not mid-load
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -28,20 +30,47 @@ def read_info(root: Path) -> dict:
     return json.loads((root / INFO_PATH).read_text())
 
 
+PARALLEL_FILES = 2  # parquet files decoded at once: Arrow releases the GIL, so one per core
+
+
+def _read_parquet(path: Path, columns: list[str] | None, skip_prefix: str | None = None) -> pa.Table:
+    # pq.ParquetFile, not pq.read_table: the dataset layer of the latter costs more than these small reads.
+    file = pq.ParquetFile(path)
+    if columns is None and skip_prefix:
+        columns = [name for name in file.schema_arrow.names if not name.startswith(skip_prefix)]
+    return file.read(columns=columns, use_threads=False)
+
+
+def _read_in_order(paths: list[Path], columns: list[str] | None, skip_prefix: str | None = None) -> Iterator[pa.Table]:
+    """The tables of `paths` in order, the next PARALLEL_FILES ones decoding in threads meanwhile."""
+    with ThreadPoolExecutor(PARALLEL_FILES) as pool:
+        pending: deque[Future[pa.Table]] = deque()
+        for path in paths:
+            pending.append(pool.submit(_read_parquet, path, columns, skip_prefix))
+            if len(pending) > PARALLEL_FILES:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+
+
+def _rows_before(table: pa.Table, column: str, limit: int) -> pa.Table:
+    """The rows whose `column` is below `limit`."""
+    keep = table[column].to_numpy() < limit
+    return table if keep.all() else table.filter(pa.array(keep))
+
+
 def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     """One row per committed episode: `columns`, or LeRobot's and this project's (seed, return, ...) without stats."""
     committed = read_info(root)["total_episodes"]
     wanted = None if columns is None else list(dict.fromkeys([*columns, "episode_index"]))
-    tables = []
-    for path in sorted((root / EPISODES_DIR).glob("*/*.parquet")):
-        # Hundreds of stats/ columns per file: reading only the wanted ones is most of the speed.
-        file = pq.ParquetFile(path)  # not pq.read_table: its dataset layer costs more than these reads
-        names = wanted or [name for name in file.schema_arrow.names if not name.startswith("stats/")]
-        tables.append(file.read(columns=names))
-    if not tables:
+    paths = sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+    if not paths:
         raise FileNotFoundError(f"{root} has no episode metadata ({EPISODES_DIR})")
-    episodes = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
-    episodes = episodes.filter(pc.less(episodes["episode_index"], committed))
+    # Hundreds of stats/ columns per file: reading only the wanted ones is most of the speed.
+    tables = list(_read_in_order(paths, wanted, skip_prefix="stats/"))
+    episodes = _rows_before(pa.concat_tables(tables, promote_options="default"), "episode_index", committed)
+    order = np.argsort(episodes["episode_index"].to_numpy(), kind="stable")
+    episodes = episodes.take(pa.array(order))
     return episodes if columns is None else episodes.select(columns)
 
 
@@ -67,15 +96,14 @@ def data_files(root: Path) -> list[Path]:
 def iter_frames(root: Path, columns: list[str] | None = None) -> Iterator[dict[str, np.ndarray]]:
     """The committed frames file by file, each batch with its `index` column (the global frame index).
 
-    For readers that fill preallocated arrays: one file's decoded columns at a time are alive, so
-    their memory is reused instead of growing with the dataset (page faults dominate otherwise).
+    For readers that fill preallocated arrays: only a few files' decoded columns are alive at a
+    time, so their memory is reused instead of growing with the dataset (page faults dominate
+    otherwise).
     """
     committed = read_info(root)["total_frames"]
     wanted = None if columns is None else list(dict.fromkeys([*columns, "index"]))
-    for path in data_files(root):
-        table = pq.ParquetFile(path).read(columns=wanted)
-        if len(table) and pc.max(table["index"]).as_py() >= committed:  # rows of an unfinished episode
-            table = table.filter(pc.less(table["index"], committed))
+    for table in _read_in_order(data_files(root), wanted):
+        table = _rows_before(table, "index", committed)  # rows of an unfinished episode, if any
         yield {name: column_to_numpy(table[name]) for name in table.column_names}
 
 
