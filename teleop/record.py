@@ -31,7 +31,7 @@ from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
 if TYPE_CHECKING:
-    from teleop.store import CommittedEpisode
+    from teleop.store import CommittedEpisode, EpisodeSink
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +104,7 @@ def main(cfg: RecordConfig) -> RecordSummary:
     validate(cfg)
     env = make_env(cfg.max_steps)
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
+    sink: EpisodeSink
     if cfg.writer == "process":
         from teleop.writer_process import WriterProcess  # noqa: PLC0415
 

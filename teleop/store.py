@@ -17,6 +17,7 @@ import fcntl
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import gymnasium as gym
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -91,6 +92,17 @@ class CommittedEpisode:
     length: int
     episode_return: float
     fell: bool
+
+
+class EpisodeSink(Protocol):
+    """Where the recorder sends finished episodes: an `EpisodeStore` here, or a `WriterProcess`."""
+
+    num_episodes: int
+
+    def wait_ready(self) -> None: ...
+    def next_seed(self) -> int: ...
+    def submit(self, episode: Episode) -> list[CommittedEpisode]: ...
+    def close(self) -> list[CommittedEpisode]: ...
 
 
 def _lock(root: Path) -> int:
