@@ -17,9 +17,14 @@ export HF_DATASETS_OFFLINE := 1
 export MUJOCO_GL ?= egl
 export PYTHONUNBUFFERED := 1
 
-# The pipeline's folders (the stages' own defaults are the same).
+# The pipeline's folders (the stages' own defaults are the same; a test checks it). POLICY is each
+# stage's output (or, for eval, its input): empty means that stage's default folder below.
 DATASET ?= datasets/humanoid_stand
-POLICY ?= policies/bc_humanoid_stand
+BC_DEFAULT := policies/bc_humanoid_stand
+PPO_DEFAULT := policies/ppo_humanoid_stand
+SCRATCH_DEFAULT := policies/ppo_scratch_humanoid_stand
+POLICY ?=
+BC_POLICY ?= $(BC_DEFAULT)
 EPISODES ?=
 SEED ?=
 CONTROLLER ?=
@@ -30,17 +35,22 @@ VIDEO ?=
 EPOCHS ?=
 OVERWRITE ?=
 ROUNDS ?=
+TIMESTEPS ?=
+WORKERS ?=
 
 opt = $(if $($(1)),--$(2) $($(1)))
 RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
 	$(call opt,CONTROLLER,controller) $(call opt,NOISE,noise) $(call opt,MAX_STEPS,max-steps)
-TRAIN_ARGS = --dataset $(DATASET) --policy $(POLICY) $(call opt,EPOCHS,epochs) $(call opt,OVERWRITE,overwrite)
+TRAIN_ARGS = --dataset $(DATASET) --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPOCHS,epochs) \
+	$(call opt,OVERWRITE,overwrite)
 DAGGER_ARGS = --dataset $(DATASET) $(call opt,ROUNDS,rounds) $(call opt,EPISODES,episodes) \
 	$(call opt,OVERWRITE,overwrite)
-EVAL_ARGS = --policy $(POLICY) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
+RL_ARGS = --bc-policy $(BC_POLICY) $(call opt,TIMESTEPS,timesteps) $(call opt,WORKERS,workers) \
+	$(call opt,PUSH,push) $(call opt,OVERWRITE,overwrite)
+EVAL_ARGS = --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
 	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
 
-.PHONY: help venv record train-bc eval dagger pipeline test bench clean-venv
+.PHONY: help venv record train-bc eval dagger finetune-rl baseline-rl pipeline test bench clean-venv
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -66,14 +76,24 @@ eval: $(STAMP)  ## evaluate a policy (or POLICY=expert): POLICY EPISODES SEED PU
 dagger: $(STAMP)  ## DAgger with the expert as oracle: DATASET ROUNDS EPISODES OVERWRITE
 	$(PY) -m bc.dagger $(DAGGER_ARGS)
 
+finetune-rl: $(STAMP)  ## PPO refinement of the BC policy: BC_POLICY POLICY TIMESTEPS WORKERS PUSH OVERWRITE
+	$(PY) -m bc.finetune --policy $(or $(POLICY),$(PPO_DEFAULT)) $(RL_ARGS)
+
+baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget: POLICY TIMESTEPS WORKERS PUSH OVERWRITE
+	$(PY) -m bc.finetune --scratch true --policy $(or $(POLICY),$(SCRATCH_DEFAULT)) $(RL_ARGS)
+
 # Each stage runs only if its output is missing, so the pipeline can be re-run (or resumed)
 # without growing the dataset or refusing to overwrite the checkpoint.
-pipeline: $(STAMP)  ## record -> train-bc at their default sizes (stages whose output exists are skipped)
+pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl, then the table (existing outputs are reused)
 	@if [ -f $(DATASET)/meta/info.json ]; then echo "pipeline: $(DATASET) exists, not recording"; \
 	else $(MAKE) --no-print-directory record; fi
-	@if [ -f $(POLICY)/model.safetensors ]; then echo "pipeline: $(POLICY) exists, not training"; \
-	else $(MAKE) --no-print-directory train-bc; fi
-	@$(PY) -m bc.report $(POLICY)
+	@if [ -f $(BC_DEFAULT)/eval.json ]; then echo "pipeline: $(BC_DEFAULT) exists, not training"; \
+	else $(MAKE) --no-print-directory train-bc POLICY=$(BC_DEFAULT); fi
+	@if [ -f $(SCRATCH_DEFAULT)/eval.json ]; then echo "pipeline: $(SCRATCH_DEFAULT) exists, not training"; \
+	else $(MAKE) --no-print-directory baseline-rl POLICY=$(SCRATCH_DEFAULT) BC_POLICY=$(BC_DEFAULT); fi
+	@if [ -f $(PPO_DEFAULT)/eval.json ]; then echo "pipeline: $(PPO_DEFAULT) exists, not fine-tuning"; \
+	else $(MAKE) --no-print-directory finetune-rl POLICY=$(PPO_DEFAULT) BC_POLICY=$(BC_DEFAULT); fi
+	@$(PY) -m bc.report $(BC_DEFAULT) $(PPO_DEFAULT) $(SCRATCH_DEFAULT)
 
 test: $(STAMP)  ## run the test suite
 	$(PY) -m pytest
@@ -82,6 +102,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
+	$(PY) -m bench.ppo_throughput
 
 clean-venv:  ## remove .venv
 	rm -rf $(VENV)

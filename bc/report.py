@@ -14,15 +14,18 @@ from policies import EVAL_FILE
 
 
 def table(policy_dirs: Sequence[Path]) -> str:
-    """A Markdown table, one row per evaluated policy and one for the expert on the first one's seeds."""
+    """A Markdown table, one row per evaluated policy and one for the expert (from the first that has it)."""
     evaluations = {path: json.loads((path / EVAL_FILE).read_text()) for path in policy_dirs}
+    reference = next((ev for ev in evaluations.values() if ev.get("expert_mean_return")), None)
+    expert = reference["expert_mean_return"] if reference else None
     rows = ["| policy | seeds | survival | mean return | vs expert |", "|---|---|---|---|---|"]
     for path, ev in evaluations.items():
+        versus = f"{ev['mean_return'] / expert:.1%}" if expert else "n/a"
         rows.append(f"| {path} | {ev['seeds'][0]}..{ev['seeds'][-1]} | {ev['survival_rate']:.0%} | "
-                    f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {ev['return_vs_expert']:.1%} |")
-    first = next(iter(evaluations.values()))
-    rows.append(f"| expert (LQR) | {first['seeds'][0]}..{first['seeds'][-1]} | {first['expert_survival_rate']:.0%} | "
-                f"{first['expert_mean_return']:,.1f} | 100.0% |")
+                    f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {versus} |")
+    if reference:
+        rows.append(f"| expert (LQR) | {reference['seeds'][0]}..{reference['seeds'][-1]} | "
+                    f"{reference['expert_survival_rate']:.0%} | {expert:,.1f} | 100.0% |")
     return "\n".join(rows)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from bc.finetune import SCRATCH_POLICY, FinetuneConfig
 from bc.train import TrainConfig
 from teleop.record import RecordConfig
 
@@ -12,13 +13,15 @@ MAKEFILE = Path(__file__).resolve().parent.parent / "Makefile"
 
 
 def make_default(variable: str) -> str:
-    """The `VARIABLE ?= value` default in the Makefile."""
-    match = re.search(rf"^{variable} \?= *(\S*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
+    """The `VARIABLE ?= value` (or `:=`) default in the Makefile."""
+    match = re.search(rf"^{variable} [?:]= *(\S*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
     assert match, f"{variable} has no default in the Makefile"
     return match.group(1)
 
 
 def test_dataset_and_policy_defaults_match_the_stages() -> None:
-    """DATASET and POLICY default to the folders record and train-bc use when called directly."""
+    """The Makefile's dataset and checkpoint folders are those the stages use when called directly."""
     assert Path(make_default("DATASET")) == RecordConfig().dataset == TrainConfig().dataset
-    assert Path(make_default("POLICY")) == TrainConfig().policy
+    assert Path(make_default("BC_DEFAULT")) == TrainConfig().policy == FinetuneConfig().bc_policy
+    assert Path(make_default("PPO_DEFAULT")) == FinetuneConfig().policy
+    assert Path(make_default("SCRATCH_DEFAULT")) == SCRATCH_POLICY

@@ -1,0 +1,80 @@
+"""A stable-baselines3 actor-critic whose actor *is* an `MLPPolicy`: PPO fine-tunes the BC module itself.
+
+SB3's `ActorCriticPolicy` maps observations through an "mlp_extractor" to a latent, then a linear
+`action_net` to the mean action, with a state-independent log std. Here the extractor's actor
+branch is the BC policy (normalisation, MLP, tanh scaling included) and `action_net` is the
+identity, so the Gaussian's mean is exactly the BC policy's action; the critic is a separate MLP
+on the same normalised inputs. Orthogonal initialisation is off: it would overwrite the loaded
+weights. The log std starts small (`log_std_init`): SB3's default std of 1 puts most samples far
+outside the ±0.4 action bounds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import torch
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.type_aliases import Schedule
+from torch import nn
+
+from policies.mlp import ACTIVATIONS, MLPPolicy, MLPSpec
+
+
+class ActorCriticExtractor(nn.Module):
+    """SB3's `mlp_extractor` contract (`forward_actor`, `forward_critic`, latent sizes) around an `MLPPolicy`."""
+
+    def __init__(self, actor: MLPPolicy, critic_hidden: tuple[int, ...]) -> None:
+        super().__init__()
+        self.actor = actor
+        layers: list[nn.Module] = []
+        width = actor.spec.input_dim
+        for size in critic_hidden:
+            layers += [nn.Linear(width, size), ACTIVATIONS[actor.spec.activation]()]
+            width = size
+        self.critic = nn.Sequential(*layers)
+        self.latent_dim_pi = actor.spec.action_dim
+        self.latent_dim_vf = width
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        """The mean action: the BC policy's output."""
+        return self.actor(features)
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        # The critic sees inputs normalised like the actor's (the same buffers, not trained).
+        return self.critic((features - self.actor.input_mean) / self.actor.input_std)
+
+
+class BCActorCriticPolicy(ActorCriticPolicy):
+    """PPO's policy with an `MLPPolicy` actor rebuilt from `actor_spec` and `actor_state` (its state_dict)."""
+
+    def __init__(self, observation_space: gym.spaces.Space, action_space: gym.spaces.Box, lr_schedule: Schedule,
+                 actor_spec: MLPSpec, actor_state: dict[str, torch.Tensor], critic_hidden: tuple[int, ...] = (256, 256),
+                 **kwargs: Any) -> None:
+        # Plain data, set before nn.Module.__init__: `_build` (called by the parent) needs them.
+        self.actor_spec, self.actor_state, self.critic_hidden = actor_spec, actor_state, critic_hidden
+        super().__init__(observation_space, action_space, lr_schedule, ortho_init=False, **kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        actor = MLPPolicy(self.actor_spec)
+        actor.load_state_dict(self.actor_state)
+        self.mlp_extractor = ActorCriticExtractor(actor, self.critic_hidden)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        self.action_net = nn.Identity()  # the actor already outputs the mean action
+        # The parent's optimiser holds the linear action_net just replaced: rebuild it over the real parameters.
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    @property
+    def actor(self) -> MLPPolicy:
+        """The BC module being fine-tuned (save it with `policies.checkpoint.save`)."""
+        return self.mlp_extractor.actor
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        """What PPO changes in the actor: its weights and the exploration log std."""
+        return [*self.actor.parameters(), self.log_std]

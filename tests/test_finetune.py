@@ -1,0 +1,156 @@
+"""`make finetune-rl`: PPO starts from the BC policy exactly, the warm-up spares the actor, bad input is refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import policies
+from bc.finetune import DemonstrationTerm, FinetuneConfig, Guards, RegularisedAdam, build_model, cli, main
+from bc.train import TrainConfig
+from bc.train import main as train_bc
+from conftest import snapshot
+from policies import checkpoint
+from policies.controller import PolicyController
+from policies.mlp import MLPPolicy, MLPSpec
+from teleop.env import make_env
+
+TINY_PPO = {"rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256, "eval_episodes": 1,
+            "final_eval_episodes": 1, "progress": False}
+
+
+@pytest.fixture(scope="module")
+def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint trained on the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("bc") / "policy"
+    train_bc(TrainConfig(dataset=recorded, policy=folder, hidden=32, epochs=5, eval_episodes=0, progress=False,
+                         tensorboard=False))
+    return folder
+
+
+def ppo_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    code = cli(["--progress", "false", *args])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
+    """Before any update, PPO's deterministic actions are the BC policy's, bit for bit."""
+    config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
+    env = DummyVecEnv([make_env])
+    model = build_model(config, env, term=None)
+    bc = PolicyController(policies.load(bc_policy), "bc")
+    probe = make_env()
+    for seed in range(3):
+        obs, _ = probe.reset(seed=seed)
+        for _ in range(20):
+            action, _ = model.predict(obs, deterministic=True)
+            np.testing.assert_array_equal(action, bc.act(obs))
+            obs, *_ = probe.step(action)
+    assert torch.exp(model.policy.log_std).allclose(torch.tensor(0.05))
+
+
+def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
+    """During the warm-up PPO updates the critic and leaves the actor's weights and log std as they were."""
+    config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
+    model = build_model(config, DummyVecEnv([make_env]), term=None)
+    actor_before = {k: v.clone() for k, v in model.policy.actor.state_dict().items()}
+    log_std_before = model.policy.log_std.detach().clone()
+    critic_before = [p.detach().clone() for p in model.policy.mlp_extractor.critic.parameters()]
+    model.learn(total_timesteps=512, callback=Guards(warmup=10_000, term=None))
+    for name, value in model.policy.actor.state_dict().items():
+        assert torch.equal(value, actor_before[name]), name
+    assert torch.equal(model.policy.log_std, log_std_before)
+    assert any(not torch.equal(p, q) for p, q in zip(model.policy.mlp_extractor.critic.parameters(), critic_before,
+                                                      strict=True))
+
+
+def test_actor_learns_once_the_warmup_is_over(bc_policy: Path) -> None:
+    """With no warm-up the same updates do change the actor (the previous test is not vacuous)."""
+    config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
+    model = build_model(config, DummyVecEnv([make_env]), term=None)
+    before = model.policy.actor.net[0].weight.detach().clone()
+    model.learn(total_timesteps=512, callback=Guards(warmup=0, term=None))
+    assert not torch.equal(model.policy.actor.net[0].weight, before)
+
+
+def test_demonstration_term_pulls_the_actor_to_the_labels() -> None:
+    """Steps of RegularisedAdam with no PPO gradient fit the actor to the demonstrations (known answer: MSE falls)."""
+    torch.manual_seed(0)
+    actor = MLPPolicy(MLPSpec(("x",), 4, 2, hidden=(16,)))
+    inputs = torch.randn(512, 4)
+    actions = 0.5 * torch.tanh(inputs[:, :2])
+    term = DemonstrationTerm(inputs, actions, weight=1.0, decay=1.0, batch_size=128, seed=0)
+    term.actor, term.active = actor, True
+    optimiser = RegularisedAdam(actor.parameters(), term=term, lr=1e-2)
+    start = torch.nn.functional.mse_loss(actor(inputs), actions).item()
+    for _ in range(100):
+        optimiser.zero_grad()
+        optimiser.step()
+    assert torch.nn.functional.mse_loss(actor(inputs), actions).item() < 0.2 * start
+    term.updates, term.decay = 3, 0.5
+    assert term.weight == 0.125
+
+
+def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) -> None:
+    """A short fine-tuning run saves the actor in the BC format, an eval.json and periodic checkpoints."""
+    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=256,
+                                 bc_weight=1.0, **TINY_PPO))
+    loaded = policies.load(tmp_path / "ppo")
+    assert loaded.spec == policies.load(bc_policy).spec
+    assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512, 768]
+    assert (tmp_path / "ppo" / policies.EVAL_FILE).is_file() and (tmp_path / "ppo" / "learning_curve.png").is_file()
+    assert len(list((tmp_path / "ppo" / "checkpoints").iterdir())) == 4
+    assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
+
+
+def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """BC_POLICY naming nothing fails in one line and writes nothing."""
+    code, err = ppo_cli(["--bc-policy", str(tmp_path / "none"), "--policy", str(tmp_path / "ppo")], capsys)
+    assert code == 1 and len(err) == 1 and "no policy checkpoint" in err[0]
+    assert not (tmp_path / "ppo").exists()
+
+
+def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A checkpoint built for another observation or action size fails in one line."""
+    folder = tmp_path / "small"
+    spec = MLPSpec(("observation.state", "observation.environment_state"), 10, 3, hidden=(8,))
+    checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
+    code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
+    assert code == 1 and len(err) == 1 and "348 observations and 17 actions" in err[0]
+    assert not (tmp_path / "ppo").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--timesteps", "0"], "TIMESTEPS must be positive"),
+    (["--timesteps", "-5"], "TIMESTEPS must be positive"),
+    (["--workers", "0"], "WORKERS must be positive"),
+])
+def test_non_positive_budget_is_refused(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                        args: list[str], message: str) -> None:
+    """A non-positive budget fails in one line before anything starts."""
+    code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(tmp_path / "ppo"), *args], capsys)
+    assert code == 1 and len(err) == 1 and message in err[0]
+
+
+def test_unwritable_policy_folder_is_refused(bc_policy: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """POLICY on a read-only file system fails in one line."""
+    code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", "/sys/fs/humanoid_bc_policy"], capsys)
+    assert code == 1 and len(err) == 1 and "cannot write a checkpoint in /sys/fs" in err[0]
+
+
+def test_existing_checkpoint_is_not_overwritten(bc_policy: Path, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """An existing POLICY is left as it was without --overwrite; the BC checkpoint itself is refused as POLICY."""
+    before = snapshot(bc_policy)
+    code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(bc_policy), "--overwrite", "true"], capsys)
+    assert code == 1 and "POLICY must differ from BC_POLICY" in err[0]
+    target = tmp_path / "existing"
+    checkpoint.save(policies.load(bc_policy), target, {}, {})
+    existing = snapshot(target)
+    code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(target)], capsys)
+    assert code == 1 and len(err) == 1 and "--overwrite" in err[0]
+    assert snapshot(target) == existing and snapshot(bc_policy) == before
