@@ -213,7 +213,6 @@ class Evaluator(BaseCallback):
         self.cfg, self.folder, self.bar = cfg, folder, bar
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
-        self.started = time.perf_counter()
 
     def evaluate_now(self) -> None:
         actor = self.model.policy.actor
