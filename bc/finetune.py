@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 import torch
 from matplotlib.figure import Figure
 from stable_baselines3 import PPO
@@ -41,7 +40,7 @@ from tqdm import tqdm
 
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
-from policies import EVAL_FILE, checkpoint
+from policies import DATASET_FILE, EVAL_FILE, checkpoint
 from policies.actor_critic import BCActorCriticPolicy
 from policies.controller import PolicyController
 from policies.mlp import MLPPolicy
@@ -259,12 +258,16 @@ def build_model(cfg: FinetuneConfig, env: VecEnv, term: DemonstrationTerm | None
     return model
 
 
+def bc_dataset(bc_policy: Path) -> dict[str, Any]:
+    """The BC checkpoint's record of its training data (path, episodes, frames, split)."""
+    return json.loads((bc_policy / DATASET_FILE).read_text())
+
+
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
     """The BC term on the BC checkpoint's own training data, or None when off."""
     if cfg.scratch or cfg.bc_weight == 0:
         return None
-    dataset = Path(json.loads((cfg.bc_policy / "dataset.json").read_text())["path"])
-    demos = load_demonstrations(dataset, make_env())
+    demos = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env())
     return DemonstrationTerm(demos.inputs, demos.actions, cfg.bc_weight, cfg.bc_decay, cfg.batch_size, cfg.seed)
 
 
@@ -304,7 +307,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
             bar.close()
             actor = model.policy.actor
             checkpoint.save(actor, folder, {**asdict(cfg), "seconds": seconds},
-                            json.loads((cfg.bc_policy / "dataset.json").read_text()))
+                            bc_dataset(cfg.bc_policy))
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
     finally:
         env.close()

@@ -30,7 +30,6 @@ import pyarrow.parquet as pq
 
 from teleop.cli import DatasetError
 from teleop.lerobot_format import (
-    CODEBASE_VERSION,
     DEFAULT_FEATURES,
     EPISODES_DIR,
     EPISODES_PATH,
