@@ -19,7 +19,7 @@ from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
 from teleop.env import make_env
 
-TINY_PPO = {"rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256, "eval_episodes": 1,
+TINY_PPO = {"envs": 4, "workers": 2, "rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256, "eval_episodes": 1,
             "final_eval_episodes": 1, "progress": False}
 
 
@@ -107,6 +107,19 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) 
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
+def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
+    """The same run with its environments in 1 process or spread over 3 ends with the same weights, bit for bit."""
+    actors = []
+    for workers in (1, 3):
+        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{workers}", timesteps=512, critic_warmup=256,
+                            **{**TINY_PPO, "workers": workers}))
+        actors.append(policies.load(tmp_path / f"ppo_{workers}").state_dict())
+    assert actors[0].keys() == actors[1].keys()
+    for name, value in actors[0].items():
+        assert torch.equal(value, actors[1][name]), name
+    assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
+
+
 def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """BC_POLICY naming nothing fails in one line and writes nothing."""
     code, err = ppo_cli(["--bc-policy", str(tmp_path / "none"), "--policy", str(tmp_path / "ppo")], capsys)
@@ -128,6 +141,8 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     (["--timesteps", "0"], "TIMESTEPS must be positive"),
     (["--timesteps", "-5"], "TIMESTEPS must be positive"),
     (["--workers", "0"], "WORKERS must be positive"),
+    (["--envs", "0"], "ENVS must be positive"),
+    (["--envs", "4", "--workers", "5"], "WORKERS (5) must not exceed ENVS (4)"),
 ])
 def test_non_positive_budget_is_refused(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                         args: list[str], message: str) -> None:
