@@ -9,7 +9,8 @@
    - a DAPG-style behaviour-cloning term on the demonstrations, added to PPO's gradient at every
      optimiser step with a weight that decays by BC_DECAY per update (`DemonstrationTerm`);
    - a conservative learning rate, clip range and target KL.
-3. Vectorised environments (WORKERS processes), optional torso pushes (PUSH, as `make eval`),
+3. ENVS environments stepped as one batch over WORKERS processes (`bc.vec_env`; the worker count
+   changes the speed, never the result), optional torso pushes (PUSH, as `make eval`),
    TensorBoard logs, a progress bar, an evaluation every EVAL_FREQ steps (checkpoint included).
 4. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
    with eval.json and a learning curve beside BC's level and the scratch baseline's curve.
@@ -54,6 +55,9 @@ CURVE_FILE = "learning_curve.json"
 CURVE_PNG = "learning_curve.png"
 CHECKPOINTS_DIR = "checkpoints"
 SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")
+# Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
+# final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
+VALIDATION_SEED = 2000
 
 
 @dataclass
@@ -87,6 +91,10 @@ class FinetuneConfig:
     bc_decay: float = setting(0.95, "factor applied to the BC weight after every PPO update")
     eval_freq: int = setting(10_000, "steps between evaluations (and checkpoints) during training")
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
+    validation_seed: int = setting(VALIDATION_SEED, "first seed of the evaluations during training: apart from "
+                                                    "the final evaluation's, since they choose the actor kept")
+    keep: str = setting("best", "the actor saved: 'best' (highest return of the evaluations during training, "
+                                "step 0 included, earliest on ties) or 'last'", choices=("best", "last"))
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
     threads: int = setting(1, "torch threads of the learner while it collects rollouts (the workers need the "
@@ -108,12 +116,14 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"WORKERS ({cfg.workers}) must not exceed ENVS ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"ROLLOUT_STEPS ({cfg.rollout_steps}) must be a multiple of ENVS ({cfg.envs})")
-    for name, value in {"UPDATE_THREADS": cfg.update_threads, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight, "TARGET_KL": cfg.target_kl,
+    for name, value in {"UPDATE_THREADS": cfg.update_threads, "VALIDATION_SEED": cfg.validation_seed, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight, "TARGET_KL": cfg.target_kl,
                         "CRITIC_WARMUP": cfg.critic_warmup, "FINAL_EVAL_EPISODES": cfg.final_eval_episodes}.items():
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{name} must be >= 0, got {value}")
     if not (0 < cfg.learning_rate and 0 < cfg.scratch_learning_rate and 0 < cfg.bc_decay <= 1):
         raise UserError("learning rates must be positive and BC_DECAY in (0, 1]")
+    if cfg.keep not in ("best", "last"):
+        raise UserError(f"KEEP must be 'best' or 'last', got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("POLICY must differ from BC_POLICY: the BC checkpoint is never overwritten")
 
@@ -237,22 +247,30 @@ class ThreadBudget(BaseCallback):
 
 
 class Evaluator(BaseCallback):
-    """Evaluates the deterministic actor every `freq` steps (and at 0 and the end), saving a checkpoint each time."""
+    """Evaluates the deterministic actor every `freq` steps (and at 0 and the end), saving a checkpoint each time.
+
+    It also remembers the best of them (the first on ties), so that a run that ends worse than it
+    went, or worse than the BC policy it started from, can keep its best actor.
+    """
 
     def __init__(self, cfg: FinetuneConfig, folder: Path, bar: tqdm) -> None:
         super().__init__()
         self.cfg, self.folder, self.bar = cfg, folder, bar
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
+        self.best: dict[str, float] | None = None
+        self.best_state: dict[str, torch.Tensor] = {}
 
     def evaluate_now(self) -> None:
         actor = self.model.policy.actor
-        result = evaluate(PolicyController(actor, "ppo"), episodes=self.cfg.eval_episodes, seed=EVAL_SEED,
-                          push=self.cfg.push)
+        result = evaluate(PolicyController(actor, "ppo"), episodes=self.cfg.eval_episodes,
+                          seed=self.cfg.validation_seed, push=self.cfg.push)
         actor.train()
         point = {"timesteps": self.num_timesteps, "mean_return": result["mean_return"],
                  "survival_rate": result["survival_rate"]}
         self.curve.append(point)
+        if self.best is None or point["mean_return"] > self.best["mean_return"]:
+            self.best, self.best_state = point, {k: v.detach().clone() for k, v in actor.state_dict().items()}
         self.logger.record("eval/mean_return", point["mean_return"])
         self.logger.record("eval/survival_rate", point["survival_rate"])
         checkpoint.save(actor, self.folder / CHECKPOINTS_DIR / f"step_{self.num_timesteps:08d}", asdict(self.cfg), {})
@@ -340,7 +358,10 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
             seconds = time.perf_counter() - start
             bar.close()
             actor = model.policy.actor
-            checkpoint.save(actor, folder, {**asdict(cfg), "seconds": seconds},
+            kept = evaluator.best if cfg.keep == "best" else evaluator.curve[-1]
+            if cfg.keep == "best":
+                actor.load_state_dict(evaluator.best_state)
+            checkpoint.save(actor, folder, {**asdict(cfg), "seconds": seconds, "kept": kept},
                             bc_dataset(cfg.bc_policy))
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
     finally:
@@ -354,14 +375,15 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
     result.update(timesteps=cfg.timesteps, seconds=seconds, steps_per_s=cfg.timesteps / seconds,
                   bc_mean_return=None if bc is None else bc["mean_return"],
                   expert_mean_return=None if bc is None else bc.get("expert_mean_return"),
-                  training_curve=evaluator.curve)
+                  training_curve=evaluator.curve, kept=kept)
     checkpoint.write_json(cfg.policy / EVAL_FILE, result)
     curves = {"PPO from scratch" if cfg.scratch else "PPO fine-tuning": evaluator.curve}
     scratch_curve = SCRATCH_POLICY / CURVE_FILE
     if not cfg.scratch and scratch_curve.is_file():
         curves["PPO from scratch"] = json.loads(scratch_curve.read_text())
     plot_curves(curves, evaluator.curve[0]["mean_return"] if not cfg.scratch else None,
-                f"{cfg.policy.name}: evaluation on seeds {EVAL_SEED}..{EVAL_SEED + cfg.eval_episodes - 1}"
+                f"{cfg.policy.name}: validation on seeds {cfg.validation_seed}.."
+                f"{cfg.validation_seed + cfg.eval_episodes - 1}"
                 f"{f', {cfg.push:g} N pushes' if cfg.push else ''}", cfg.policy / CURVE_PNG)
     return result
 
@@ -371,7 +393,8 @@ def _main_and_print(cfg: FinetuneConfig) -> None:
     curve = result["training_curve"]
     print(f"{cfg.policy}: {result['timesteps']} steps in {result['seconds']:.0f} s ({result['steps_per_s']:.0f}/s); "
           f"evaluations during training {min(p['mean_return'] for p in curve):.0f}..{max(p['mean_return'] for p in curve):.0f}"
-          f" (first {curve[0]['mean_return']:.0f}); final on seeds {result['seeds'][0]}..{result['seeds'][-1]}: "
+          f" (first {curve[0]['mean_return']:.1f}), kept step {result['kept']['timesteps']} "
+          f"({result['kept']['mean_return']:.1f}); final on seeds {result['seeds'][0]}..{result['seeds'][-1]}: "
           f"survival {result['survival_rate']:.0%}, return {result['mean_return']:.1f}"
           + (f" (BC {result['bc_mean_return']:.1f})" if result["bc_mean_return"] else ""))
 

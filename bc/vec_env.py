@@ -125,8 +125,13 @@ class _Worker:
         return result
 
     def close(self) -> None:
-        self.pipe.send(("close", ()))
-        self.process.join()
+        try:
+            self.pipe.send(("close", ()))
+        except OSError:  # already gone (Ctrl-C reaches the whole process group): the join below still reaps it
+            pass
+        self.process.join(timeout=10)
+        if self.process.is_alive():
+            self.process.kill()
         self.pipe.close()
 
 

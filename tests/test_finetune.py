@@ -107,6 +107,18 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) 
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
+def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> None:
+    """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest return."""
+    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0,
+                                 learning_rate=1e-3, **TINY_PPO))
+    returns = [p["mean_return"] for p in result["training_curve"]]
+    best = result["training_curve"][returns.index(max(returns))]
+    assert result["kept"] == best
+    kept = policies.load(tmp_path / "ppo" / "checkpoints" / f"step_{best['timesteps']:08d}").state_dict()
+    for name, value in policies.load(tmp_path / "ppo").state_dict().items():
+        assert torch.equal(value, kept[name]), name
+
+
 def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
     """The same run with its environments in 1 process or spread over 3 ends with the same weights, bit for bit."""
     actors = []
