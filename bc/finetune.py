@@ -24,7 +24,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -97,10 +96,8 @@ class FinetuneConfig:
                                 "step 0 included, earliest on ties) or 'last'", choices=("best", "last"))
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
-    threads: int = setting(1, "torch threads of the learner while it collects rollouts (the workers need the "
-                              "other cores)")
-    update_threads: int = setting(0, "torch threads of the learner during PPO's updates, when the environments "
-                                     "are idle; 0 = one per core")
+    threads: int = setting(1, "torch threads of the learner (more were no faster for these small networks, and "
+                              "their idle spinning slowed the simulation by 10-20 %)")
     progress: bool = setting(True, "show a progress bar")
 
 
@@ -116,7 +113,7 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"WORKERS ({cfg.workers}) must not exceed ENVS ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"ROLLOUT_STEPS ({cfg.rollout_steps}) must be a multiple of ENVS ({cfg.envs})")
-    for name, value in {"UPDATE_THREADS": cfg.update_threads, "VALIDATION_SEED": cfg.validation_seed, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight, "TARGET_KL": cfg.target_kl,
+    for name, value in {"VALIDATION_SEED": cfg.validation_seed, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight, "TARGET_KL": cfg.target_kl,
                         "CRITIC_WARMUP": cfg.critic_warmup, "FINAL_EVAL_EPISODES": cfg.final_eval_episodes}.items():
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{name} must be >= 0, got {value}")
@@ -224,28 +221,6 @@ class Guards(BaseCallback):
         return True
 
 
-class ThreadBudget(BaseCallback):
-    """`threads` torch threads while collecting (the workers simulate then), `update_threads` during updates.
-
-    The environments wait while PPO updates, so the learner can have every core then (a minibatch
-    step of actor and critic takes 3.7 ms on 2 threads against 6.3 ms on 1); during collection,
-    extra torch threads would spin between the small forward passes and slow the workers.
-    """
-
-    def __init__(self, threads: int, update_threads: int) -> None:
-        super().__init__()
-        self.threads, self.update_threads = threads, update_threads or os.cpu_count() or 1
-
-    def _on_rollout_start(self) -> None:
-        torch.set_num_threads(self.threads)
-
-    def _on_rollout_end(self) -> None:
-        torch.set_num_threads(self.update_threads)
-
-    def _on_step(self) -> bool:
-        return True
-
-
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor every `freq` steps (and at 0 and the end), saving a checkpoint each time.
 
@@ -342,7 +317,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
-    torch.set_num_threads(cfg.threads)  # ThreadBudget switches between this and update_threads
+    torch.set_num_threads(cfg.threads)
     term = demonstration_term(cfg)
     env = make_vec_env(cfg)
     try:
@@ -351,9 +326,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
             bar = tqdm(total=cfg.timesteps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
             evaluator = Evaluator(cfg, folder, bar)
             start = time.perf_counter()
-            callbacks = [ThreadBudget(cfg.threads, cfg.update_threads), evaluator]
-            if not cfg.scratch:
-                callbacks.insert(0, Guards(cfg.critic_warmup, term))
+            callbacks = [evaluator] if cfg.scratch else [Guards(cfg.critic_warmup, term), evaluator]
             model.learn(total_timesteps=cfg.timesteps, callback=CallbackList(callbacks))
             seconds = time.perf_counter() - start
             bar.close()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from bc.finetune import FinetuneConfig, ThreadBudget, build_model, make_vec_env
+from bc.finetune import FinetuneConfig, build_model, make_vec_env
 
 
 def steps_per_s(bc_policy: Path, workers: int, envs: int, timesteps: int) -> float:
@@ -28,7 +28,7 @@ def steps_per_s(bc_policy: Path, workers: int, envs: int, timesteps: int) -> flo
     try:
         model = build_model(config, env, term=None)
         start = time.perf_counter()
-        model.learn(total_timesteps=timesteps, callback=ThreadBudget(config.threads, config.update_threads))
+        model.learn(total_timesteps=timesteps)
         return timesteps / (time.perf_counter() - start)
     finally:
         env.close()
