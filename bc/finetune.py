@@ -97,7 +97,7 @@ class FinetuneConfig:
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
     threads: int = setting(1, "torch threads of the learner (more were no faster for these small networks, and "
-                              "their idle spinning slowed the simulation by 10-20 %)")
+                              "their idle spinning slowed the simulation by a tenth to a fifth)")
     progress: bool = setting(True, "show a progress bar")
 
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 from pathlib import Path
+
+import pytest
 
 from bc.finetune import SCRATCH_POLICY, FinetuneConfig
 from bc.train import TrainConfig
@@ -25,3 +28,13 @@ def test_dataset_and_policy_defaults_match_the_stages() -> None:
     assert Path(make_default("BC_DEFAULT")) == TrainConfig().policy == FinetuneConfig().bc_policy
     assert Path(make_default("PPO_DEFAULT")) == FinetuneConfig().policy
     assert Path(make_default("SCRATCH_DEFAULT")) == SCRATCH_POLICY
+
+
+@pytest.mark.parametrize("module", ["teleop.record", "bc.train", "bc.evaluate", "bc.dagger", "bc.finetune"])
+def test_every_stage_prints_its_help(module: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """`python -m <stage> --help` exits 0 and lists the stage's flags (help texts are %-formatted by argparse)."""
+    with pytest.raises(SystemExit) as exit_info:
+        importlib.import_module(module).cli(["--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage:") and "--help" in out
