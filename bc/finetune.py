@@ -104,17 +104,17 @@ class FinetuneConfig:
 def validate(cfg: FinetuneConfig) -> None:
     """Reject bad settings before anything is read or written."""
     for name, value in {"TIMESTEPS": cfg.timesteps, "ENVS": cfg.envs, "WORKERS": cfg.workers,
-                        "ROLLOUT_STEPS": cfg.rollout_steps,
-                        "BATCH_SIZE": cfg.batch_size, "EPOCHS": cfg.epochs, "EVAL_FREQ": cfg.eval_freq,
-                        "EVAL_EPISODES": cfg.eval_episodes, "THREADS": cfg.threads}.items():
+                        "ROLLOUT_STEPS": cfg.rollout_steps, "BATCH_SIZE": cfg.batch_size, "EPOCHS": cfg.epochs,
+                        "EVAL_FREQ": cfg.eval_freq, "EVAL_EPISODES": cfg.eval_episodes, "THREADS": cfg.threads}.items():
         if value <= 0:
             raise UserError(f"{name} must be positive, got {value}")
     if cfg.workers > cfg.envs:
         raise UserError(f"WORKERS ({cfg.workers}) must not exceed ENVS ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"ROLLOUT_STEPS ({cfg.rollout_steps}) must be a multiple of ENVS ({cfg.envs})")
-    for name, value in {"VALIDATION_SEED": cfg.validation_seed, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight, "TARGET_KL": cfg.target_kl,
-                        "CRITIC_WARMUP": cfg.critic_warmup, "FINAL_EVAL_EPISODES": cfg.final_eval_episodes}.items():
+    for name, value in {"VALIDATION_SEED": cfg.validation_seed, "PUSH": cfg.push, "BC_WEIGHT": cfg.bc_weight,
+                        "TARGET_KL": cfg.target_kl, "CRITIC_WARMUP": cfg.critic_warmup,
+                        "FINAL_EVAL_EPISODES": cfg.final_eval_episodes}.items():
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{name} must be >= 0, got {value}")
     if not (0 < cfg.learning_rate and 0 < cfg.scratch_learning_rate and 0 < cfg.bc_decay <= 1):
