@@ -136,7 +136,7 @@ class _Worker:
 
 
 class _InProcess:
-    """The learner's own share behind a worker's send/recv: it runs on `recv`, once every worker has its command."""
+    """The single worker of WORKERS=1: the learner's own process behind a worker's send/recv (it runs on `recv`)."""
 
     def __init__(self, factories: list[Callable[[], gym.Env]]) -> None:
         self.share = _Share([factory() for factory in factories])
@@ -189,7 +189,7 @@ class WorkerGroupVecEnv(VecEnv):
         super().__init__(len(factories), observation_space, action_space)
 
     def _all(self, command: str, data_per_group: Callable[[range], tuple]) -> list[Any]:
-        """Send each worker its command, then collect the answers (the in-process share runs in between)."""
+        """Send each worker its command, then collect the answers: the workers run theirs at the same time."""
         for worker, group in zip(self.workers, self.groups, strict=True):
             worker.send(command, data_per_group(group))
         return [worker.recv() for worker in self.workers]
