@@ -72,6 +72,10 @@ class _Share:
     def has_attr(self, indices: list[int], name: str) -> list[bool]:
         return [hasattr(self.envs[i], name) or name in dir(self.envs[i].unwrapped) for i in indices]
 
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
 
 def _handle(share: _Share, command: str, data: tuple) -> Any:
     if command == "spaces":
@@ -100,8 +104,7 @@ def _serve(remote: Connection, factories: CloudpickleWrapper, cpu: int | None) -
     except (EOFError, KeyboardInterrupt):  # the learner is gone or interrupted: nothing left to serve
         pass
     finally:
-        for env in share.envs:
-            env.close()
+        share.close()
         remote.close()
 
 
@@ -151,8 +154,7 @@ class _InProcess:
         return _handle(self.share, command, data)
 
     def close(self) -> None:
-        for env in self.share.envs:
-            env.close()
+        self.share.close()
 
 
 def split(count: int, parts: int) -> list[range]:

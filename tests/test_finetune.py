@@ -19,8 +19,8 @@ from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
 from teleop.env import make_env
 
-TINY_PPO = {"envs": 4, "workers": 2, "rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256, "eval_episodes": 1,
-            "final_eval_episodes": 1, "progress": False}
+TINY_PPO = {"envs": 4, "workers": 2, "rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256,
+            "eval_episodes": 1, "final_eval_episodes": 1, "progress": False}
 
 
 @pytest.fixture(scope="module")
