@@ -41,7 +41,7 @@ ENVS ?=
 
 opt = $(if $($(1)),--$(2) $($(1)))
 RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
-	$(call opt,CONTROLLER,controller) $(call opt,NOISE,noise) $(call opt,MAX_STEPS,max-steps)
+	$(call opt,CONTROLLER,controller) $(call opt,NOISE,noise) $(call opt,MAX_STEPS,max-steps) $(call opt,WORKERS,workers)
 TRAIN_ARGS = --dataset $(DATASET) --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPOCHS,epochs) \
 	$(call opt,OVERWRITE,overwrite)
 DAGGER_ARGS = --dataset $(DATASET) $(call opt,ROUNDS,rounds) $(call opt,EPISODES,episodes) \
@@ -65,7 +65,7 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)  ## build .venv and install the project
 
-record: $(STAMP)  ## record demonstrations: DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS
+record: $(STAMP)  ## record demonstrations: DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS
 	$(PY) -m teleop.record $(RECORD_ARGS)
 
 train-bc: $(STAMP)  ## behaviour cloning, then evaluation: DATASET POLICY EPOCHS OVERWRITE

@@ -1,11 +1,12 @@
-"""Recording throughput against the same rollout without writing, side by side; and memory over a long run.
+"""Recording throughput: 1 worker against 2 and against the rollout alone, side by side; memory of a long run.
 
-    .venv/bin/python -m bench.record_throughput [--episodes 10] [--repeats 3] [--memory-episodes 50]
+    .venv/bin/python -m bench.record_throughput [--episodes 50] [--repeats 3] [--memory-episodes 50]
 
 Each repeat runs, back to back on the same machine: the expert rollout alone (no writing), the
-recorder with its writer process (the default), and the recorder writing inline. Throughputs are
-end to end (start-up included) and their ratios are taken within a repeat, then the median is
-reported: the machines are shared and noisy, so only side-by-side ratios mean something.
+recorder with one worker (simulation in its process, writing in a writer process: the default),
+and the recorder with two simulation workers. Throughputs are end to end (start-up included) and
+their ratios are taken within a repeat, then the median is reported: the machines are shared and
+noisy, so only side-by-side ratios mean something.
 """
 
 from __future__ import annotations
@@ -33,10 +34,10 @@ def rollout_only(episodes: int, first_seed: int) -> float:
     return frames / (time.perf_counter() - start)
 
 
-def recording(episodes: int, first_seed: int, writer: str, root: Path) -> float:
+def recording(episodes: int, first_seed: int, workers: int, root: Path) -> float:
     """Frames/s of `main` recording the same episodes into a new dataset, start-up included."""
     start = time.perf_counter()
-    summary = main(RecordConfig(dataset=root, episodes=episodes, seed=first_seed, writer=writer, progress=False))
+    summary = main(RecordConfig(dataset=root, episodes=episodes, seed=first_seed, workers=workers, progress=False))
     return summary.frames / (time.perf_counter() - start)
 
 
@@ -85,25 +86,25 @@ def memory_profile(episodes: int, root: Path) -> tuple[tuple[float, float], tupl
 
 
 def run(episodes: int, repeats: int, memory_episodes: int) -> str:
-    rows, ratios = [], {"process": [], "inline": []}
+    rows, one_vs_rollout, two_vs_one = [], [], []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(repeats):
             seed = 10_000 + repeat * episodes  # fresh seeds, the same ones for the three contenders
             alone = rollout_only(episodes, seed)
-            process = recording(episodes, seed, "process", Path(scratch) / f"process{repeat}")
-            inline = recording(episodes, seed, "inline", Path(scratch) / f"inline{repeat}")
-            ratios["process"].append(process / alone)
-            ratios["inline"].append(inline / alone)
-            rows.append(f"| {repeat + 1} | {alone:,.0f} | {process:,.0f} ({process / alone:.2f}x) | "
-                        f"{inline:,.0f} ({inline / alone:.2f}x) |")
+            one = recording(episodes, seed, 1, Path(scratch) / f"one{repeat}")
+            two = recording(episodes, seed, 2, Path(scratch) / f"two{repeat}")
+            one_vs_rollout.append(one / alone)
+            two_vs_one.append(two / one)
+            rows.append(f"| {repeat + 1} | {alone:,.0f} | {one:,.0f} ({one / alone:.2f}x rollout) | "
+                        f"{two:,.0f} ({two / one:.2f}x 1 worker) |")
         (early, late) = memory_profile(memory_episodes, Path(scratch) / "memory")
     table = [
         f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, NOISE={DEFAULT_NOISE}):",
         "",
-        "| repeat | rollout, no writing | record, writer process | record, inline writer |",
+        "| repeat | rollout, no writing | record, 1 worker (default) | record, 2 workers |",
         "|---|---|---|---|",
         *rows,
-        f"| median ratio | 1.00x | {statistics.median(ratios['process']):.2f}x | {statistics.median(ratios['inline']):.2f}x |",
+        f"| median | | {statistics.median(one_vs_rollout):.2f}x rollout | {statistics.median(two_vs_one):.2f}x 1 worker |",
         "",
         f"Peak resident memory of a {memory_episodes}-episode recording, MiB (recorder / writer process):",
         f"first {memory_episodes // 5} episodes {early[0]:.0f} / {early[1]:.0f}; "

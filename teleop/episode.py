@@ -88,11 +88,12 @@ class EpisodeBuffer:
 
     def episode(self, steps: int, **facts: object) -> Episode:
         """Copies of the first `steps` rows, so the buffer can be reused while they are written."""
-        arrays = {name: getattr(self, name)[:steps].copy() for name in _ARRAY_FIELDS}
+        arrays = {name: getattr(self, name)[:steps].copy() for name in ARRAY_FIELDS}
         return Episode(**facts, **arrays)
 
 
-_ARRAY_FIELDS = (
+# The per-step fields of `Episode`, the ones `EpisodeBuffer` preallocates.
+ARRAY_FIELDS = (
     "observation",
     "action",
     "executed_action",

@@ -107,7 +107,8 @@ def episode_stats(frames: dict[str, np.ndarray]) -> Stats:
 def aggregate_stats(stats_list: list[Stats]) -> Stats:
     """Dataset statistics from per-episode ones: exact min, max, mean and std; count-weighted quantiles."""
     aggregated = {}
-    for key in {key for stats in stats_list for key in stats}:
+    # First-seen order, not a set's hash order: stats.json must come out byte-identical run to run.
+    for key in dict.fromkeys(key for stats in stats_list for key in stats):
         parts = [stats[key] for stats in stats_list if key in stats]
         counts = np.stack([part["count"] for part in parts]).astype(np.float64)  # (episodes, 1)
         total = counts.sum(axis=0)

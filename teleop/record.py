@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,7 +31,7 @@ from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
 if TYPE_CHECKING:
-    from teleop.store import CommittedEpisode, EpisodeSink
+    from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +53,10 @@ class RecordConfig:
     noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame")
-    writer: str = setting("process", "'process' writes in a child process, overlapped with simulation; "
-                                     "'inline' writes between episodes", choices=("process", "inline"))
+    workers: int = setting(1, "simulation processes; with 2 or more the recorder's own process writes, "
+                              "committing episodes in seed order (the dataset is the one a single process records)")
+    writer: str = setting("process", "with 1 worker: 'process' writes in a child process, overlapped with "
+                                     "simulation; 'inline' writes between episodes", choices=("process", "inline"))
     progress: bool = setting(True, "show a progress bar")
 
 
@@ -97,6 +99,8 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"NOISE must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"SEED must be >= 0, got {cfg.seed}")
+    if cfg.workers <= 0:
+        raise UserError(f"WORKERS must be positive, got {cfg.workers}")
 
 
 def main(cfg: RecordConfig) -> RecordSummary:
@@ -105,7 +109,7 @@ def main(cfg: RecordConfig) -> RecordSummary:
     env = make_env(cfg.max_steps)
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
-    if cfg.writer == "process":
+    if cfg.writer == "process" and cfg.workers == 1:
         from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
         sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
@@ -125,14 +129,18 @@ def main(cfg: RecordConfig) -> RecordSummary:
             bar.update(len(committed))
 
     try:
-        controller = make_controller(cfg.controller, env)
+        controller = make_controller(cfg.controller, env) if cfg.workers == 1 else None
         sink.wait_ready()
         first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
         if first_seed < sink.next_seed():
             log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
-        buffer = EpisodeBuffer(env, cfg.max_steps)
-        for i in range(cfg.episodes):
-            report(sink.submit(run_episode(env, controller, first_seed + i, cfg.noise, buffer, cfg.task)))
+        seeds = range(first_seed, first_seed + cfg.episodes)
+        if controller is not None:
+            buffer = EpisodeBuffer(env, cfg.max_steps)
+            for seed in seeds:
+                report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
+        else:
+            _record_in_parallel(cfg, seeds, sink, report)
     finally:
         # Also on Ctrl-C or an error: what the writer already has gets committed.
         report(sink.close())
@@ -141,6 +149,20 @@ def main(cfg: RecordConfig) -> RecordSummary:
         summary.seconds = time.perf_counter() - start
         env.close()
     return summary
+
+
+def _record_in_parallel(cfg: RecordConfig, seeds: range, store: EpisodeStore,
+                        report: Callable[[list[CommittedEpisode]], None]) -> None:
+    from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
+
+    settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task)
+    try:
+        with ParallelRollouts(settings, cfg.dataset, min(cfg.workers, len(seeds))) as rollouts:
+            for spooled in rollouts.in_seed_order(seeds):
+                report([store.append(store.spool.load(spooled), spooled=spooled)])
+    finally:
+        # After Ctrl-C or a worker's error: the episodes finished beyond the first unfinished one.
+        report(store.commit_spool())
 
 
 def _main_and_print(cfg: RecordConfig) -> None:

@@ -6,7 +6,8 @@
 
 An episode is written in the order parquet -> MCAP -> info.json; the last step commits it, so a
 kill at any moment leaves the committed episodes readable in both formats, and the next `open`
-removes the rest. A recorder holds an exclusive lock on the folder while it appends; a second one
+removes the rest. Episodes a parallel recording finished but had not committed yet wait in the
+spool (`teleop.spool`); the next `open` commits them. A recorder holds an exclusive lock on the folder while it appends; a second one
 refuses. `WriterProcess` runs a store in a child process, so that writing overlaps with
 simulation instead of stalling it.
 """
@@ -14,6 +15,7 @@ simulation instead of stalling it.
 from __future__ import annotations
 
 import fcntl
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +42,9 @@ from teleop.episode import Episode
 from teleop.cli import DatasetError
 from teleop.lerobot_writer import LeRobotWriter
 from teleop.mcap_writer import scene_update, write_episode_mcap
+from teleop.spool import Spool
+
+log = logging.getLogger(__name__)
 
 MCAP_DIR = "mcap"
 
@@ -139,6 +144,12 @@ class EpisodeStore:
         self.root = root
         self.spec = spec
         self._remove_uncommitted_mcap()
+        self.spool = Spool(root)
+        self.spool.recover(self.num_episodes)
+        recovered = self.commit_spool()
+        if recovered:
+            log.warning("%s: committed %d episodes an interrupted parallel recording had finished (seeds %s)",
+                        root, len(recovered), ", ".join(str(e.seed) for e in recovered))
 
     @property
     def num_episodes(self) -> int:
@@ -149,8 +160,8 @@ class EpisodeStore:
         seeds = self.lerobot.episode_column(keys.EPISODE_SEED)
         return max(seeds) + 1 if seeds else 0
 
-    def append(self, episode: Episode) -> CommittedEpisode:
-        """Write `episode` to both formats and commit it."""
+    def append(self, episode: Episode, spooled: Path | None = None) -> CommittedEpisode:
+        """Write `episode` to both formats and commit it; `spooled` is its spool file, removed exactly once."""
         state, environment_state = split_observation(episode.observation, self.spec.state_size)
         columns = {
             keys.OBS_STATE: state,
@@ -181,10 +192,19 @@ class EpisodeStore:
             staged = self.lerobot.stage(columns, episode.task, facts)
             write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
                                self.spec.step_ns, metadata, self.spec.mjcf)
+            committing = self.spool.begin_commit(spooled, index) if spooled else None
             self.lerobot.commit(staged)
+            if committing:
+                committing.unlink()
         except OSError as error:  # disk full, folder removed...: the episode stays uncommitted
             raise DatasetError(f"writing episode {index} to {self.root} failed: {error.strerror or error}") from None
         return CommittedEpisode(index, episode.seed, episode.length, episode.episode_return, episode.fell)
+
+    def commit_spool(self) -> list[CommittedEpisode]:
+        """Commit every episode waiting in the spool, in seed order."""
+        committed = [self.append(Spool.load(path), spooled=path) for path in self.spool.ready()]
+        self.spool.remove_if_empty()
+        return committed
 
     def wait_ready(self) -> None:
         """Nothing to wait for: the store is open once constructed (see `WriterProcess`)."""

@@ -1,0 +1,84 @@
+"""Finished episodes waiting for their turn to be committed: `DATASET/.spool/`.
+
+Parallel recording (`teleop.parallel`) finishes episodes out of seed order, but commits them in
+seed order. A worker therefore writes each finished episode here first (one `.npz` per seed,
+written then renamed), and the store commits it when its turn comes. A kill -9 at any moment
+leaves every finished episode either committed or in the spool; the next `EpisodeStore` to open
+the dataset commits what the spool holds (`EpisodeStore.commit_spool`).
+
+Committing an episode from the spool is exactly-once: before info.json counts it, its file is
+renamed to `<seed>.index-<episode index>.committing`; after, it is deleted. On recovery a
+`.committing` file whose index info.json already counts is a leftover, any other goes back to
+the spool. (The folder name starts with a dot: LeRobot and the recorder's emptiness check skip it.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from teleop.episode import ARRAY_FIELDS, Episode
+
+SPOOL_DIR = ".spool"
+_READY = ".npz"
+_COMMITTING = ".committing"
+_FACTS = "_facts"
+
+
+class Spool:
+    """The spool folder of one dataset."""
+
+    def __init__(self, dataset: Path) -> None:
+        self.folder = dataset / SPOOL_DIR
+
+    def put(self, episode: Episode) -> Path:
+        """Write `episode` under its seed, atomically: a reader sees the whole file or none."""
+        self.folder.mkdir(exist_ok=True)
+        path = self.folder / f"{episode.seed:012d}{_READY}"
+        arrays = {name: getattr(episode, name) for name in ARRAY_FIELDS}
+        facts = {f.name: getattr(episode, f.name) for f in dataclasses.fields(Episode) if f.name not in arrays}
+        partial = path.with_name(path.name + ".partial")
+        with partial.open("wb") as stream:
+            np.savez(stream, **arrays, **{_FACTS: np.array(json.dumps(facts))})
+        os.replace(partial, path)
+        return path
+
+    def ready(self) -> list[Path]:
+        """The spooled episodes, in seed order."""
+        return sorted(self.folder.glob(f"*{_READY}")) if self.folder.is_dir() else []
+
+    def path_of(self, seed: int) -> Path:
+        return self.folder / f"{seed:012d}{_READY}"
+
+    @staticmethod
+    def load(path: Path) -> Episode:
+        with np.load(path, allow_pickle=False) as stored:
+            facts = json.loads(str(stored[_FACTS]))
+            return Episode(**facts, **{name: stored[name] for name in ARRAY_FIELDS})
+
+    def begin_commit(self, path: Path, episode_index: int) -> Path:
+        """Mark `path` as being committed as episode `episode_index` (call before info.json counts it)."""
+        committing = path.with_name(f"{path.name.removesuffix(_READY)}.index-{episode_index}{_COMMITTING}")
+        os.replace(path, committing)
+        return committing
+
+    def recover(self, committed_episodes: int) -> None:
+        """Settle what a kill left: drop partial files and committed leftovers, return the rest to the spool."""
+        if not self.folder.is_dir():
+            return
+        for partial in self.folder.glob("*.partial"):
+            partial.unlink()
+        for committing in self.folder.glob(f"*{_COMMITTING}"):
+            seed, index = committing.name.removesuffix(_COMMITTING).split(".index-")
+            if int(index) < committed_episodes:
+                committing.unlink()
+            else:
+                os.replace(committing, self.folder / f"{seed}{_READY}")
+
+    def remove_if_empty(self) -> None:
+        if self.folder.is_dir() and not any(self.folder.iterdir()):
+            self.folder.rmdir()
