@@ -21,8 +21,9 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from teleop.keys import COMMAND_NAMES
 from teleop.lerobot_format import EPISODES_DIR, INFO_PATH
-from teleop.mcap_writer import METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.mcap_writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 
 
 def read_info(root: Path) -> dict:
@@ -132,6 +133,10 @@ class McapEpisode:
     body_orientation: np.ndarray  # (T, bodies, 4), w-x-y-z like MuJoCo
     body_frames: list[str]
     scene_entities: list[str]  # frame ids of the /scene entities
+    tasks: list[str]  # the /step messages' task strings
+    command_times_ns: np.ndarray  # (T,) log times of the /command messages
+    command: np.ndarray  # (T, len(COMMAND_NAMES)) float64
+    command_tasks: list[str]  # the /command messages' task strings
 
 
 # Step fields read back, with the dtype of the matching LeRobot column.
@@ -153,10 +158,17 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
         attachments = {record.name: bytes(record.data) for record in reader.iter_attachments()}
         step_times, tf_times, steps, positions, orientations, frames, entities = [], [], [], [], [], [], []
-        for _, channel, message, decoded in reader.iter_decoded_messages(topics=[STEP_TOPIC, TF_TOPIC, SCENE_TOPIC]):
+        tasks, command_times, commands, command_tasks = [], [], [], []
+        topics = [STEP_TOPIC, TF_TOPIC, SCENE_TOPIC, COMMAND_TOPIC]
+        for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
             if channel.topic == STEP_TOPIC:
                 step_times.append(message.log_time)
                 steps.append({name: getattr(decoded, name) for name in STEP_FIELDS})
+                tasks.append(decoded.task)
+            elif channel.topic == COMMAND_TOPIC:
+                command_times.append(message.log_time)
+                commands.append([getattr(decoded, name) for name in COMMAND_NAMES])
+                command_tasks.append(decoded.task)
             elif channel.topic == TF_TOPIC:
                 tf_times.append(message.log_time)
                 frames = [t.child_frame_id for t in decoded.transforms]
@@ -174,4 +186,8 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         body_orientation=np.array(orientations, np.float64),
         body_frames=frames,
         scene_entities=entities,
+        tasks=tasks,
+        command_times_ns=np.array(command_times, np.int64),
+        command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
+        command_tasks=command_tasks,
     )

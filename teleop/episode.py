@@ -9,11 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from teleop.cli import UserError
 from teleop.controllers import Controller
 from teleop.env import body_poses, model_and_data
+from teleop.keys import COMMAND_NAMES
 
 DEFAULT_TASK = "Stand still on both feet."
 
@@ -30,7 +32,6 @@ class Episode:
     seed: int
     controller: str  # who acted
     labeller: str  # who chose the `action` labels: the controller itself, or the expert in DAgger
-    task: str
     noise_std: float
     observation: np.ndarray  # (T, 348) float64
     action: np.ndarray  # (T, 17) float32
@@ -40,6 +41,8 @@ class Episode:
     truncated: np.ndarray  # (T,) bool
     body_position: np.ndarray  # (T, 13, 3) float64, world frame
     body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
+    command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the command in force (keys.OBS_COMMAND)
+    tasks: np.ndarray  # (T,) str: the task string in force, which names the command
     dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger
 
     @property
@@ -85,6 +88,24 @@ class EpisodeBuffer:
         self.truncated = np.zeros(max_steps, bool)
         self.body_position = np.empty((max_steps, bodies, 3), np.float64)
         self.body_orientation = np.empty((max_steps, bodies, 4), np.float64)
+        self.command = np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
+        self.tasks = np.empty(max_steps, object)
+
+    def record(self, t: int, obs: np.ndarray, data: mujoco.MjData, action: np.ndarray, executed: np.ndarray,
+               command: np.ndarray | None, task: str) -> None:
+        """Row t before the step: observation o_t, body poses, label and executed action, command and task."""
+        self.observation[t] = obs
+        self.body_position[t], self.body_orientation[t] = body_poses(data)
+        self.action[t] = action
+        self.executed_action[t] = executed
+        self.command[t] = 0.0 if command is None else command
+        self.tasks[t] = task
+
+    def outcome(self, t: int, reward: float, terminated: bool, truncated: bool) -> None:
+        """Row t after the step: its reward and how it ended."""
+        self.reward[t] = reward
+        self.terminated[t] = terminated
+        self.truncated[t] = truncated
 
     def episode(self, steps: int, **facts: object) -> Episode:
         """Copies of the first `steps` rows, so the buffer can be reused while they are written."""
@@ -102,6 +123,8 @@ ARRAY_FIELDS = (
     "truncated",
     "body_position",
     "body_orientation",
+    "command",
+    "tasks",
 )
 
 
@@ -132,21 +155,21 @@ def run_episode(
         labeller.reset(seed)
     t = 0
     while True:
-        buffer.observation[t] = obs
-        buffer.body_position[t], buffer.body_orientation[t] = body_poses(data)
         action = controller.act(obs)
-        if not np.isfinite(action).all():
-            raise NonFiniteActionError(f"controller {controller.name!r} returned a non-finite action at step {t} "
-                                       f"of the episode with seed {seed}")
-        buffer.action[t] = action if labeller is None else labeller.act(obs)
+        check_action(action, controller, t, seed)
         executed = action if noise is None else np.clip(action + noise[t], low, high).astype(np.float32)
+        buffer.record(t, obs, data, action if labeller is None else labeller.act(obs), executed, None, task)
         obs, reward, terminated, truncated, _ = env.step(executed)
-        buffer.executed_action[t] = executed
-        buffer.reward[t] = reward
-        buffer.terminated[t] = terminated
-        buffer.truncated[t] = truncated
+        buffer.outcome(t, reward, terminated, truncated)
         t += 1
         if terminated or truncated:
             break
-    return buffer.episode(t, seed=seed, controller=controller.name, task=task, noise_std=noise_std,
+    return buffer.episode(t, seed=seed, controller=controller.name, noise_std=noise_std,
                           labeller=controller.name if labeller is None else labeller.name)
+
+
+def check_action(action: np.ndarray, controller: Controller, t: int, seed: int) -> None:
+    """NonFiniteActionError unless every entry of `action` is finite."""
+    if not np.isfinite(action).all():
+        raise NonFiniteActionError(f"controller {controller.name!r} returned a non-finite action at step {t} "
+                                   f"of the episode with seed {seed}")

@@ -139,22 +139,24 @@ class LeRobotWriter:
             _write_json(stats_to_json(writer.stats), stats_path)
         return writer
 
-    def stage(self, columns: dict[str, np.ndarray], task: str, extra: dict[str, Any]) -> StagedEpisode:
+    def stage(self, columns: dict[str, np.ndarray], tasks: np.ndarray, extra: dict[str, Any]) -> StagedEpisode:
         """Write the frames and metadata row of the next episode, uncommitted.
 
-        `columns` holds every non-default feature, one row per frame; `extra` adds episode-level
-        columns (seed, controller, ...) to the metadata row.
+        `columns` holds every non-default feature and `tasks` the task string, one row per frame;
+        `extra` adds episode-level columns (seed, controller, ...) to the metadata row.
         """
         index, start = self.info["total_episodes"], self.info["total_frames"]
         length = len(next(iter(columns.values())))
         frame_index = np.arange(length, dtype=np.int64)
+        episode_tasks = list(dict.fromkeys(tasks.tolist()))  # in order of first use, as LeRobot lists them
+        task_index = {task: self._task_index(task) for task in episode_tasks}
         frames = {
             **columns,
             "timestamp": (frame_index / self.info["fps"]).astype(np.float32),
             "frame_index": frame_index,
             "episode_index": np.full(length, index, dtype=np.int64),
             "index": start + frame_index,
-            "task_index": np.full(length, self._task_index(task), dtype=np.int64),
+            "task_index": np.array([task_index[task] for task in tasks.tolist()], dtype=np.int64),
         }
         chunk, file = (0, 0) if self._last_file is None else next_chunk_file(*self._last_file)
         data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
@@ -164,7 +166,7 @@ class LeRobotWriter:
         stats = episode_stats(frames)
         row = {
             "episode_index": index,
-            "tasks": [task],
+            "tasks": episode_tasks,
             "length": length,
             "data/chunk_index": chunk,
             "data/file_index": file,

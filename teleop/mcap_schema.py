@@ -1,4 +1,8 @@
-"""The protobuf message carrying one step in MCAP, built at import time (no generated code).
+"""The protobuf messages of this project's MCAP channels, built at import time (no generated code).
+
+- `humanoid_bc.Step` (`/step`): one step's observation, actions, reward and outcome.
+- `humanoid_bc.Command` (`/command`): the command in force at that step, one field per entry of
+  the dataset's `observation.command` (so Foxglove plots each by name), and the task that names it.
 
 Defining the schema from a `FileDescriptorProto` keeps it independent of the protoc version the
 installed protobuf runtime expects; MCAP files embed the schema, so readers need nothing from here.
@@ -8,8 +12,11 @@ from __future__ import annotations
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
+from teleop.keys import COMMAND_NAMES
+
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"
+COMMAND_TYPE = f"{PACKAGE}.Command"
 
 _F = descriptor_pb2.FieldDescriptorProto
 # (name, number, type, label, type_name): one row per field of `Step`.
@@ -25,27 +32,34 @@ _STEP_FIELDS = (
     ("truncated", 9, _F.TYPE_BOOL, _F.LABEL_OPTIONAL, None),
     ("task", 10, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
 )
+_COMMAND_FIELDS = (
+    ("timestamp", 1, _F.TYPE_MESSAGE, _F.LABEL_OPTIONAL, ".google.protobuf.Timestamp"),
+    *((name, 2 + i, _F.TYPE_DOUBLE, _F.LABEL_OPTIONAL, None) for i, name in enumerate(COMMAND_NAMES)),
+    ("task", 2 + len(COMMAND_NAMES), _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
+)
+_MESSAGES = {"Step": _STEP_FIELDS, "Command": _COMMAND_FIELDS}
 
 
-def _build_step_class() -> type:
+def _build_classes() -> tuple[type, type]:
     pool = descriptor_pool.Default()
     try:
-        return message_factory.GetMessageClass(pool.FindMessageTypeByName(STEP_TYPE))
+        pool.FindMessageTypeByName(STEP_TYPE)
     except KeyError:
-        pass
-    file_proto = descriptor_pb2.FileDescriptorProto(
-        name="humanoid_bc/step.proto",
-        package=PACKAGE,
-        syntax="proto3",
-        dependency=[timestamp_pb2.DESCRIPTOR.name],
-    )
-    step = file_proto.message_type.add(name="Step")
-    for name, number, field_type, label, type_name in _STEP_FIELDS:
-        field = step.field.add(name=name, number=number, type=field_type, label=label)
-        if type_name:
-            field.type_name = type_name
-    pool.Add(file_proto)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(STEP_TYPE))
+        # One file per message: each MCAP schema then embeds only its own message.
+        for message_name, fields in _MESSAGES.items():
+            file_proto = descriptor_pb2.FileDescriptorProto(
+                name=f"humanoid_bc/{message_name.lower()}.proto",
+                package=PACKAGE,
+                syntax="proto3",
+                dependency=[timestamp_pb2.DESCRIPTOR.name],
+            )
+            message = file_proto.message_type.add(name=message_name)
+            for name, number, field_type, label, type_name in fields:
+                field = message.field.add(name=name, number=number, type=field_type, label=label)
+                if type_name:
+                    field.type_name = type_name
+            pool.Add(file_proto)
+    return tuple(message_factory.GetMessageClass(pool.FindMessageTypeByName(name)) for name in (STEP_TYPE, COMMAND_TYPE))
 
 
-Step = _build_step_class()
+Step, Command = _build_classes()

@@ -3,6 +3,7 @@
 Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
 - `/step`  humanoid_bc.Step: observation, label and executed action, reward, terminated, truncated.
 - `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
+- `/command` humanoid_bc.Command: the command in force (posture held, push) and the task naming it.
 - `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
   attached to its body's frame, and the floor.
 Plus an `episode` metadata record and the MJCF model as an attachment.
@@ -31,11 +32,12 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from teleop.episode import Episode
-from teleop.mcap_schema import Step
-from teleop.protobuf_wire import FrameTransformsEncoder, StepEncoder
+from teleop.mcap_schema import Command, Step
+from teleop.protobuf_wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
 
 STEP_TOPIC = "/step"
 TF_TOPIC = "/tf"
+COMMAND_TOPIC = "/command"
 SCENE_TOPIC = "/scene"
 WORLD_FRAME = "world"
 METADATA_NAME = "episode"
@@ -101,6 +103,7 @@ def write_episode_mcap(
     times_ns = np.arange(episode.length, dtype=np.int64) * step_ns
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
         times_ns, episode.body_position, episode.body_orientation)
+    commands = CommandEncoder().encode(times_ns, episode.command, episode.tasks)
     steps = StepEncoder()
     partial = path.with_name(path.name + ".partial")
     with partial.open("wb") as stream:
@@ -108,17 +111,20 @@ def write_episode_mcap(
         writer.start(profile="", library="humanoid-bc")
         channels = {
             topic: writer.register_channel(topic, MessageEncoding.Protobuf, register_schema(writer, message_type))
-            for topic, message_type in ((SCENE_TOPIC, SceneUpdate), (STEP_TOPIC, Step), (TF_TOPIC, FrameTransforms))
+            for topic, message_type in ((SCENE_TOPIC, SceneUpdate), (STEP_TOPIC, Step), (TF_TOPIC, FrameTransforms),
+                                        (COMMAND_TOPIC, Command))
         }
         writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
         writer.add_metadata(METADATA_NAME, metadata)
         writer.add_message(channels[SCENE_TOPIC], log_time=0, data=scene.SerializeToString(), publish_time=0)
         reward, terminated, truncated = episode.reward.tolist(), episode.terminated.tolist(), episode.truncated.tolist()
+        tasks = episode.tasks.tolist()
         for t, time_ns in enumerate(times_ns.tolist()):
             scalars = {"episode_index": episode_index, "frame_index": t, "reward": reward[t],
-                       "terminated": terminated[t], "truncated": truncated[t], "task": episode.task}
+                       "terminated": terminated[t], "truncated": truncated[t], "task": tasks[t]}
             step = steps.encode(time_ns, scalars, episode.observation[t], episode.action[t], episode.executed_action[t])
             writer.add_message(channels[STEP_TOPIC], log_time=time_ns, data=step, publish_time=time_ns, sequence=t)
             writer.add_message(channels[TF_TOPIC], log_time=time_ns, data=transforms[t], publish_time=time_ns, sequence=t)
+            writer.add_message(channels[COMMAND_TOPIC], log_time=time_ns, data=commands[t], publish_time=time_ns, sequence=t)
         writer.finish()
     os.replace(partial, path)

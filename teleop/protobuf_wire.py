@@ -22,7 +22,8 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.message import Message
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from teleop.mcap_schema import Step
+from teleop.keys import COMMAND_NAMES
+from teleop.mcap_schema import Command, Step
 
 _FIXED64 = 1
 _LENGTH_DELIMITED = 2
@@ -125,3 +126,24 @@ class StepEncoder:
             length_delimited(key, np.ascontiguousarray(values, dtype=dtype).tobytes())
             for (key, dtype), values in zip(self._keys, arrays, strict=True)
         )
+
+
+class CommandEncoder:
+    """Serialised `humanoid_bc.Command` messages for every step of an episode, one `bytes` per step."""
+
+    def __init__(self) -> None:
+        self._task_key = tag(Command, "task", _LENGTH_DELIMITED)
+        self._timestamp_key = tag(Command, "timestamp", _LENGTH_DELIMITED)
+        self._keys = np.frombuffer(b"".join(tag(Command, name, _FIXED64) for name in COMMAND_NAMES), np.uint8)
+
+    def encode(self, times_ns: np.ndarray, commands: np.ndarray, tasks: np.ndarray) -> list[bytes]:
+        """Messages for (T,) times, (T, len(COMMAND_NAMES)) commands and (T,) task strings."""
+        steps, width = commands.shape
+        fields = np.empty((steps, width, 1 + _DOUBLE_SIZE), np.uint8)
+        fields[:, :, 0] = self._keys  # field numbers < 16: one-byte keys
+        fields[:, :, 1:] = np.ascontiguousarray(commands, dtype="<f8").view(np.uint8).reshape(steps, width, _DOUBLE_SIZE)
+        task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
+        return [
+            length_delimited(self._timestamp_key, _timestamp(time_ns)) + row.tobytes() + task_fields[task]
+            for time_ns, row, task in zip(times_ns.tolist(), fields.reshape(steps, -1), tasks.tolist(), strict=True)
+        ]

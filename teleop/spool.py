@@ -39,7 +39,9 @@ class Spool:
         """Write `episode` under its seed, atomically: a reader sees the whole file or none."""
         self.folder.mkdir(exist_ok=True)
         path = self.folder / f"{episode.seed:012d}{_READY}"
-        arrays = {name: getattr(episode, name) for name in ARRAY_FIELDS}
+        # Object arrays (the task strings) would need pickle: stored as fixed-width strings instead.
+        arrays = {name: np.asarray(getattr(episode, name)) for name in ARRAY_FIELDS}
+        arrays = {name: values.astype(str) if values.dtype == object else values for name, values in arrays.items()}
         facts = {f.name: getattr(episode, f.name) for f in dataclasses.fields(Episode) if f.name not in arrays}
         partial = path.with_name(path.name + ".partial")
         with partial.open("wb") as stream:

@@ -79,6 +79,7 @@ class DatasetSpec:
             keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(names) - n,), "names": names[n:]},
             keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
             keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
+            keys.OBS_COMMAND: {"dtype": "float32", "shape": (len(keys.COMMAND_NAMES),), "names": list(keys.COMMAND_NAMES)},
             keys.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
             keys.DONE: flag,
             keys.TERMINATED: flag,
@@ -168,6 +169,7 @@ class EpisodeStore:
             keys.OBS_ENV_STATE: environment_state,
             keys.ACTION: episode.action,
             keys.EXECUTED_ACTION: episode.executed_action,
+            keys.OBS_COMMAND: episode.command,
             keys.REWARD: episode.reward,
             keys.DONE: episode.terminated | episode.truncated,
             keys.TERMINATED: episode.terminated,
@@ -189,7 +191,7 @@ class EpisodeStore:
         metadata = {"episode_index": str(index), "env_id": ENV_ID, "step_duration_ns": str(self.spec.step_ns),
                     **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP}}
         try:
-            staged = self.lerobot.stage(columns, episode.task, facts)
+            staged = self.lerobot.stage(columns, episode.tasks, facts)
             write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
                                self.spec.step_ns, metadata, self.spec.mjcf)
             committing = self.spool.begin_commit(spooled, index) if spooled else None

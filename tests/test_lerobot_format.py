@@ -14,7 +14,7 @@ from teleop.dataset_reader import read_episodes, read_frames
 from teleop.env import join_observation, make_env
 from teleop.store import DatasetSpec
 
-USER_KEYS = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.EXECUTED_ACTION, keys.REWARD,
+USER_KEYS = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.ACTION, keys.EXECUTED_ACTION, keys.REWARD,
              keys.DONE, keys.TERMINATED, keys.TRUNCATED]
 PROJECT_EPISODE_COLUMNS = {keys.EPISODE_SEED, keys.EPISODE_CONTROLLER, keys.EPISODE_LABELLER, keys.EPISODE_DAGGER_ROUND,
                            keys.EPISODE_NOISE_STD, keys.EPISODE_RETURN, keys.EPISODE_TERMINATED,

@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from teleop import keys
 from teleop.dataset_reader import McapEpisode, read_episodes, read_frames, read_mcap_episode
 from teleop.env import body_names, body_poses, join_observation, make_env, mjcf_path, model_and_data
-from teleop.mcap_writer import SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.mcap_writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 
 STEP_NS = 15_000_000  # Humanoid-v5: timestep 0.003 s x frame_skip 5
 
@@ -33,6 +33,15 @@ def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: lis
         for step_field, key in [("action", keys.ACTION), ("executed_action", keys.EXECUTED_ACTION),
                                 ("reward", keys.REWARD), ("terminated", keys.TERMINATED), ("truncated", keys.TRUNCATED)]:
             np.testing.assert_array_equal(episode.steps[step_field], frames[key][rows], err_msg=step_field)
+
+
+def test_command_channel_equals_the_command_feature_and_tasks(recorded: Path, episodes: list[McapEpisode]) -> None:
+    """/command holds observation.command and the task of every step, at the /step times."""
+    frames = read_frames(recorded, [keys.OBS_COMMAND, "episode_index"])
+    for index, episode in enumerate(episodes):
+        np.testing.assert_array_equal(episode.command, frames[keys.OBS_COMMAND][frames["episode_index"] == index])
+        np.testing.assert_array_equal(episode.command_times_ns, episode.step_times_ns)
+        assert episode.command_tasks == episode.tasks == ["Stand still on both feet."] * len(episode.tasks)
 
 
 def test_timestamps_are_integer_nanoseconds_of_simulated_time(episodes: list[McapEpisode]) -> None:
@@ -84,7 +93,7 @@ def test_file_has_metadata_model_and_zstd_protobuf_channels(recorded: Path, epis
     with (recorded / "mcap/episode_000001.mcap").open("rb") as stream:
         summary = make_reader(stream).get_summary()
     assert {c.topic: c.message_encoding for c in summary.channels.values()} == {
-        SCENE_TOPIC: "protobuf", STEP_TOPIC: "protobuf", TF_TOPIC: "protobuf"}
+        SCENE_TOPIC: "protobuf", STEP_TOPIC: "protobuf", TF_TOPIC: "protobuf", COMMAND_TOPIC: "protobuf"}
     assert {s.name for s in summary.schemas.values()} == {"foxglove.SceneUpdate", "humanoid_bc.Step",
-                                                           "foxglove.FrameTransforms"}
+                                                           "foxglove.FrameTransforms", "humanoid_bc.Command"}
     assert summary.chunk_indexes and all(chunk.compression == "zstd" for chunk in summary.chunk_indexes)
