@@ -38,6 +38,7 @@ ROUNDS ?=
 TIMESTEPS ?=
 WORKERS ?=
 ENVS ?=
+PLOT ?=
 
 opt = $(if $($(1)),--$(2) $($(1)))
 RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
@@ -51,7 +52,7 @@ RL_ARGS = --bc-policy $(BC_POLICY) $(call opt,TIMESTEPS,timesteps) $(call opt,WO
 EVAL_ARGS = --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
 	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
 
-.PHONY: help venv record train-bc eval dagger finetune-rl baseline-rl pipeline test bench clean-venv
+.PHONY: help venv record inspect train-bc eval dagger finetune-rl baseline-rl pipeline test bench clean-venv
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -67,6 +68,9 @@ venv: $(STAMP)  ## build .venv and install the project
 
 record: $(STAMP)  ## record demonstrations: DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS
 	$(PY) -m teleop.record $(RECORD_ARGS)
+
+inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 writes DATASET/inspect.png: DATASET PLOT
+	$(PY) -m teleop.inspect_dataset --dataset $(DATASET) $(call opt,PLOT,plot)
 
 train-bc: $(STAMP)  ## behaviour cloning, then evaluation: DATASET POLICY EPOCHS OVERWRITE
 	$(PY) -m bc.train $(TRAIN_ARGS)

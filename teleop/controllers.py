@@ -57,6 +57,8 @@ CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
     "random": lambda env: RandomController(env.action_space),
 }
+# Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.
+INTERACTIVE = ("keyboard",)
 
 
 def _is_path(name: str) -> bool:
@@ -66,10 +68,10 @@ def _is_path(name: str) -> bool:
 
 def check_controller(name: str) -> None:
     """ValueError with a one-line reason unless `name` is registered or a checkpoint folder; imports no torch."""
-    if name in CONTROLLERS:
+    if name in CONTROLLERS or name in INTERACTIVE:
         return
     if not _is_path(name):
-        known = ", ".join(CONTROLLERS)
+        known = ", ".join([*CONTROLLERS, *INTERACTIVE])
         raise ValueError(f"unknown controller {name!r} (known: {known}, or a policy checkpoint folder)")
     problem = checkpoint_problem(Path(name))
     if problem:
@@ -83,6 +85,8 @@ def make_controller(name: str, env: gym.Env) -> Controller:
     """
     if name in CONTROLLERS:
         return CONTROLLERS[name](env)
+    if name in INTERACTIVE:
+        raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
     check_controller(name)
     from policies.controller import PolicyController  # noqa: PLC0415 - imports torch: only for policies
 

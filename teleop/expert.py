@@ -27,6 +27,7 @@ import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -34,6 +35,9 @@ import scipy.linalg
 import scipy.optimize
 
 from teleop import physics
+
+if TYPE_CHECKING:  # teleop.posture builds on this module, which imports it only when a posture is commanded
+    from teleop.posture import Posture, PostureRamp
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +196,27 @@ def design_lqr(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGai
     ctrl_ff = feed_forward(model, qpos_ref)
     if np.abs(ctrl_ff).max() > CTRL_LIMIT:
         raise RuntimeError(f"feed-forward {np.abs(ctrl_ff).max():.3f} exceeds the motor range")
+    return LQRGains(qpos_ref=qpos_ref, ctrl_ff=ctrl_ff, gain=design_gain(model, qpos_ref, ctrl_ff, design))
+
+
+def design_gain(
+    model: mujoco.MjModel,
+    qpos_ref: np.ndarray,
+    ctrl_ff: np.ndarray,
+    design: LQRDesign = LQRDesign(),
+    discount: float = 1.0,
+) -> np.ndarray:
+    """LQR feedback gain K (nu, nx) around the rest pose ``qpos_ref`` held by ``ctrl_ff`` (0.05 to 0.2 s).
+
+    The model has an uncontrollable mode on the unit circle (the yaw of the line between the two
+    planted feet: friction holds it, no motor moves it), which makes the Riccati equation
+    ill-posed; at the neutral pose round-off happens to let it through. ``discount`` < 1 (cost of
+    step k weighted discount**k) moves that mode inside the unit circle so the equation solves
+    anywhere; the default 1 is the plain LQR of ``design_lqr``.
+    """
     a, b = linearise(model, qpos_ref, ctrl_ff, design)
+    if discount != 1.0:
+        a, b = np.sqrt(discount) * a, np.sqrt(discount) * b
 
     data = mujoco.MjData(model)
     data.qpos[:] = qpos_ref
@@ -204,8 +228,7 @@ def design_lqr(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGai
     )
     r = design.r * np.eye(model.nu)
     p = scipy.linalg.solve_discrete_are(a, b, q, r)
-    gain = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
-    return LQRGains(qpos_ref=qpos_ref, ctrl_ff=ctrl_ff, gain=gain)
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
 
 
 def cache_dir() -> Path:
@@ -253,8 +276,10 @@ def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQ
 class LQRExpert:
     """Standing controller acting from the Humanoid-v5 observation alone.
 
-    ``qpos_ref`` is the setpoint: a teleoperation layer may shift it (lean, crouch) within the
-    region where the linear model holds; ``ctrl_ff`` and the gain stay those of the balanced pose.
+    ``qpos_ref``, ``ctrl_ff`` and ``gain`` are the setpoint, its feed-forward and the feedback
+    gain: the design's until ``hold`` commands a posture (lean, crouch, twist, arms;
+    ``teleop.posture``), toward whose own (balanced pose, feed-forward, gain) they then move
+    gradually. The neutral gain alone does not hold most postures: it lets them oscillate or fall.
     """
 
     name = "expert"
@@ -266,14 +291,55 @@ class LQRExpert:
         self.gains = load_or_design(self.model, design)
         self.qpos_ref = self.gains.qpos_ref.copy()
         self.ctrl_ff = self.gains.ctrl_ff.copy()
+        self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
         self._qpos = self.qpos_ref.copy()
         self._vz = self.model.nv - _ROOT_XY + _VERTICAL_VEL  # vertical velocity in the state
+        self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
+        self._moving = False  # one attribute test per act while the setpoint is still
 
     def reset(self, seed: int | None = None) -> None:
-        """Nothing to reset: the expert is deterministic and stateless."""
+        """Back to the neutral posture at once (setpoint and target); otherwise deterministic and stateless."""
+        if self._ramp is not None:
+            self._ramp.reset()
+        self._moving = False
+
+    def hold(self, posture: Posture, clip: bool = True) -> None:
+        """Hold ``posture`` (clipped to its limits unless ``clip`` is False) from now on, moving there gradually.
+
+        Plans the move at once: balanced waypoints (about 3 ms each, one per 0.1 s of move) and,
+        the first time a posture is commanded, its LQR gain (0.05 to 0.2 s; cached after). Later
+        calls retarget from wherever the setpoint has got to; ``Posture()`` returns to neutral.
+        """
+        if self._ramp is None:
+            from teleop.posture import PostureRamp  # see TYPE_CHECKING above
+
+            self.gain = self.gains.gain.copy()
+            self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
+        self._ramp.hold(posture, clip)
+        self._moving = self._ramp.moving
+
+    @property
+    def moving(self) -> bool:
+        """True while the setpoint is still on its way to the commanded posture."""
+        return self._moving
+
+    @property
+    def posture(self) -> Posture:
+        """The posture the setpoint is at now (between the previous and the target while moving)."""
+        return self._ramp.posture if self._ramp is not None else _neutral_posture()
+
+    @property
+    def target(self) -> Posture:
+        """The posture last commanded by ``hold`` (clipped), or the neutral one."""
+        return self._ramp.target if self._ramp is not None else _neutral_posture()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Action (float32, shape (nu,), within +-CTRL_LIMIT) for a 348-dim Humanoid-v5 observation."""
+        """Action (float32, shape (nu,), within +-CTRL_LIMIT) for a 348-dim Humanoid-v5 observation.
+
+        While a commanded posture is being approached, each call also moves the setpoint one env step.
+        """
+        if self._moving:
+            self._moving = self._ramp.step()
         # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
         self._qpos[:_ROOT_XY] = self.qpos_ref[:_ROOT_XY]
         self._qpos[_ROOT_XY:] = obs[QPOS_OBS]
@@ -282,5 +348,11 @@ class LQRExpert:
         # Builtin min/max: np.clip costs microseconds per scalar call.
         x[_HEIGHT] = min(max(x[_HEIGHT], -d.height_clip), d.height_clip)
         x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
-        ctrl = self.ctrl_ff - self.gains.gain @ x
+        ctrl = self.ctrl_ff - self.gain @ x
         return np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
+
+
+def _neutral_posture() -> Posture:
+    from teleop.posture import NEUTRAL  # see TYPE_CHECKING above
+
+    return NEUTRAL

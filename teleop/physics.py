@@ -59,3 +59,44 @@ def static_inverse_dynamics(model: mujoco.MjModel, data: mujoco.MjData) -> np.nd
     data.qacc[:] = 0.0
     mujoco.mj_inverse(model, data)
     return data.qfrc_inverse.copy()
+
+
+PELVIS_BODY = "pelvis"
+
+
+def _heading(data: mujoco.MjData, body: str) -> float:
+    """Yaw (rad, about world z) of a body's x axis projected on the floor."""
+    x_axis = data.body(body).xmat.reshape(3, 3)[:, 0]
+    return float(np.arctan2(x_axis[1], x_axis[0]))
+
+
+def torso_tilt(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[float, float]:
+    """(forward, left) tilt of the torso's up axis (rad), in the pelvis's heading frame.
+
+    Forward: + when the top of the torso leans toward where the pelvis faces; left: + when it
+    leans to the pelvis's left. Measured in the pelvis's heading so that a twist of the torso or a
+    drift in the body's yaw does not mix the two.
+    """
+    up = data.body(TORSO_BODY).xmat.reshape(3, 3)[:, 2]
+    heading = _heading(data, PELVIS_BODY)
+    cos, sin = np.cos(heading), np.sin(heading)
+    forward, left = cos * up[0] + sin * up[1], -sin * up[0] + cos * up[1]
+    return float(np.arctan2(forward, up[2])), float(np.arctan2(left, up[2]))
+
+
+def torso_yaw_relative_to_pelvis(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    """Yaw of the torso relative to the pelvis (rad), + when the torso turns to the left (counter-clockwise from above)."""
+    relative = data.body(PELVIS_BODY).xmat.reshape(3, 3).T @ data.body(TORSO_BODY).xmat.reshape(3, 3)
+    return float(np.arctan2(relative[1, 0], relative[0, 0]))
+
+
+def static_root_residual(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """What the contacts leave unsupported at rest in ``data.qpos``: (vertical force, world x and y moments), shape (3,).
+
+    Gravity and the (vertical) contact normals make no horizontal force and no moment about the
+    vertical, so these three are the whole of the root's static imbalance; all zero means the pose
+    balances on its feet. Runs ``static_inverse_dynamics`` (which sets qvel, qacc to zero).
+    """
+    residual = static_inverse_dynamics(model, data)
+    moment = data.xmat[model.body(TORSO_BODY).id].reshape(3, 3) @ residual[3:6]
+    return np.array([residual[2], moment[0], moment[1]])

@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from teleop.cli import UserError, run_cli, setting
-from teleop.controllers import CONTROLLERS, check_controller, make_controller
+from teleop.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
@@ -49,15 +49,18 @@ class RecordConfig:
     seed: int | None = setting(None, "seed of the first new episode (episode i uses SEED+i); "
                                      "default: one past the largest seed in the dataset, 0 if new")
     controller: str = setting("expert", "who acts: a registered controller or a policy checkpoint folder",
-                              metavar="{" + ",".join(CONTROLLERS) + "}|PATH")
+                              metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH")
     noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
-    task: str = setting(DEFAULT_TASK, "the task string stored with every frame")
+    task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
     workers: int = setting(1, "simulation processes; with 2 or more the recorder's own process writes, "
                               "committing episodes in seed order (the dataset is the one a single process records)")
     writer: str = setting("process", "with 1 worker: 'process' writes in a child process, overlapped with "
                                      "simulation; 'inline' writes between episodes", choices=("process", "inline"))
-    progress: bool = setting(True, "show a progress bar")
+    front_end: str = setting("auto", "keyboard teleoperation's front end: the MuJoCo viewer window, the terminal "
+                                     "(raw keys and a status line; works over SSH), or auto (viewer if a display exists)",
+                             choices=("auto", "viewer", "terminal"))
+    progress: bool = setting(True, "show a progress bar (not with the keyboard: the status line shows progress)")
 
 
 @dataclass
@@ -101,6 +104,8 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"SEED must be >= 0, got {cfg.seed}")
     if cfg.workers <= 0:
         raise UserError(f"WORKERS must be positive, got {cfg.workers}")
+    if cfg.controller in INTERACTIVE and cfg.workers != 1:
+        raise UserError(f"CONTROLLER={cfg.controller} records in one process: WORKERS must be 1, got {cfg.workers}")
 
 
 def main(cfg: RecordConfig) -> RecordSummary:
@@ -119,7 +124,9 @@ def main(cfg: RecordConfig) -> RecordSummary:
         sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
     summary = RecordSummary(cfg.dataset)
     start = time.perf_counter()
-    bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
+    interactive = cfg.controller in INTERACTIVE
+    bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
+               dynamic_ncols=True)
 
     def report(committed: list[CommittedEpisode]) -> None:
         summary.episodes += committed
@@ -129,13 +136,17 @@ def main(cfg: RecordConfig) -> RecordSummary:
             bar.update(len(committed))
 
     try:
-        controller = make_controller(cfg.controller, env) if cfg.workers == 1 else None
+        controller = make_controller(cfg.controller, env) if cfg.workers == 1 and not interactive else None
         sink.wait_ready()
         first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
         if first_seed < sink.next_seed():
             log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
         seeds = range(first_seed, first_seed + cfg.episodes)
-        if controller is not None:
+        if interactive:
+            from teleop.keyboard import run_session  # noqa: PLC0415
+
+            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
+        elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
                 report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
@@ -171,7 +182,10 @@ def _main_and_print(cfg: RecordConfig) -> None:
 
 def cli(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    return run_cli(_main_and_print, RecordConfig, argv, description=__doc__, prog="python -m teleop.record")
+    from teleop.keyboard import key_help  # noqa: PLC0415
+
+    description = f"{__doc__}\nKeys of CONTROLLER=keyboard (--controller keyboard):\n{key_help()}\n"
+    return run_cli(_main_and_print, RecordConfig, argv, description=description, prog="python -m teleop.record")
 
 
 if __name__ == "__main__":

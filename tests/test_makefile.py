@@ -30,7 +30,8 @@ def test_dataset_and_policy_defaults_match_the_stages() -> None:
     assert Path(make_default("SCRATCH_DEFAULT")) == SCRATCH_POLICY
 
 
-@pytest.mark.parametrize("module", ["teleop.record", "bc.train", "bc.evaluate", "bc.dagger", "bc.finetune"])
+@pytest.mark.parametrize("module", ["teleop.record", "teleop.inspect_dataset", "bc.train", "bc.evaluate", "bc.dagger",
+                                    "bc.finetune"])
 def test_every_stage_prints_its_help(module: str, capsys: pytest.CaptureFixture[str]) -> None:
     """`python -m <stage> --help` exits 0 and lists the stage's flags (help texts are %-formatted by argparse)."""
     with pytest.raises(SystemExit) as exit_info:

@@ -1,0 +1,361 @@
+"""Keyboard teleoperation (`make record CONTROLLER=keyboard`): keys change what the expert holds.
+
+Balancing 17 motors by hand is impossible, so a key changes the posture the LQR expert holds
+(`teleop.posture`) and the expert keeps the body up; one key pushes the torso, a perturbation to
+recover from. Every step of an episode is recorded as with the expert, plus the command in force
+(`observation.command`, the `/command` MCAP channel) and a task string that names it.
+
+Two front ends drive the same `TeleopSession`, in real time (one env step per 15 ms):
+- `terminal`: raw key reads from the TTY (works over SSH, no display), a live status line;
+- `viewer`: MuJoCo's viewer window and its key callback, showing the robot (needs a display).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import select
+import sys
+import termios
+import time
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, TextIO
+
+import gymnasium as gym
+import numpy as np
+
+from teleop.cli import UserError
+from teleop.env import model_and_data
+from teleop.episode import DEFAULT_TASK, EpisodeBuffer, check_action, injected_noise
+from teleop.keys import COMMAND_NAMES
+from teleop.physics import TORSO_BODY, torso_height
+from teleop.posture import NEUTRAL, Posture
+
+if TYPE_CHECKING:
+    from teleop.expert import LQRExpert
+    from teleop.store import CommittedEpisode, EpisodeSink
+
+CONTROLLER_NAME = "keyboard"
+LEAN_STEP = 0.05  # rad per key press: five presses reach the measured limit
+HEIGHT_STEP = 0.02  # m per key press
+TWIST_STEP = 0.1  # rad per key press
+PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples half the seeds)
+PUSH_SECONDS = 0.1
+ARM_NAMES = ("neutral", "forward", "up", "out")
+STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
+
+
+@dataclass(frozen=True)
+class Binding:
+    """One entry of the key map: the keys (terminal names) and what they do."""
+
+    keys: tuple[str, ...]
+    help: str
+    effect: Callable[[TeleopSession], None]
+
+
+def _nudge(field: str, step: float) -> Callable[[TeleopSession], None]:
+    return lambda session: session.command_posture(
+        dataclasses.replace(session.target, **{field: getattr(session.target, field) + step}))
+
+
+def _arms(preset: int) -> Callable[[TeleopSession], None]:
+    return lambda session: session.command_posture(dataclasses.replace(session.target, arms=float(preset)))
+
+
+KEY_MAP: tuple[Binding, ...] = (
+    Binding(("enter",), "start an episode / end it and save it", lambda s: s.start_or_end()),
+    Binding(("backspace",), "discard the episode in progress", lambda s: s.discard()),
+    Binding(("esc",), "quit (an episode in progress is saved; Ctrl-C too)", lambda s: s.quit()),
+    Binding(("w", "up"), "lean forward", _nudge("lean_forward", LEAN_STEP)),
+    Binding(("s", "down"), "lean back", _nudge("lean_forward", -LEAN_STEP)),
+    Binding(("a", "left"), "lean left", _nudge("lean_left", LEAN_STEP)),
+    Binding(("d", "right"), "lean right", _nudge("lean_left", -LEAN_STEP)),
+    Binding(("f",), "crouch (lower the torso)", _nudge("height", -HEIGHT_STEP)),
+    Binding(("r",), "rise", _nudge("height", HEIGHT_STEP)),
+    Binding(("q",), "twist the torso left", _nudge("twist", TWIST_STEP)),
+    Binding(("e",), "twist the torso right", _nudge("twist", -TWIST_STEP)),
+    *(Binding((str(i),), f"arms {name}", _arms(i)) for i, name in enumerate(ARM_NAMES)),
+    Binding(("space",), "back to the neutral stand", lambda s: s.command_posture(NEUTRAL)),
+    Binding(("p",), f"push the torso forward ({PUSH_FORCE:g} N for {PUSH_SECONDS:g} s)", lambda s: s.push()),
+)
+KEY_ACTIONS = {key: binding.effect for binding in KEY_MAP for key in binding.keys}
+
+
+def key_help() -> str:
+    """The key map as aligned lines, for --help and the README."""
+    return "\n".join(f"  {' / '.join(binding.keys):<12} {binding.help}" for binding in KEY_MAP)
+
+
+def task_for(posture: Posture) -> str:
+    """The task string naming a commanded posture: one phrase per field away from neutral."""
+    phrases = []
+    if posture.lean_forward:
+        phrases.append("lean forward" if posture.lean_forward > 0 else "lean back")
+    if posture.lean_left:
+        phrases.append("lean left" if posture.lean_left > 0 else "lean right")
+    if posture.height:
+        phrases.append("crouch" if posture.height < 0 else "rise")
+    if posture.twist:
+        phrases.append("twist left" if posture.twist > 0 else "twist right")
+    if posture.arms:
+        phrases.append(f"arms {ARM_NAMES[round(posture.arms)]}")
+    if not phrases:
+        return DEFAULT_TASK
+    return (", ".join(phrases) + " while standing.").capitalize()
+
+
+class TeleopSession:
+    """The state of a teleoperation session: the command in force, the episode being recorded.
+
+    Front ends call `press(key)` for each key and `tick()` once per env step; `tick` advances
+    the simulation only while an episode is being recorded.
+    """
+
+    def __init__(self, env: gym.Env, expert: LQRExpert, sink: EpisodeSink, first_seed: int, episodes: int,
+                 noise_std: float, report: Callable[[list[CommittedEpisode]], None]) -> None:
+        self.env = env
+        self.expert = expert
+        self.sink = sink
+        self.next_seed = first_seed
+        self.episodes_left = episodes
+        self.noise_std = noise_std
+        self.report = report
+        self.model, self.data = model_and_data(env)
+        self.torso = self.model.body(TORSO_BODY).id
+        self.max_steps = env.spec.max_episode_steps
+        self.buffer = EpisodeBuffer(env, self.max_steps)
+        self.push_steps = max(1, round(PUSH_SECONDS / env.unwrapped.dt))
+        self.recording = False
+        self.finished = False
+        self.saved = 0
+        self.discarded = 0
+        self.message = "press Enter to start an episode"
+        self._reset_episode_state()
+
+    def _reset_episode_state(self) -> None:
+        self.t = 0
+        self.episode_return = 0.0
+        self.pushing_left = 0
+        self.obs: np.ndarray | None = None
+        self.noise: np.ndarray | None = None
+
+    @property
+    def target(self) -> Posture:
+        return self.expert.target
+
+    # Key effects.
+    def press(self, key: str) -> None:
+        effect = KEY_ACTIONS.get(key)
+        if effect is not None:
+            effect(self)
+
+    def command_posture(self, posture: Posture) -> None:
+        self.expert.hold(posture)
+
+    def push(self) -> None:
+        if self.recording:
+            self.pushing_left = self.push_steps
+
+    def start_or_end(self) -> None:
+        if self.recording:
+            self._end(save=True, why="ended")
+        else:
+            self._start()
+
+    def discard(self) -> None:
+        if self.recording:
+            self._end(save=False, why="discarded")
+
+    def quit(self) -> None:
+        if self.recording:
+            self._end(save=True, why="ended")
+        self.finished = True
+
+    # The episode.
+    def _start(self) -> None:
+        seed = self.next_seed
+        # Every episode starts from the neutral stand: the body drops 12 cm from the reset pose.
+        self.expert.reset(seed)
+        self._reset_episode_state()
+        self.obs, _ = self.env.reset(seed=seed)
+        if self.noise_std > 0:
+            self.noise = injected_noise(seed, self.max_steps, self.noise_std, self.env.action_space.shape[0])
+        self.recording = True
+        self.message = f"recording episode with seed {seed}"
+
+    def _end(self, save: bool, why: str) -> None:
+        self.recording = False
+        self.data.xfrc_applied[self.torso] = 0.0
+        seed = self.next_seed
+        self.next_seed += 1  # a discarded seed is not reused: the next episode starts fresh
+        if save and self.t > 0:
+            episode = self.buffer.episode(self.t, seed=seed, controller=CONTROLLER_NAME, labeller=CONTROLLER_NAME,
+                                          noise_std=self.noise_std)
+            self.report(self.sink.submit(episode))
+            self.saved += 1
+            self.episodes_left -= 1
+            if self.episodes_left <= 0:
+                self.finished = True
+        else:
+            self.discarded += 1
+        self.message = f"episode {why} after {self.t} steps (return {self.episode_return:.1f}); Enter starts the next"
+
+    def command_vector(self) -> np.ndarray:
+        push = self.data.xfrc_applied[self.torso, :2] if self.pushing_left else (0.0, 0.0)
+        target = self.target
+        return np.array([*(getattr(target, name) for name in COMMAND_NAMES[:5]), *push], np.float32)
+
+    def tick(self) -> None:
+        """One env step of the episode in progress (nothing while idle)."""
+        if not self.recording:
+            return
+        t = self.t
+        action = self.expert.act(self.obs)
+        check_action(action, self.expert, t, self.next_seed)
+        executed = action
+        if self.noise is not None:
+            low, high = self.env.action_space.low, self.env.action_space.high
+            executed = np.clip(action + self.noise[t], low, high).astype(np.float32)
+        self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
+        self.buffer.record(t, self.obs, self.data, action, executed, self.command_vector(), task_for(self.target))
+        self.obs, reward, terminated, truncated, _ = self.env.step(executed)
+        self.pushing_left = max(0, self.pushing_left - 1)
+        self.buffer.outcome(t, reward, terminated, truncated)
+        self.t += 1
+        self.episode_return += reward
+        if terminated or truncated:
+            self._end(save=True, why="fell" if terminated else "reached the time limit")
+
+    def status(self) -> str:
+        """One line: recording state, time, height, return and the command in force."""
+        target = self.target
+        state = f"REC seed {self.next_seed} t {self.t * self.env.unwrapped.dt:5.2f} s" if self.recording else "idle"
+        return (f"{state} | height {torso_height(self.model, self.data):.2f} m | return {self.episode_return:7.1f} | "
+                f"lean fwd {target.lean_forward:+.2f} left {target.lean_left:+.2f} | height {target.height:+.2f} | "
+                f"twist {target.twist:+.1f} | arms {ARM_NAMES[round(target.arms)]}"
+                f"{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}")
+
+
+# The terminal front end.
+_ESCAPES = {"\x1b[A": "up", "\x1b[B": "down", "\x1b[C": "right", "\x1b[D": "left"}
+_SPECIAL = {"\r": "enter", "\n": "enter", "\x7f": "backspace", "\x08": "backspace", " ": "space", "\x1b": "esc"}
+
+
+def parse_keys(text: str) -> list[str]:
+    """Key names in raw terminal input: arrow escape sequences, special keys, and characters."""
+    keys = []
+    i = 0
+    while i < len(text):
+        sequence = next((seq for seq in _ESCAPES if text.startswith(seq, i)), None)
+        if sequence:
+            keys.append(_ESCAPES[sequence])
+            i += len(sequence)
+            continue
+        keys.append(_SPECIAL.get(text[i], text[i].lower()))
+        i += 1
+    return keys
+
+
+def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
+    """Real-time loop reading keys from the TTY `stdin_fd` (cbreak: Ctrl-C still interrupts)."""
+    if not os.isatty(stdin_fd):
+        raise UserError("keyboard teleoperation needs a terminal: stdin is not a TTY (or use --front-end viewer)")
+    saved_mode = termios.tcgetattr(stdin_fd)
+    tty.setcbreak(stdin_fd)
+    dt = session.env.unwrapped.dt
+    try:
+        print("keys:\n" + key_help(), file=out)
+        next_step = time.monotonic()
+        shown = ""
+        while not session.finished:
+            timeout = max(0.0, next_step - time.monotonic())
+            readable, _, _ = select.select([stdin_fd], [], [], timeout)
+            if readable:
+                data = os.read(stdin_fd, 64)
+                if not data:  # the terminal closed
+                    session.quit()
+                for key in parse_keys(data.decode(errors="ignore")):
+                    session.press(key)
+                    if session.finished:
+                        break
+                continue  # keys are handled at once; the step waits for its time
+            session.tick()
+            next_step = max(next_step + dt, time.monotonic() - dt)  # never run ahead to catch up a stall
+            if session.status() != shown and (session.t % STATUS_EVERY == 0 or not session.recording):
+                shown = session.status()
+                out.write("\r\x1b[2K" + shown)
+                out.flush()
+    except KeyboardInterrupt:
+        session.quit()
+    finally:
+        termios.tcsetattr(stdin_fd, termios.TCSADRAIN, saved_mode)
+        out.write("\n")
+        out.flush()
+
+
+# The viewer front end: GLFW key codes, as MuJoCo's viewer passes them to its key callback.
+_GLFW_KEYS = {257: "enter", 259: "backspace", 256: "esc", 32: "space", 265: "up", 264: "down", 263: "left", 262: "right"}
+
+
+def glfw_key_name(keycode: int) -> str | None:
+    if keycode in _GLFW_KEYS:
+        return _GLFW_KEYS[keycode]
+    if 48 <= keycode <= 57 or 65 <= keycode <= 90:  # digits and letters (GLFW reports upper case)
+        return chr(keycode).lower()
+    return None
+
+
+def run_viewer(session: TeleopSession, out: TextIO) -> None:
+    """Real-time loop in MuJoCo's passive viewer; keys arrive through its callback."""
+    import mujoco.viewer  # noqa: PLC0415 - needs a display
+
+    pressed: list[str] = []
+
+    def on_key(keycode: int) -> None:  # called on the viewer's thread: only queue the key
+        name = glfw_key_name(keycode)
+        if name:
+            pressed.append(name)
+
+    dt = session.env.unwrapped.dt
+    print("keys (in the viewer window):\n" + key_help(), file=out)
+    try:
+        with mujoco.viewer.launch_passive(session.model, session.data, key_callback=on_key) as viewer:
+            next_step = time.monotonic()
+            while viewer.is_running() and not session.finished:
+                while pressed:
+                    session.press(pressed.pop(0))
+                session.tick()
+                viewer.sync()
+                out.write("\r\x1b[2K" + session.status())
+                out.flush()
+                next_step = max(next_step + dt, time.monotonic() - dt)
+                time.sleep(max(0.0, next_step - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        session.quit()
+        out.write("\n")
+        out.flush()
+
+
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def run_session(env: gym.Env, sink: EpisodeSink, first_seed: int, episodes: int, noise_std: float,
+                front_end: str, report: Callable[[list[CommittedEpisode]], None]) -> None:
+    """Teleoperate until the user quits or `episodes` episodes are saved."""
+    from teleop.expert import LQRExpert  # noqa: PLC0415
+
+    if front_end == "auto":
+        front_end = "viewer" if has_display() else "terminal"
+    if front_end == "viewer" and not has_display():
+        raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
+    session = TeleopSession(env, LQRExpert(model_and_data(env)[0]), sink, first_seed, episodes, noise_std, report)
+    if front_end == "viewer":
+        run_viewer(session, sys.stderr)
+    else:
+        run_terminal(session, sys.stdin.fileno(), sys.stderr)

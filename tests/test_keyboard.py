@@ -1,0 +1,167 @@
+"""Keyboard teleoperation: a scripted key sequence through a pseudo-terminal drives what is recorded."""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from teleop import keys
+from teleop.dataset_reader import read_episodes, read_frames, read_mcap_episode
+from teleop.episode import DEFAULT_TASK
+from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
+from teleop.posture import Posture
+
+SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
+HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
+
+
+class Terminal:
+    """The recorder in keyboard mode behind a pseudo-terminal, as a person at a TTY would run it."""
+
+    def __init__(self, root: Path) -> None:
+        self.master, slave = pty.openpty()
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "terminal",
+             "--dataset", str(root), "--noise", "0", "--max-steps", "5000"],
+            stdin=slave, stdout=slave, stderr=slave, close_fds=True)
+        os.close(slave)
+        self.output = b""
+
+    def read_for(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if select.select([self.master], [], [], 0.05)[0]:
+                try:
+                    self.output += os.read(self.master, 1 << 16)
+                except OSError:  # the recorder exited and closed the terminal
+                    return
+
+    def wait_for(self, text: bytes, timeout: float = 60) -> None:
+        deadline = time.monotonic() + timeout
+        while text not in self.output:
+            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
+            self.read_for(0.1)
+
+    def press(self, keys_: str, then_wait: float) -> None:
+        os.write(self.master, keys_.encode())
+        self.read_for(then_wait)
+
+
+@pytest.fixture(scope="module")
+def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """One episode driven by keys (crouch, lean forward, arms up, neutral, push), one discarded, then quit."""
+    root = tmp_path_factory.mktemp("keyboard") / "dataset"
+    terminal = Terminal(root)
+    terminal.wait_for(b"keys:")
+    terminal.press("\r", SETTLE)  # start
+    terminal.press("ff", HOLD)  # crouch 4 cm
+    terminal.press("ww", HOLD)  # lean forward 0.1 rad
+    terminal.press("2", HOLD)  # arms up
+    terminal.press(" ", HOLD)  # back to neutral
+    terminal.press("p", 1.5)  # push
+    terminal.press("\r", 0.5)  # end and save
+    terminal.press("\r", 0.5)  # start another...
+    terminal.press("\x7f", 0.5)  # ...and discard it
+    terminal.press("\x1b", 0)  # quit
+    assert terminal.process.wait(timeout=60) == 0, terminal.output.decode(errors="replace")[-2000:]
+    terminal.read_for(0.5)
+    return root, terminal.output.decode(errors="replace")
+
+
+POSTURE = slice(0, keys.COMMAND_NAMES.index("arms") + 1)  # the command's posture fields, without the push
+
+
+def phases(command: np.ndarray) -> list[int]:
+    """Rows where the commanded posture changes."""
+    return [0, *(np.flatnonzero(np.any(np.diff(command[:, POSTURE], axis=0) != 0, axis=1)) + 1)]
+
+
+def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -> None:
+    """observation.command steps through crouch, lean, arms up and neutral, then records the push."""
+    root, _ = teleoperated
+    frames = read_frames(root, [keys.OBS_COMMAND, "episode_index"])
+    command = frames[keys.OBS_COMMAND]
+    names = list(keys.COMMAND_NAMES)
+    held = command[phases(command)][:, POSTURE]
+    # Two presses that arrive together both act before the next step: the command jumps two notches.
+    np.testing.assert_allclose(held, [(0, 0, 0, 0, 0), (0, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 0),
+                                      (0.1, 0, -0.04, 0, 2), (0, 0, 0, 0, 0)], atol=1e-6)
+    pushed = np.flatnonzero(command[:, names.index("push_x")] > 0)
+    assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[4]
+    assert np.all(frames["episode_index"] == 0)  # the discarded episode left nothing
+
+
+def test_the_body_follows_the_commands(teleoperated: tuple[Path, str]) -> None:
+    """The torso is lower after the crouch, tilts forward after the lean, and the body stays up."""
+    root, _ = teleoperated
+    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_COMMAND, keys.TERMINATED])
+    state, command = frames[keys.OBS_STATE], frames[keys.OBS_COMMAND]
+    starts = phases(command)
+    height = state[:, 0]  # root z
+    w, x, y, z = state[:, 1:5].T
+    forward_tilt = 2 * (x * z + w * y)  # world x of the torso's up axis
+    before_crouch = slice(starts[1] - 30, starts[1])
+    before_lean = slice(starts[2] - 30, starts[2])
+    before_arms = slice(starts[3] - 30, starts[3])
+    assert height[before_lean].mean() < height[before_crouch].mean() - 0.02
+    assert forward_tilt[before_arms].mean() > forward_tilt[before_lean].mean() + 0.05
+    assert not frames[keys.TERMINATED].any()
+
+
+def test_tasks_name_the_commands_in_dataset_and_mcap(teleoperated: tuple[Path, str]) -> None:
+    """The episode lists one task per command held, and /command carries the same per step."""
+    root, _ = teleoperated
+    episode = read_episodes(root).to_pylist()[0]
+    assert episode["tasks"] == [DEFAULT_TASK, "Crouch while standing.", "Lean forward, crouch while standing.",
+                                "Lean forward, crouch, arms up while standing."]  # and back to the first
+    assert episode[keys.EPISODE_CONTROLLER] == "keyboard"
+    mcap = read_mcap_episode(root / episode[keys.EPISODE_MCAP])
+    frames = read_frames(root, [keys.OBS_COMMAND])
+    np.testing.assert_array_equal(mcap.command, frames[keys.OBS_COMMAND])
+    assert list(dict.fromkeys(mcap.command_tasks)) == episode["tasks"]
+
+
+def test_the_terminal_shows_the_key_map_and_a_status_line(teleoperated: tuple[Path, str]) -> None:
+    """The session prints the key map, then status lines with height, time, return and the command."""
+    _, output = teleoperated
+    assert key_help().splitlines()[0].strip() in output
+    assert "REC seed 0" in output and "height 1.2" in output and "return" in output and "arms up" in output
+    assert "added 1 episodes" in output
+
+
+def test_parse_keys_reads_arrows_and_special_keys() -> None:
+    """Raw terminal bytes become key names: arrows, Enter, Backspace, Esc and letters."""
+    assert parse_keys("w\x1b[A\r\x7f \x1bQ") == ["w", "up", "enter", "backspace", "space", "esc", "q"]
+
+
+def test_every_key_of_the_map_is_documented_once() -> None:
+    """No key is bound twice, and --help lists every binding."""
+    bound = [key for binding in KEY_MAP for key in binding.keys]
+    assert len(bound) == len(set(bound))
+    from teleop.record import cli
+
+    with pytest.raises(SystemExit):
+        cli(["--help"])
+
+
+def test_task_for_neutral_is_the_default_task() -> None:
+    """The neutral posture is the plain standing task; others name each field away from neutral."""
+    assert task_for(Posture()) == DEFAULT_TASK
+    assert task_for(Posture(lean_left=-0.1, twist=0.2)) == "Lean right, twist left while standing."
+
+
+def test_keyboard_without_a_terminal_is_a_one_line_error(tmp_path: Path) -> None:
+    """With stdin not a TTY the recorder exits non-zero with one line and writes no episode."""
+    result = subprocess.run([sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end",
+                             "terminal", "--dataset", str(tmp_path / "d")], stdin=subprocess.DEVNULL,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode != 0
+    assert result.stderr.strip().splitlines()[-1].startswith("error: keyboard teleoperation needs a terminal")
