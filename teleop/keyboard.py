@@ -284,10 +284,12 @@ def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
                 continue  # keys are handled at once; the step waits for its time
             session.tick()
             next_step = max(next_step + dt, time.monotonic() - dt)  # never run ahead to catch up a stall
-            if session.status() != shown and (session.t % STATUS_EVERY == 0 or not session.recording):
-                shown = session.status()
-                out.write("\r\x1b[2K" + shown)
-                out.flush()
+            if session.t % STATUS_EVERY == 0 or not session.recording:
+                status = session.status()  # formatted once: a torso-height query and a dozen fields
+                if status != shown:
+                    shown = status
+                    out.write("\r\x1b[2K" + shown)
+                    out.flush()
     except KeyboardInterrupt:
         session.quit()
     finally:
