@@ -61,8 +61,13 @@ def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
     os.replace(partial, path)
 
 
-def _write_json(data: dict, path: Path) -> None:
-    write_atomically(path, lambda p: p.write_text(json.dumps(data, indent=4)))
+def _write_json(data: dict, path: Path, indent: int | None = 4) -> None:
+    write_atomically(path, lambda p: p.write_text(json.dumps(data, indent=indent)))
+
+
+def _write_stats(stats: Stats, path: Path) -> None:
+    # Rewritten at every commit; indenting would make Python's JSON encoder 3x slower (no C encoder).
+    _write_json(stats_to_json(stats), path, indent=None)
 
 
 @dataclass(frozen=True)
@@ -85,7 +90,7 @@ class LeRobotWriter:
         self.tasks = tasks
         self.stats = stats
         self._last_file = last_file
-        self._schema: pa.Schema | None = None  # built on first use: it imports `datasets`
+        self._schema: pa.Schema | None = None  # built by `prepare` or on first use: it imports `datasets`
 
     @property
     def total_episodes(self) -> int:
@@ -136,8 +141,13 @@ class LeRobotWriter:
             # stats.json is written just before info.json: a kill between the two leaves it counting an
             # episode that was never committed, so rebuild it from the committed episodes' own statistics.
             writer.stats = aggregate_stats([unflatten_stats(row) for row in episodes])
-            _write_json(stats_to_json(writer.stats), stats_path)
+            _write_stats(writer.stats, stats_path)
         return writer
+
+    def prepare(self) -> None:
+        """Build the Arrow schema now (importing `datasets` takes about a second), not at the first episode."""
+        if self._schema is None:
+            self._schema = hf_features(self.info["features"]).arrow_schema
 
     def stage(self, columns: dict[str, np.ndarray], tasks: np.ndarray, extra: dict[str, Any]) -> StagedEpisode:
         """Write the frames and metadata row of the next episode, uncommitted.
@@ -186,7 +196,7 @@ class LeRobotWriter:
     def commit(self, staged: StagedEpisode) -> None:
         """Count the staged episode in stats.json and then info.json: from now on it exists."""
         self.stats = staged.stats if self.stats is None else aggregate_stats([self.stats, staged.stats])
-        _write_json(stats_to_json(self.stats), self.root / STATS_PATH)
+        _write_stats(self.stats, self.root / STATS_PATH)
         self.info["total_episodes"] = staged.index + 1
         self.info["total_frames"] += staged.length
         self.info["total_tasks"] = staged.total_tasks
@@ -214,8 +224,7 @@ class LeRobotWriter:
 
     def _frames_table(self, frames: dict[str, np.ndarray]) -> pa.Table:
         """The episode as an Arrow table with the schema LeRobot's writer gives the same features."""
-        if self._schema is None:
-            self._schema = hf_features(self.info["features"]).arrow_schema
+        self.prepare()
         arrays = []
         for field in self._schema:
             values = np.ascontiguousarray(frames[field.name])

@@ -1,5 +1,7 @@
 """One MCAP file per episode: protobuf messages in zstd chunks, viewable in Foxglove's 3D panel.
 
+The file is written by `teleop.mcap_bulk`, which takes the whole episode's messages at once.
+
 Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
 - `/step`  humanoid_bc.Step: observation, label and executed action, reward, terminated, truncated.
 - `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
@@ -27,11 +29,10 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
-from mcap.writer import CompressionType
-from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from teleop.episode import Episode
+from teleop.mcap_bulk import BulkMcapWriter
 from teleop.mcap_schema import Command, Step
 from teleop.protobuf_wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
 
@@ -104,10 +105,10 @@ def write_episode_mcap(
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
         times_ns, episode.body_position, episode.body_orientation)
     commands = CommandEncoder().encode(times_ns, episode.command, episode.tasks)
-    steps = StepEncoder()
+    step_encoder = StepEncoder()
     partial = path.with_name(path.name + ".partial")
     with partial.open("wb") as stream:
-        writer = McapWriter(stream, compression=CompressionType.ZSTD)
+        writer = BulkMcapWriter(stream)
         writer.start(profile="", library="humanoid-bc")
         channels = {
             topic: writer.register_channel(topic, MessageEncoding.Protobuf, register_schema(writer, message_type))
@@ -116,15 +117,22 @@ def write_episode_mcap(
         }
         writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
         writer.add_metadata(METADATA_NAME, metadata)
-        writer.add_message(channels[SCENE_TOPIC], log_time=0, data=scene.SerializeToString(), publish_time=0)
+        no_time = np.zeros(1, np.int64)
+        writer.add_messages(np.array([channels[SCENE_TOPIC]]), no_time, no_time, no_time, [scene.SerializeToString()])
         reward, terminated, truncated = episode.reward.tolist(), episode.terminated.tolist(), episode.truncated.tolist()
         tasks = episode.tasks.tolist()
-        for t, time_ns in enumerate(times_ns.tolist()):
-            scalars = {"episode_index": episode_index, "frame_index": t, "reward": reward[t],
-                       "terminated": terminated[t], "truncated": truncated[t], "task": tasks[t]}
-            step = steps.encode(time_ns, scalars, episode.observation[t], episode.action[t], episode.executed_action[t])
-            writer.add_message(channels[STEP_TOPIC], log_time=time_ns, data=step, publish_time=time_ns, sequence=t)
-            writer.add_message(channels[TF_TOPIC], log_time=time_ns, data=transforms[t], publish_time=time_ns, sequence=t)
-            writer.add_message(channels[COMMAND_TOPIC], log_time=time_ns, data=commands[t], publish_time=time_ns, sequence=t)
+        steps = [
+            step_encoder.encode(time_ns, {"episode_index": episode_index, "frame_index": t, "reward": reward[t],
+                                          "terminated": terminated[t], "truncated": truncated[t], "task": tasks[t]},
+                                episode.observation[t], episode.action[t], episode.executed_action[t])
+            for t, time_ns in enumerate(times_ns.tolist())
+        ]
+        per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
+        data: list[bytes] = [b""] * (len(per_step) * episode.length)
+        for offset, messages in enumerate((steps, transforms, commands)):
+            data[offset::len(per_step)] = messages
+        step_times = np.repeat(times_ns, len(per_step))
+        writer.add_messages(np.tile([channels[topic] for topic in per_step], episode.length), step_times, step_times,
+                            np.repeat(np.arange(episode.length), len(per_step)), data)
         writer.finish()
     os.replace(partial, path)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import signal
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -72,6 +72,7 @@ class ParallelRollouts:
         self._seeds: list[Connection] = []
         self._results: list[Connection] = []
         self._processes = []
+        self._closed = False
         for _ in range(workers):
             seeds_out, seeds_in = context.Pipe(duplex=False)
             results_out, results_in = context.Pipe(duplex=False)
@@ -83,8 +84,11 @@ class ParallelRollouts:
             self._results.append(results_out)
             self._processes.append(process)
 
-    def in_seed_order(self, seeds: Sequence[int]) -> Iterator[Path]:
-        """The spool file of each seed's episode, in the order of `seeds`, as soon as all before it are done."""
+    def in_seed_order(self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None) -> Iterator[Path]:
+        """The spool file of each seed's episode, in the order of `seeds`, as soon as all before it are done.
+
+        `meanwhile` runs once the workers have their first seeds, before waiting for them.
+        """
         handed = 0
         holding = [0] * len(self._processes)
         done: set[int] = set()
@@ -98,6 +102,7 @@ class ParallelRollouts:
 
         for worker in range(len(self._processes)):
             hand_out(worker)
+        meanwhile()
         for seed in seeds:
             while seed not in done:
                 for connection in wait(self._results):
@@ -116,7 +121,13 @@ class ParallelRollouts:
             yield self._spool.path_of(seed)
 
     def close(self, interrupted: bool = False) -> None:
-        """Stop the workers once their seeds are done, or at once if `interrupted` (spooled episodes stay)."""
+        """Stop the workers once their seeds are done, or at once if `interrupted` (spooled episodes stay).
+
+        Idempotent: the first call decides.
+        """
+        if self._closed:
+            return
+        self._closed = True
         for connection in self._seeds:
             if not interrupted:
                 try:

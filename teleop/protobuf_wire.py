@@ -94,13 +94,22 @@ class FrameTransformsEncoder:
             _doubles_records(FrameTransform, "translation", Vector3, ["x", "y", "z"], positions.reshape(-1, 3)),
             _doubles_records(FrameTransform, "rotation", Quaternion, ["x", "y", "z", "w"], xyzw.reshape(-1, 4)),
         ], axis=1).reshape(steps, bodies, -1)
-        messages = []
-        for t in range(steps):
-            stamp = length_delimited(self._timestamp_key, _timestamp(int(times_ns[t])))
-            messages.append(b"".join(
-                length_delimited(self._transform_key, stamp + frame + pose.tobytes())
-                for frame, pose in zip(self._frame_fields, poses[t], strict=True)
-            ))
+        stamps = [length_delimited(self._timestamp_key, _timestamp(time_ns)) for time_ns in times_ns.tolist()]
+        messages: list[bytes] = [b""] * steps
+        # Every step's message has the same layout but for its timestamp's size, which takes a few
+        # values only: fill each group of same-size steps as rows of one byte array.
+        for stamp_size in set(map(len, stamps)):
+            rows = [t for t, stamp in enumerate(stamps) if len(stamp) == stamp_size]
+            stamp_bytes = np.frombuffer(b"".join(stamps[t] for t in rows), np.uint8).reshape(len(rows), stamp_size)
+            columns = []
+            for frame, pose in zip(self._frame_fields, poses[rows].transpose(1, 0, 2), strict=True):
+                size = stamp_size + len(frame) + pose.shape[1]
+                constant = np.frombuffer(self._transform_key + varint(size), np.uint8)
+                columns += [np.broadcast_to(constant, (len(rows), len(constant))), stamp_bytes,
+                            np.broadcast_to(np.frombuffer(frame, np.uint8), (len(rows), len(frame))), pose]
+            filled = np.concatenate(columns, axis=1)
+            for t, row in zip(rows, filled, strict=True):
+                messages[t] = row.tobytes()
         return messages
 
 

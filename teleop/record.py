@@ -18,6 +18,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,6 +32,7 @@ from teleop.env import EPISODE_STEPS, make_env
 from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
 if TYPE_CHECKING:
+    from teleop.parallel import ParallelRollouts
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
 log = logging.getLogger(__name__)
@@ -112,66 +114,76 @@ def main(cfg: RecordConfig) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed."""
     validate(cfg)
     env = make_env(cfg.max_steps)
-    # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
-    sink: EpisodeSink
-    if cfg.writer == "process" and cfg.workers == 1:
-        from teleop.writer_process import WriterProcess  # noqa: PLC0415
+    with ExitStack() as stack:
+        # Parallel workers start first: their start-up (imports, gain design) overlaps opening the dataset.
+        rollouts = stack.enter_context(_start_workers(cfg)) if cfg.workers > 1 else None
+        # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
+        sink: EpisodeSink
+        if cfg.writer == "process" and rollouts is None:
+            from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
-        sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
-    else:
-        from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
-
-        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
-    summary = RecordSummary(cfg.dataset)
-    start = time.perf_counter()
-    interactive = cfg.controller in INTERACTIVE
-    bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
-               dynamic_ncols=True)
-
-    def report(committed: list[CommittedEpisode]) -> None:
-        summary.episodes += committed
-        if committed:
-            elapsed = time.perf_counter() - start
-            bar.set_postfix(frames_per_s=f"{summary.frames / elapsed:.0f}", last_return=f"{committed[-1].episode_return:.1f}")
-            bar.update(len(committed))
-
-    try:
-        controller = make_controller(cfg.controller, env) if cfg.workers == 1 and not interactive else None
-        sink.wait_ready()
-        first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
-        if first_seed < sink.next_seed():
-            log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
-        seeds = range(first_seed, first_seed + cfg.episodes)
-        if interactive:
-            from teleop.keyboard import run_session  # noqa: PLC0415
-
-            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
-        elif controller is not None:
-            buffer = EpisodeBuffer(env, cfg.max_steps)
-            for seed in seeds:
-                report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
+            sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
         else:
-            _record_in_parallel(cfg, seeds, sink, report)
-    finally:
-        # Also on Ctrl-C or an error: what the writer already has gets committed.
-        report(sink.close())
-        bar.close()
-        summary.total_episodes = sink.num_episodes
-        summary.seconds = time.perf_counter() - start
-        env.close()
+            from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
+
+            sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
+        summary = RecordSummary(cfg.dataset)
+        start = time.perf_counter()
+        interactive = cfg.controller in INTERACTIVE
+        bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
+                   dynamic_ncols=True)
+
+        def report(committed: list[CommittedEpisode]) -> None:
+            summary.episodes += committed
+            if committed:
+                elapsed = time.perf_counter() - start
+                bar.set_postfix(frames_per_s=f"{summary.frames / elapsed:.0f}",
+                                last_return=f"{committed[-1].episode_return:.1f}")
+                bar.update(len(committed))
+
+        try:
+            controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
+            sink.wait_ready()
+            first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
+            if first_seed < sink.next_seed():
+                log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
+            seeds = range(first_seed, first_seed + cfg.episodes)
+            if interactive:
+                from teleop.keyboard import run_session  # noqa: PLC0415
+
+                run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
+            elif controller is not None:
+                buffer = EpisodeBuffer(env, cfg.max_steps)
+                for seed in seeds:
+                    report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
+            else:
+                _record_in_parallel(rollouts, seeds, sink, report)
+        finally:
+            # Also on Ctrl-C or an error: what the writer already has gets committed.
+            report(sink.close())
+            bar.close()
+            summary.total_episodes = sink.num_episodes
+            summary.seconds = time.perf_counter() - start
+            env.close()
     return summary
 
 
-def _record_in_parallel(cfg: RecordConfig, seeds: range, store: EpisodeStore,
-                        report: Callable[[list[CommittedEpisode]], None]) -> None:
+def _start_workers(cfg: RecordConfig) -> ParallelRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
     settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task)
+    return ParallelRollouts(settings, cfg.dataset, min(cfg.workers, cfg.episodes))
+
+
+def _record_in_parallel(rollouts: ParallelRollouts, seeds: range, store: EpisodeStore,
+                        report: Callable[[list[CommittedEpisode]], None]) -> None:
+    interrupted = True
     try:
-        with ParallelRollouts(settings, cfg.dataset, min(cfg.workers, len(seeds))) as rollouts:
-            for spooled in rollouts.in_seed_order(seeds):
-                report([store.append(store.spool.load(spooled), spooled=spooled)])
+        for spooled in rollouts.in_seed_order(seeds, meanwhile=store.prepare):
+            report([store.append(store.spool.load(spooled), spooled=spooled)])
+        interrupted = False
     finally:
+        rollouts.close(interrupted)
         # After Ctrl-C or a worker's error: the episodes finished beyond the first unfinished one.
         report(store.commit_spool())
 

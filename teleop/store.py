@@ -161,6 +161,10 @@ class EpisodeStore:
         seeds = self.lerobot.episode_column(keys.EPISODE_SEED)
         return max(seeds) + 1 if seeds else 0
 
+    def prepare(self) -> None:
+        """Do the first episode's one-time set-up now, while the recorder waits for that episode."""
+        self.lerobot.prepare()
+
     def append(self, episode: Episode, spooled: Path | None = None) -> CommittedEpisode:
         """Write `episode` to both formats and commit it; `spooled` is its spool file, removed exactly once."""
         state, environment_state = split_observation(episode.observation, self.spec.state_size)

@@ -127,6 +127,7 @@ def _serve(root: Path, episodes: Connection, results: Connection) -> None:
         return
     try:
         _send(results, "ready", (store.num_episodes, store.next_seed()))
+        store.prepare()  # while the recorder simulates the first episode
         while True:
             try:
                 episode = episodes.recv()
