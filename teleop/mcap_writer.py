@@ -105,7 +105,8 @@ def write_episode_mcap(
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
         times_ns, episode.body_position, episode.body_orientation)
     commands = CommandEncoder().encode(times_ns, episode.command, episode.tasks)
-    step_encoder = StepEncoder()
+    steps = StepEncoder().encode(times_ns, episode_index, episode.observation, episode.action, episode.executed_action,
+                                 episode.reward, episode.terminated, episode.truncated, episode.tasks)
     partial = path.with_name(path.name + ".partial")
     with partial.open("wb") as stream:
         writer = BulkMcapWriter(stream)
@@ -119,14 +120,6 @@ def write_episode_mcap(
         writer.add_metadata(METADATA_NAME, metadata)
         no_time = np.zeros(1, np.int64)
         writer.add_messages(np.array([channels[SCENE_TOPIC]]), no_time, no_time, no_time, [scene.SerializeToString()])
-        reward, terminated, truncated = episode.reward.tolist(), episode.terminated.tolist(), episode.truncated.tolist()
-        tasks = episode.tasks.tolist()
-        steps = [
-            step_encoder.encode(time_ns, {"episode_index": episode_index, "frame_index": t, "reward": reward[t],
-                                          "terminated": terminated[t], "truncated": truncated[t], "task": tasks[t]},
-                                episode.observation[t], episode.action[t], episode.executed_action[t])
-            for t, time_ns in enumerate(times_ns.tolist())
-        ]
         per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
         data: list[bytes] = [b""] * (len(per_step) * episode.length)
         for offset, messages in enumerate((steps, transforms, commands)):

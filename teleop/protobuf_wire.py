@@ -1,18 +1,21 @@
-"""Protobuf wire encoding of the two per-step MCAP messages, from NumPy arrays, in bulk.
+"""Protobuf wire encoding of the per-step MCAP messages, from NumPy arrays, a whole episode at once.
 
-Building `foxglove.FrameTransforms` and `humanoid_bc.Step` through the protobuf API costs about
-45 µs a step (13 nested transforms, 348 doubles converted one by one): a third of the time it
-takes to simulate the step. Both messages are flat arrays of numbers, so their bytes are built
-here directly, following the wire format (https://protobuf.dev/programming-guides/encoding/):
-scalar fields through the protobuf API, repeated numbers as packed fields, and the transforms'
-vectors as fixed-size records filled by NumPy for the whole episode at once.
+Building `foxglove.FrameTransforms`, `humanoid_bc.Step` and `humanoid_bc.Command` through the
+protobuf API costs about 50 µs a step (13 nested transforms, 348 doubles converted one by one):
+a third of the time it takes to simulate the step. The messages are mostly numbers in fixed
+places, so their bytes are built here directly, following the wire format
+(https://protobuf.dev/programming-guides/encoding/): each message is a row of bytes, filled by
+NumPy for every step at once, plus the few fields whose size varies (timestamp, frame index, task).
 
-Concatenated fields are a valid encoding, and every field is written explicitly (zeros too), which
-parsers accept. Field numbers come from the message descriptors, never typed in by hand. The tests
-decode the bytes with the generated classes and compare them with the arrays they came from.
+Concatenated fields are a valid encoding, in any order, and every number is written explicitly
+(zeros too), which parsers accept. Field numbers come from the message descriptors, never typed in
+by hand. The tests decode the bytes with the generated classes and compare them with the arrays
+they came from.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -25,9 +28,12 @@ from google.protobuf.timestamp_pb2 import Timestamp
 from teleop.keys import COMMAND_NAMES
 from teleop.mcap_schema import Command, Step
 
+_VARINT = 0
 _FIXED64 = 1
 _LENGTH_DELIMITED = 2
 _DOUBLE_SIZE = 8
+_NANOS_PER_SECOND = 1_000_000_000
+
 
 
 def varint(value: int) -> bytes:
@@ -55,23 +61,43 @@ def packed_key(message: type[Message], field: str) -> bytes:
     return tag(message, field, _LENGTH_DELIMITED)
 
 
+_SECONDS_KEY = tag(Timestamp, "seconds", _VARINT)
+_NANOS_KEY = tag(Timestamp, "nanos", _VARINT)
+
+
+def _byte_rows(steps: int, parts: list[bytes | np.ndarray]) -> np.ndarray:
+    """(steps, size) bytes: each row the concatenation of `parts`, constant strings or (steps, n) byte arrays."""
+    return np.concatenate([np.broadcast_to(np.frombuffer(part, np.uint8), (steps, len(part)))
+                           if isinstance(part, bytes) else part for part in parts], axis=1)
+
+
+def _number_bytes(values: np.ndarray, dtype: str) -> np.ndarray:
+    """(steps, ...) numbers as (steps, n) bytes of little-endian `dtype`."""
+    values = np.ascontiguousarray(values, dtype=dtype)
+    return values.view(np.uint8).reshape(len(values), -1)
+
+
+def timestamp_fields(key: bytes, times_ns: np.ndarray) -> list[bytes]:
+    """The field `key` = google.protobuf.Timestamp(times_ns[t]) for each step, as Timestamp serialises it."""
+    if len(times_ns) and times_ns.min() < 0:
+        raise ValueError(f"times must be >= 0 ns, got {times_ns.min()}")
+    return [length_delimited(key, _timestamp(time_ns)) for time_ns in times_ns.tolist()]
+
+
+@functools.cache
+def _timestamp(time_ns: int) -> bytes:
+    # Cached: every episode has the same time grid, and a timestamp's varints cost more than a lookup.
+    seconds, nanos = divmod(time_ns, _NANOS_PER_SECOND)
+    return ((_SECONDS_KEY + varint(seconds) if seconds else b"") + (_NANOS_KEY + varint(nanos) if nanos else b""))
+
+
 def _doubles_records(message: type[Message], field: str, sub_message: type[Message], components: list[str],
                      values: np.ndarray) -> np.ndarray:
     """`field` = sub_message(components...) for each row of `values` (rows, len(components)), as byte rows."""
-    rows = len(values)
-    body_size = len(components) * (1 + _DOUBLE_SIZE)
-    head = tag(message, field, _LENGTH_DELIMITED) + varint(body_size)
-    out = np.empty((rows, len(head) + body_size), np.uint8)
-    out[:, : len(head)] = np.frombuffer(head, np.uint8)
-    offset = len(head)
+    parts: list[bytes | np.ndarray] = [tag(message, field, _LENGTH_DELIMITED) + varint(len(components) * (1 + _DOUBLE_SIZE))]
     for column, component in enumerate(components):
-        (key,) = tag(sub_message, component, _FIXED64)  # field numbers < 16: one-byte keys
-        out[:, offset] = key
-        out[:, offset + 1 : offset + 1 + _DOUBLE_SIZE] = (
-            np.ascontiguousarray(values[:, column], dtype="<f8").view(np.uint8).reshape(rows, _DOUBLE_SIZE)
-        )
-        offset += 1 + _DOUBLE_SIZE
-    return out
+        parts += [tag(sub_message, component, _FIXED64), _number_bytes(values[:, column], "<f8")]
+    return _byte_rows(len(values), parts)
 
 
 class FrameTransformsEncoder:
@@ -94,47 +120,52 @@ class FrameTransformsEncoder:
             _doubles_records(FrameTransform, "translation", Vector3, ["x", "y", "z"], positions.reshape(-1, 3)),
             _doubles_records(FrameTransform, "rotation", Quaternion, ["x", "y", "z", "w"], xyzw.reshape(-1, 4)),
         ], axis=1).reshape(steps, bodies, -1)
-        stamps = [length_delimited(self._timestamp_key, _timestamp(time_ns)) for time_ns in times_ns.tolist()]
+        stamps = timestamp_fields(self._timestamp_key, times_ns)
         messages: list[bytes] = [b""] * steps
         # Every step's message has the same layout but for its timestamp's size, which takes a few
         # values only: fill each group of same-size steps as rows of one byte array.
         for stamp_size in set(map(len, stamps)):
             rows = [t for t, stamp in enumerate(stamps) if len(stamp) == stamp_size]
             stamp_bytes = np.frombuffer(b"".join(stamps[t] for t in rows), np.uint8).reshape(len(rows), stamp_size)
-            columns = []
+            parts: list[bytes | np.ndarray] = []
             for frame, pose in zip(self._frame_fields, poses[rows].transpose(1, 0, 2), strict=True):
-                size = stamp_size + len(frame) + pose.shape[1]
-                constant = np.frombuffer(self._transform_key + varint(size), np.uint8)
-                columns += [np.broadcast_to(constant, (len(rows), len(constant))), stamp_bytes,
-                            np.broadcast_to(np.frombuffer(frame, np.uint8), (len(rows), len(frame))), pose]
-            filled = np.concatenate(columns, axis=1)
+                parts += [self._transform_key + varint(stamp_size + len(frame) + pose.shape[1]), stamp_bytes, frame, pose]
+            filled = _byte_rows(len(rows), parts)
             for t, row in zip(rows, filled, strict=True):
                 messages[t] = row.tobytes()
         return messages
 
 
-def _timestamp(nanoseconds: int) -> bytes:
-    stamp = Timestamp()
-    stamp.FromNanoseconds(nanoseconds)
-    return stamp.SerializeToString()
-
-
 class StepEncoder:
-    """Serialised `humanoid_bc.Step` messages: scalars through protobuf, arrays as packed fields."""
-
-    _ARRAYS = (("observation", "<f8"), ("action", "<f4"), ("executed_action", "<f4"))
+    """Serialised `humanoid_bc.Step` messages for every step of an episode, one `bytes` per step."""
 
     def __init__(self) -> None:
-        self._keys = [(packed_key(Step, name), dtype) for name, dtype in self._ARRAYS]
+        self._timestamp_key = tag(Step, "timestamp", _LENGTH_DELIMITED)
+        self._episode_key = tag(Step, "episode_index", _VARINT)
+        self._frame_key = tag(Step, "frame_index", _VARINT)
+        self._task_key = tag(Step, "task", _LENGTH_DELIMITED)
 
-    def encode(self, time_ns: int, scalars: dict[str, object], *arrays: np.ndarray) -> bytes:
-        """One message: `scalars` (Step's scalar fields by name), then observation, action, executed action."""
-        head = Step(**scalars)
-        head.timestamp.FromNanoseconds(time_ns)
-        return head.SerializeToString() + b"".join(
-            length_delimited(key, np.ascontiguousarray(values, dtype=dtype).tobytes())
-            for (key, dtype), values in zip(self._keys, arrays, strict=True)
-        )
+    def encode(self, times_ns: np.ndarray, episode_index: int, observation: np.ndarray, action: np.ndarray,
+               executed_action: np.ndarray, reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
+               tasks: np.ndarray) -> list[bytes]:
+        """Messages for T steps: (T,) times, (T, n) observation and actions, (T,) reward, flags and tasks."""
+        steps = len(times_ns)
+        parts: list[bytes | np.ndarray] = []
+        for name, values, dtype in (("observation", observation, "<f8"), ("action", action, "<f4"),
+                                    ("executed_action", executed_action, "<f4")):
+            numbers = _number_bytes(values, dtype)
+            parts += [packed_key(Step, name) + varint(numbers.shape[1]), numbers]
+        parts += [tag(Step, "reward", _FIXED64), _number_bytes(reward, "<f8")]
+        for name, flags in (("terminated", terminated), ("truncated", truncated)):
+            parts += [tag(Step, name, _VARINT), _number_bytes(flags, "u1")]  # varints 0 and 1 are one byte
+        rows = _byte_rows(steps, parts)
+        head = self._episode_key + varint(episode_index)
+        task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
+        return [
+            stamp + head + self._frame_key + varint(t) + row.tobytes() + task_fields[task]
+            for t, (stamp, row, task) in enumerate(zip(timestamp_fields(self._timestamp_key, times_ns), rows,
+                                                      tasks.tolist(), strict=True))
+        ]
 
 
 class CommandEncoder:
@@ -143,16 +174,16 @@ class CommandEncoder:
     def __init__(self) -> None:
         self._task_key = tag(Command, "task", _LENGTH_DELIMITED)
         self._timestamp_key = tag(Command, "timestamp", _LENGTH_DELIMITED)
-        self._keys = np.frombuffer(b"".join(tag(Command, name, _FIXED64) for name in COMMAND_NAMES), np.uint8)
 
     def encode(self, times_ns: np.ndarray, commands: np.ndarray, tasks: np.ndarray) -> list[bytes]:
         """Messages for (T,) times, (T, len(COMMAND_NAMES)) commands and (T,) task strings."""
-        steps, width = commands.shape
-        fields = np.empty((steps, width, 1 + _DOUBLE_SIZE), np.uint8)
-        fields[:, :, 0] = self._keys  # field numbers < 16: one-byte keys
-        fields[:, :, 1:] = np.ascontiguousarray(commands, dtype="<f8").view(np.uint8).reshape(steps, width, _DOUBLE_SIZE)
+        parts: list[bytes | np.ndarray] = []
+        for column, name in enumerate(COMMAND_NAMES):
+            parts += [tag(Command, name, _FIXED64), _number_bytes(commands[:, column], "<f8")]
+        rows = _byte_rows(len(commands), parts)
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
-            length_delimited(self._timestamp_key, _timestamp(time_ns)) + row.tobytes() + task_fields[task]
-            for time_ns, row, task in zip(times_ns.tolist(), fields.reshape(steps, -1), tasks.tolist(), strict=True)
+            stamp + row.tobytes() + task_fields[task]
+            for stamp, row, task in zip(timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(),
+                                        strict=True)
         ]

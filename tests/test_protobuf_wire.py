@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
 
 from teleop.mcap_schema import Step
-from teleop.protobuf_wire import FrameTransformsEncoder, StepEncoder, varint
+from teleop.protobuf_wire import FrameTransformsEncoder, StepEncoder, length_delimited, timestamp_fields, varint
 
 
 def test_varint_known_answers() -> None:
@@ -39,15 +41,36 @@ def test_frame_transforms_decode_to_the_api_built_message() -> None:
         assert FrameTransforms.FromString(data) == expected
 
 
-def test_step_decodes_to_its_fields() -> None:
-    """An encoded Step carries the scalars and the three arrays exactly, float32 arrays included."""
+def test_steps_decode_to_their_fields() -> None:
+    """Encoded Steps carry the scalars and the three arrays exactly, float32 arrays and zeros included."""
     rng = np.random.default_rng(1)
-    observation, action, executed = rng.normal(size=348), rng.normal(size=17).astype(np.float32), np.zeros(17, np.float32)
-    data = StepEncoder().encode(45_000_000, {"episode_index": 2, "frame_index": 3, "reward": 4.5, "terminated": True,
-                                             "truncated": False, "task": "stand"}, observation, action, executed)
-    step = Step.FromString(data)
-    assert (step.episode_index, step.frame_index, step.reward, step.terminated, step.task) == (2, 3, 4.5, True, "stand")
-    assert step.timestamp.ToNanoseconds() == 45_000_000
-    np.testing.assert_array_equal(np.array(step.observation), observation)
-    np.testing.assert_array_equal(np.array(step.action, np.float32), action)
-    np.testing.assert_array_equal(np.array(step.executed_action, np.float32), executed)
+    times = np.array([0, 15_000_000, 3_000_000_000])
+    observation, action = rng.normal(size=(3, 348)), rng.normal(size=(3, 17)).astype(np.float32)
+    executed = np.zeros((3, 17), np.float32)
+    reward, terminated, truncated = np.array([4.5, 0.0, -1.25]), np.array([False, False, True]), np.array([False, True, False])
+    tasks = np.array(["stand", "crouch", "stand"], dtype=object)
+    encoded = StepEncoder().encode(times, 2, observation, action, executed, reward, terminated, truncated, tasks)
+    for t, data in enumerate(encoded):
+        step = Step.FromString(data)
+        assert (step.episode_index, step.frame_index, step.reward, step.terminated, step.truncated, step.task) == (
+            2, t, reward[t], terminated[t], truncated[t], tasks[t])
+        assert step.timestamp.ToNanoseconds() == times[t]
+        np.testing.assert_array_equal(np.array(step.observation), observation[t])
+        np.testing.assert_array_equal(np.array(step.action, np.float32), action[t])
+        np.testing.assert_array_equal(np.array(step.executed_action, np.float32), executed[t])
+
+
+def test_timestamp_fields_equal_protobuf_serialisation() -> None:
+    """Timestamps are the bytes protobuf's Timestamp writes, zero parts omitted, for every kind of time."""
+    times = np.array([0, 1, 15_000_000, 1_000_000_000, 3_015_000_000, 10**15])
+    key = b"\x0a"
+    for time_ns, field in zip(times, timestamp_fields(key, times), strict=True):
+        stamp = Timestamp()
+        stamp.FromNanoseconds(int(time_ns))
+        assert field == length_delimited(key, stamp.SerializeToString())
+
+
+def test_negative_time_is_refused() -> None:
+    """A time before the episode's start has no place in the file: ValueError."""
+    with pytest.raises(ValueError, match="times must be >= 0"):
+        timestamp_fields(b"\x0a", np.array([0, -1]))
