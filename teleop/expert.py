@@ -31,8 +31,6 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-import scipy.linalg
-import scipy.optimize
 
 from teleop import physics
 
@@ -133,6 +131,8 @@ def balanced_pose(model: mujoco.MjModel, knee: float) -> np.ndarray:
         data.qpos[:] = pose(*x)
         return physics.static_inverse_dynamics(model, data)[[2, _PITCH]]
 
+    import scipy.optimize  # noqa: PLC0415 - scipy costs 0.3 s to import; only a design (cache miss) needs it
+
     solution = scipy.optimize.root(residual, x0=[-lowest, 0.0], tol=1e-12)
     if not solution.success:
         raise RuntimeError(f"no balanced pose for knee={knee}: {solution.message}")
@@ -214,6 +214,8 @@ def design_gain(
     step k weighted discount**k) moves that mode inside the unit circle so the equation solves
     anywhere; the default 1 is the plain LQR of ``design_lqr``.
     """
+    import scipy.linalg  # noqa: PLC0415 - as in balanced_pose
+
     a, b = linearise(model, qpos_ref, ctrl_ff, design)
     if discount != 1.0:
         a, b = np.sqrt(discount) * a, np.sqrt(discount) * b

@@ -350,6 +350,7 @@ def has_display() -> bool:
 def run_session(env: gym.Env, sink: EpisodeSink, first_seed: int, episodes: int, noise_std: float,
                 front_end: str, report: Callable[[list[CommittedEpisode]], None]) -> None:
     """Teleoperate until the user quits or `episodes` episodes are saved."""
+    import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
     from teleop.expert import LQRExpert  # noqa: PLC0415
 
     if front_end == "auto":

@@ -35,13 +35,15 @@ import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import mujoco
 import numpy as np
-import scipy.optimize
 
 from teleop import physics
+
+if TYPE_CHECKING:
+    import scipy.optimize
 from teleop.expert import LQRDesign, design_gain, feed_forward, load_or_design
 
 
@@ -149,6 +151,8 @@ def _solve(
     def jac(x: np.ndarray) -> np.ndarray:
         steps = _FD_STEP * np.eye(len(x))
         return np.stack([(fun(x + e) - fun(x - e)) / (2 * _FD_STEP) for e in steps], axis=1)
+
+    import scipy.optimize  # noqa: PLC0415 - scipy costs 0.3 s to import, and only a posture command needs it
 
     return scipy.optimize.root(fun, x0=x0, jac=jac, tol=tol)
 
