@@ -1,6 +1,6 @@
 """Recording throughput: 1 worker against 2 and against the rollout alone, side by side; memory of a long run.
 
-    .venv/bin/python -m bench.record_throughput [--episodes 50] [--repeats 3] [--memory-episodes 50]
+    .venv/bin/python -m bench.record_throughput [--episodes 50] [--repeats 3] [--memory-episodes 50] [--cpu-episodes 20]
 
 Each repeat runs, back to back on the same machine: the expert rollout alone (no writing), the
 recorder with one worker (simulation in its process, writing in a writer process: the default),
@@ -16,6 +16,7 @@ import statistics
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from teleop.controllers import make_controller
@@ -39,6 +40,48 @@ def recording(episodes: int, first_seed: int, workers: int, root: Path) -> float
     start = time.perf_counter()
     summary = main(RecordConfig(dataset=root, episodes=episodes, seed=first_seed, workers=workers, progress=False))
     return summary.frames / (time.perf_counter() - start)
+
+
+def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
+    """Median CPU ms per 1000-frame episode of each stage of a parallel recording, run one after another.
+
+    A parallel recording spends, per episode: the simulation and the spool write (in a worker),
+    then the spool read and the append to both formats (in the recorder). With all of them on two
+    cores, 2 workers can run at most 2 / (1 + (everything but the simulation) / simulation) times
+    as fast as the simulation alone.
+    """
+    from teleop.mcap_writer import write_episode_mcap  # noqa: PLC0415 - the writing stack, for this measure only
+    from teleop.spool import Spool
+    from teleop.store import DatasetSpec, EpisodeStore
+
+    env = make_env()
+    controller = make_controller("expert", env)
+    buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
+    store = EpisodeStore(root, DatasetSpec.from_env(env))
+    store.prepare()
+    costs: dict[str, list[float]] = {"simulate": [], "spool write": [], "spool read": [], "append (both formats)": [],
+                                     "of which MCAP": []}
+
+    def timed(stage: str, work: Callable[[], object]) -> object:
+        start = time.process_time()
+        result = work()
+        costs[stage].append((time.process_time() - start) * 1000)
+        return result
+
+    seed = 50_000
+    while len(costs["append (both formats)"]) < episodes:
+        episode = timed("simulate", lambda: run_episode(env, controller, seed, DEFAULT_NOISE, buffer))
+        seed += 1
+        if episode.length < env.spec.max_episode_steps:  # compare whole episodes only
+            costs["simulate"].pop()
+            continue
+        path = timed("spool write", lambda: store.spool.put(episode))
+        loaded = timed("spool read", lambda: Spool.load(path))
+        timed("of which MCAP", lambda: write_episode_mcap(root / "scratch.mcap", loaded, 0, store.spec.scene,
+                                                           store.spec.body_frames, store.spec.step_ns, {}, store.spec.mjcf))
+        timed("append (both formats)", lambda: store.append(loaded, spooled=path))
+    store.close()
+    return {stage: statistics.median(values) for stage, values in costs.items()}
 
 
 def rss_mib(pid: int) -> float:
@@ -85,7 +128,7 @@ def memory_profile(episodes: int, root: Path) -> tuple[tuple[float, float], tupl
     return peak(early), peak(late)
 
 
-def run(episodes: int, repeats: int, memory_episodes: int) -> str:
+def run(episodes: int, repeats: int, memory_episodes: int, cpu_episodes: int) -> str:
     rows, one_vs_rollout, two_vs_one = [], [], []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(repeats):
@@ -98,6 +141,8 @@ def run(episodes: int, repeats: int, memory_episodes: int) -> str:
             rows.append(f"| {repeat + 1} | {alone:,.0f} | {one:,.0f} ({one / alone:.2f}x rollout) | "
                         f"{two:,.0f} ({two / one:.2f}x 1 worker) |")
         (early, late) = memory_profile(memory_episodes, Path(scratch) / "memory")
+        cpu = cpu_per_episode(cpu_episodes, Path(scratch) / "cpu")
+    overhead = sum(ms for stage, ms in cpu.items() if stage not in ("simulate", "of which MCAP"))
     table = [
         f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, NOISE={DEFAULT_NOISE}):",
         "",
@@ -109,6 +154,15 @@ def run(episodes: int, repeats: int, memory_episodes: int) -> str:
         f"Peak resident memory of a {memory_episodes}-episode recording, MiB (recorder / writer process):",
         f"first {memory_episodes // 5} episodes {early[0]:.0f} / {early[1]:.0f}; "
         f"last {memory_episodes // 5} episodes {late[0]:.0f} / {late[1]:.0f}",
+        "",
+        f"CPU per 1000-frame episode, ms (median of {cpu_episodes}, one stage after another in one process):",
+        "",
+        "| " + " | ".join(cpu) + " |",
+        "|" + "---|" * len(cpu),
+        "| " + " | ".join(f"{ms:.1f}" for ms in cpu.values()) + " |",
+        "",
+        f"Ceiling for 2 workers on 2 cores: 2 / (1 + {overhead:.1f} / {cpu['simulate']:.1f}) = "
+        f"{2 / (1 + overhead / cpu['simulate']):.2f}x the rollout alone",
     ]
     return "\n".join(table)
 
@@ -118,5 +172,6 @@ if __name__ == "__main__":
     parser.add_argument("--episodes", type=int, default=50, help="episodes per contender and repeat (a default recording)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--memory-episodes", type=int, default=50)
+    parser.add_argument("--cpu-episodes", type=int, default=20, help="whole episodes timed stage by stage")
     args = parser.parse_args()
-    print(run(args.episodes, args.repeats, args.memory_episodes))
+    print(run(args.episodes, args.repeats, args.memory_episodes, args.cpu_episodes))

@@ -26,6 +26,7 @@ from teleop.cli import UserError
 from teleop.spool import Spool
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
+WORKER_MODULES = ("teleop.controllers", "teleop.env", "teleop.episode", "teleop.spool")  # what `_work` imports
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,9 @@ class ParallelRollouts:
     def __init__(self, settings: RolloutSettings, dataset: Path, workers: int) -> None:
         # forkserver: workers start from a clean interpreter, not a fork of a process holding locks.
         context = mp.get_context("forkserver")
+        # Imported once by the server (when this process starts it) instead of by every worker: a
+        # worker then starts in milliseconds instead of 0.2 s. Later calls do not change a running server.
+        context.set_forkserver_preload(["__main__", *WORKER_MODULES])
         self._spool = Spool(dataset)
         self._seeds: list[Connection] = []
         self._results: list[Connection] = []
