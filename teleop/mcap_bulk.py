@@ -9,7 +9,8 @@ summary section) is written through `mcap.records`, with the same layout and chu
 into the first chunk). A test checks that both writers produce the same bytes.
 
 The one deliberate difference is the zstd level: 1 instead of zstandard's default 3. On recorded
-episodes it compresses as well (floating-point data) in less than half the time.
+episodes it compresses within 1 % as well (floating-point data: 4.35 MB to 2.87 MB against 2.85) in
+less than half the time.
 """
 
 from __future__ import annotations
@@ -117,8 +118,8 @@ class BulkMcapWriter:
         records[1::2] = data
         record_ends = np.cumsum(sizes + width)
         record_starts = record_ends - (sizes + width)
-        for channel, channel_count in zip(*np.unique(channels, return_counts=True), strict=True):
-            self._message_counts[int(channel)] = self._message_counts.get(int(channel), 0) + int(channel_count)
+        for channel, channel_count in _in_order_of_first_use(channels):
+            self._message_counts[channel] = self._message_counts.get(channel, 0) + channel_count
         self._message_times += [int(log_times.min()), int(log_times.max())]
 
         first = 0
@@ -238,11 +239,17 @@ class _OpenChunk:
     def message_indexes(self) -> list[tuple[int, bytes]]:
         """Each channel's message index record, channels in order of their first message in the chunk."""
         channels, times, offsets = (np.concatenate(parts) for parts in (self._channels, self._log_times, self._offsets))
-        unique, first = np.unique(channels, return_index=True)
         indexes = []
-        for channel in unique[np.argsort(first)]:
+        for channel, _ in _in_order_of_first_use(channels):
             mine = channels == channel
             entries = np.stack([times[mine], offsets[mine]], axis=1).astype("<u8").tobytes()
-            head = _MESSAGE_INDEX_START.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(entries), int(channel), len(entries))
-            indexes.append((int(channel), head + entries))
+            head = _MESSAGE_INDEX_START.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(entries), channel, len(entries))
+            indexes.append((channel, head + entries))
         return indexes
+
+
+def _in_order_of_first_use(channels: np.ndarray) -> list[tuple[int, int]]:
+    """(channel, message count) pairs, in the order the channels first appear (mcap.Writer's dict order)."""
+    unique, first, counts = np.unique(channels, return_index=True, return_counts=True)
+    order = np.argsort(first)
+    return list(zip(unique[order].tolist(), counts[order].tolist(), strict=True))

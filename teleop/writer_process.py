@@ -1,6 +1,6 @@
 """Runs an `EpisodeStore` in a child process, so that writing overlaps with simulation.
 
-Encoding an episode into parquet and MCAP costs about a third of simulating it, and a writer
+Encoding an episode into parquet and MCAP costs about a sixth of simulating it, and a writer
 thread would fight the simulation for the GIL, so the writer is a process of its own. Episodes
 go to it through a pipe, one at a time: the recorder is never more than one episode ahead, and
 memory stays flat.

@@ -12,7 +12,7 @@ from mcap.writer import CompressionType, Writer
 from teleop.mcap_bulk import BulkMcapWriter
 
 STEPS = 400
-CHANNEL_ORDER = np.array([2, 1, 3])  # a step's messages, not in channel-id order
+CHANNEL_ORDER = np.array([3, 2, 1])  # a step's messages, in reverse channel-id order
 
 
 def messages(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[bytes]]:
