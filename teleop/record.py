@@ -18,7 +18,6 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
-from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -113,58 +112,62 @@ def validate(cfg: RecordConfig) -> None:
 def main(cfg: RecordConfig) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed."""
     validate(cfg)
+    if cfg.workers == 1:
+        return _record(cfg, rollouts=None)
+    # Workers start first: their start-up overlaps with opening the dataset.
+    with _start_workers(cfg) as rollouts:
+        return _record(cfg, rollouts)
+
+
+def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None) -> RecordSummary:
     env = make_env(cfg.max_steps)
-    with ExitStack() as stack:
-        # Parallel workers start first: their start-up (imports, gain design) overlaps opening the dataset.
-        rollouts = stack.enter_context(_start_workers(cfg)) if cfg.workers > 1 else None
-        # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
-        sink: EpisodeSink
-        if cfg.writer == "process" and rollouts is None:
-            from teleop.writer_process import WriterProcess  # noqa: PLC0415
+    # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
+    sink: EpisodeSink
+    if cfg.writer == "process" and rollouts is None:
+        from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
-            sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
+        sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
+    else:
+        from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
+
+        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
+    summary = RecordSummary(cfg.dataset)
+    start = time.perf_counter()
+    interactive = cfg.controller in INTERACTIVE
+    bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
+               dynamic_ncols=True)
+
+    def report(committed: list[CommittedEpisode]) -> None:
+        summary.episodes += committed
+        if committed:
+            elapsed = time.perf_counter() - start
+            bar.set_postfix(frames_per_s=f"{summary.frames / elapsed:.0f}", last_return=f"{committed[-1].episode_return:.1f}")
+            bar.update(len(committed))
+
+    try:
+        controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
+        sink.wait_ready()
+        first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
+        if first_seed < sink.next_seed():
+            log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
+        seeds = range(first_seed, first_seed + cfg.episodes)
+        if interactive:
+            from teleop.keyboard import run_session  # noqa: PLC0415
+
+            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
+        elif controller is not None:
+            buffer = EpisodeBuffer(env, cfg.max_steps)
+            for seed in seeds:
+                report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
         else:
-            from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
-
-            sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
-        summary = RecordSummary(cfg.dataset)
-        start = time.perf_counter()
-        interactive = cfg.controller in INTERACTIVE
-        bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
-                   dynamic_ncols=True)
-
-        def report(committed: list[CommittedEpisode]) -> None:
-            summary.episodes += committed
-            if committed:
-                elapsed = time.perf_counter() - start
-                bar.set_postfix(frames_per_s=f"{summary.frames / elapsed:.0f}",
-                                last_return=f"{committed[-1].episode_return:.1f}")
-                bar.update(len(committed))
-
-        try:
-            controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
-            sink.wait_ready()
-            first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
-            if first_seed < sink.next_seed():
-                log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
-            seeds = range(first_seed, first_seed + cfg.episodes)
-            if interactive:
-                from teleop.keyboard import run_session  # noqa: PLC0415
-
-                run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
-            elif controller is not None:
-                buffer = EpisodeBuffer(env, cfg.max_steps)
-                for seed in seeds:
-                    report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
-            else:
-                _record_in_parallel(rollouts, seeds, sink, report)
-        finally:
-            # Also on Ctrl-C or an error: what the writer already has gets committed.
-            report(sink.close())
-            bar.close()
-            summary.total_episodes = sink.num_episodes
-            summary.seconds = time.perf_counter() - start
-            env.close()
+            _record_in_parallel(rollouts, seeds, sink, report)
+    finally:
+        # Also on Ctrl-C or an error: what the writer already has gets committed.
+        report(sink.close())
+        bar.close()
+        summary.total_episodes = sink.num_episodes
+        summary.seconds = time.perf_counter() - start
+        env.close()
     return summary
 
 
