@@ -8,9 +8,9 @@ summary section) is written through `mcap.records`, with the same layout and chu
 `mcap.Writer` (a chunk closes once it holds more than `chunk_size` bytes; schemas and channels go
 into the first chunk). A test checks that both writers produce the same bytes.
 
-The one deliberate difference is the zstd level: 1 instead of zstandard's default 3. On recorded
-episodes it compresses within 1 % as well (floating-point data: 4.35 MB to 2.87 MB against 2.85) in
-less than half the time.
+The one deliberate difference is the zstd level: -1 (a fast mode) instead of zstandard's default 3.
+Recorded episodes are mostly floating-point numbers, which no level compresses much: an episode's
+4.35 MB of messages become 2.97 MB at -1 (5.5 ms), 2.87 MB at 1 (8 ms) and 2.85 MB at 3 (18 ms).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from mcap.records import (
 )
 from mcap.writer import MCAP0_MAGIC
 
-FAST_ZSTD_LEVEL = 1
+FAST_ZSTD_LEVEL = -1  # zstd's fast mode; see the module's docstring
 DEFAULT_CHUNK_SIZE = 1024 * 1024  # mcap.Writer's
 
 # A message record up to its data: opcode, record length, channel, sequence, log and publish times.

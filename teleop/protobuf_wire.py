@@ -81,14 +81,15 @@ def timestamp_fields(key: bytes, times_ns: np.ndarray) -> list[bytes]:
     """The field `key` = google.protobuf.Timestamp(times_ns[t]) for each step, as Timestamp serialises it."""
     if len(times_ns) and times_ns.min() < 0:
         raise ValueError(f"times must be >= 0 ns, got {times_ns.min()}")
-    return [length_delimited(key, _timestamp(time_ns)) for time_ns in times_ns.tolist()]
+    return [_timestamp_field(key, time_ns) for time_ns in times_ns.tolist()]
 
 
 @functools.cache
-def _timestamp(time_ns: int) -> bytes:
+def _timestamp_field(key: bytes, time_ns: int) -> bytes:
     # Cached: every episode has the same time grid, and a timestamp's varints cost more than a lookup.
     seconds, nanos = divmod(time_ns, _NANOS_PER_SECOND)
-    return ((_SECONDS_KEY + varint(seconds) if seconds else b"") + (_NANOS_KEY + varint(nanos) if nanos else b""))
+    stamp = (_SECONDS_KEY + varint(seconds) if seconds else b"") + (_NANOS_KEY + varint(nanos) if nanos else b"")
+    return length_delimited(key, stamp)
 
 
 def _doubles_records(message: type[Message], field: str, sub_message: type[Message], components: list[str],
