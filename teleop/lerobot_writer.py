@@ -51,6 +51,7 @@ from teleop.lerobot_format import (
 log = logging.getLogger(__name__)
 
 PARTIAL_SUFFIX = ".partial"
+_DATA_PAGE_SIZE = 64 * 1024 * 1024
 
 
 def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
@@ -170,9 +171,10 @@ class LeRobotWriter:
         }
         chunk, file = (0, 0) if self._last_file is None else next_chunk_file(*self._last_file)
         data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
-        # Dictionary encoding, parquet's default, makes writing float columns 40 times slower.
+        # Dictionary encoding, parquet's default, makes writing float columns 40 times slower; one page
+        # per column (an episode's column is at most a few MB) instead of 1 MB pages saves a third more.
         write_atomically(data_path, lambda p: pq.write_table(self._frames_table(frames), p, compression="snappy",
-                                                            use_dictionary=False))
+                                                            use_dictionary=False, data_page_size=_DATA_PAGE_SIZE))
         stats = episode_stats(frames)
         row = {
             "episode_index": index,
