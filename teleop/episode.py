@@ -128,6 +128,11 @@ ARRAY_FIELDS = (
 )
 
 
+def executed_action(action: np.ndarray, noise: np.ndarray | None, t: int, space: gym.spaces.Box) -> np.ndarray:
+    """What the env receives at step t: `action` plus the episode's injected noise (if any), clipped to `space`."""
+    return action if noise is None else np.clip(action + noise[t], space.low, space.high).astype(np.float32)
+
+
 def run_episode(
     env: gym.Env,
     controller: Controller,
@@ -146,7 +151,6 @@ def run_episode(
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
-    low, high = env.action_space.low, env.action_space.high
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
 
     obs, _ = env.reset(seed=seed)
@@ -157,7 +161,7 @@ def run_episode(
     while True:
         action = controller.act(obs)
         check_action(action, controller, t, seed)
-        executed = action if noise is None else np.clip(action + noise[t], low, high).astype(np.float32)
+        executed = executed_action(action, noise, t, env.action_space)
         buffer.record(t, obs, data, action if labeller is None else labeller.act(obs), executed, None, task)
         obs, reward, terminated, truncated, _ = env.step(executed)
         buffer.outcome(t, reward, terminated, truncated)

@@ -28,7 +28,7 @@ import numpy as np
 
 from teleop.cli import UserError
 from teleop.env import model_and_data
-from teleop.episode import DEFAULT_TASK, EpisodeBuffer, check_action, injected_noise
+from teleop.episode import DEFAULT_TASK, EpisodeBuffer, check_action, executed_action, injected_noise
 from teleop.keys import COMMAND_NAMES
 from teleop.physics import TORSO_BODY, torso_height
 from teleop.posture import NEUTRAL, Posture
@@ -215,10 +215,7 @@ class TeleopSession:
         t = self.t
         action = self.expert.act(self.obs)
         check_action(action, self.expert, t, self.next_seed)
-        executed = action
-        if self.noise is not None:
-            low, high = self.env.action_space.low, self.env.action_space.high
-            executed = np.clip(action + self.noise[t], low, high).astype(np.float32)
+        executed = executed_action(action, self.noise, t, self.env.action_space)
         self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
         self.buffer.record(t, self.obs, self.data, action, executed, self.command_vector(), task_for(self.target))
         self.obs, reward, terminated, truncated, _ = self.env.step(executed)
@@ -237,6 +234,31 @@ class TeleopSession:
                 f"lean fwd {target.lean_forward:+.2f} left {target.lean_left:+.2f} | height {target.height:+.2f} | "
                 f"twist {target.twist:+.1f} | arms {ARM_NAMES[round(target.arms)]}"
                 f"{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}")
+
+
+class StatusLine:
+    """The session's status on one terminal line, rewritten in place when it changes.
+
+    While recording it is refreshed every STATUS_EVERY steps: formatting it (a torso-height query
+    and a dozen fields) every 15 ms step would be work in the real-time loop nobody can read.
+    """
+
+    def __init__(self, out: TextIO) -> None:
+        self.out = out
+        self.shown = ""
+
+    def update(self, session: TeleopSession) -> None:
+        if session.recording and session.t % STATUS_EVERY:
+            return
+        status = session.status()
+        if status != self.shown:
+            self.shown = status
+            self.out.write("\r\x1b[2K" + status)
+            self.out.flush()
+
+    def close(self) -> None:
+        self.out.write("\n")
+        self.out.flush()
 
 
 # The terminal front end.
@@ -266,10 +288,10 @@ def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
     saved_mode = termios.tcgetattr(stdin_fd)
     tty.setcbreak(stdin_fd)
     dt = session.env.unwrapped.dt
+    status_line = StatusLine(out)
     try:
         print("keys:\n" + key_help(), file=out)
         next_step = time.monotonic()
-        shown = ""
         while not session.finished:
             timeout = max(0.0, next_step - time.monotonic())
             readable, _, _ = select.select([stdin_fd], [], [], timeout)
@@ -284,18 +306,12 @@ def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
                 continue  # keys are handled at once; the step waits for its time
             session.tick()
             next_step = max(next_step + dt, time.monotonic() - dt)  # never run ahead to catch up a stall
-            if session.t % STATUS_EVERY == 0 or not session.recording:
-                status = session.status()  # formatted once: a torso-height query and a dozen fields
-                if status != shown:
-                    shown = status
-                    out.write("\r\x1b[2K" + shown)
-                    out.flush()
+            status_line.update(session)
     except KeyboardInterrupt:
         session.quit()
     finally:
         termios.tcsetattr(stdin_fd, termios.TCSADRAIN, saved_mode)
-        out.write("\n")
-        out.flush()
+        status_line.close()
 
 
 # The viewer front end: GLFW key codes, as MuJoCo's viewer passes them to its key callback.
@@ -323,6 +339,7 @@ def run_viewer(session: TeleopSession, out: TextIO) -> None:
 
     dt = session.env.unwrapped.dt
     print("keys (in the viewer window):\n" + key_help(), file=out)
+    status_line = StatusLine(out)
     try:
         with mujoco.viewer.launch_passive(session.model, session.data, key_callback=on_key) as viewer:
             next_step = time.monotonic()
@@ -331,16 +348,14 @@ def run_viewer(session: TeleopSession, out: TextIO) -> None:
                     session.press(pressed.pop(0))
                 session.tick()
                 viewer.sync()
-                out.write("\r\x1b[2K" + session.status())
-                out.flush()
+                status_line.update(session)
                 next_step = max(next_step + dt, time.monotonic() - dt)
                 time.sleep(max(0.0, next_step - time.monotonic()))
     except KeyboardInterrupt:
         pass
     finally:
         session.quit()
-        out.write("\n")
-        out.flush()
+        status_line.close()
 
 
 def has_display() -> bool:

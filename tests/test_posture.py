@@ -75,6 +75,13 @@ def measurements(env: gym.Env) -> dict[str, float]:
     }
 
 
+def held_at_limit(env: gym.Env, expert: LQRExpert, field: str, side: float) -> tuple[float, dict[str, float]]:
+    """Stand, then hold `field` at its limit on `side` (+1: MAX, -1: MIN); the limit and the measurements then."""
+    limit = Posture.MAX[field] if side > 0 else Posture.MIN[field]
+    hold(env, expert, stand(env, expert), Posture(**{field: limit}))
+    return limit, measurements(env)
+
+
 @pytest.fixture(scope="module")
 def neutral_stand(env: gym.Env, expert: LQRExpert) -> dict[str, float]:
     """Measurements of the neutral stand after the same settle and hold time as the postures."""
@@ -130,9 +137,7 @@ def test_lean_forward_pitches_the_torso_forward_with_the_com_over_the_feet(
     env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float]
 ) -> None:
     """Holding the largest forward lean keeps the body up, tilts the torso forward, keeps the CoM over the feet."""
-    limit = Posture.MAX["lean_forward"]
-    hold(env, expert, stand(env, expert), Posture(lean_forward=limit))
-    reached = measurements(env)
+    limit, reached = held_at_limit(env, expert, "lean_forward", 1.0)
     assert reached["forward"] > neutral_stand["forward"] + 0.8 * limit
     model, data = model_and_data(env)
     assert abs(physics.com_over_feet(model, data)[0]) < 0.01
@@ -140,9 +145,8 @@ def test_lean_forward_pitches_the_torso_forward_with_the_com_over_the_feet(
 
 def test_lean_back_pitches_the_torso_back(env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float]) -> None:
     """Holding the largest backward lean keeps the body up and tilts the torso back."""
-    limit = Posture.MIN["lean_forward"]
-    hold(env, expert, stand(env, expert), Posture(lean_forward=limit))
-    assert measurements(env)["forward"] < neutral_stand["forward"] + 0.8 * limit
+    limit, reached = held_at_limit(env, expert, "lean_forward", -1.0)
+    assert reached["forward"] < neutral_stand["forward"] + 0.8 * limit
 
 
 @pytest.mark.parametrize("side", [1.0, -1.0])
@@ -150,18 +154,15 @@ def test_lean_left_rolls_the_torso_and_moves_the_com_that_way(
     env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float], side: float
 ) -> None:
     """Holding the largest sideways lean keeps the body up; torso roll and CoM follow the sign of lean_left."""
-    limit = Posture.MAX["lean_left"] if side > 0 else Posture.MIN["lean_left"]
-    hold(env, expert, stand(env, expert), Posture(lean_left=limit))
-    reached = measurements(env)
+    limit, reached = held_at_limit(env, expert, "lean_left", side)
     assert side * (reached["left"] - neutral_stand["left"]) > 0.8 * abs(limit)
     assert side * (reached["com_y"] - neutral_stand["com_y"]) > 0.01
 
 
 def test_crouch_lowers_the_torso(env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float]) -> None:
     """Holding the deepest crouch keeps the body up and lowers the torso by about the commanded height."""
-    limit = Posture.MIN["height"]
-    hold(env, expert, stand(env, expert), Posture(height=limit))
-    assert measurements(env)["height"] - neutral_stand["height"] == pytest.approx(limit, abs=0.01)
+    limit, reached = held_at_limit(env, expert, "height", -1.0)
+    assert reached["height"] - neutral_stand["height"] == pytest.approx(limit, abs=0.01)
 
 
 @pytest.mark.parametrize("side", [1.0, -1.0])
@@ -169,9 +170,8 @@ def test_twist_turns_the_torso_relative_to_the_pelvis(
     env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float], side: float
 ) -> None:
     """Holding the largest twist keeps the body up and turns the torso that way relative to the pelvis."""
-    limit = Posture.MAX["twist"] if side > 0 else Posture.MIN["twist"]
-    hold(env, expert, stand(env, expert), Posture(twist=limit))
-    assert side * (measurements(env)["yaw"] - neutral_stand["yaw"]) > 0.8 * abs(limit)
+    limit, reached = held_at_limit(env, expert, "twist", side)
+    assert side * (reached["yaw"] - neutral_stand["yaw"]) > 0.8 * abs(limit)
 
 
 def test_arms_up_raises_the_hands_and_lower_arms(
