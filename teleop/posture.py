@@ -41,10 +41,10 @@ import mujoco
 import numpy as np
 
 from teleop import physics
+from teleop.expert import LQRDesign, design_gain, feed_forward, load_or_design
 
 if TYPE_CHECKING:
     import scipy.optimize
-from teleop.expert import LQRDesign, design_gain, feed_forward, load_or_design
 
 
 @dataclass(frozen=True)
@@ -324,6 +324,13 @@ def _pieces(start: Posture, target: Posture, arm_change: float, step: dict[str, 
     return max(1, int(np.ceil(max(changes + [arm_change / step["arms"]]))))
 
 
+def blend(start: Posture, target: Posture, s: float) -> Posture:
+    """The posture fraction ``s`` of the way from ``start`` to ``target``, field by field."""
+    return Posture(**{
+        f.name: (1 - s) * getattr(start, f.name) + s * getattr(target, f.name) for f in dataclasses.fields(Posture)
+    })
+
+
 def _smoothstep(s: float) -> float:
     # Zero velocity at both ends: a ramp that starts or stops at full speed jolts the body.
     return s * s * (3.0 - 2.0 * s)
@@ -342,11 +349,8 @@ def _path_gain(
 
     Cached: a move made again (neutral to arms up and back, say) plans without designing.
     """
-    posture = Posture(**{
-        f.name: (1 - s) * getattr(start, f.name) + s * getattr(target, f.name) for f in dataclasses.fields(Posture)
-    })
     arms = (1 - s) * np.asarray(from_arms) + s * arm_angles(target.arms)
-    pose = posture_pose(model, posture, posture_reference(model, NEUTRAL, design)[0], arms)
+    pose = posture_pose(model, blend(start, target, s), posture_reference(model, NEUTRAL, design)[0], arms)
     return _read_only(design_gain(model, pose, feed_forward(model, pose), design, GAIN_DISCOUNT))
 
 
@@ -383,8 +387,7 @@ class PostureRamp:
         """Where the current move began."""
         self.progress = 1.0
         """Fraction of the move's time elapsed, 1 once there."""
-        self._arms = arm_angles(0.0)  # arm angles where the setpoint is, which a blend of presets may not name
-        self._from_arms = self._arms.copy()
+        self._from_arms = arm_angles(0.0)  # arm angles where the move began, which a blend of presets may not name
         self._gains = gain[None].copy()  # (m + 1, nu, nx) gains designed along the path
         self._waypoints = qpos_ref[None].copy()  # (n + 1, nq) balanced poses along the path
         self._steps = np.zeros((0, model.nv))  # (n, nv) from each waypoint to the next
@@ -395,16 +398,10 @@ class PostureRamp:
     def moving(self) -> bool:
         return self.progress < 1.0
 
-    def _blend(self, s: float) -> Posture:
-        return Posture(**{
-            f.name: (1 - s) * getattr(self.start, f.name) + s * getattr(self.target, f.name)
-            for f in dataclasses.fields(Posture)
-        })
-
     @property
     def posture(self) -> Posture:
         """Where the setpoint is now, fieldwise between ``start`` and ``target`` (``arms``: the fraction of the way)."""
-        return self._blend(_smoothstep(self.progress))
+        return blend(self.start, self.target, _smoothstep(self.progress))
 
     def duration(self, start: Posture, target: Posture, start_arms: np.ndarray | None = None) -> float:
         """Seconds to move from ``start`` to ``target`` at ``RATES`` and ``ARM_RATE``."""
@@ -439,7 +436,7 @@ class PostureRamp:
         ctrls = [self.ctrl_ff.copy()]
         for k in range(1, n):
             s = k / n
-            pose = posture_pose(model, self._blend(s), neutral, (1 - s) * self._from_arms + s * to_arms)
+            pose = posture_pose(model, blend(start, target, s), neutral, (1 - s) * self._from_arms + s * to_arms)
             waypoints.append(pose)
             ctrls.append(feed_forward(model, pose))
         waypoints.append(qpos)
