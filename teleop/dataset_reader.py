@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas  # noqa: F401 - pyarrow imports it on its first conversion to NumPy: pay it at import, not mid-load
@@ -149,6 +150,23 @@ STEP_FIELDS = {
     "terminated": bool,
     "truncated": bool,
 }
+_STEP_DTYPES: dict[str, Any] = {"episode_index": np.int64, **STEP_FIELDS}  # what read_steps returns
+
+
+def read_steps(path: Path) -> dict[str, np.ndarray]:
+    """The /step messages of one MCAP file, field by field; the task strings under "task".
+
+    `read_mcap_episode` decodes every topic, the 13 transforms of /tf included: 0.22 s for a
+    1000-step episode, against 0.03 s for /step alone, which is all that parquet can be compared to.
+    """
+    values: dict[str, list] = {name: [] for name in [*_STEP_DTYPES, "task"]}
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, _, decoded in reader.iter_decoded_messages(topics=[STEP_TOPIC]):
+            for name, column in values.items():
+                column.append(getattr(decoded, name))
+    # np.array over the repeated containers converts them in C: a list() of each costs 4 times more.
+    return {name: np.array(column, _STEP_DTYPES.get(name, object)) for name, column in values.items()}
 
 
 def read_mcap_episode(path: Path) -> McapEpisode:

@@ -29,17 +29,15 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
-from mcap_protobuf.decoder import DecoderFactory
 
 from teleop import keys
 from teleop.cli import DatasetError, run_cli, setting
-from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames, read_info
+from teleop.dataset_reader import read_episodes, read_frames, read_info, read_steps
 from teleop.lerobot_format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
 from teleop.mcap_writer import SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOL_DIR
@@ -74,7 +72,6 @@ STEP_COLUMNS: dict[str, tuple[str, ...]] = {
     "terminated": (keys.TERMINATED,),
     "truncated": (keys.TRUNCATED,),
 }
-STEP_DTYPES: dict[str, Any] = {"episode_index": np.int64, **STEP_FIELDS}
 
 # Run by the child process that lets LeRobot itself load the metadata. LeRobot's errors span several
 # lines (advice, links): the child prints the exception's type and first line, on stdout, and exits 1.
@@ -671,22 +668,6 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
     if differs:
         return f"{STEP_TOPIC}.task differs from parquet task_index at frame {differs[0]}"
     return None
-
-
-def read_steps(path: Path) -> dict[str, np.ndarray]:
-    """The /step messages of one MCAP file, field by field; the task strings under "task".
-
-    `read_mcap_episode` decodes every topic, the 13 transforms of /tf included: 0.22 s for a
-    1000-step episode, against 0.03 s for /step alone, which is all that parquet can be compared to.
-    """
-    values: dict[str, list] = {name: [] for name in [*STEP_DTYPES, "task"]}
-    with path.open("rb") as stream:
-        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-        for _, _, _, decoded in reader.iter_decoded_messages(topics=[STEP_TOPIC]):
-            for name, column in values.items():
-                column.append(getattr(decoded, name))
-    # np.array over the repeated containers converts them in C: a list() of each costs 4 times more.
-    return {name: np.array(column, STEP_DTYPES.get(name, object)) for name, column in values.items()}
 
 
 class _LeRobotLoad:
