@@ -23,7 +23,7 @@ from bc.finetune import FinetuneConfig, build_model, make_vec_env
 
 def steps_per_s(bc_policy: Path, workers: int, envs: int, timesteps: int) -> float:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
-    torch.set_num_threads(config.threads)
+    torch.set_num_threads(1)  # as bc.finetune.main: PPOWithUpdateThreads raises it for its updates
     env = make_vec_env(config)
     try:
         model = build_model(config, env, term=None)

@@ -123,10 +123,23 @@ def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path)
     """The same run with its environments in 1 process or spread over 3 ends with the same weights, bit for bit."""
     actors = []
     for workers in (1, 3):
+        # KEEP=last: the best evaluation may be step 0, the BC policy itself, which would prove nothing.
         main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{workers}", timesteps=512, critic_warmup=256,
-                            **{**TINY_PPO, "workers": workers}))
+                            keep="last", **{**TINY_PPO, "workers": workers}))
         actors.append(policies.load(tmp_path / f"ppo_{workers}").state_dict())
     assert actors[0].keys() == actors[1].keys()
+    for name, value in actors[0].items():
+        assert torch.equal(value, actors[1][name]), name
+    assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
+
+
+def test_update_threads_change_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
+    """PPO's updates on 1 or 2 torch threads end with the same weights, bit for bit."""
+    actors = []
+    for threads in (1, 2):
+        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{threads}", timesteps=512, critic_warmup=0,
+                            keep="last", **{**TINY_PPO, "batch_size": 256, "update_threads": threads}))
+        actors.append(policies.load(tmp_path / f"ppo_{threads}").state_dict())
     for name, value in actors[0].items():
         assert torch.equal(value, actors[1][name]), name
     assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
