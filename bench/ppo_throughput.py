@@ -6,7 +6,11 @@
 Environment steps per second of `model.learn` (rollouts and updates, no evaluations), the
 settings of `make finetune-rl` otherwise (so the same number of environments, `--envs`, for
 every worker count: only where they are simulated differs); the contenders alternate within each
-repeat and the median of the per-repeat ratios to the first worker count is reported.
+repeat and the median of the per-repeat ratios to the first worker count is reported. Each run's
+wall time is also split into its three serial parts: waiting for the environments (the
+simulation, the only part more workers speed up), PPO's updates, and the rest of the rollouts
+(the learner's forward passes, the rollout buffer, callbacks): Amdahl's law with these figures
+says what 2 workers can reach.
 """
 
 from __future__ import annotations
@@ -14,22 +18,50 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from bc.finetune import FinetuneConfig, build_model, make_vec_env
 
 
-def steps_per_s(bc_policy: Path, workers: int, envs: int, timesteps: int) -> float:
+@dataclass
+class Run:
+    """One `model.learn`: its throughput and where its wall time went."""
+
+    steps_per_s: float
+    simulation_s: float  # waiting for the environments' step results
+    update_s: float  # PPO's updates
+    learner_s: float  # the rest: forward passes, rollout buffer, callbacks, start of the run
+
+
+def timed(method: Callable[[], Any], seconds: list[float]) -> Callable[[], Any]:
+    def wrapper() -> Any:
+        start = time.perf_counter()
+        try:
+            return method()
+        finally:
+            seconds.append(time.perf_counter() - start)
+    return wrapper
+
+
+def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
     torch.set_num_threads(1)  # as bc.finetune.main: PPOWithUpdateThreads raises it for its updates
     env = make_vec_env(config)
     try:
         model = build_model(config, env, term=None)
+        simulation: list[float] = []
+        updates: list[float] = []
+        env.step_wait = timed(env.step_wait, simulation)
+        model.train = timed(model.train, updates)
         start = time.perf_counter()
         model.learn(total_timesteps=timesteps)
-        return timesteps / (time.perf_counter() - start)
+        seconds = time.perf_counter() - start
+        return Run(timesteps / seconds, sum(simulation), sum(updates), seconds - sum(simulation) - sum(updates))
     finally:
         env.close()
 
@@ -43,19 +75,22 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=FinetuneConfig.envs)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    runs = {w: [] for w in args.workers}
+    runs: dict[int, list[Run]] = {w: [] for w in args.workers}
     for _ in range(args.repeats):
         for workers in args.workers:
-            runs[workers].append(steps_per_s(args.bc_policy, workers, args.envs, args.timesteps))
+            runs[workers].append(learn(args.bc_policy, workers, args.envs, args.timesteps))
     base = args.workers[0]
     print(f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run, "
           f"{args.repeats} repeats:\n")
-    print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker |")
-    print("|---|---|---|---|")
+    print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker | simulation | updates | rest of the rollouts |")
+    print("|---|---|---|---|---|---|---|")
     for workers, values in runs.items():
-        ratios = [v / b for v, b in zip(values, runs[base], strict=True)]
-        print(f"| {workers} | {', '.join(f'{v:,.0f}' for v in values)} | {statistics.median(values):,.0f} | "
-              f"{statistics.median(ratios):.2f}x |")
+        ratios = [run.steps_per_s / b.steps_per_s for run, b in zip(values, runs[base], strict=True)]
+        print(f"| {workers} | {', '.join(f'{run.steps_per_s:,.0f}' for run in values)} | "
+              f"{statistics.median(run.steps_per_s for run in values):,.0f} | {statistics.median(ratios):.2f}x | "
+              f"{statistics.median(run.simulation_s for run in values):.2f} s | "
+              f"{statistics.median(run.update_s for run in values):.2f} s | "
+              f"{statistics.median(run.learner_s for run in values):.2f} s |")
 
 
 if __name__ == "__main__":
