@@ -35,13 +35,13 @@ from typing import Any
 import gymnasium as gym
 import torch
 from matplotlib.figure import Figure
-from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm import tqdm
 
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
+from bc.rollouts import WorkerRolloutPPO
 from bc.vec_env import WorkerGroupVecEnv
 from policies import DATASET_FILE, EVAL_FILE, checkpoint
 from policies.actor_critic import BCActorCriticPolicy
@@ -268,35 +268,14 @@ class Evaluator(BaseCallback):
             self.evaluate_now()
 
 
-class PPOWithUpdateThreads(PPO):
-    """SB3's PPO whose updates run on `update_threads` torch threads: the environments' workers are idle then.
-
-    The rollouts keep the caller's count (one): idle torch threads spin, and slowed the simulation
-    beside them by a tenth to a fifth. Updates on 2 threads took 2.4 s instead of 3.3 per 32 k steps
-    and gave the same weights, bit for bit.
-    """
-
-    def __init__(self, *args: Any, update_threads: int = 1, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.update_threads = update_threads
-
-    def train(self) -> None:
-        rollout_threads = torch.get_num_threads()
-        torch.set_num_threads(self.update_threads)
-        try:
-            super().train()
-        finally:
-            torch.set_num_threads(rollout_threads)
-
-
 def build_model(cfg: FinetuneConfig, env: VecEnv, term: DemonstrationTerm | None,
-                tensorboard: Path | None = None) -> PPOWithUpdateThreads:
+                tensorboard: Path | None = None) -> WorkerRolloutPPO:
     """The PPO learner with the (BC or fresh) actor; nothing is trained yet."""
     actor = initial_actor(cfg)
     policy_kwargs = {"actor_spec": actor.spec, "actor_state": actor.state_dict(), "critic_hidden": actor.spec.hidden,
                      "log_std_init": cfg.log_std_init, "optimizer_class": RegularisedAdam,
                      "optimizer_kwargs": {"term": term}}
-    model = PPOWithUpdateThreads(
+    model = WorkerRolloutPPO(
         BCActorCriticPolicy, env, update_threads=cfg.update_threads or len(os.sched_getaffinity(0)),
         learning_rate=cfg.scratch_learning_rate if cfg.scratch else cfg.learning_rate,
         n_steps=cfg.rollout_steps // cfg.envs, batch_size=cfg.batch_size, n_epochs=cfg.epochs, gamma=cfg.gamma,
@@ -342,7 +321,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
-    torch.set_num_threads(1)  # the rollouts' count; PPOWithUpdateThreads raises it for its updates
+    torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     term = demonstration_term(cfg)
     env = make_vec_env(cfg)
     try:

@@ -36,6 +36,11 @@ class _Share:
 
     def __init__(self, envs: list[gym.Env]) -> None:
         self.envs = envs
+        # Where the environments are, for a sampler to act from (`bc.rollouts`): the last observations and
+        # whether each is the first of its episode.
+        self.observations: np.ndarray | None = None
+        self.episode_starts = np.ones(len(envs), bool)
+        self.sampler: Any = None
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict], dict[int, dict]]:
         observations, rewards, dones, infos, reset_infos = [], [], [], [], {}
@@ -50,12 +55,24 @@ class _Share:
             rewards.append(reward)
             dones.append(terminated or truncated)
             infos.append(info)
-        return np.stack(observations), np.array(rewards, np.float32), np.array(dones), infos, reset_infos
+        self.observations, self.episode_starts = np.stack(observations), np.array(dones)
+        return self.observations, np.array(rewards, np.float32), self.episode_starts, infos, reset_infos
 
     def reset(self, seeds: list[int | None], options: list[dict]) -> tuple[np.ndarray, list[dict]]:
         results = [env.reset(seed=seed, **({"options": opts} if opts else {}))
                    for env, seed, opts in zip(self.envs, seeds, options, strict=True)]
-        return np.stack([obs for obs, _ in results]), [info for _, info in results]
+        self.observations, self.episode_starts = np.stack([obs for obs, _ in results]), np.ones(len(self.envs), bool)
+        return self.observations, [info for _, info in results]
+
+    def install_sampler(self, sampler: Any) -> None:
+        self.sampler = sampler
+
+    def sample(self, state: dict, n_steps: int) -> Any:
+        """The sampler's rollout of these environments, from where they are, with the policy weights `state`."""
+        if self.observations is None:
+            raise RuntimeError("reset the environments before sampling")
+        return self.sampler.collect(lambda actions: self.step(actions)[:4], self.observations, self.episode_starts,
+                                    state, n_steps)
 
     def get_attr(self, indices: list[int], name: str) -> list[Any]:
         return [self.envs[i].get_wrapper_attr(name) for i in indices]
@@ -215,6 +232,14 @@ class WorkerGroupVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         return np.concatenate(obs)
+
+    def install_samplers(self, make_sampler: Callable[[range], Any]) -> None:
+        """Gives each worker `make_sampler(the global indices of its environments)` (a `bc.rollouts.Sampler`)."""
+        self._all("install_sampler", lambda group: (make_sampler(group),))
+
+    def sample(self, state: dict, n_steps: int) -> list[Any]:
+        """Each worker's rollout of its environments (`n_steps` steps, policy weights `state`), in order."""
+        return self._all("sample", lambda group: (state, n_steps))
 
     def close(self) -> None:
         if not self.closed:

@@ -38,11 +38,11 @@ class Run:
     learner_s: float  # the rest: forward passes, rollout buffer, callbacks, start of the run
 
 
-def timed(method: Callable[[], Any], seconds: list[float]) -> Callable[[], Any]:
-    def wrapper() -> Any:
+def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any]:
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
         start = time.perf_counter()
         try:
-            return method()
+            return method(*args, **kwargs)
         finally:
             seconds.append(time.perf_counter() - start)
     return wrapper
@@ -50,13 +50,13 @@ def timed(method: Callable[[], Any], seconds: list[float]) -> Callable[[], Any]:
 
 def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
-    torch.set_num_threads(1)  # as bc.finetune.main: PPOWithUpdateThreads raises it for its updates
+    torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
     env = make_vec_env(config)
     try:
         model = build_model(config, env, term=None)
         simulation: list[float] = []
         updates: list[float] = []
-        env.step_wait = timed(env.step_wait, simulation)
+        env.sample = timed(env.sample, simulation)
         model.train = timed(model.train, updates)
         start = time.perf_counter()
         model.learn(total_timesteps=timesteps)
