@@ -3,12 +3,12 @@
 SB3's `SubprocVecEnv` runs one environment per process, so the learner pays its per-step cost
 (tensor conversion, the policy's forward pass, the rollout buffer) once for every environment
 step, and that cost, not the simulation, is what limits PPO here (about 0.65 ms against 0.23 ms
-of MuJoCo per step). Stepping N environments as one batch spreads it over N steps; splitting the
-batch over W worker processes runs the simulation on W cores. Each worker holds the environments
-of its share and steps them as SB3's in-process `DummyVecEnv` does (auto-reset,
-`terminal_observation`, consecutive seeds), so N environments give the same observations and
-rewards whatever the number of workers (a test compares them step by step).
-"""
+of MuJoCo per step). Here each worker process holds a contiguous group of the environments and
+steps them as SB3's in-process `DummyVecEnv` does (auto-reset, `terminal_observation`, consecutive
+seeds), so N environments give the same observations and rewards whatever the number of workers
+(a test compares them step by step). Besides SB3's `step`, a worker can sample a whole rollout of
+its environments with its own copy of the policy (`install_samplers`, `sample`; `bc.rollouts`),
+so that PPO's learner does not take part in every step."""
 
 from __future__ import annotations
 
