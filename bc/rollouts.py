@@ -51,13 +51,15 @@ class Segment:
     @staticmethod
     def concatenate(parts: list[Segment]) -> Segment:
         """The segments of consecutive groups of environments as one, in environment order."""
-        per_step = {name: np.concatenate([getattr(part, name) for part in parts], axis=1)
-                    for name in ("observations", "actions", "rewards", "episode_starts", "values", "log_probs",
-                                 "dones")}
+        per_step = {name: np.concatenate([getattr(part, name) for part in parts], axis=1) for name in STEP_ARRAYS}
         return Segment(**per_step,
                        infos=[[info for part in parts for info in part.infos[t]] for t in range(len(parts[0].infos))],
                        last_observations=np.concatenate([part.last_observations for part in parts]),
                        last_values=np.concatenate([part.last_values for part in parts]))
+
+
+# The fields of a Segment that hold one array per step, stacked along axis 0.
+STEP_ARRAYS = ("observations", "actions", "rewards", "episode_starts", "values", "log_probs", "dones")
 
 
 def without_optimiser(policy: ActorCriticPolicy) -> ActorCriticPolicy:
@@ -92,8 +94,7 @@ class Sampler:
         self.policy.load_state_dict(state)
         self.policy.set_training_mode(False)
         low, high = self.policy.action_space.low, self.policy.action_space.high
-        records: dict[str, list] = {name: [] for name in ("observations", "actions", "rewards", "episode_starts",
-                                                          "values", "log_probs", "dones", "infos")}
+        records: dict[str, list] = {name: [] for name in (*STEP_ARRAYS, "infos")}
         with torch.no_grad():
             for _ in range(n_steps):
                 obs = self.policy.obs_to_tensor(observations)[0]
@@ -108,9 +109,10 @@ class Sampler:
                     # SB3's bootstrapping at time limits (stable-baselines3 issue #633), one observation at a time
                     if dones[i] and info.get("TimeLimit.truncated") and "terminal_observation" in info:
                         rewards[i] += self.gamma * self.value(info["terminal_observation"][None])[0]
-                for name, value in (("observations", observations), ("actions", actions), ("rewards", rewards),
-                                    ("episode_starts", episode_starts), ("values", values.numpy()),
-                                    ("log_probs", log_probs.numpy()), ("dones", dones), ("infos", infos)):
+                step_record = {"observations": observations, "actions": actions, "rewards": rewards,
+                               "episode_starts": episode_starts, "values": values.numpy(),
+                               "log_probs": log_probs.numpy(), "dones": dones, "infos": infos}
+                for name, value in step_record.items():
                     records[name].append(value)
                 observations, episode_starts = next_observations, dones
             infos = records.pop("infos")
