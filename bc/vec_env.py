@@ -8,7 +8,8 @@ steps them as SB3's in-process `DummyVecEnv` does (auto-reset, `terminal_observa
 seeds), so N environments give the same observations and rewards whatever the number of workers
 (a test compares them step by step). Besides SB3's `step`, a worker can sample a whole rollout of
 its environments with its own copy of the policy (`install_samplers`, `sample`; `bc.rollouts`),
-so that PPO's learner does not take part in every step."""
+so that PPO's learner does not take part in every step.
+"""
 
 from __future__ import annotations
 

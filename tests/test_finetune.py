@@ -150,30 +150,37 @@ def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> No
         assert torch.equal(value, kept[name]), name
 
 
-def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
-    """8 environments in 1 process or in 2 workers of 4 end the same run with the same weights, bit for bit."""
+def final_actors(bc_policy: Path, tmp_path: Path, settings: list[dict]) -> list[dict[str, torch.Tensor]]:
+    """The actors saved by 512-step TINY_PPO runs, one per entry of `settings`.
+
+    KEEP=last: the best evaluation may be step 0, the BC policy itself, which would prove nothing.
+    """
     actors = []
-    for workers in (1, 2):
-        # KEEP=last: the best evaluation may be step 0, the BC policy itself, which would prove nothing.
-        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{workers}", timesteps=512, critic_warmup=256,
-                            keep="last", **{**TINY_PPO, "envs": 8, "workers": workers}))
-        actors.append(policies.load(tmp_path / f"ppo_{workers}").state_dict())
+    for index, overrides in enumerate(settings):
+        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{index}", timesteps=512, keep="last",
+                            **{**TINY_PPO, **overrides}))
+        actors.append(policies.load(tmp_path / f"ppo_{index}").state_dict())
+    return actors
+
+
+def assert_same_trained_actor(actors: list[dict[str, torch.Tensor]], bc_policy: Path) -> None:
+    """Bit-identical actors, which PPO did change (so their equality is not the BC policy's)."""
     assert actors[0].keys() == actors[1].keys()
     for name, value in actors[0].items():
         assert torch.equal(value, actors[1][name]), name
     assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
 
 
+def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
+    """8 environments in 1 process or in 2 workers of 4 end the same run with the same weights, bit for bit."""
+    settings = [{"envs": 8, "workers": workers, "critic_warmup": 256} for workers in (1, 2)]
+    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
+
+
 def test_update_threads_change_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
     """PPO's updates on 1 or 2 torch threads end with the same weights, bit for bit."""
-    actors = []
-    for threads in (1, 2):
-        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{threads}", timesteps=512, critic_warmup=0,
-                            keep="last", **{**TINY_PPO, "batch_size": 256, "update_threads": threads}))
-        actors.append(policies.load(tmp_path / f"ppo_{threads}").state_dict())
-    for name, value in actors[0].items():
-        assert torch.equal(value, actors[1][name]), name
-    assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
+    settings = [{"batch_size": 256, "update_threads": threads, "critic_warmup": 0} for threads in (1, 2)]
+    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
 
 
 def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
