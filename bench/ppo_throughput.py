@@ -82,7 +82,7 @@ def main() -> None:
     base = args.workers[0]
     print(f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run, "
           f"{args.repeats} repeats:\n")
-    print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker | simulation | updates | rest of the rollouts |")
+    print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker | sampling | updates | rest |")
     print("|---|---|---|---|---|---|---|")
     for workers, values in runs.items():
         ratios = [run.steps_per_s / b.steps_per_s for run, b in zip(values, runs[base], strict=True)]
