@@ -9,8 +9,9 @@
    - a DAPG-style behaviour-cloning term on the demonstrations, added to PPO's gradient at every
      optimiser step with a weight that decays by BC_DECAY per update (`DemonstrationTerm`);
    - a conservative learning rate, clip range and target KL.
-3. ENVS environments stepped as one batch over WORKERS processes (`bc.vec_env`; the worker count
-   changes the speed, never the result), optional torso pushes (PUSH, as `make eval`),
+3. ENVS environments over WORKERS processes (`bc.vec_env`), each sampling its share of every
+   rollout with its own copy of the policy (`bc.rollouts`; the worker count changes the speed,
+   not the result, while each worker holds 4 or more), optional torso pushes (PUSH, as `make eval`),
    TensorBoard logs, a progress bar, an evaluation every EVAL_FREQ steps (checkpoint included).
 4. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
    with eval.json and a learning curve beside BC's level and the scratch baseline's curve.
@@ -69,9 +70,9 @@ class FinetuneConfig:
     policy: Path = setting(Path("policies/ppo_humanoid_stand"), "checkpoint folder to write")
     scratch: bool = setting(False, "the baseline: fresh weights, no warm-up, no BC term")
     timesteps: int = setting(100_000, "environment steps of training")
-    envs: int = setting(64, "environments stepped as one batch (the learner's per-step cost is paid once per batch)")
+    envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(2, "processes the environments are spread over (1: in the learner's own process); "
-                              "changes the speed, never the result")
+                              "changes the speed, not the result, while each holds 4 or more environments")
     push: float = setting(0.0, "train with horizontal pushes of this many newtons on the torso (0.1 s every 2 s)")
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate (the scratch baseline uses --scratch-learning-rate)")
