@@ -37,6 +37,7 @@ import gymnasium as gym
 import torch
 from matplotlib.figure import Figure
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm import tqdm
 
@@ -77,6 +78,9 @@ class FinetuneConfig:
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate (the scratch baseline uses --scratch-learning-rate)")
     scratch_learning_rate: float = setting(3e-4, "learning rate of the scratch baseline")
+    critic_learning_rate: float = setting(3e-5, "Adam learning rate of the critic when fine-tuning")
+    reward_scale: float = setting(1.0, "factor on the rewards PPO learns from when fine-tuning (the returns "
+                                       "reported are the environment's own)")
     log_std_init: float = setting(math.log(0.05), "initial log std of the exploration noise (std 0.05: the DART "
                                                   "noise the BC data was recorded with)")
     rollout_steps: int = setting(2048, "environment steps per PPO update, over all environments")
@@ -120,8 +124,9 @@ def validate(cfg: FinetuneConfig) -> None:
                         "FINAL_EVAL_EPISODES": cfg.final_eval_episodes, "UPDATE_THREADS": cfg.update_threads}.items():
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{name} must be >= 0, got {value}")
-    if not (0 < cfg.learning_rate and 0 < cfg.scratch_learning_rate and 0 < cfg.bc_decay <= 1):
-        raise UserError("learning rates must be positive and BC_DECAY in (0, 1]")
+    if not (0 < cfg.learning_rate and 0 < cfg.scratch_learning_rate and 0 < cfg.critic_learning_rate
+            and 0 < cfg.reward_scale and 0 < cfg.bc_decay <= 1):
+        raise UserError("learning rates and REWARD_SCALE must be positive, BC_DECAY in (0, 1]")
     if cfg.keep not in ("best", "last"):
         raise UserError(f"KEEP must be 'best' or 'last', got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
@@ -275,14 +280,19 @@ def build_model(cfg: FinetuneConfig, env: VecEnv, term: DemonstrationTerm | None
     actor = initial_actor(cfg)
     policy_kwargs = {"actor_spec": actor.spec, "actor_state": actor.state_dict(), "critic_hidden": actor.spec.hidden,
                      "log_std_init": cfg.log_std_init, "optimizer_class": RegularisedAdam,
+                     "critic_lr_scale": 1.0 if cfg.scratch else cfg.critic_learning_rate / cfg.learning_rate,
                      "optimizer_kwargs": {"term": term}}
     model = WorkerRolloutPPO(
         BCActorCriticPolicy, env, update_threads=cfg.update_threads or len(os.sched_getaffinity(0)),
+        reward_scale=1.0 if cfg.scratch else cfg.reward_scale,
         learning_rate=cfg.scratch_learning_rate if cfg.scratch else cfg.learning_rate,
         n_steps=cfg.rollout_steps // cfg.envs, batch_size=cfg.batch_size, n_epochs=cfg.epochs, gamma=cfg.gamma,
         gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, target_kl=cfg.target_kl or None,
         policy_kwargs=policy_kwargs, seed=cfg.seed, device="cpu",
         tensorboard_log=None if tensorboard is None else str(tensorboard), verbose=0)
+    if tensorboard is None:
+        # SB3's own default would create an empty log folder under /tmp for every learner.
+        model.set_logger(Logger(folder=None, output_formats=[]))
     if term is not None:
         term.actor = model.policy.actor
     return model

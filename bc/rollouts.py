@@ -31,6 +31,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
 from bc.vec_env import WorkerGroupVecEnv
+from policies.actor_critic import scale_learning_rates
 
 
 @dataclass
@@ -39,7 +40,7 @@ class Segment:
 
     observations: np.ndarray  # the observation each action was chosen from
     actions: np.ndarray  # sampled, before clipping to the action bounds (what PPO's ratio needs)
-    rewards: np.ndarray  # plus gamma * V(final observation) where an episode hit its time limit
+    rewards: np.ndarray  # times the reward scale, plus gamma * V(final observation) where an episode hit its time limit
     episode_starts: np.ndarray  # whether the observation is the first of an episode
     values: np.ndarray
     log_probs: np.ndarray
@@ -75,9 +76,10 @@ def without_optimiser(policy: ActorCriticPolicy) -> ActorCriticPolicy:
 class Sampler:
     """A worker's share of PPO's rollouts: its copy of the policy and one noise stream per environment."""
 
-    def __init__(self, policy: ActorCriticPolicy, env_indices: range, seed: int, gamma: float) -> None:
+    def __init__(self, policy: ActorCriticPolicy, env_indices: range, seed: int, gamma: float,
+                 reward_scale: float = 1.0) -> None:
         self.policy = policy
-        self.gamma = gamma
+        self.gamma, self.reward_scale = gamma, reward_scale
         self.generators = [torch.Generator().manual_seed(int(np.random.SeedSequence((seed, i)).generate_state(1)[0]))
                            for i in env_indices]
 
@@ -105,6 +107,7 @@ class Sampler:
                 values = self.policy.predict_values(obs).flatten()
                 actions = actions.numpy()
                 next_observations, rewards, dones, infos = step(np.clip(actions, low, high))
+                rewards = rewards * self.reward_scale
                 for i, info in enumerate(infos):
                     # SB3's bootstrapping at time limits (stable-baselines3 issue #633), one observation at a time
                     if dones[i] and info.get("TimeLimit.truncated") and "terminal_observation" in info:
@@ -123,10 +126,15 @@ class Sampler:
 class WorkerRolloutPPO(PPO):
     """SB3's PPO with its rollouts sampled in the workers of a `WorkerGroupVecEnv` (see the module)."""
 
-    def __init__(self, *args: Any, update_threads: int = 1, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, update_threads: int = 1, reward_scale: float = 1.0, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.update_threads = update_threads
+        self.update_threads, self.reward_scale = update_threads, reward_scale
         self._samplers_of: VecEnv | None = None  # the environments whose workers hold samplers
+
+    def _update_learning_rate(self, optimizers: list[torch.optim.Optimizer] | torch.optim.Optimizer) -> None:
+        super()._update_learning_rate(optimizers)
+        for optimizer in optimizers if isinstance(optimizers, list) else [optimizers]:
+            scale_learning_rates(optimizer)
 
     def train(self) -> None:
         rollout_threads = torch.get_num_threads()
@@ -142,7 +150,7 @@ class WorkerRolloutPPO(PPO):
             raise TypeError(f"WorkerRolloutPPO samples in a WorkerGroupVecEnv's workers, got {type(env).__name__}")
         if self._samplers_of is not env:
             acting = without_optimiser(self.policy)
-            env.install_samplers(lambda group: Sampler(acting, group, self.seed or 0, self.gamma))
+            env.install_samplers(lambda group: Sampler(acting, group, self.seed or 0, self.gamma, self.reward_scale))
             self._samplers_of = env
         self.policy.set_training_mode(False)
         rollout_buffer.reset()

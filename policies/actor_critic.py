@@ -45,8 +45,20 @@ class ActorCriticExtractor(nn.Module):
         return self.actor(features)
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
-        # The critic sees inputs normalised like the actor's (the same buffers, not trained).
-        return self.critic((features - self.actor.input_mean) / self.actor.input_std)
+        # The critic sees inputs normalised like the actor's (the same buffers, not trained), clipped: a fall
+        # or a push takes some of them hundreds of standard deviations from the demonstrations', and the
+        # critic's outputs and value loss with them.
+        normalised = (features - self.actor.input_mean) / self.actor.input_std
+        return self.critic(normalised.clamp(-CRITIC_INPUT_CLIP, CRITIC_INPUT_CLIP))
+
+
+CRITIC_INPUT_CLIP = 10.0  # standard deviations, as SB3's VecNormalize clips observations
+
+
+def scale_learning_rates(optimizer: torch.optim.Optimizer) -> None:
+    """Multiply each parameter group's rate by its "lr_scale" (SB3 sets one rate for every group)."""
+    for group in optimizer.param_groups:
+        group["lr"] *= group.get("lr_scale", 1.0)
 
 
 class BCActorCriticPolicy(ActorCriticPolicy):
@@ -54,9 +66,10 @@ class BCActorCriticPolicy(ActorCriticPolicy):
 
     def __init__(self, observation_space: gym.spaces.Space, action_space: gym.spaces.Box, lr_schedule: Schedule,
                  actor_spec: MLPSpec, actor_state: dict[str, torch.Tensor], critic_hidden: tuple[int, ...] = (256, 256),
-                 **kwargs: Any) -> None:
+                 critic_lr_scale: float = 1.0, **kwargs: Any) -> None:
         # Plain data, set before nn.Module.__init__: `_build` (called by the parent) needs them.
         self.actor_spec, self.actor_state, self.critic_hidden = actor_spec, actor_state, critic_hidden
+        self.critic_lr_scale = critic_lr_scale
         super().__init__(observation_space, action_space, lr_schedule, ortho_init=False, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
@@ -67,8 +80,13 @@ class BCActorCriticPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
         self.action_net = nn.Identity()  # the actor already outputs the mean action
-        # The parent's optimiser holds the linear action_net just replaced: rebuild it over the real parameters.
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        # The parent's optimiser holds the linear action_net just replaced: rebuild it over the real parameters,
+        # the critic's in a group of its own, whose rate is `critic_lr_scale` times the actor's.
+        actor = {id(p) for p in self.actor_parameters()}
+        groups = [{"params": self.actor_parameters()},
+                  {"params": [p for p in self.parameters() if id(p) not in actor], "lr_scale": self.critic_lr_scale}]
+        self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **self.optimizer_kwargs)
+        scale_learning_rates(self.optimizer)
 
     @property
     def actor(self) -> MLPPolicy:

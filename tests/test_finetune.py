@@ -55,8 +55,9 @@ def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
 
 
 def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: Path) -> None:
-    """A rollout sampled in the workers holds the policy's values and log-probabilities and the environments' steps."""
-    config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
+    """A rollout sampled in the workers holds the policy's values and log-probabilities, the environments' steps
+    and their rewards times the reward scale."""
+    config = FinetuneConfig(bc_policy=bc_policy, reward_scale=0.01, **TINY_PPO)
     env = make_vec_env(config)
     try:
         model = build_model(config, env, term=None)
@@ -81,7 +82,33 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
     assert episode_steps > 5
     for step in range(episode_steps):
         np.testing.assert_array_equal(buffer.observations[step, 0], expected, err_msg=f"step {step}")
-        expected, *_ = replay.step(np.clip(buffer.actions[step, 0], -0.4, 0.4))
+        expected, reward, *_ = replay.step(np.clip(buffer.actions[step, 0], -0.4, 0.4))
+        assert buffer.rewards[step, 0] == pytest.approx(0.01 * reward, rel=1e-6), f"step {step}"
+
+
+def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
+    """The critic's parameters are updated at CRITIC_LEARNING_RATE, the actor's and log std's at LEARNING_RATE."""
+    config = FinetuneConfig(bc_policy=bc_policy, learning_rate=2e-5, critic_learning_rate=1e-3, **TINY_PPO)
+    model = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None)
+    model._update_learning_rate(model.policy.optimizer)  # what every PPO update starts with
+    rates = {id(p): group["lr"] for group in model.policy.optimizer.param_groups for p in group["params"]}
+    actor = {id(p) for p in model.policy.actor_parameters()}
+    assert len(rates) == len(list(model.policy.parameters()))
+    assert {rate for key, rate in rates.items() if key in actor} == {2e-5}
+    critic_rates = [rate for key, rate in rates.items() if key not in actor]
+    assert critic_rates == pytest.approx([1e-3] * len(critic_rates)) and critic_rates
+
+
+def test_critic_clips_inputs_far_from_the_demonstrations(bc_policy: Path) -> None:
+    """Observations 20 and 1,000 standard deviations from the demonstrations' mean get the same value."""
+    config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
+    policy = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None).policy
+    actor = policy.actor
+    with torch.no_grad():
+        mean, far, farther = (float(policy.predict_values((actor.input_mean + distance * actor.input_std)[None]))
+                              for distance in (0, 20, 1000))
+    assert far == pytest.approx(farther, rel=1e-6)
+    assert abs(far - mean) > 1e-3
 
 
 def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
