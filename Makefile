@@ -39,6 +39,8 @@ TIMESTEPS ?=
 WORKERS ?=
 ENVS ?=
 PLOT ?=
+# Any other flag of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last"
+ARGS ?=
 
 opt = $(if $($(1)),--$(2) $($(1)))
 RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
@@ -48,7 +50,7 @@ TRAIN_ARGS = --dataset $(DATASET) --policy $(or $(POLICY),$(BC_DEFAULT)) $(call 
 DAGGER_ARGS = --dataset $(DATASET) $(call opt,ROUNDS,rounds) $(call opt,EPISODES,episodes) \
 	$(call opt,OVERWRITE,overwrite)
 RL_ARGS = --bc-policy $(BC_POLICY) $(call opt,TIMESTEPS,timesteps) $(call opt,WORKERS,workers) $(call opt,ENVS,envs) \
-	$(call opt,PUSH,push) $(call opt,OVERWRITE,overwrite)
+	$(call opt,PUSH,push) $(call opt,OVERWRITE,overwrite) $(ARGS)
 EVAL_ARGS = --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
 	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
 
@@ -81,10 +83,10 @@ eval: $(STAMP)  ## evaluate a policy (or POLICY=expert): POLICY EPISODES SEED PU
 dagger: $(STAMP)  ## DAgger with the expert as oracle: DATASET ROUNDS EPISODES OVERWRITE
 	$(PY) -m bc.dagger $(DAGGER_ARGS)
 
-finetune-rl: $(STAMP)  ## PPO refinement of the BC policy: BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
+finetune-rl: $(STAMP)  ## PPO refinement of the BC policy: BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE ARGS
 	$(PY) -m bc.finetune --policy $(or $(POLICY),$(PPO_DEFAULT)) $(RL_ARGS)
 
-baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget: POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
+baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget: POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE ARGS
 	$(PY) -m bc.finetune --scratch true --policy $(or $(POLICY),$(SCRATCH_DEFAULT)) $(RL_ARGS)
 
 # Each stage runs only if its output is missing, so the pipeline can be re-run (or resumed)

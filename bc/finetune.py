@@ -38,6 +38,7 @@ import torch
 from matplotlib.figure import Figure
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 from tqdm import tqdm
 
@@ -70,7 +71,7 @@ class FinetuneConfig:
                                                                    "--scratch, only its shape and normalisation)")
     policy: Path = setting(Path("policies/ppo_humanoid_stand"), "checkpoint folder to write")
     scratch: bool = setting(False, "the baseline: fresh weights, no warm-up, no BC term")
-    timesteps: int = setting(100_000, "environment steps of training")
+    timesteps: int = setting(300_000, "environment steps of training")
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(2, "processes the environments are spread over (1: in the learner's own process); "
                               "changes the speed, not the result, while each holds 4 or more environments")
@@ -78,23 +79,27 @@ class FinetuneConfig:
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate (the scratch baseline uses --scratch-learning-rate)")
     scratch_learning_rate: float = setting(3e-4, "learning rate of the scratch baseline")
-    critic_learning_rate: float = setting(3e-5, "Adam learning rate of the critic when fine-tuning")
-    reward_scale: float = setting(1.0, "factor on the rewards PPO learns from when fine-tuning (the returns "
-                                       "reported are the environment's own)")
+    critic_learning_rate: float = setting(1e-3, "Adam learning rate of the critic when fine-tuning (at the actor's "
+                                              "rate the critic never fitted the returns)")
+    reward_scale: float = setting(0.01, "factor on the rewards PPO learns from when fine-tuning (the returns "
+                                        "reported are the environment's own): keeps the value loss below 1, not in "
+                                        "the 1,000s, under the gradient-norm clip actor and critic share")
     log_std_init: float = setting(math.log(0.05), "initial log std of the exploration noise (std 0.05: the DART "
                                                   "noise the BC data was recorded with)")
-    rollout_steps: int = setting(2048, "environment steps per PPO update, over all environments")
-    batch_size: int = setting(256, "PPO minibatch size")
+    rollout_steps: int = setting(16_384, "environment steps per PPO update, over all environments (with 2,048 the "
+                                        "updates were mostly noise and returns under pushes fell)")
+    batch_size: int = setting(2048, "PPO minibatch size")
     epochs: int = setting(5, "passes over each rollout")
     gamma: float = setting(0.99, "discount")
     gae_lambda: float = setting(0.95, "GAE lambda")
     clip_range: float = setting(0.1, "PPO clip range")
     target_kl: float = setting(0.02, "stop an update's epochs once the KL to the rollout policy exceeds 1.5x this; "
                                      "0 = never")
-    critic_warmup: int = setting(10_000, "first steps that train the critic only (actor frozen); 0 = none")
+    critic_warmup: int = setting(50_000, "first steps that train the critic only (actor frozen); 0 = none")
     bc_weight: float = setting(0.0, "weight of the BC term on the demonstrations added to PPO's loss; 0 = none")
     bc_decay: float = setting(0.95, "factor applied to the BC weight after every PPO update")
-    eval_freq: int = setting(10_000, "steps between evaluations (and checkpoints) during training")
+    eval_freq: int = setting(20_000, "steps between evaluations (and checkpoints) during training; each runs "
+                                    "after the first update past its mark")
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
     validation_seed: int = setting(VALIDATION_SEED, "first seed of the evaluations during training: apart from "
                                                     "the final evaluation's, since they choose the actor kept")
@@ -134,9 +139,13 @@ def validate(cfg: FinetuneConfig) -> None:
 
 
 def training_env(push: float) -> gym.Env:
-    """One training environment (module-level, so worker processes can build it)."""
+    """One training environment (module-level, so worker processes can build it).
+
+    SB3's `Monitor` records each episode's return and length (the environment's own rewards, before
+    REWARD_SCALE) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
+    """
     env = make_env()
-    return TorsoPushes(env, push) if push > 0 else env
+    return Monitor(TorsoPushes(env, push) if push > 0 else env)
 
 
 def make_vec_env(cfg: FinetuneConfig) -> VecEnv:
@@ -230,9 +239,9 @@ class Guards(BaseCallback):
 
 
 class Evaluator(BaseCallback):
-    """Evaluates the deterministic actor every `freq` steps (and at 0 and the end), saving a checkpoint each time.
+    """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
-    It also remembers the best of them (the first on ties), so that a run that ends worse than it
+    Each evaluation saves a checkpoint. The evaluator also remembers the best of them (the first on ties), so that a run that ends worse than it
     went, or worse than the BC policy it started from, can keep its best actor.
     """
 
@@ -263,10 +272,13 @@ class Evaluator(BaseCallback):
     def _on_training_start(self) -> None:
         self.evaluate_now()
 
-    def _on_step(self) -> bool:
-        self.bar.update(self.training_env.num_envs)
+    def _on_rollout_start(self) -> None:
+        # The actor changes only in PPO's updates, between rollouts: an evaluation here sees each version once.
         if self.num_timesteps >= self.next_at:
             self.evaluate_now()
+
+    def _on_step(self) -> bool:
+        self.bar.update(self.training_env.num_envs)
         return True
 
     def _on_training_end(self) -> None:

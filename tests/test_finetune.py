@@ -165,6 +165,13 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) 
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
+def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:
+    """With EVAL_FREQ shorter than a rollout, each version of the actor is evaluated once, at its rollout's start."""
+    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=512, critic_warmup=0,
+                                 **{**TINY_PPO, "eval_freq": 100}))
+    assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512]
+
+
 def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> None:
     """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest return."""
     result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0,
