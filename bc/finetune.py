@@ -350,7 +350,9 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
     try:
         with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
             model = build_model(cfg, env, term, folder / "tensorboard")
-            bar = tqdm(total=cfg.timesteps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
+            # SB3 stops after the first whole rollout that reaches TIMESTEPS.
+            steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
+            bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
             evaluator = Evaluator(cfg, folder, bar)
             start = time.perf_counter()
             callbacks = [evaluator] if cfg.scratch else [Guards(cfg.critic_warmup, term), evaluator]
@@ -372,7 +374,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
         result["pushed"] = evaluate(str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, push=cfg.push)
     bc_eval = cfg.bc_policy / EVAL_FILE
     bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
-    result.update(timesteps=cfg.timesteps, seconds=seconds, steps_per_s=cfg.timesteps / seconds,
+    result.update(timesteps=steps, seconds=seconds, steps_per_s=steps / seconds,
                   bc_mean_return=None if bc is None else bc["mean_return"],
                   expert_mean_return=None if bc is None else bc.get("expert_mean_return"),
                   training_curve=evaluator.curve, kept=kept)

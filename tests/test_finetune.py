@@ -166,10 +166,11 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) 
 
 
 def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:
-    """With EVAL_FREQ shorter than a rollout, each version of the actor is evaluated once, at its rollout's start."""
-    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=512, critic_warmup=0,
+    """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout."""
+    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=300, critic_warmup=0,
                                  **{**TINY_PPO, "eval_freq": 100}))
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512]
+    assert result["timesteps"] == 512
 
 
 def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> None:
