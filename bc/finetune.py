@@ -8,11 +8,13 @@
    - critic warm-up: the first CRITIC_WARMUP steps train the value function only;
    - a DAPG-style behaviour-cloning term on the demonstrations, added to PPO's gradient at every
      optimiser step with a weight that decays by BC_DECAY per update (`DemonstrationTerm`);
-   - a conservative learning rate, clip range and target KL.
+   - a conservative learning rate, clip range and target KL;
+   and a critic that can learn: its own, larger learning rate, scaled rewards, and inputs
+   clipped where falls and pushes send them far from the demonstrations'.
 3. ENVS environments over WORKERS processes (`bc.vec_env`), each sampling its share of every
    rollout with its own copy of the policy (`bc.rollouts`; the worker count changes the speed,
    not the result, while each worker holds 4 or more), optional torso pushes (PUSH, as `make eval`),
-   TensorBoard logs, a progress bar, an evaluation every EVAL_FREQ steps (checkpoint included).
+   TensorBoard logs, a progress bar, an evaluation (and checkpoint) every EVAL_FREQ steps.
 4. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
    with eval.json and a learning curve beside BC's level and the scratch baseline's curve.
 
@@ -241,8 +243,9 @@ class Guards(BaseCallback):
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
-    Each evaluation saves a checkpoint. The evaluator also remembers the best of them (the first on ties), so that a run that ends worse than it
-    went, or worse than the BC policy it started from, can keep its best actor.
+    Each evaluation saves a checkpoint. The evaluator also remembers the best of them (the first on
+    ties), so that a run that ends worse than it went, or worse than the BC policy it started from,
+    can keep its best actor.
     """
 
     def __init__(self, cfg: FinetuneConfig, folder: Path, bar: tqdm) -> None:

@@ -55,8 +55,7 @@ def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
 
 
 def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: Path) -> None:
-    """A rollout sampled in the workers holds the policy's values and log-probabilities, the environments' steps
-    and their rewards times the reward scale."""
+    """A worker-sampled rollout holds the policy's values and log-probabilities, the steps and the scaled rewards."""
     config = FinetuneConfig(bc_policy=bc_policy, reward_scale=0.01, **TINY_PPO)
     env = make_vec_env(config)
     try:
@@ -241,10 +240,12 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     (["--workers", "0"], "WORKERS must be positive"),
     (["--envs", "0"], "ENVS must be positive"),
     (["--envs", "4", "--workers", "5"], "WORKERS (5) must not exceed ENVS (4)"),
+    (["--critic-learning-rate", "0"], "learning rates and REWARD_SCALE must be positive"),
+    (["--reward-scale", "-1"], "learning rates and REWARD_SCALE must be positive"),
 ])
-def test_non_positive_budget_is_refused(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+def test_bad_settings_are_refused(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                         args: list[str], message: str) -> None:
-    """A non-positive budget fails in one line before anything starts."""
+    """A non-positive budget or rate fails in one line before anything starts."""
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(tmp_path / "ppo"), *args], capsys)
     assert code == 1 and len(err) == 1 and message in err[0]
 
