@@ -85,6 +85,20 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
         assert buffer.rewards[step, 0] == pytest.approx(0.01 * reward, rel=1e-6), f"step {step}"
 
 
+def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path) -> None:
+    """Finished training episodes reach SB3's episode statistics (rollout/ep_rew_mean) unscaled: ~5 a step, not 0.05."""
+    config = FinetuneConfig(bc_policy=bc_policy, reward_scale=0.01, **TINY_PPO)
+    env = make_vec_env(config)
+    try:
+        model = build_model(config, env, term=None)
+        model.learn(total_timesteps=512)
+    finally:
+        env.close()
+    assert model.ep_info_buffer
+    for episode in model.ep_info_buffer:
+        assert 2.5 < episode["r"] / episode["l"] < 10.0  # the alive bonus of 5, plus or minus motion and costs
+
+
 def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
     """The critic's parameters are updated at CRITIC_LEARNING_RATE, the actor's and log std's at LEARNING_RATE."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=2e-5, critic_learning_rate=1e-3, **TINY_PPO)
