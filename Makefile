@@ -87,7 +87,7 @@ finetune-rl: $(STAMP)  ## PPO refinement of the BC policy: BC_POLICY POLICY TIME
 	$(PY) -m bc.finetune --policy $(or $(POLICY),$(PPO_DEFAULT)) $(RL_ARGS)
 
 baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget: POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE ARGS
-	$(PY) -m bc.finetune --scratch true --policy $(or $(POLICY),$(SCRATCH_DEFAULT)) $(RL_ARGS)
+	$(PY) -m bc.baseline --policy $(or $(POLICY),$(SCRATCH_DEFAULT)) $(RL_ARGS)
 
 # Each stage runs only if its output is missing, so the pipeline can be re-run (or resumed)
 # without growing the dataset or refusing to overwrite the checkpoint.

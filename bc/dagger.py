@@ -30,14 +30,14 @@ from tqdm import tqdm
 
 from bc.train import TrainConfig, TrainResult
 from bc.train import main as train
+from common import keys, paths
+from common.cli import DatasetError, UserError, run_cli, setting
+from humanoid.controllers import make_controller
+from humanoid.env import make_env
+from humanoid.episode import EpisodeBuffer, run_episode
 from policies import checkpoint
 from policies.controller import PolicyController
-from teleop import keys
-from teleop.cli import DatasetError, UserError, run_cli, setting
-from teleop.controllers import make_controller
 from teleop.dataset_reader import read_episodes
-from teleop.env import make_env
-from teleop.episode import EpisodeBuffer, run_episode
 from teleop.store import DatasetSpec, EpisodeStore
 
 
@@ -45,15 +45,17 @@ from teleop.store import DatasetSpec, EpisodeStore
 class DaggerConfig:
     """Settings of a DAgger run."""
 
-    dataset: Path = setting(Path("datasets/humanoid_stand"), "demonstrations to start from (left unchanged)")
-    output: Path = setting(Path("datasets/humanoid_stand_dagger"), "aggregate dataset: a copy of DATASET, then "
-                                                                   "every round appended")
-    policy: Path = setting(Path("policies/dagger_humanoid_stand"), "checkpoint folder of the final policy")
+    dataset: Path = setting(paths.DATASET, "demonstrations to start from (left unchanged)")
+    output: Path = setting(paths.DAGGER_DATASET, "aggregate dataset: a copy of DATASET, then every round appended")
+    policy: Path = setting(paths.DAGGER_POLICY, "checkpoint folder of the final policy")
     rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
     epochs: int = setting(30, "training epochs of every round's policy")
-    patience: int = setting(0, "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
-                               "data the validation loss says little about standing)")
+    patience: int = setting(
+        0,
+        "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
+        "data the validation loss says little about standing)",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     eval_episodes: int = setting(20, "episodes of the final evaluation; 0 = skip it")
     progress: bool = setting(True, "show progress bars")
@@ -78,8 +80,11 @@ class DaggerResult:
     final: TrainResult | None = None
 
     def describe(self) -> str:
-        lines = [f"round {r.round}: the policy stood {r.survived}/{r.episodes} episodes, mean return "
-                 f"{r.mean_return:.1f}; {r.frames} frames labelled by the expert" for r in self.rounds]
+        lines = [
+            f"round {r.round}: the policy stood {r.survived}/{r.episodes} episodes, mean return "
+            f"{r.mean_return:.1f}; {r.frames} frames labelled by the expert"
+            for r in self.rounds
+        ]
         return "\n".join([*lines, self.final.describe()])
 
 
@@ -92,8 +97,9 @@ def validate(cfg: DaggerConfig) -> None:
         raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record`")
 
 
-def collect_round(store: EpisodeStore, policy_dir: Path, round_index: int, episodes: int,
-                  progress: bool) -> RoundReport:
+def collect_round(
+    store: EpisodeStore, policy_dir: Path, round_index: int, episodes: int, progress: bool
+) -> RoundReport:
     """Roll the policy out, label its states with the expert, append the episodes to `store`."""
     env = make_env()
     policy = PolicyController.load(policy_dir, env)
@@ -101,8 +107,14 @@ def collect_round(store: EpisodeStore, policy_dir: Path, round_index: int, episo
     buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
     first_seed = store.next_seed()
     returns, frames, survived = [], 0, 0
-    for seed in tqdm(range(first_seed, first_seed + episodes), desc=f"round {round_index}", unit="ep",
-                     disable=not progress, file=sys.stderr, dynamic_ncols=True):
+    for seed in tqdm(
+        range(first_seed, first_seed + episodes),
+        desc=f"round {round_index}",
+        unit="ep",
+        disable=not progress,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    ):
         episode = run_episode(env, policy, seed, buffer=buffer, labeller=expert)
         episode.dagger_round = round_index
         store.append(episode)
@@ -135,8 +147,16 @@ def main(cfg: DaggerConfig) -> DaggerResult:
                     train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet))
     finally:
         store.close()
-    result.final = train(TrainConfig(dataset=cfg.output, policy=cfg.policy, overwrite=cfg.overwrite, **training,
-                                     eval_episodes=cfg.eval_episodes, progress=cfg.progress))
+    result.final = train(
+        TrainConfig(
+            dataset=cfg.output,
+            policy=cfg.policy,
+            overwrite=cfg.overwrite,
+            **training,
+            eval_episodes=cfg.eval_episodes,
+            progress=cfg.progress,
+        )
+    )
     return result
 
 

@@ -4,7 +4,7 @@ Frames come from the parquet files through Arrow (`teleop.dataset_reader.iter_fr
 through LeRobot's per-item `__getitem__`. Decoding parquet is the slow part: about 70 k rows/s on
 2 cores in a fresh process (348 float64 list elements a row, and every episode's metadata file
 to find the data files). So the decoded float32 arrays are cached as .npy files under the
-project's cache folder (`teleop.expert.cache_dir`), keyed by the dataset's path, its info.json
+project's cache folder (`common.paths.cache_dir`), keyed by the dataset's path, its info.json
 and the size and modification time of every data file: recording more episodes changes the key.
 Later loads copy them out of a memory map at about 2 M rows/s.
 """
@@ -26,13 +26,13 @@ import numpy as np
 import pyarrow as pa
 import torch
 
+from common import keys
+from common.cli import DatasetError
+from common.paths import cache_dir
+from humanoid.env import ENV_ID, observation_names
 from policies.controller import OBSERVATION_KEYS
-from teleop import keys
-from teleop.cli import DatasetError
 from teleop.dataset_reader import iter_frames, read_info
-from teleop.env import ENV_ID, observation_names
-from teleop.expert import cache_dir
-from teleop.lerobot_format import CODEBASE_VERSION, INFO_PATH
+from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
 # Dataset columns concatenated into the policy's input: the gymnasium observation, in its order.
 # A dataset that records a command (keyboard teleoperation) would append that column here (it
@@ -65,9 +65,14 @@ class Demonstrations:
 
     def identity(self) -> dict[str, Any]:
         """What the checkpoint records about its training data."""
-        return {"path": str(self.root.resolve()), "episodes": len(self.episodes), "frames": self.frames,
-                "codebase_version": self.info.get("codebase_version"), "robot_type": self.info.get("robot_type"),
-                "fps": self.info.get("fps")}
+        return {
+            "path": str(self.root.resolve()),
+            "episodes": len(self.episodes),
+            "frames": self.frames,
+            "codebase_version": self.info.get("codebase_version"),
+            "robot_type": self.info.get("robot_type"),
+            "fps": self.info.get("fps"),
+        }
 
 
 def check_compatible(root: Path, env: gym.Env) -> dict[str, Any]:
@@ -90,22 +95,32 @@ def check_compatible(root: Path, env: gym.Env) -> dict[str, Any]:
     input_dims = [features[key]["shape"][0] for key in INPUT_KEYS]
     recorded_action_dim = features[keys.ACTION]["shape"][0]
     if sum(input_dims) != obs_dim or recorded_action_dim != action_dim:
-        raise DatasetError(f"{root} records {'+'.join(map(str, input_dims))} observation and {recorded_action_dim} "
-                           f"action dimensions; {ENV_ID} has {obs_dim} and {action_dim}")
+        raise DatasetError(
+            f"{root} records {'+'.join(map(str, input_dims))} observation and {recorded_action_dim} "
+            f"action dimensions; {ENV_ID} has {obs_dim} and {action_dim}"
+        )
     recorded_names = [name for key in INPUT_KEYS for name in features[key].get("names") or []]
     if recorded_names and recorded_names != observation_names(env.unwrapped.model):
         raise DatasetError(f"{root} orders its observation differently from {ENV_ID} (feature names differ)")
     if info.get("total_episodes", 0) < 2:
-        raise DatasetError(f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least 2 "
-                           f"(one is held out for validation)")
+        raise DatasetError(
+            f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least 2 "
+            f"(one is held out for validation)"
+        )
     return info
 
 
 def _cache_folder(root: Path, info_text: str) -> Path:
     """Where the decoded arrays of this version of the dataset live: <path hash>-<content hash>."""
     files = sorted((root / "data").glob("*/*.parquet"))
-    content = json.dumps([_CACHE_FORMAT, INPUT_KEYS, info_text,
-                          [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files]])
+    content = json.dumps(
+        [
+            _CACHE_FORMAT,
+            INPUT_KEYS,
+            info_text,
+            [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files],
+        ]
+    )
     path_hash = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:16]
     return cache_dir() / "bc-frames" / f"{path_hash}-{hashlib.sha256(content.encode()).hexdigest()[:16]}"
 
@@ -115,9 +130,11 @@ def _decode(root: Path, info: dict[str, Any]) -> dict[str, np.ndarray]:
     features = info["features"]
     rows = info["total_frames"]
     widths = [features[key]["shape"][0] for key in INPUT_KEYS]
-    arrays = {"inputs": np.empty((rows, sum(widths)), np.float32),
-              "actions": np.empty((rows, features[keys.ACTION]["shape"][0]), np.float32),
-              "episode_index": np.empty(rows, np.int64)}
+    arrays = {
+        "inputs": np.empty((rows, sum(widths)), np.float32),
+        "actions": np.empty((rows, features[keys.ACTION]["shape"][0]), np.float32),
+        "episode_index": np.empty(rows, np.int64),
+    }
     filled = 0
     for batch in iter_frames(root, [*INPUT_KEYS, keys.ACTION, "episode_index"]):
         index = batch["index"]
@@ -125,7 +142,7 @@ def _decode(root: Path, info: dict[str, Any]) -> dict[str, np.ndarray]:
         at = slice(index[0], index[-1] + 1) if len(index) and index[-1] - index[0] + 1 == len(index) else index
         start = 0
         for key, width in zip(INPUT_KEYS, widths, strict=True):  # float64 -> float32 in the same pass
-            arrays["inputs"][at, start:start + width] = batch[key]
+            arrays["inputs"][at, start : start + width] = batch[key]
             start += width
         arrays["actions"][at] = batch[keys.ACTION]
         arrays["episode_index"][at] = batch["episode_index"]
@@ -172,9 +189,15 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonst
             raise DatasetError(f"{root} holds non-finite observations or actions")
         if cache:
             _store(folder, arrays)
-    return Demonstrations(root=root, inputs=torch.from_numpy(arrays["inputs"]),
-                          actions=torch.from_numpy(arrays["actions"]), episode_index=arrays["episode_index"],
-                          info=info, seconds=time.perf_counter() - start, from_cache=from_cache)
+    return Demonstrations(
+        root=root,
+        inputs=torch.from_numpy(arrays["inputs"]),
+        actions=torch.from_numpy(arrays["actions"]),
+        episode_index=arrays["episode_index"],
+        info=info,
+        seconds=time.perf_counter() - start,
+        from_cache=from_cache,
+    )
 
 
 def split_by_episode(episodes: list[int], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -23,12 +23,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from teleop.cli import UserError, run_cli, setting
-from teleop.controllers import Controller, make_controller
-from teleop.env import EPISODE_STEPS, make_env
-from teleop.episode import EpisodeBuffer, run_episode
-from teleop.perturbations import TorsoPushes
-from teleop.video import CAMERA, VideoRecorder
+from common import paths
+from common.cli import UserError, run_cli, setting
+from humanoid.controllers import Controller, make_controller
+from humanoid.env import EPISODE_STEPS, make_env
+from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.perturbations import TorsoPushes
+from humanoid.video import CAMERA, VideoRecorder
 
 EVAL_SEED = 1000  # first evaluation seed: recordings use 0, 1, 2, ... and stay far below it
 
@@ -37,8 +38,7 @@ EVAL_SEED = 1000  # first evaluation seed: recordings use 0, 1, 2, ... and stay 
 class EvalConfig:
     """Settings of one evaluation."""
 
-    policy: str = setting("policies/bc_humanoid_stand", "policy checkpoint folder, or a registered controller "
-                                                        "(expert, random)")
+    policy: str = setting(str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert, random)")
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")
@@ -61,8 +61,15 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError(f"VIDEO must be an .mp4 path, got {cfg.video}")
 
 
-def evaluate(controller: Controller | str, episodes: int = 20, seed: int = EVAL_SEED, push: float = 0.0,
-             noise: float = 0.0, video: Path | None = None, progress: bool = False) -> dict[str, Any]:
+def evaluate(
+    controller: Controller | str,
+    episodes: int = 20,
+    seed: int = EVAL_SEED,
+    push: float = 0.0,
+    noise: float = 0.0,
+    video: Path | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary."""
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
     if push > 0:
@@ -77,8 +84,10 @@ def evaluate(controller: Controller | str, episodes: int = 20, seed: int = EVAL_
                 raise UserError(str(error)) from None
         seeds = list(range(seed, seed + episodes))
         buffer = EpisodeBuffer(env, EPISODE_STEPS)
-        results = [run_episode(env, controller, s, noise, buffer)
-                   for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)]
+        results = [
+            run_episode(env, controller, s, noise, buffer)
+            for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
+        ]
     finally:
         env.close()
     returns = np.array([episode.episode_return for episode in results])

@@ -1,6 +1,6 @@
 """The pipeline's closing table: each policy's evaluation (POLICY/eval.json) beside the expert's.
 
-    python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
+python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from policies import EVAL_FILE
+from policies.folder import EVAL_FILE
 
 
 def table(policy_dirs: Sequence[Path]) -> str:
@@ -21,11 +21,15 @@ def table(policy_dirs: Sequence[Path]) -> str:
     rows = ["| policy | seeds | survival | mean return | vs expert |", "|---|---|---|---|---|"]
     for path, ev in evaluations.items():
         versus = f"{ev['mean_return'] / expert:.1%}" if expert else "n/a"
-        rows.append(f"| {path} | {ev['seeds'][0]}..{ev['seeds'][-1]} | {ev['survival_rate']:.0%} | "
-                    f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {versus} |")
+        rows.append(
+            f"| {path} | {ev['seeds'][0]}..{ev['seeds'][-1]} | {ev['survival_rate']:.0%} | "
+            f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {versus} |"
+        )
     if reference:
-        rows.append(f"| expert (LQR) | {reference['seeds'][0]}..{reference['seeds'][-1]} | "
-                    f"{reference['expert_survival_rate']:.0%} | {expert:,.1f} | 100.0% |")
+        rows.append(
+            f"| expert (LQR) | {reference['seeds'][0]}..{reference['seeds'][-1]} | "
+            f"{reference['expert_survival_rate']:.0%} | {expert:,.1f} | 100.0% |"
+        )
     return "\n".join(rows)
 
 

@@ -35,11 +35,13 @@ from tqdm import tqdm
 
 from bc.data import INPUT_KEYS, Demonstrations, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate
-from policies import EVAL_FILE, checkpoint
+from common import paths
+from common.cli import UserError, run_cli, setting
+from humanoid.env import make_env
+from policies import checkpoint
 from policies.controller import PolicyController
+from policies.folder import EVAL_FILE
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
-from teleop.cli import UserError, run_cli, setting
-from teleop.env import make_env
 
 LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
     "mse": F.mse_loss,
@@ -54,8 +56,8 @@ TENSORBOARD_DIR = "tensorboard"
 class TrainConfig:
     """Settings of one behaviour-cloning run."""
 
-    dataset: Path = setting(Path("datasets/humanoid_stand"), "LeRobot dataset folder recorded by `make record`")
-    policy: Path = setting(Path("policies/bc_humanoid_stand"), "checkpoint folder to write")
+    dataset: Path = setting(paths.DATASET, "LeRobot dataset folder recorded by `make record`")
+    policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
     hidden: int = setting(256, "width of each hidden layer")
     layers: int = setting(2, "number of hidden layers")
@@ -67,8 +69,9 @@ class TrainConfig:
     epochs: int = setting(30, "maximum number of passes over the training frames")
     patience: int = setting(5, "stop after this many epochs without a better validation loss; 0 = never stop early")
     val_fraction: float = setting(0.1, "fraction of the episodes held out for validation (at least one)")
-    std_floor: float = setting(STD_FLOOR, "floor on the input standard deviations, in the observation's "
-                                                "units (see policies/mlp.py)")
+    std_floor: float = setting(
+        STD_FLOOR, "floor on the input standard deviations, in the observation's units (see policies/mlp.py)"
+    )
     seed: int = setting(0, "seed of the split, the initial weights and the minibatch order")
     threads: int = setting(0, "torch CPU threads; 0 = one per core")
     cache: bool = setting(True, "cache the decoded frames (.npy) to load the same dataset faster next time")
@@ -112,15 +115,19 @@ class TrainResult:
 
     def describe(self) -> str:
         curves = self.curves
-        line = (f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, kept epoch "
-                f"{curves.best_epoch + 1} (validation loss {curves.best_val_loss:.3g}, untrained "
-                f"{curves.initial_val_loss:.3g}); {self.train_frames} training and {self.val_frames} validation "
-                f"frames loaded in {self.load_seconds:.2f} s ({self.load_rows_per_s:.3g} rows/s"
-                f"{', cached' if self.loaded_from_cache else ''})")
+        line = (
+            f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, kept epoch "
+            f"{curves.best_epoch + 1} (validation loss {curves.best_val_loss:.3g}, untrained "
+            f"{curves.initial_val_loss:.3g}); {self.train_frames} training and {self.val_frames} validation "
+            f"frames loaded in {self.load_seconds:.2f} s ({self.load_rows_per_s:.3g} rows/s"
+            f"{', cached' if self.loaded_from_cache else ''})"
+        )
         if self.evaluation:
             ev = self.evaluation
-            line += (f"; evaluation on seeds {ev['seeds'][0]}..{ev['seeds'][-1]}: survival {ev['survival_rate']:.0%}, "
-                     f"return {ev['mean_return']:.1f} ± {ev['std_return']:.1f} (expert {ev['expert_mean_return']:.1f})")
+            line += (
+                f"; evaluation on seeds {ev['seeds'][0]}..{ev['seeds'][-1]}: survival {ev['survival_rate']:.0%}, "
+                f"return {ev['mean_return']:.1f} ± {ev['std_return']:.1f} (expert {ev['expert_mean_return']:.1f})"
+            )
         return line
 
 
@@ -148,8 +155,13 @@ def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, t
     return demos.inputs[mask], demos.actions[mask]
 
 
-def fit(policy: MLPPolicy, train: tuple[torch.Tensor, torch.Tensor], val: tuple[torch.Tensor, torch.Tensor],
-        cfg: TrainConfig, writer: SummaryWriter | None) -> LearningCurves:
+def fit(
+    policy: MLPPolicy,
+    train: tuple[torch.Tensor, torch.Tensor],
+    val: tuple[torch.Tensor, torch.Tensor],
+    cfg: TrainConfig,
+    writer: SummaryWriter | None,
+) -> LearningCurves:
     """Minibatch Adam with early stopping; leaves the best epoch's weights in `policy`."""
     loss_fn = LOSSES[cfg.loss]
     optimiser = torch.optim.Adam(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -180,8 +192,9 @@ def fit(policy: MLPPolicy, train: tuple[torch.Tensor, torch.Tensor], val: tuple[
         if curves.val_loss[-1] < curves.best_val_loss or epoch == 0:
             curves.best_epoch, best_state = epoch, copy.deepcopy(policy.state_dict())
         samples_per_s = len(x_train) / (time.perf_counter() - start)
-        bar.set_postfix(train=f"{curves.train_loss[-1]:.3g}", val=f"{curves.val_loss[-1]:.3g}",
-                        samples_per_s=f"{samples_per_s:.0f}")
+        bar.set_postfix(
+            train=f"{curves.train_loss[-1]:.3g}", val=f"{curves.val_loss[-1]:.3g}", samples_per_s=f"{samples_per_s:.0f}"
+        )
         if writer is not None:  # step = epochs completed, so step 0 can hold the untrained loss
             if epoch == 0:
                 writer.add_scalar("loss/validation", curves.initial_val_loss, 0)
@@ -223,15 +236,28 @@ def main(cfg: TrainConfig) -> TrainResult:
     demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache)
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
-    spec = MLPSpec(input_keys=INPUT_KEYS, input_dim=demos.inputs.shape[1], action_dim=demos.actions.shape[1],
-                   hidden=(cfg.hidden,) * cfg.layers, activation=cfg.activation)
+    spec = MLPSpec(
+        input_keys=INPUT_KEYS,
+        input_dim=demos.inputs.shape[1],
+        action_dim=demos.actions.shape[1],
+        hidden=(cfg.hidden,) * cfg.layers,
+        activation=cfg.activation,
+    )
     policy = MLPPolicy(spec, env.action_space.low, env.action_space.high)
     policy.fit_normalisation(train[0], cfg.std_floor)
     env.close()
-    result = TrainResult(policy_dir=cfg.policy, policy=policy, loss=cfg.loss, train_episodes=train_episodes,
-                         val_episodes=val_episodes, train_frames=len(train[0]), val_frames=len(val[0]),
-                         load_seconds=demos.seconds, load_rows_per_s=demos.frames / demos.seconds,
-                         loaded_from_cache=demos.from_cache)
+    result = TrainResult(
+        policy_dir=cfg.policy,
+        policy=policy,
+        loss=cfg.loss,
+        train_episodes=train_episodes,
+        val_episodes=val_episodes,
+        train_frames=len(train[0]),
+        val_frames=len(val[0]),
+        load_seconds=demos.seconds,
+        load_rows_per_s=demos.frames / demos.seconds,
+        loaded_from_cache=demos.from_cache,
+    )
 
     with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
         writer = SummaryWriter(str(folder / TENSORBOARD_DIR)) if cfg.tensorboard else None
@@ -242,11 +268,20 @@ def main(cfg: TrainConfig) -> TrainResult:
             if writer is not None:
                 writer.close()
         result.train_seconds = time.perf_counter() - start
-        training = {**dataclasses.asdict(cfg), "kept_epoch": result.curves.best_epoch + 1,
-                    "epochs_run": len(result.curves.val_loss), "best_val_loss": result.curves.best_val_loss,
-                    "train_seconds": result.train_seconds}
-        dataset = {**demos.identity(), "train_episodes": train_episodes, "val_episodes": val_episodes,
-                   "train_frames": result.train_frames, "val_frames": result.val_frames}
+        training = {
+            **dataclasses.asdict(cfg),
+            "kept_epoch": result.curves.best_epoch + 1,
+            "epochs_run": len(result.curves.val_loss),
+            "best_val_loss": result.curves.best_val_loss,
+            "train_seconds": result.train_seconds,
+        }
+        dataset = {
+            **demos.identity(),
+            "train_episodes": train_episodes,
+            "val_episodes": val_episodes,
+            "train_frames": result.train_frames,
+            "val_frames": result.val_frames,
+        }
         checkpoint.save(policy, folder, training, dataset)
         plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
 

@@ -26,24 +26,30 @@ from typing import Any
 from bc.dagger import DaggerConfig
 from bc.dagger import main as dagger
 from bc.evaluate import evaluate
-from bc.train import TrainConfig, main as train
-from teleop.record import RecordConfig, main as record
+from bc.train import TrainConfig
+from bc.train import main as train
+from teleop.record import RecordConfig
+from teleop.record import main as record
 
 CONDITIONS = {"clean": {}, "NOISE=0.05": {"noise": 0.05}, "PUSH=10": {"push": 10.0}}
 RESULTS = Path("bench/results")
 
 # One load in a fresh process, as `bc.train` does it: no memory or imports left warm by an earlier load.
-_LOAD_ONCE = ("import sys; from pathlib import Path; from bc.data import load_demonstrations; "
-              "from teleop.env import make_env; "
-              "d = load_demonstrations(Path(sys.argv[1]), make_env(), cache=sys.argv[2] == 'cache'); "
-              "print(d.frames, d.seconds)")
+_LOAD_ONCE = (
+    "import sys; from pathlib import Path; from bc.data import load_demonstrations; "
+    "from humanoid.env import make_env; "
+    "d = load_demonstrations(Path(sys.argv[1]), make_env(), cache=sys.argv[2] == 'cache'); "
+    "print(d.frames, d.seconds)"
+)
 
 
 def loading_rows_per_s(root: Path, repeats: int) -> dict[str, float]:
     """Median rows/s from the parquet files (a dataset's first load) and from the cache (every later one)."""
+
     def load_once(source: str) -> float:
-        rows, seconds = subprocess.run([sys.executable, "-c", _LOAD_ONCE, str(root), source], check=True,
-                                       capture_output=True, text=True).stdout.split()
+        rows, seconds = subprocess.run(
+            [sys.executable, "-c", _LOAD_ONCE, str(root), source], check=True, capture_output=True, text=True
+        ).stdout.split()
         return int(rows) / float(seconds)
 
     load_once("cache")  # writes the cache if this version of the dataset has none yet
@@ -68,8 +74,10 @@ def bench_noise(noise: float, episodes: int, repeats: int) -> tuple[str, str]:
     label = "clean demonstrations" if noise == 0 else f"DART σ = {noise:g}"
     frames = trained.train_frames + trained.val_frames
     row = f"| BC, {label} ({frames:,} frames) | " + " | ".join(results) + " |"
-    timing = (f"| {label} | {loading['parquet']:,.0f} | {loading['cache']:,.0f} | {trained.train_seconds:.1f} "
-              f"({len(trained.curves.val_loss)} epochs) | {to_policy:.1f} |")
+    timing = (
+        f"| {label} | {loading['parquet']:,.0f} | {loading['cache']:,.0f} | {trained.train_seconds:.1f} "
+        f"({len(trained.curves.val_loss)} epochs) | {to_policy:.1f} |"
+    )
     return row, timing
 
 
@@ -78,13 +86,26 @@ def bench_dagger(noise: float, rounds: int, episodes: int) -> str:
     output = RESULTS / "data" / f"dagger_from_{noise:g}"
     shutil.rmtree(output, ignore_errors=True)  # a fresh aggregate: the row is about exactly ROUNDS rounds
     policy = RESULTS / "policies" / f"dagger_from_{noise:g}"
-    result = dagger(DaggerConfig(dataset=RESULTS / "data" / f"dart_{noise:g}", output=output, policy=policy,
-                                 rounds=rounds, episodes=episodes, overwrite=True, eval_episodes=0, progress=False))
+    result = dagger(
+        DaggerConfig(
+            dataset=RESULTS / "data" / f"dart_{noise:g}",
+            output=output,
+            policy=policy,
+            rounds=rounds,
+            episodes=episodes,
+            overwrite=True,
+            eval_episodes=0,
+            progress=False,
+        )
+    )
     frames = result.final.train_frames + result.final.val_frames
     label = "clean demonstrations" if noise == 0 else f"σ = {noise:g} demonstrations"
     results = [cell(evaluate(str(policy), **settings)) for settings in CONDITIONS.values()]
-    return (f"| DAgger, {rounds} rounds x {episodes} episodes from {label} ({frames:,} frames) | "
-            + " | ".join(results) + " |")
+    return (
+        f"| DAgger, {rounds} rounds x {episodes} episodes from {label} ({frames:,} frames) | "
+        + " | ".join(results)
+        + " |"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:

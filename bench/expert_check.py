@@ -13,9 +13,10 @@ import time
 
 import numpy as np
 
-from teleop.env import make_env
-from teleop.episode import EpisodeBuffer, run_episode
-from teleop.expert import LQRExpert, design_lqr, humanoid_model, load_or_design
+from humanoid.env import make_env
+from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.expert import LQRExpert
+from humanoid.lqr import design_lqr, humanoid_model, load_or_design
 
 
 def time_setup() -> tuple[float, float]:

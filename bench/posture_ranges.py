@@ -15,15 +15,15 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from teleop import physics
-from teleop.env import make_env, model_and_data
-from teleop.expert import LQRExpert
-from teleop.posture import Posture, posture_reference
+from humanoid import physics
+from humanoid.env import make_env, model_and_data
+from humanoid.expert import LQRExpert
+from humanoid.posture import Posture, posture_reference
 
 SETTLE_S = 2.0
 MAGNITUDES: dict[str, tuple[float, ...]] = {
@@ -142,17 +142,34 @@ def main(argv: list[str] | None = None) -> None:
         print(HEADER)
         lim_lo, lim_hi = Posture.MIN, Posture.MAX
         combos = {
-            "lean fwd + arms up + crouch": [Posture(lean_forward=lim_hi["lean_forward"], arms=2, height=lim_lo["height"])],
-            "lean back + arms out + crouch": [Posture(lean_forward=lim_lo["lean_forward"], arms=3, height=lim_lo["height"])],
-            "lean left + twist left + arms fwd": [Posture(lean_left=lim_hi["lean_left"], twist=lim_hi["twist"], arms=1)],
-            "lean right + twist right + arms up": [Posture(lean_left=lim_lo["lean_left"], twist=lim_lo["twist"], arms=2)],
-            "all at max (arms out, crouch)": [Posture(lim_hi["lean_forward"], lim_hi["lean_left"], lim_lo["height"], lim_hi["twist"], 3)],
+            "lean fwd + arms up + crouch": [
+                Posture(lean_forward=lim_hi["lean_forward"], arms=2, height=lim_lo["height"])
+            ],
+            "lean back + arms out + crouch": [
+                Posture(lean_forward=lim_lo["lean_forward"], arms=3, height=lim_lo["height"])
+            ],
+            "lean left + twist left + arms fwd": [
+                Posture(lean_left=lim_hi["lean_left"], twist=lim_hi["twist"], arms=1)
+            ],
+            "lean right + twist right + arms up": [
+                Posture(lean_left=lim_lo["lean_left"], twist=lim_lo["twist"], arms=2)
+            ],
+            "all at max (arms out, crouch)": [
+                Posture(lim_hi["lean_forward"], lim_hi["lean_left"], lim_lo["height"], lim_hi["twist"], 3)
+            ],
             "lean fwd + arms up + crouch, then neutral": [
-                Posture(lean_forward=lim_hi["lean_forward"], arms=2, height=lim_lo["height"]), Posture()],
+                Posture(lean_forward=lim_hi["lean_forward"], arms=2, height=lim_lo["height"]),
+                Posture(),
+            ],
             "all at max, then neutral": [
-                Posture(lim_hi["lean_forward"], lim_hi["lean_left"], lim_lo["height"], lim_hi["twist"], 3), Posture()],
+                Posture(lim_hi["lean_forward"], lim_hi["lean_left"], lim_lo["height"], lim_hi["twist"], 3),
+                Posture(),
+            ],
             "lean fwd max -> lean back max -> neutral": [
-                Posture(lean_forward=lim_hi["lean_forward"]), Posture(lean_forward=lim_lo["lean_forward"]), Posture()],
+                Posture(lean_forward=lim_hi["lean_forward"]),
+                Posture(lean_forward=lim_lo["lean_forward"]),
+                Posture(),
+            ],
             "neutral (never commanded)": [],
         }
         for label, sequence in combos.items():
@@ -183,7 +200,9 @@ def main(argv: list[str] | None = None) -> None:
             steps += 1
         moving.append((target, plan, (time.perf_counter() - t0) / max(steps, 1), steps))
     for target, plan, per_act, steps in moving:
-        print(f"- moving to {target}: hold() {1e3 * plan:.1f} ms (waypoints, and the target's gain if new), then {1e6 * per_act:.1f} us per act over {steps} steps")
+        print(
+            f"- moving to {target}: hold() {1e3 * plan:.1f} ms (waypoints, and the target's gain if new), then {1e6 * per_act:.1f} us per act over {steps} steps"
+        )
     print(f"\n(total {time.perf_counter() - start:.0f} s)")
 
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-from bc.finetune import FinetuneConfig, build_model, make_vec_env
+from bc.finetune import FinetuneConfig, learner, vec_env
 
 
 @dataclass
@@ -45,15 +45,16 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
             return method(*args, **kwargs)
         finally:
             seconds.append(time.perf_counter() - start)
+
     return wrapper
 
 
 def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
     torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
-    env = make_vec_env(config)
+    env = vec_env(config)
     try:
-        model = build_model(config, env, term=None)
+        model = learner(config, env)
         simulation: list[float] = []
         updates: list[float] = []
         env.sample = timed(env.sample, simulation)
@@ -80,17 +81,21 @@ def main() -> None:
         for workers in args.workers:
             runs[workers].append(learn(args.bc_policy, workers, args.envs, args.timesteps))
     base = args.workers[0]
-    print(f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run, "
-          f"{args.repeats} repeats:\n")
+    print(
+        f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run, "
+        f"{args.repeats} repeats:\n"
+    )
     print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker | sampling | updates | rest |")
     print("|---|---|---|---|---|---|---|")
     for workers, values in runs.items():
         ratios = [run.steps_per_s / b.steps_per_s for run, b in zip(values, runs[base], strict=True)]
-        print(f"| {workers} | {', '.join(f'{run.steps_per_s:,.0f}' for run in values)} | "
-              f"{statistics.median(run.steps_per_s for run in values):,.0f} | {statistics.median(ratios):.2f}x | "
-              f"{statistics.median(run.simulation_s for run in values):.2f} s | "
-              f"{statistics.median(run.update_s for run in values):.2f} s | "
-              f"{statistics.median(run.learner_s for run in values):.2f} s |")
+        print(
+            f"| {workers} | {', '.join(f'{run.steps_per_s:,.0f}' for run in values)} | "
+            f"{statistics.median(run.steps_per_s for run in values):,.0f} | {statistics.median(ratios):.2f}x | "
+            f"{statistics.median(run.simulation_s for run in values):.2f} s | "
+            f"{statistics.median(run.update_s for run in values):.2f} s | "
+            f"{statistics.median(run.learner_s for run in values):.2f} s |"
+        )
 
 
 if __name__ == "__main__":

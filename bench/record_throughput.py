@@ -22,9 +22,9 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from teleop.controllers import make_controller
-from teleop.env import make_env
-from teleop.episode import EpisodeBuffer, run_episode
+from humanoid.controllers import make_controller
+from humanoid.env import make_env
+from humanoid.episode import EpisodeBuffer, run_episode
 from teleop.record import DEFAULT_NOISE, RecordConfig, main
 
 
@@ -72,7 +72,7 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
     cores, 2 workers can run at most 2 / (1 + (everything but the simulation) / simulation) times
     as fast as the simulation alone.
     """
-    from teleop.mcap_writer import write_episode_mcap  # noqa: PLC0415 - the writing stack, for this measure only
+    from teleop.mcap_io.writer import write_episode_mcap  # noqa: PLC0415 - the writing stack, for this measure only
     from teleop.spool import Spool
     from teleop.store import DatasetSpec, EpisodeStore
 
@@ -81,8 +81,13 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
     buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
     store = EpisodeStore(root, DatasetSpec.from_env(env))
     store.prepare()
-    costs: dict[str, list[float]] = {"simulate": [], "spool write": [], "spool read": [], "append (both formats)": [],
-                                     "of which MCAP": []}
+    costs: dict[str, list[float]] = {
+        "simulate": [],
+        "spool write": [],
+        "spool read": [],
+        "append (both formats)": [],
+        "of which MCAP": [],
+    }
 
     def timed(stage: str, work: Callable[[], object]) -> object:
         start = time.process_time()
@@ -99,8 +104,19 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
             continue
         path = timed("spool write", lambda: store.spool.put(episode))
         loaded = timed("spool read", lambda: Spool.load(path))
-        timed("of which MCAP", lambda: write_episode_mcap(root / "scratch.mcap", loaded, 0, store.spec.scene,
-                                                           store.spec.body_frames, store.spec.step_ns, {}, store.spec.mjcf))
+        timed(
+            "of which MCAP",
+            lambda: write_episode_mcap(
+                root / "scratch.mcap",
+                loaded,
+                0,
+                store.spec.scene,
+                store.spec.body_frames,
+                store.spec.step_ns,
+                {},
+                store.spec.mjcf,
+            ),
+        )
         timed("append (both formats)", lambda: store.append(loaded, spooled=path))
     store.close()
     return {stage: statistics.median(values) for stage, values in costs.items()}
@@ -162,9 +178,11 @@ def run(episodes: int, repeats: int, memory_episodes: int, cpu_episodes: int) ->
             one_vs_rollout.append(one / alone)
             two_vs_one.append(two / one)
             two_vs_two_rollouts.append(two / both)
-            rows.append(f"| {repeat + 1} | {alone:,.0f} | {both:,.0f} ({both / alone:.2f}x) | "
-                        f"{one:,.0f} ({one / alone:.2f}x rollout) | "
-                        f"{two:,.0f} ({two / one:.2f}x 1 worker, {two / both:.2f}x 2 rollouts) |")
+            rows.append(
+                f"| {repeat + 1} | {alone:,.0f} | {both:,.0f} ({both / alone:.2f}x) | "
+                f"{one:,.0f} ({one / alone:.2f}x rollout) | "
+                f"{two:,.0f} ({two / one:.2f}x 1 worker, {two / both:.2f}x 2 rollouts) |"
+            )
         (early, late) = memory_profile(memory_episodes, Path(scratch) / "memory")
         cpu = cpu_per_episode(cpu_episodes, Path(scratch) / "cpu")
     overhead = sum(ms for stage, ms in cpu.items() if stage not in ("simulate", "of which MCAP"))
@@ -195,7 +213,9 @@ def run(episodes: int, repeats: int, memory_episodes: int, cpu_episodes: int) ->
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=50, help="episodes per contender and repeat (a default recording)")
+    parser.add_argument(
+        "--episodes", type=int, default=50, help="episodes per contender and repeat (a default recording)"
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--memory-episodes", type=int, default=50)
     parser.add_argument("--cpu-episodes", type=int, default=20, help="whole episodes timed stage by stage")

@@ -24,9 +24,9 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
-from policies import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
+from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
 from policies.mlp import MLPPolicy, MLPSpec
-from teleop.cli import UserError
+from common.cli import UserError
 
 FORMAT = "humanoid-bc/policy"
 FORMAT_VERSION = 1

@@ -1,4 +1,4 @@
-"""A saved policy as a `teleop.controllers.Controller`, so the recorder and the evaluator run it."""
+"""A saved policy as a `humanoid.controllers.Controller`, so the recorder and the evaluator run it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 
 from policies.checkpoint import CheckpointError, load
 from policies.mlp import MLPPolicy
-from teleop import keys
+from common import keys
 
 # The inputs a controller can build from the gymnasium observation alone, in the observation's order.
 OBSERVATION_KEYS = (keys.OBS_STATE, keys.OBS_ENV_STATE)

@@ -1,4 +1,4 @@
-"""Reading a recorded dataset back in bulk: LeRobot frames as NumPy arrays, MCAP episodes decoded.
+"""Reading a recorded dataset back in bulk: LeRobot frames as NumPy arrays, MCAP steps decoded.
 
 LeRobot's per-item access (`LeRobotDataset[i]`) reads a few thousand rows a second; training and
 checks need whole columns, so this reads the parquet files with Arrow directly, limited to the
@@ -11,7 +11,6 @@ import json
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +21,8 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from teleop.keys import COMMAND_NAMES
-from teleop.lerobot_format import EPISODES_DIR, INFO_PATH
-from teleop.mcap_writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
+from teleop.mcap_io.writer import STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
@@ -88,11 +86,14 @@ def data_files(root: Path) -> list[Path]:
     """The parquet files holding the committed episodes' frames, in (chunk, file) order."""
     info = read_info(root)
     episodes = read_episodes(root, ["data/chunk_index", "data/file_index"])
-    return sorted({
-        root / info["data_path"].format(chunk_index=chunk, file_index=file)
-        for chunk, file in zip(episodes["data/chunk_index"].to_pylist(), episodes["data/file_index"].to_pylist(),
-                               strict=True)
-    })
+    return sorted(
+        {
+            root / info["data_path"].format(chunk_index=chunk, file_index=file)
+            for chunk, file in zip(
+                episodes["data/chunk_index"].to_pylist(), episodes["data/file_index"].to_pylist(), strict=True
+            )
+        }
+    )
 
 
 def iter_frames(root: Path, columns: list[str] | None = None) -> Iterator[dict[str, np.ndarray]]:
@@ -121,25 +122,6 @@ def read_frames(root: Path, columns: list[str] | None = None) -> dict[str, np.nd
     return frames if order is None else {name: values[order] for name, values in frames.items()}
 
 
-@dataclass
-class McapEpisode:
-    """The decoded content of one episode's MCAP file."""
-
-    metadata: dict[str, str]
-    attachments: dict[str, bytes]
-    step_times_ns: np.ndarray  # (T,) log times of the /step messages
-    steps: dict[str, np.ndarray]  # Step fields, one row per step
-    tf_times_ns: np.ndarray  # (T,)
-    body_position: np.ndarray  # (T, bodies, 3)
-    body_orientation: np.ndarray  # (T, bodies, 4), w-x-y-z like MuJoCo
-    body_frames: list[str]
-    scene_entities: list[str]  # frame ids of the /scene entities
-    tasks: list[str]  # the /step messages' task strings
-    command_times_ns: np.ndarray  # (T,) log times of the /command messages
-    command: np.ndarray  # (T, len(COMMAND_NAMES)) float64
-    command_tasks: list[str]  # the /command messages' task strings
-
-
 # Step fields read back, with the dtype of the matching LeRobot column.
 STEP_FIELDS = {
     "frame_index": np.int64,
@@ -156,8 +138,8 @@ _STEP_DTYPES: dict[str, Any] = {"episode_index": np.int64, **STEP_FIELDS}  # wha
 def read_steps(path: Path) -> dict[str, np.ndarray]:
     """The /step messages of one MCAP file, field by field; the task strings under "task".
 
-    `read_mcap_episode` decodes every topic, the 13 transforms of /tf included: 0.22 s for a
-    1000-step episode, against 0.03 s for /step alone, which is all that parquet can be compared to.
+    Decoding /step alone is several times cheaper than every topic (the 13 transforms of /tf
+    included), and /step is all that parquet can be compared to.
     """
     values: dict[str, list] = {name: [] for name in [*_STEP_DTYPES, "task"]}
     with path.open("rb") as stream:
@@ -167,45 +149,3 @@ def read_steps(path: Path) -> dict[str, np.ndarray]:
                 column.append(getattr(decoded, name))
     # np.array over the repeated containers converts them in C: a list() of each costs 4 times more.
     return {name: np.array(column, _STEP_DTYPES.get(name, object)) for name, column in values.items()}
-
-
-def read_mcap_episode(path: Path) -> McapEpisode:
-    """Decode every message of `path` (which must be a finished MCAP file, with its summary)."""
-    with path.open("rb") as stream:
-        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-        metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
-        attachments = {record.name: bytes(record.data) for record in reader.iter_attachments()}
-        step_times, tf_times, steps, positions, orientations, frames, entities = [], [], [], [], [], [], []
-        tasks, command_times, commands, command_tasks = [], [], [], []
-        topics = [STEP_TOPIC, TF_TOPIC, SCENE_TOPIC, COMMAND_TOPIC]
-        for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
-            if channel.topic == STEP_TOPIC:
-                step_times.append(message.log_time)
-                steps.append({name: getattr(decoded, name) for name in STEP_FIELDS})
-                tasks.append(decoded.task)
-            elif channel.topic == COMMAND_TOPIC:
-                command_times.append(message.log_time)
-                commands.append([getattr(decoded, name) for name in COMMAND_NAMES])
-                command_tasks.append(decoded.task)
-            elif channel.topic == TF_TOPIC:
-                tf_times.append(message.log_time)
-                frames = [t.child_frame_id for t in decoded.transforms]
-                positions.append([(t.translation.x, t.translation.y, t.translation.z) for t in decoded.transforms])
-                orientations.append([(t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z) for t in decoded.transforms])
-            else:
-                entities += [entity.frame_id for entity in decoded.entities]
-    return McapEpisode(
-        metadata=metadata.get(METADATA_NAME, {}),
-        attachments=attachments,
-        step_times_ns=np.array(step_times, np.int64),
-        steps={name: np.array([step[name] for step in steps], dtype) for name, dtype in STEP_FIELDS.items()},
-        tf_times_ns=np.array(tf_times, np.int64),
-        body_position=np.array(positions, np.float64),
-        body_orientation=np.array(orientations, np.float64),
-        body_frames=frames,
-        scene_entities=entities,
-        tasks=tasks,
-        command_times_ns=np.array(command_times, np.int64),
-        command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
-        command_tasks=command_tasks,
-    )

@@ -35,11 +35,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
-from teleop import keys
-from teleop.cli import DatasetError, run_cli, setting
+from common import keys, paths
+from common.cli import DatasetError, run_cli, setting
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_steps
-from teleop.lerobot_format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
-from teleop.mcap_writer import SCENE_TOPIC, STEP_TOPIC
+from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
+from teleop.mcap_io.writer import SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOL_DIR
 from teleop.store import MCAP_DIR, mcap_name
 
@@ -48,11 +48,14 @@ from teleop.store import MCAP_DIR, mcap_name
 class InspectConfig:
     """Settings of one inspection."""
 
-    dataset: Path = setting(Path("datasets/humanoid_stand"), "dataset folder to summarise and verify (never modified)")
+    dataset: Path = setting(paths.DATASET, "dataset folder to summarise and verify (never modified)")
     plot: bool = setting(False, "also draw returns per episode, torso height over time and action histograms to a PNG")
     plot_path: Path | None = setting(None, "where the PNG goes; default: DATASET/inspect.png")
-    lerobot: bool = setting(True, "also let LeRobot itself load the metadata, in a child process overlapped with "
-                                  "the other checks (it imports torch: about 5 s)")
+    lerobot: bool = setting(
+        True,
+        "also let LeRobot itself load the metadata, in a child process overlapped with "
+        "the other checks (it imports torch: about 5 s)",
+    )
 
 
 PLOT_NAME = "inspect.png"
@@ -123,8 +126,9 @@ class Dataset:
     def returns(self) -> np.ndarray:
         """The sum of each episode's rewards (NaN for a dataset without the reward column)."""
         rewards = self.frames.get(keys.REWARD)
-        return np.array([rewards[self.rows(e)].sum() if rewards is not None else math.nan
-                         for e in range(self.num_episodes)])
+        return np.array(
+            [rewards[self.rows(e)].sum() if rewards is not None else math.nan for e in range(self.num_episodes)]
+        )
 
 
 @dataclass
@@ -156,13 +160,18 @@ class Report:
     def summary(self) -> str:
         """What the dataset holds: known before any verification."""
         info = self.info
-        lines = [f"{self.root}: LeRobot {info.get('codebase_version')}, fps {info.get('fps')}, "
-                 f"robot_type {info.get('robot_type')}"]
+        lines = [
+            f"{self.root}: LeRobot {info.get('codebase_version')}, fps {info.get('fps')}, "
+            f"robot_type {info.get('robot_type')}"
+        ]
         seeds = ""
         if self.seeds:
             distinct = len(set(self.seeds))
-            seeds = f" (seeds {min(self.seeds)}..{max(self.seeds)}" + (
-                "" if distinct == len(self.seeds) else f", only {distinct} distinct") + ")"
+            seeds = (
+                f" (seeds {min(self.seeds)}..{max(self.seeds)}"
+                + ("" if distinct == len(self.seeds) else f", only {distinct} distinct")
+                + ")"
+            )
         lines.append(_row("episodes", f"{self.episodes:,}{seeds}"))
         lines.append(_row("frames", f"{self.frames:,}"))
         lines += _listing("tasks", [f"{task!r}: {frames:,} frames" for task, frames in self.tasks.items()])
@@ -174,15 +183,30 @@ class Report:
             lines.append(_row("fell", f"{self.fell} of {self.episodes} episodes end terminated"))
         features = info.get("features", {})
         width = max((len(name) for name in features), default=0)
-        lines += _listing("features", [f"{name:<{width}}  {ft.get('dtype', '?'):<8} {tuple(ft.get('shape', ()))}"
-                                       for name, ft in features.items()])
+        lines += _listing(
+            "features",
+            [
+                f"{name:<{width}}  {ft.get('dtype', '?'):<8} {tuple(ft.get('shape', ()))}"
+                for name, ft in features.items()
+            ],
+        )
         sizes = self.sizes
-        lines.append(_row("disk", f"{_mb(sizes['total'])} (parquet: data {_mb(sizes['data'])}, meta "
-                                  f"{_mb(sizes['meta'])}; MCAP {_mb(sizes['mcap'])}; other {_mb(sizes['other'])})"))
+        lines.append(
+            _row(
+                "disk",
+                f"{_mb(sizes['total'])} (parquet: data {_mb(sizes['data'])}, meta "
+                f"{_mb(sizes['meta'])}; MCAP {_mb(sizes['mcap'])}; other {_mb(sizes['other'])})",
+            )
+        )
         topics = ", ".join(f"{topic} {count:,}" for topic, count in sorted(self.mcap_counts.items()))
         lines.append(_row("MCAP", f"{self.mcap_readable}/{self.episodes} files readable; messages: {topics or 'none'}"))
-        lines.append(_row("", f"{self.mcap_counts_match}/{self.episodes} episodes have one message per frame on "
-                              f"every per-step topic (all but {SCENE_TOPIC})"))
+        lines.append(
+            _row(
+                "",
+                f"{self.mcap_counts_match}/{self.episodes} episodes have one message per frame on "
+                f"every per-step topic (all but {SCENE_TOPIC})",
+            )
+        )
         lines += [_row("note", leftover) for leftover in self.leftovers]
         return "\n".join(lines)
 
@@ -209,7 +233,9 @@ def _listing(label: str, items: list[str]) -> list[str]:
 def _min_mean_max(values: np.ndarray, extreme: str, mean: str) -> str:
     if not len(values):
         return "-"
-    return f"min {extreme.format(values.min())} / mean {mean.format(values.mean())} / max {extreme.format(values.max())}"
+    return (
+        f"min {extreme.format(values.min())} / mean {mean.format(values.mean())} / max {extreme.format(values.max())}"
+    )
 
 
 def _mb(size: int) -> str:
@@ -249,6 +275,7 @@ def main(cfg: InspectConfig, show: Callable[[str], None] = _quiet) -> Report:
 
 # Reading ---------------------------------------------------------------------------------------
 
+
 def _open(root: Path) -> dict:
     """info.json of the dataset at `root`, once it is known to be a v3.0 dataset with episodes."""
     if not root.exists():
@@ -264,10 +291,17 @@ def _open(root: Path) -> dict:
     if not isinstance(info, dict):
         raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
     if info.get("codebase_version") != CODEBASE_VERSION:
-        raise DatasetError(f"{root / INFO_PATH}: codebase_version is {info.get('codebase_version')!r}, "
-                           f"not {CODEBASE_VERSION!r}")
-    for key, kind in (("fps", int), ("total_episodes", int), ("total_frames", int), ("total_tasks", int),
-                      ("data_path", str), ("features", dict)):
+        raise DatasetError(
+            f"{root / INFO_PATH}: codebase_version is {info.get('codebase_version')!r}, not {CODEBASE_VERSION!r}"
+        )
+    for key, kind in (
+        ("fps", int),
+        ("total_episodes", int),
+        ("total_frames", int),
+        ("total_tasks", int),
+        ("data_path", str),
+        ("features", dict),
+    ):
         if not isinstance(info.get(key), kind) or isinstance(info.get(key), bool):
             raise DatasetError(f"{root / INFO_PATH}: {key} is {info.get(key)!r}, not {kind.__name__}")
     for name, feature in info["features"].items():
@@ -301,20 +335,35 @@ def _read(root: Path, info: dict) -> Dataset:
         if table[column].null_count:
             raise DatasetError(f"{root / EPISODES_DIR}: {table[column].null_count} episodes have no {column!r}")
     episodes = table.to_pydict()
-    data_paths = [root / info["data_path"].format(chunk_index=chunk, file_index=file)
-                  for chunk, file in zip(episodes["data/chunk_index"], episodes["data/file_index"], strict=True)]
+    data_paths = [
+        root / info["data_path"].format(chunk_index=chunk, file_index=file)
+        for chunk, file in zip(episodes["data/chunk_index"], episodes["data/file_index"], strict=True)
+    ]
     data_rows = _check_data_files(root, info, data_paths)
     try:
         frames = read_frames(root)
     except (OSError, pa.ArrowException, KeyError, ValueError) as error:
         raise DatasetError(f"cannot read the frames in {root / 'data'}: {_one_line(error)}") from None
     tasks = _read_tasks(root, info)
-    mcap_paths = [root / path if path else root / MCAP_DIR / mcap_name(index)
-                  for index, path in zip(episodes["episode_index"],
-                                         episodes.get(keys.EPISODE_MCAP, [None] * len(episodes["episode_index"])),
-                                         strict=True)]
-    return Dataset(root, info, episodes, frames, data_rows, data_paths, tasks, [_mcap_file(path) for path in mcap_paths],
-                   _leftovers(root, info, set(data_paths), set(mcap_paths)))
+    mcap_paths = [
+        root / path if path else root / MCAP_DIR / mcap_name(index)
+        for index, path in zip(
+            episodes["episode_index"],
+            episodes.get(keys.EPISODE_MCAP, [None] * len(episodes["episode_index"])),
+            strict=True,
+        )
+    ]
+    return Dataset(
+        root,
+        info,
+        episodes,
+        frames,
+        data_rows,
+        data_paths,
+        tasks,
+        [_mcap_file(path) for path in mcap_paths],
+        _leftovers(root, info, set(data_paths), set(mcap_paths)),
+    )
 
 
 def _check_data_files(root: Path, info: dict, paths: list[Path]) -> int:
@@ -377,8 +426,10 @@ def _read_tasks(root: Path, info: dict) -> list[str]:
     indices, names = table["task_index"].to_pylist(), table["task"].to_pylist()
     counted = sorted((index, name) for index, name in zip(indices, names, strict=True) if index < info["total_tasks"])
     if [index for index, _ in counted] != list(range(info["total_tasks"])):
-        raise DatasetError(f"{TASKS_PATH} holds task indices {sorted(indices)}, but info.json total_tasks is "
-                           f"{info['total_tasks']} (expected 0..{info['total_tasks'] - 1} once each)")
+        raise DatasetError(
+            f"{TASKS_PATH} holds task indices {sorted(indices)}, but info.json total_tasks is "
+            f"{info['total_tasks']} (expected 0..{info['total_tasks'] - 1} once each)"
+        )
     return [name for _, name in counted]
 
 
@@ -393,7 +444,7 @@ def _mcap_file(path: Path) -> McapFile:
                 return McapFile(path, "does not end with the MCAP magic: truncated, or never finished", {})
             stream.seek(0)
             summary = make_reader(stream).get_summary()
-    except Exception as error:  # noqa: BLE001 - the mcap reader raises struct, EOF and its own errors alike
+    except Exception as error:
         return McapFile(path, f"is unreadable ({_one_line(error)})", {})
     if summary is None or summary.statistics is None:
         return McapFile(path, "has no summary statistics (written without an index?)", {})
@@ -406,22 +457,27 @@ def _mcap_file(path: Path) -> McapFile:
 def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Path]) -> list[str]:
     """What an interrupted recording left behind: harmless, and removed or committed by the next `make record`."""
     notes = []
-    extra_rows = sum(pq.read_metadata(path).num_rows for path in (root / EPISODES_DIR).glob("*/*.parquet")) \
+    extra_rows = (
+        sum(pq.read_metadata(path).num_rows for path in (root / EPISODES_DIR).glob("*/*.parquet"))
         - info["total_episodes"]
+    )
     stray_data = [path for path in (root / "data").glob("*/*.parquet") if path not in data_paths]
     stray_mcap = [path for path in (root / MCAP_DIR).glob("*.mcap") if path not in mcap_paths]
     partial = list(root.rglob("*.partial"))
     spooled = list((root / SPOOL_DIR).glob("*")) if (root / SPOOL_DIR).is_dir() else []
     if extra_rows > 0 or stray_data or stray_mcap or partial:
-        notes.append(f"uncommitted files of an interrupted recording: {max(extra_rows, 0)} episode rows, "
-                     f"{len(stray_data)} data files, {len(stray_mcap)} MCAP files, {len(partial)} partial files "
-                     "(the next `make record` removes them)")
+        notes.append(
+            f"uncommitted files of an interrupted recording: {max(extra_rows, 0)} episode rows, "
+            f"{len(stray_data)} data files, {len(stray_mcap)} MCAP files, {len(partial)} partial files "
+            "(the next `make record` removes them)"
+        )
     if spooled:
         notes.append(f"{len(spooled)} finished episodes wait in {SPOOL_DIR} (the next `make record` commits them)")
     return notes
 
 
 # Summary ---------------------------------------------------------------------------------------
+
 
 def _summarise(dataset: Dataset) -> Report:
     episodes, frames, n = dataset.episodes, dataset.frames, dataset.num_episodes
@@ -431,14 +487,21 @@ def _summarise(dataset: Dataset) -> Report:
         fell = sum(bool(value) for value in episodes[keys.EPISODE_TERMINATED])
     else:
         fell = None
-    task_frames = np.bincount(frames["task_index"].clip(0), minlength=len(dataset.tasks)) \
-        if "task_index" in frames else np.zeros(0, np.int64)
+    task_frames = (
+        np.bincount(frames["task_index"].clip(0), minlength=len(dataset.tasks))
+        if "task_index" in frames
+        else np.zeros(0, np.int64)
+    )
     tasks = {task: int(task_frames[i]) for i, task in enumerate(dataset.tasks)}
     controllers = None
     if keys.EPISODE_CONTROLLER in episodes:
         noise = episodes.get(keys.EPISODE_NOISE_STD, [None] * n)
-        controllers = dict(Counter(f"{name} (noise {sigma:g})" if sigma is not None else str(name)
-                                   for name, sigma in zip(episodes[keys.EPISODE_CONTROLLER], noise, strict=True)))
+        controllers = dict(
+            Counter(
+                f"{name} (noise {sigma:g})" if sigma is not None else str(name)
+                for name, sigma in zip(episodes[keys.EPISODE_CONTROLLER], noise, strict=True)
+            )
+        )
     readable = [m for m in dataset.mcap if m.problem is None]
     topics: Counter[str] = Counter()
     for m in readable:
@@ -457,8 +520,10 @@ def _summarise(dataset: Dataset) -> Report:
         sizes=_disk_sizes(dataset.root),
         mcap_readable=len(readable),
         mcap_counts=dict(topics),
-        mcap_counts_match=sum(m.problem is None and _count_problem(m, length) is None
-                              for m, length in zip(dataset.mcap, episodes["length"], strict=True)),
+        mcap_counts_match=sum(
+            m.problem is None and _count_problem(m, length) is None
+            for m, length in zip(dataset.mcap, episodes["length"], strict=True)
+        ),
         leftovers=dataset.leftovers,
     )
 
@@ -468,13 +533,17 @@ def _disk_sizes(root: Path) -> dict[str, int]:
     for path in root.rglob("*"):
         if path.is_file():
             top = path.relative_to(root).parts[0]
-            kind = top if top in ("data", "meta") and path.suffix == ".parquet" else (
-                "mcap" if top == MCAP_DIR and path.suffix == ".mcap" else "other")
+            kind = (
+                top
+                if top in ("data", "meta") and path.suffix == ".parquet"
+                else ("mcap" if top == MCAP_DIR and path.suffix == ".mcap" else "other")
+            )
             sizes[kind] += path.stat().st_size
     return {**sizes, "total": sum(sizes.values())}
 
 
 # Verification ----------------------------------------------------------------------------------
+
 
 def _verify(dataset: Dataset, lerobot: _LeRobotLoad | None) -> list[str]:
     """Every check, in order; the first problem is raised as a DatasetError. What passed, for the summary."""
@@ -488,8 +557,9 @@ def _verify(dataset: Dataset, lerobot: _LeRobotLoad | None) -> list[str]:
     problem = lerobot.result() if lerobot else None
     if problem:
         raise DatasetError(f"LeRobot cannot load {dataset.root}: {problem}")
-    compared = ", ".join(field for field, columns in STEP_COLUMNS.items()
-                         if all(column in dataset.frames for column in columns))
+    compared = ", ".join(
+        field for field, columns in STEP_COLUMNS.items() if all(column in dataset.frames for column in columns)
+    )
     return [
         "LeRobot metadata: info.json, episodes, frame indices, tasks and stats.json consistent; "
         + ("LeRobot loads it" if lerobot else "LeRobot's own loader not run"),
@@ -501,24 +571,31 @@ def _verify(dataset: Dataset, lerobot: _LeRobotLoad | None) -> list[str]:
 def _verify_episode_rows(dataset: Dataset) -> None:
     info, episodes, n = dataset.info, dataset.episodes, dataset.num_episodes
     if n != info["total_episodes"]:
-        raise DatasetError(f"{EPISODES_DIR} holds {n} episodes, but info.json total_episodes is {info['total_episodes']}")
+        raise DatasetError(
+            f"{EPISODES_DIR} holds {n} episodes, but info.json total_episodes is {info['total_episodes']}"
+        )
     if episodes["episode_index"] != list(range(n)):
         missing = sorted(set(range(n)) - set(episodes["episode_index"]))
         raise DatasetError(f"{EPISODES_DIR}: episode_index is not 0..{n - 1} once each (missing {missing[:5]})")
     lengths = episodes["length"]
     if sum(lengths) != info["total_frames"]:
-        raise DatasetError(f"info.json total_frames is {info['total_frames']}, but the episodes' lengths in "
-                           f"{EPISODES_DIR} sum to {sum(lengths)}")
+        raise DatasetError(
+            f"info.json total_frames is {info['total_frames']}, but the episodes' lengths in "
+            f"{EPISODES_DIR} sum to {sum(lengths)}"
+        )
     start = 0
     for e in range(n):
         first, end = episodes["dataset_from_index"][e], episodes["dataset_to_index"][e]
         if first != start or end - first != lengths[e]:
-            raise DatasetError(f"episode {e}: dataset_from_index..to_index is {first}..{end}, expected {start}.."
-                               f"{start + lengths[e]} (contiguous from 0, length {lengths[e]})")
+            raise DatasetError(
+                f"episode {e}: dataset_from_index..to_index is {first}..{end}, expected {start}.."
+                f"{start + lengths[e]} (contiguous from 0, length {lengths[e]})"
+            )
         start = end
     if dataset.data_rows != info["total_frames"]:
-        raise DatasetError(f"the data files hold {dataset.data_rows} rows, but info.json total_frames is "
-                           f"{info['total_frames']}")
+        raise DatasetError(
+            f"the data files hold {dataset.data_rows} rows, but info.json total_frames is {info['total_frames']}"
+        )
 
 
 def _verify_frame_indices(dataset: Dataset) -> None:
@@ -531,20 +608,26 @@ def _verify_frame_indices(dataset: Dataset) -> None:
         raise DatasetError(f"the frames' index column is not 0..{dataset.info['total_frames'] - 1} once each")
     for e in range(dataset.num_episodes):
         rows = dataset.rows(e)
-        for column, expected in (("episode_index", np.full(rows.stop - rows.start, e)),
-                                 ("frame_index", np.arange(rows.stop - rows.start))):
+        for column, expected in (
+            ("episode_index", np.full(rows.stop - rows.start, e)),
+            ("frame_index", np.arange(rows.stop - rows.start)),
+        ):
             bad = np.flatnonzero(frames[column][rows] != expected)
             if len(bad):
-                raise DatasetError(f"episode {e}, frame {bad[0]}: {column} is {frames[column][rows][bad[0]]}, "
-                                   f"expected {expected[bad[0]]} ({dataset.where(e)})")
+                raise DatasetError(
+                    f"episode {e}, frame {bad[0]}: {column} is {frames[column][rows][bad[0]]}, "
+                    f"expected {expected[bad[0]]} ({dataset.where(e)})"
+                )
     if "timestamp" in frames:
         # LeRobot's own tolerance (LeRobotDataset's tolerance_s) when it checks timestamps against fps.
         late = np.abs(frames["timestamp"] - frames["frame_index"] / dataset.info["fps"]) > TIMESTAMP_TOLERANCE_S
         if late.any():
             row = int(np.argmax(late))
             e = int(frames["episode_index"][row])
-            raise DatasetError(f"episode {e}, frame {frames['frame_index'][row]}: timestamp {frames['timestamp'][row]} "
-                               f"is not frame_index / fps ({dataset.where(e)})")
+            raise DatasetError(
+                f"episode {e}, frame {frames['frame_index'][row]}: timestamp {frames['timestamp'][row]} "
+                f"is not frame_index / fps ({dataset.where(e)})"
+            )
 
 
 def _verify_tasks(dataset: Dataset) -> None:
@@ -552,18 +635,23 @@ def _verify_tasks(dataset: Dataset) -> None:
     bad = np.flatnonzero((task_index < 0) | (task_index >= len(tasks)))
     if len(bad):
         e = int(dataset.frames["episode_index"][bad[0]])
-        raise DatasetError(f"episode {e}, frame {dataset.frames['frame_index'][bad[0]]}: task_index "
-                           f"{task_index[bad[0]]} is not in {TASKS_PATH} ({len(tasks)} tasks; {dataset.where(e)})")
+        raise DatasetError(
+            f"episode {e}, frame {dataset.frames['frame_index'][bad[0]]}: task_index "
+            f"{task_index[bad[0]]} is not in {TASKS_PATH} ({len(tasks)} tasks; {dataset.where(e)})"
+        )
     used = set(np.unique(task_index).tolist())
     if used != set(range(len(tasks))):
-        raise DatasetError(f"{TASKS_PATH} lists {len(tasks)} tasks but the frames use {len(used)} "
-                           f"(unused: {sorted(set(range(len(tasks))) - used)})")
+        raise DatasetError(
+            f"{TASKS_PATH} lists {len(tasks)} tasks but the frames use {len(used)} "
+            f"(unused: {sorted(set(range(len(tasks))) - used)})"
+        )
     if "tasks" in dataset.episodes:
         for e, listed in enumerate(dataset.episodes["tasks"]):
             own = {tasks[i] for i in np.unique(task_index[dataset.rows(e)]).tolist()}
             if set(listed or []) != own:
-                raise DatasetError(f"episode {e}: {EPISODES_DIR} lists tasks {sorted(listed or [])}, "
-                                   f"but its frames have {sorted(own)}")
+                raise DatasetError(
+                    f"episode {e}: {EPISODES_DIR} lists tasks {sorted(listed or [])}, but its frames have {sorted(own)}"
+                )
 
 
 def _verify_stats(dataset: Dataset) -> None:
@@ -580,10 +668,15 @@ def _verify_stats(dataset: Dataset) -> None:
         count = stats[name].get("count")
         if count is not None and np.atleast_1d(count).tolist() != [dataset.info["total_frames"]]:
             # The recorder writes stats.json just before info.json: a kill between the two leaves this.
-            hint = "; a recording killed before its commit? the next `make record` rebuilds it" \
-                if np.atleast_1d(count)[0] > dataset.info["total_frames"] else ""
-            raise DatasetError(f"{STATS_PATH}: {name!r} counts {count} frames, but info.json total_frames is "
-                               f"{dataset.info['total_frames']}{hint}")
+            hint = (
+                "; a recording killed before its commit? the next `make record` rebuilds it"
+                if np.atleast_1d(count)[0] > dataset.info["total_frames"]
+                else ""
+            )
+            raise DatasetError(
+                f"{STATS_PATH}: {name!r} counts {count} frames, but info.json total_frames is "
+                f"{dataset.info['total_frames']}{hint}"
+            )
 
 
 def _verify_finite(dataset: Dataset) -> None:
@@ -596,10 +689,15 @@ def _verify_finite(dataset: Dataset) -> None:
         row, dimension = np.argwhere(~finite)[0]
         e = int(dataset.frames["episode_index"][row])
         names = dataset.info["features"].get(name, {}).get("names") or []
-        label = f"{name}[{dimension}]" + (f" ({names[dimension]})" if dimension < len(names) else "") \
-            if values.ndim > 1 else name
-        raise DatasetError(f"episode {e}, frame {dataset.frames['frame_index'][row]}: {label} is "
-                           f"{values.reshape(len(values), -1)[row, dimension]} ({dataset.where(e)})")
+        label = (
+            f"{name}[{dimension}]" + (f" ({names[dimension]})" if dimension < len(names) else "")
+            if values.ndim > 1
+            else name
+        )
+        raise DatasetError(
+            f"episode {e}, frame {dataset.frames['frame_index'][row]}: {label} is "
+            f"{values.reshape(len(values), -1)[row, dimension]} ({dataset.where(e)})"
+        )
 
 
 def _verify_episode_facts(dataset: Dataset) -> None:
@@ -611,14 +709,18 @@ def _verify_episode_facts(dataset: Dataset) -> None:
             stated, summed = episodes[keys.EPISODE_RETURN][e], float(frames[keys.REWARD][rows].sum())
             # Summed from the same float64 rewards, in the same order: only the last bits may differ.
             if stated is None or not math.isclose(stated, summed, rel_tol=1e-9, abs_tol=1e-9):
-                raise DatasetError(f"episode {e}: {EPISODES_DIR} return is {stated}, but its {keys.REWARD} "
-                                   f"sums to {summed} ({dataset.where(e)})")
+                raise DatasetError(
+                    f"episode {e}: {EPISODES_DIR} return is {stated}, but its {keys.REWARD} "
+                    f"sums to {summed} ({dataset.where(e)})"
+                )
         for column, flag in ((keys.EPISODE_TERMINATED, keys.TERMINATED), (keys.EPISODE_TRUNCATED, keys.TRUNCATED)):
             if column in episodes and flag in frames:
                 last = bool(frames[flag][rows][-1])
                 if episodes[column][e] != last:
-                    raise DatasetError(f"episode {e}: {EPISODES_DIR} {column} is {episodes[column][e]}, but its "
-                                       f"last frame's {flag} is {last} ({dataset.where(e)})")
+                    raise DatasetError(
+                        f"episode {e}: {EPISODES_DIR} {column} is {episodes[column][e]}, but its "
+                        f"last frame's {flag} is {last} ({dataset.where(e)})"
+                    )
 
 
 def _count_problem(mcap: McapFile, length: int) -> str | None:
@@ -647,14 +749,17 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
     """How the /step messages of `path` differ from the episode's parquet frames; None if they are equal."""
     try:
         steps = read_steps(path)
-    except Exception as error:  # noqa: BLE001 - zstd, protobuf and mcap errors alike mean a damaged file
+    except Exception as error:
         return f"has unreadable {STEP_TOPIC} messages ({_one_line(error)})"
     frames, rows = dataset.frames, dataset.rows(episode)
     length = rows.stop - rows.start
     if len(steps["task"]) != length:
         return f"holds {len(steps['task'])} {STEP_TOPIC} messages, but the episode has {length} frames"
-    expected = {name: np.concatenate([frames[c][rows].reshape(length, -1) for c in columns], axis=1)
-                for name, columns in STEP_COLUMNS.items() if all(c in frames for c in columns)}
+    expected = {
+        name: np.concatenate([frames[c][rows].reshape(length, -1) for c in columns], axis=1)
+        for name, columns in STEP_COLUMNS.items()
+        if all(c in frames for c in columns)
+    }
     for name, values in expected.items():
         got = steps[name].reshape(length, -1)
         what = f"{STEP_TOPIC}.{name} differs from parquet {' + '.join(STEP_COLUMNS[name])}"
@@ -677,8 +782,13 @@ class _LeRobotLoad:
         # Offline whatever the caller's environment: a local dataset must never send LeRobot to the Hub.
         env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
         # stderr is dropped: LeRobot logs warnings there that say nothing about this dataset.
-        self.process = subprocess.Popen([sys.executable, "-c", _LEROBOT_LOAD, str(root.resolve())], env=env,
-                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", _LEROBOT_LOAD, str(root.resolve())],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
 
     def result(self) -> str | None:
         """None if LeRobot loaded the metadata, else its error in one line."""
@@ -696,6 +806,7 @@ class _LeRobotLoad:
 
 
 # Plot ------------------------------------------------------------------------------------------
+
 
 def plot(dataset: Dataset, path: Path) -> None:
     """Returns per episode, torso height over time for a few episodes, and one histogram per action dimension."""
@@ -760,6 +871,7 @@ def _plotted_episodes(returns: np.ndarray) -> list[int]:
 
 
 # Command line ----------------------------------------------------------------------------------
+
 
 def _print(text: str) -> None:
     print(text, flush=True)  # the summary must show while the verification runs, piped or not

@@ -1,7 +1,7 @@
 """Keyboard teleoperation (`make record CONTROLLER=keyboard`): keys change what the expert holds.
 
 Balancing 17 motors by hand is impossible, so a key changes the posture the LQR expert holds
-(`teleop.posture`) and the expert keeps the body up; one key pushes the torso, a perturbation to
+(`humanoid.posture`) and the expert keeps the body up; one key pushes the torso, a perturbation to
 recover from. Every step of an episode is recorded as with the expert, plus the command in force
 (`observation.command`, the `/command` MCAP channel) and a task string that names it.
 
@@ -26,15 +26,15 @@ from typing import TYPE_CHECKING, TextIO
 import gymnasium as gym
 import numpy as np
 
-from teleop.cli import UserError
-from teleop.env import model_and_data
-from teleop.episode import DEFAULT_TASK, EpisodeBuffer, check_action, executed_action, injected_noise
-from teleop.keys import COMMAND_NAMES
-from teleop.physics import TORSO_BODY, torso_height
-from teleop.posture import NEUTRAL, Posture
+from common.cli import UserError
+from common.keys import COMMAND_NAMES
+from humanoid.env import model_and_data
+from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, check_action, executed_action, injected_noise
+from humanoid.physics import TORSO_BODY, torso_height
+from humanoid.posture import NEUTRAL, Posture
 
 if TYPE_CHECKING:
-    from teleop.expert import LQRExpert
+    from humanoid.expert import LQRExpert
     from teleop.store import CommittedEpisode, EpisodeSink
 
 CONTROLLER_NAME = "keyboard"
@@ -58,7 +58,8 @@ class Binding:
 
 def _nudge(field: str, step: float) -> Callable[[TeleopSession], None]:
     return lambda session: session.command_posture(
-        dataclasses.replace(session.target, **{field: getattr(session.target, field) + step}))
+        dataclasses.replace(session.target, **{field: getattr(session.target, field) + step})
+    )
 
 
 def _arms(preset: int) -> Callable[[TeleopSession], None]:
@@ -114,8 +115,16 @@ class TeleopSession:
     the simulation only while an episode is being recorded.
     """
 
-    def __init__(self, env: gym.Env, expert: LQRExpert, sink: EpisodeSink, first_seed: int, episodes: int,
-                 noise_std: float, report: Callable[[list[CommittedEpisode]], None]) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        expert: LQRExpert,
+        sink: EpisodeSink,
+        first_seed: int,
+        episodes: int,
+        noise_std: float,
+        report: Callable[[list[CommittedEpisode]], None],
+    ) -> None:
         self.env = env
         self.expert = expert
         self.sink = sink
@@ -192,8 +201,9 @@ class TeleopSession:
         seed = self.next_seed
         self.next_seed += 1  # a discarded seed is not reused: the next episode starts fresh
         if save and self.t > 0:
-            episode = self.buffer.episode(self.t, seed=seed, controller=CONTROLLER_NAME, labeller=CONTROLLER_NAME,
-                                          noise_std=self.noise_std)
+            episode = self.buffer.episode(
+                self.t, seed=seed, controller=CONTROLLER_NAME, labeller=CONTROLLER_NAME, noise_std=self.noise_std
+            )
             self.report(self.sink.submit(episode))
             self.saved += 1
             self.episodes_left -= 1
@@ -230,10 +240,12 @@ class TeleopSession:
         """One line: recording state, time, height, return and the command in force."""
         target = self.target
         state = f"REC seed {self.next_seed} t {self.t * self.env.unwrapped.dt:5.2f} s" if self.recording else "idle"
-        return (f"{state} | height {torso_height(self.model, self.data):.2f} m | return {self.episode_return:7.1f} | "
-                f"lean fwd {target.lean_forward:+.2f} left {target.lean_left:+.2f} | height {target.height:+.2f} | "
-                f"twist {target.twist:+.1f} | arms {ARM_NAMES[round(target.arms)]}"
-                f"{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}")
+        return (
+            f"{state} | height {torso_height(self.model, self.data):.2f} m | return {self.episode_return:7.1f} | "
+            f"lean fwd {target.lean_forward:+.2f} left {target.lean_left:+.2f} | height {target.height:+.2f} | "
+            f"twist {target.twist:+.1f} | arms {ARM_NAMES[round(target.arms)]}"
+            f"{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}"
+        )
 
 
 class StatusLine:
@@ -315,7 +327,16 @@ def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
 
 
 # The viewer front end: GLFW key codes, as MuJoCo's viewer passes them to its key callback.
-_GLFW_KEYS = {257: "enter", 259: "backspace", 256: "esc", 32: "space", 265: "up", 264: "down", 263: "left", 262: "right"}
+_GLFW_KEYS = {
+    257: "enter",
+    259: "backspace",
+    256: "esc",
+    32: "space",
+    265: "up",
+    264: "down",
+    263: "left",
+    262: "right",
+}
 
 
 def glfw_key_name(keycode: int) -> str | None:
@@ -362,11 +383,19 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def run_session(env: gym.Env, sink: EpisodeSink, first_seed: int, episodes: int, noise_std: float,
-                front_end: str, report: Callable[[list[CommittedEpisode]], None]) -> None:
+def run_session(
+    env: gym.Env,
+    sink: EpisodeSink,
+    first_seed: int,
+    episodes: int,
+    noise_std: float,
+    front_end: str,
+    report: Callable[[list[CommittedEpisode]], None],
+) -> None:
     """Teleoperate until the user quits or `episodes` episodes are saved."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
-    from teleop.expert import LQRExpert  # noqa: PLC0415
+
+    from humanoid.expert import LQRExpert  # noqa: PLC0415
 
     if front_end == "auto":
         front_end = "viewer" if has_display() else "terminal"

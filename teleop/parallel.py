@@ -22,11 +22,11 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
-from teleop.cli import UserError
+from common.cli import UserError
 from teleop.spool import Spool
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
-WORKER_MODULES = ("teleop.controllers", "teleop.env", "teleop.episode", "teleop.spool")  # what `_work` imports
+WORKER_MODULES = ("humanoid.controllers", "humanoid.env", "humanoid.episode", "teleop.spool")  # what `_work` imports
 
 
 @dataclass(frozen=True)
@@ -43,9 +43,9 @@ def _work(settings: RolloutSettings, dataset: Path, seeds: Connection, results: 
     """A worker's loop: simulate each seed received, spool the episode, report the seed."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the recorder stops us
     try:
-        from teleop.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
-        from teleop.env import make_env
-        from teleop.episode import EpisodeBuffer, run_episode
+        from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
+        from humanoid.env import make_env
+        from humanoid.episode import EpisodeBuffer, run_episode
 
         env = make_env(settings.max_steps)
         controller = make_controller(settings.controller, env)
@@ -114,8 +114,9 @@ class ParallelRollouts:
                     try:
                         kind, payload = connection.recv()
                     except EOFError:
-                        raise UserError(f"recording worker {worker} died "
-                                        f"(exit code {self._processes[worker].exitcode})") from None
+                        raise UserError(
+                            f"recording worker {worker} died (exit code {self._processes[worker].exitcode})"
+                        ) from None
                     if kind == "error":
                         raise UserError(payload)
                     done.add(payload)

@@ -25,10 +25,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from teleop.cli import UserError, run_cli, setting
-from teleop.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
-from teleop.env import EPISODE_STEPS, make_env
-from teleop.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
+from common import paths
+from common.cli import UserError, run_cli, setting
+from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
+from humanoid.env import EPISODE_STEPS, make_env
+from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
@@ -45,22 +46,38 @@ DEFAULT_NOISE = 0.05
 class RecordConfig:
     """Settings of one recording session."""
 
-    dataset: Path = setting(Path("datasets/humanoid_stand"), "dataset folder: created if missing, else appended to")
+    dataset: Path = setting(paths.DATASET, "dataset folder: created if missing, else appended to")
     episodes: int = setting(50, "number of episodes to add")
-    seed: int | None = setting(None, "seed of the first new episode (episode i uses SEED+i); "
-                                     "default: one past the largest seed in the dataset, 0 if new")
-    controller: str = setting("expert", "who acts: a registered controller or a policy checkpoint folder",
-                              metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH")
+    seed: int | None = setting(
+        None,
+        "seed of the first new episode (episode i uses SEED+i); "
+        "default: one past the largest seed in the dataset, 0 if new",
+    )
+    controller: str = setting(
+        "expert",
+        "who acts: a registered controller or a policy checkpoint folder",
+        metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH",
+    )
     noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
-    workers: int = setting(1, "simulation processes; with 2 or more the recorder's own process writes, "
-                              "committing episodes in seed order (the dataset is the one a single process records)")
-    writer: str = setting("process", "with 1 worker: 'process' writes in a child process, overlapped with "
-                                     "simulation; 'inline' writes between episodes", choices=("process", "inline"))
-    front_end: str = setting("auto", "keyboard teleoperation's front end: the MuJoCo viewer window, the terminal "
-                                     "(raw keys and a status line; works over SSH), or auto (viewer if a display exists)",
-                             choices=("auto", "viewer", "terminal"))
+    workers: int = setting(
+        1,
+        "simulation processes; with 2 or more the recorder's own process writes, "
+        "committing episodes in seed order (the dataset is the one a single process records)",
+    )
+    writer: str = setting(
+        "process",
+        "with 1 worker: 'process' writes in a child process, overlapped with "
+        "simulation; 'inline' writes between episodes",
+        choices=("process", "inline"),
+    )
+    front_end: str = setting(
+        "auto",
+        "keyboard teleoperation's front end: the MuJoCo viewer window, the terminal "
+        "(raw keys and a status line; works over SSH), or auto (viewer if a display exists)",
+        choices=("auto", "viewer", "terminal"),
+    )
     progress: bool = setting(True, "show a progress bar (not with the keyboard: the status line shows progress)")
 
 
@@ -82,11 +99,13 @@ class RecordSummary:
             return f"{self.dataset}: no episode added ({self.total_episodes} in total)"
         returns = np.array([e.episode_return for e in self.episodes])
         falls = sum(e.fell for e in self.episodes)
-        return (f"{self.dataset}: added {len(self.episodes)} episodes (seeds {self.episodes[0].seed}.."
-                f"{self.episodes[-1].seed}), {self.frames} frames in {self.seconds:.1f} s "
-                f"({self.frames / max(self.seconds, 1e-9):.0f} frames/s); return mean {returns.mean():.1f}, "
-                f"min {returns.min():.1f}, max {returns.max():.1f}; {falls} fell; "
-                f"{self.total_episodes} episodes in the dataset")
+        return (
+            f"{self.dataset}: added {len(self.episodes)} episodes (seeds {self.episodes[0].seed}.."
+            f"{self.episodes[-1].seed}), {self.frames} frames in {self.seconds:.1f} s "
+            f"({self.frames / max(self.seconds, 1e-9):.0f} frames/s); return mean {returns.mean():.1f}, "
+            f"min {returns.min():.1f}, max {returns.max():.1f}; {falls} fell; "
+            f"{self.total_episodes} episodes in the dataset"
+        )
 
 
 def validate(cfg: RecordConfig) -> None:
@@ -134,14 +153,17 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None) -> RecordSumma
     summary = RecordSummary(cfg.dataset)
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
-    bar = tqdm(total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr,
-               dynamic_ncols=True)
+    bar = tqdm(
+        total=cfg.episodes, unit="ep", disable=not cfg.progress or interactive, file=sys.stderr, dynamic_ncols=True
+    )
 
     def report(committed: list[CommittedEpisode]) -> None:
         summary.episodes += committed
         if committed:
             elapsed = time.perf_counter() - start
-            bar.set_postfix(frames_per_s=f"{summary.frames / elapsed:.0f}", last_return=f"{committed[-1].episode_return:.1f}")
+            bar.set_postfix(
+                frames_per_s=f"{summary.frames / elapsed:.0f}", last_return=f"{committed[-1].episode_return:.1f}"
+            )
             bar.update(len(committed))
 
     try:
@@ -178,8 +200,9 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts:
     return ParallelRollouts(settings, cfg.dataset, min(cfg.workers, cfg.episodes))
 
 
-def _record_in_parallel(rollouts: ParallelRollouts, seeds: range, store: EpisodeStore,
-                        report: Callable[[list[CommittedEpisode]], None]) -> None:
+def _record_in_parallel(
+    rollouts: ParallelRollouts, seeds: range, store: EpisodeStore, report: Callable[[list[CommittedEpisode]], None]
+) -> None:
     interrupted = True
     try:
         for spooled in rollouts.in_seed_order(seeds, meanwhile=store.prepare):

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from teleop.episode import ARRAY_FIELDS, Episode
+from humanoid.episode import ARRAY_FIELDS, Episode
 
 SPOOL_DIR = ".spool"
 _READY = ".npz"

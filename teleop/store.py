@@ -1,7 +1,7 @@
 """A dataset folder as the recorder writes it: a LeRobot v3.0 dataset and one MCAP file per episode.
 
     DATASET/
-      meta/, data/            LeRobot v3.0 (see teleop.lerobot_writer)
+      meta/, data/            LeRobot v3.0 (see teleop.lerobot_io.writer)
       mcap/episode_000000.mcap
 
 An episode is written in the order parquet -> MCAP -> info.json; the last step commits it, so a
@@ -24,8 +24,9 @@ from typing import Protocol
 import gymnasium as gym
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from teleop import keys
-from teleop.env import (
+from common import keys
+from common.cli import DatasetError
+from humanoid.env import (
     ENV_ID,
     LEROBOT_FPS,
     ROBOT_TYPE,
@@ -38,10 +39,9 @@ from teleop.env import (
     state_dim,
     step_duration_ns,
 )
-from teleop.episode import Episode
-from teleop.cli import DatasetError
-from teleop.lerobot_writer import LeRobotWriter
-from teleop.mcap_writer import scene_update, write_episode_mcap
+from humanoid.episode import Episode
+from teleop.lerobot_io.writer import LeRobotWriter
+from teleop.mcap_io.writer import scene_update, write_episode_mcap
 from teleop.spool import Spool
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,11 @@ class DatasetSpec:
             keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(names) - n,), "names": names[n:]},
             keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
             keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
-            keys.OBS_COMMAND: {"dtype": "float32", "shape": (len(keys.COMMAND_NAMES),), "names": list(keys.COMMAND_NAMES)},
+            keys.OBS_COMMAND: {
+                "dtype": "float32",
+                "shape": (len(keys.COMMAND_NAMES),),
+                "names": list(keys.COMMAND_NAMES),
+            },
             keys.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
             keys.DONE: flag,
             keys.TERMINATED: flag,
@@ -149,8 +153,12 @@ class EpisodeStore:
         self.spool.recover(self.num_episodes)
         recovered = self.commit_spool()
         if recovered:
-            log.warning("%s: committed %d episodes an interrupted parallel recording had finished (seeds %s)",
-                        root, len(recovered), ", ".join(str(e.seed) for e in recovered))
+            log.warning(
+                "%s: committed %d episodes an interrupted parallel recording had finished (seeds %s)",
+                root,
+                len(recovered),
+                ", ".join(str(e.seed) for e in recovered),
+            )
 
     @property
     def num_episodes(self) -> int:
@@ -192,12 +200,24 @@ class EpisodeStore:
             keys.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
             keys.EPISODE_MCAP: str(mcap_path),
         }
-        metadata = {"episode_index": str(index), "env_id": ENV_ID, "step_duration_ns": str(self.spec.step_ns),
-                    **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP}}
+        metadata = {
+            "episode_index": str(index),
+            "env_id": ENV_ID,
+            "step_duration_ns": str(self.spec.step_ns),
+            **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP},
+        }
         try:
             staged = self.lerobot.stage(columns, episode.tasks, facts)
-            write_episode_mcap(self.root / mcap_path, episode, index, self.spec.scene, self.spec.body_frames,
-                               self.spec.step_ns, metadata, self.spec.mjcf)
+            write_episode_mcap(
+                self.root / mcap_path,
+                episode,
+                index,
+                self.spec.scene,
+                self.spec.body_frames,
+                self.spec.step_ns,
+                metadata,
+                self.spec.mjcf,
+            )
             committing = self.spool.begin_commit(spooled, index) if spooled else None
             self.lerobot.commit(staged)
             if committing:
@@ -230,5 +250,3 @@ class EpisodeStore:
         for path in (self.root / MCAP_DIR).glob("episode_*.mcap"):
             if int(path.stem.removeprefix("episode_")) >= self.num_episodes:
                 path.unlink()
-
-

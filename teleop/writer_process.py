@@ -20,13 +20,12 @@ import sys
 import traceback
 from multiprocessing.connection import Connection
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
-from teleop.cli import DatasetError
+from common.cli import DatasetError
 
 if TYPE_CHECKING:
-    from teleop.episode import Episode
+    from humanoid.episode import Episode
     from teleop.store import CommittedEpisode
 
 
@@ -113,7 +112,7 @@ def _send(results: Connection, kind: str, payload: object) -> None:
 
 
 def _serve(root: Path, episodes: Connection, results: Connection) -> None:
-    from teleop.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
+    from humanoid.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
     from teleop.store import DatasetSpec, EpisodeStore
 
     try:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from support import SHORT_EPISODE
+
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
@@ -22,9 +24,6 @@ def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
     os.environ["HF_LEROBOT_HOME"] = str(cache / "lerobot")
 
 
-SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
-
-
 @pytest.fixture(scope="session")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset of 3 short noisy expert episodes (seeds 0..2), written in-process."""
@@ -33,10 +32,3 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("recorded") / "dataset"
     main(RecordConfig(dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False))
     return root
-
-
-def snapshot(root: Path) -> dict[str, bytes]:
-    """Every file under `root` with its content: equal snapshots mean nothing on disk changed."""
-    if root.is_file():
-        return {str(root): root.read_bytes()}
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}

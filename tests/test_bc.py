@@ -15,15 +15,15 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-import policies
 from bc.data import INPUT_KEYS, load_demonstrations, split_by_episode
 from bc.train import LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
-from conftest import snapshot
+from common.cli import UserError
+from humanoid.controllers import make_controller
 from policies import checkpoint
+from policies import folder as policy_files
 from policies.controller import PolicyController
 from policies.mlp import STD_FLOOR
-from teleop.cli import UserError
-from teleop.controllers import make_controller
+from support import snapshot
 from teleop.record import RecordConfig, validate
 
 TINY = {"hidden": 32, "epochs": 40, "batch_size": 32, "patience": 0, "eval_episodes": 0, "progress": False}
@@ -67,16 +67,16 @@ def test_split_holds_out_whole_episodes(trained: TrainResult, recorded: Path, en
 
 
 def test_checkpoint_round_trip_gives_identical_actions(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
-    """`policies.load` rebuilds a policy whose actions equal the trained one's bit for bit."""
+    """`checkpoint.load` rebuilds a policy whose actions equal the trained one's bit for bit."""
     inputs = load_demonstrations(recorded, env).inputs
-    loaded = policies.load(trained.policy_dir)
+    loaded = checkpoint.load(trained.policy_dir)
     with torch.no_grad():
         assert torch.equal(loaded(inputs), trained.policy(inputs))
 
 
 def test_normalisation_is_in_the_state_dict(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
     """The training frames' mean and floored std are buffers saved with the weights; constant inputs get the floor."""
-    weights = load_file(trained.policy_dir / policies.WEIGHTS_FILE)
+    weights = load_file(trained.policy_dir / policy_files.WEIGHTS_FILE)
     demos = load_demonstrations(recorded, env)
     train_inputs = demos.inputs[torch.from_numpy(np.isin(demos.episode_index, trained.train_episodes))].double()
     torch.testing.assert_close(weights["input_mean"], train_inputs.mean(0).float())
@@ -89,10 +89,10 @@ def test_normalisation_is_in_the_state_dict(trained: TrainResult, recorded: Path
 def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, recorded: Path) -> None:
     """config.json has the resolved settings, dataset.json the data's identity; curve and logs are there."""
     folder = trained.policy_dir
-    config = json.loads((folder / policies.CONFIG_FILE).read_text())
+    config = json.loads((folder / policy_files.CONFIG_FILE).read_text())
     assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(INPUT_KEYS)
     assert config["training"]["dataset"] == str(recorded) and config["training"]["lr"] == 1e-3
-    dataset = json.loads((folder / policies.DATASET_FILE).read_text())
+    dataset = json.loads((folder / policy_files.DATASET_FILE).read_text())
     assert dataset["path"] == str(recorded.resolve()) and dataset["episodes"] == 3
     assert dataset["frames"] == trained.train_frames + trained.val_frames
     assert (folder / LEARNING_CURVE_FILE).stat().st_size > 0
@@ -112,9 +112,11 @@ def test_saved_policy_is_a_controller(trained: TrainResult, env: gym.Env) -> Non
 
 def test_recorder_does_not_import_torch() -> None:
     """Checking and building the expert or the random controller leaves torch unimported."""
-    code = ("import sys; from teleop.record import validate, RecordConfig; from teleop.controllers import "
-            "make_controller; from teleop.env import make_env; validate(RecordConfig()); "
-            "make_controller('random', make_env()); assert 'torch' not in sys.modules, 'torch imported'")
+    code = (
+        "import sys; from teleop.record import validate, RecordConfig; from humanoid.controllers import "
+        "make_controller; from humanoid.env import make_env; validate(RecordConfig()); "
+        "make_controller('random', make_env()); assert 'torch' not in sys.modules, 'torch imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -130,8 +132,9 @@ def test_failed_save_keeps_the_old_checkpoint(trained: TrainResult, tmp_path: Pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
 
 
-def test_existing_checkpoint_is_kept_without_overwrite(trained: TrainResult, recorded: Path, tmp_path: Path,
-                                                       capsys: pytest.CaptureFixture[str]) -> None:
+def test_existing_checkpoint_is_kept_without_overwrite(
+    trained: TrainResult, recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """Training into an existing checkpoint fails in one line and leaves it as it was; --overwrite replaces it."""
     folder = tmp_path / "policy"
     shutil.copytree(trained.policy_dir, folder)
@@ -141,11 +144,12 @@ def test_existing_checkpoint_is_kept_without_overwrite(trained: TrainResult, rec
     assert snapshot(folder) == before
     code, err = train_cli(["--dataset", str(recorded), "--policy", str(folder), "--overwrite", "true"], capsys)
     assert code == 0
-    assert json.loads((folder / policies.CONFIG_FILE).read_text())["policy"]["hidden"] == [8, 8]
+    assert json.loads((folder / policy_files.CONFIG_FILE).read_text())["policy"]["hidden"] == [8, 8]
 
 
-def test_folder_that_is_not_a_checkpoint_is_never_replaced(recorded: Path, tmp_path: Path,
-                                                           capsys: pytest.CaptureFixture[str]) -> None:
+def test_folder_that_is_not_a_checkpoint_is_never_replaced(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """POLICY naming some other folder is refused even with --overwrite, and the folder is untouched."""
     folder = tmp_path / "notes"
     folder.mkdir()
@@ -166,14 +170,18 @@ def edited_copy(recorded: Path, tmp_path: Path, edit: Callable[[dict], object]) 
     return root
 
 
-@pytest.mark.parametrize(("edit", "message"), [
-    (lambda info: info["features"]["action"].update(shape=[12]), "action dimensions"),
-    (lambda info: info["features"].pop("observation.environment_state"), "no observation.environment_state"),
-    (lambda info: info.update(codebase_version="v2.1"), "LeRobot v2.1 dataset"),
-    (lambda info: info.update(total_episodes=1), "at least 2"),
-])
-def test_incompatible_dataset_is_refused(recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                         edit: Callable[[dict], object], message: str) -> None:
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda info: info["features"]["action"].update(shape=[12]), "action dimensions"),
+        (lambda info: info["features"].pop("observation.environment_state"), "no observation.environment_state"),
+        (lambda info: info.update(codebase_version="v2.1"), "LeRobot v2.1 dataset"),
+        (lambda info: info.update(total_episodes=1), "at least 2"),
+    ],
+)
+def test_incompatible_dataset_is_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], edit: Callable[[dict], object], message: str
+) -> None:
     """A dataset that cannot train a Humanoid-v5 policy fails in one line, and no checkpoint appears."""
     root = edited_copy(recorded, tmp_path, edit)
     code, err = train_cli(["--dataset", str(root), "--policy", str(tmp_path / "policy")], capsys)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
@@ -11,14 +10,14 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from teleop import keys
-from teleop.dataset_reader import read_episodes, read_frames, read_mcap_episode
-from teleop.env import make_env
-from teleop.episode import run_episode
-from teleop.cli import DatasetError
+from common import keys
+from common.cli import DatasetError
+from humanoid.env import make_env
+from humanoid.episode import run_episode
+from support import assert_consistent, assert_no_leftovers, committed_episodes
+from teleop.dataset_reader import read_episodes
 from teleop.record import RecordConfig, main
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -29,40 +28,10 @@ class SimulatedCrash(Exception):
     """Raised in place of a rename: the process 'dies' with the disk exactly as it stands."""
 
 
-def committed_episodes(root: Path) -> int:
-    return json.loads((root / "meta/info.json").read_text())["total_episodes"]
-
-
-def assert_consistent(root: Path, episodes: int) -> None:
-    """LeRobot loads `episodes` episodes, every frame counted once, every MCAP file readable and matching."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    dataset = LeRobotDataset("local/crashed", root=root)
-    frames = read_frames(root, ["episode_index", "index", keys.ACTION])
-    assert dataset.meta.total_episodes == episodes
-    assert len(dataset) == len(frames["index"])
-    np.testing.assert_array_equal(frames["index"], np.arange(len(frames["index"])))
-    np.testing.assert_array_equal(np.unique(frames["episode_index"]), np.arange(episodes))
-    for row in read_episodes(root).to_pylist():
-        mcap = read_mcap_episode(root / row[keys.EPISODE_MCAP])
-        np.testing.assert_array_equal(mcap.steps["action"], frames[keys.ACTION][frames["episode_index"] == row["episode_index"]])
-
-
-def assert_no_leftovers(root: Path, episodes: int) -> None:
-    """After a recovery: one data, episode row and MCAP file per episode, and statistics over exactly those.
-
-    (Before it, stats.json may still count the episode a kill interrupted: it is written just before
-    info.json, and the next recording rebuilds it.)
-    """
-    stats = json.loads((root / "meta/stats.json").read_text())
-    assert stats["index"]["count"] == [json.loads((root / "meta/info.json").read_text())["total_frames"]]
-    for folder in ("data", "meta/episodes", "mcap"):
-        assert len([p for p in (root / folder).rglob("*") if p.is_file()]) == episodes, folder
-
-
 @pytest.mark.parametrize("renames_before_crash", range(FILES_PER_EPISODE))
 def test_crash_before_commit_keeps_the_committed_episodes(
-        recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, renames_before_crash: int) -> None:
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, renames_before_crash: int
+) -> None:
     """Killed after any of an append's file writes but the last, the dataset still holds exactly the committed ones."""
     root = tmp_path / "dataset"
     shutil.copytree(recorded, root)
@@ -91,8 +60,8 @@ def test_crash_before_commit_keeps_the_committed_episodes(
     assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
 
 
-def store_controller(env):  # noqa: ANN001, ANN201 - a tiny local helper
-    from teleop.controllers import make_controller
+def store_controller(env):
+    from humanoid.controllers import make_controller
 
     return make_controller("expert", env)
 
@@ -100,9 +69,23 @@ def store_controller(env):  # noqa: ANN001, ANN201 - a tiny local helper
 def start_recording(root: Path, episodes: int) -> subprocess.Popen:
     """`python -m teleop.record` (writer process included) in a process group of its own."""
     return subprocess.Popen(
-        [sys.executable, "-m", "teleop.record", "--dataset", str(root), "--episodes", str(episodes),
-         "--max-steps", "150", "--progress", "false"],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        [
+            sys.executable,
+            "-m",
+            "teleop.record",
+            "--dataset",
+            str(root),
+            "--episodes",
+            str(episodes),
+            "--max-steps",
+            "150",
+            "--progress",
+            "false",
+        ],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
 
 
 def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:

@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 
 from bc.dagger import DaggerConfig, DaggerResult, cli, main
-from conftest import snapshot
-from teleop import keys
+from common import keys
+from humanoid.expert import LQRExpert
+from support import join_observation, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.env import join_observation
-from teleop.expert import LQRExpert
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +23,17 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     shutil.copytree(recorded, demonstrations)
     before = snapshot(demonstrations)
     output = folder / "aggregate"
-    result = main(DaggerConfig(dataset=demonstrations, output=output, policy=folder / "policy", rounds=1, episodes=2,
-                               eval_episodes=0, progress=False))
+    result = main(
+        DaggerConfig(
+            dataset=demonstrations,
+            output=output,
+            policy=folder / "policy",
+            rounds=1,
+            episodes=2,
+            eval_episodes=0,
+            progress=False,
+        )
+    )
     return demonstrations, output, result, before
 
 
@@ -56,12 +64,12 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
     """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate."""
-    import policies
+    from policies import checkpoint
 
     demonstrations, output, result, before = dagger
     assert snapshot(demonstrations) == before
     assert result.final.train_frames + result.final.val_frames == len(read_frames(output, ["index"])["index"])
-    policies.load(result.final.policy_dir)
+    checkpoint.load(result.final.policy_dir)
 
 
 def test_output_equal_to_dataset_is_refused(recorded: Path, capsys: pytest.CaptureFixture[str]) -> None:

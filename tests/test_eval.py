@@ -11,11 +11,12 @@ import pytest
 import torch
 
 from bc.evaluate import cli, evaluate
-from policies import WEIGHTS_FILE, checkpoint
+from humanoid.env import make_env
+from humanoid.perturbations import TorsoPushes
+from humanoid.video import VideoError
+from policies import checkpoint
+from policies.folder import WEIGHTS_FILE
 from policies.mlp import MLPPolicy, MLPSpec
-from teleop.env import make_env
-from teleop.perturbations import TorsoPushes
-from teleop.video import VideoError
 
 FIELDS = {"mean_return", "std_return", "mean_length", "survival_rate", "episodes", "seeds"}
 
@@ -29,8 +30,11 @@ def eval_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
 
 def untrained_checkpoint(folder: Path, poison: bool = False) -> Path:
     """A freshly initialised policy saved as a checkpoint; `poison` makes its output NaN."""
-    policy = MLPPolicy(MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,)),
-                       -0.4 * np.ones(17), 0.4 * np.ones(17))
+    policy = MLPPolicy(
+        MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,)),
+        -0.4 * np.ones(17),
+        0.4 * np.ones(17),
+    )
     if poison:
         with torch.no_grad():
             policy.net[-1].bias.fill_(float("nan"))
@@ -113,14 +117,18 @@ def test_non_finite_actions_stop_with_one_line(tmp_path: Path, capsys: pytest.Ca
     assert code == 1 and out == [] and len(err) == 1 and "non-finite action at step 0" in err[0]
 
 
-@pytest.mark.parametrize(("setup", "message"), [
-    (lambda root: root, "not a policy checkpoint"),
-    (lambda root: root / "missing", "no policy checkpoint at"),
-    (lambda root: corrupt_checkpoint(root / "corrupt"), "not a loadable checkpoint"),
-    (lambda root: "expertt", "unknown controller 'expertt'"),
-])
-def test_bad_policy_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                           setup: Callable[[Path], Path | str], message: str) -> None:
+@pytest.mark.parametrize(
+    ("setup", "message"),
+    [
+        (lambda root: root, "not a policy checkpoint"),
+        (lambda root: root / "missing", "no policy checkpoint at"),
+        (lambda root: corrupt_checkpoint(root / "corrupt"), "not a loadable checkpoint"),
+        (lambda root: "expertt", "unknown controller 'expertt'"),
+    ],
+)
+def test_bad_policy_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], setup: Callable[[Path], Path | str], message: str
+) -> None:
     """A folder that is not a checkpoint, a missing one, corrupt weights or an unknown name: one line, exit 1."""
     code, out, err = eval_cli(["--policy", str(setup(tmp_path)), "--episodes", "1"], capsys)
     assert code == 1 and out == [] and len(err) == 1 and message in err[0]

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from teleop import physics
-from teleop.expert import CTRL_LIMIT, LQRDesign, LQRExpert, design_lqr, humanoid_model, load_or_design
+from humanoid import physics
+from humanoid.expert import LQRExpert
+from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, humanoid_model, load_or_design
 
 STANDING_RETURN = 4_900.0
 

@@ -8,28 +8,41 @@ import numpy as np
 import pytest
 import torch
 
-import policies
-from bc.finetune import (DemonstrationTerm, FinetuneConfig, Guards, RegularisedAdam, build_model, cli, main,
-                         make_vec_env, training_env)
+from bc.finetune import FinetuneConfig, cli, learner, main, vec_env
+from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
+from bc.ppo.learner import training_env
+from bc.ppo.vec_env import WorkerGroupVecEnv
 from bc.train import TrainConfig
 from bc.train import main as train_bc
-from bc.vec_env import WorkerGroupVecEnv
-from conftest import snapshot
+from humanoid.env import make_env
 from policies import checkpoint
+from policies import folder as policy_files
 from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
-from teleop.env import make_env
+from support import snapshot
 
-TINY_PPO = {"envs": 4, "workers": 2, "rollout_steps": 256, "batch_size": 64, "epochs": 2, "eval_freq": 256,
-            "eval_episodes": 1, "final_eval_episodes": 1, "progress": False}
+TINY_PPO = {
+    "envs": 4,
+    "workers": 2,
+    "rollout_steps": 256,
+    "batch_size": 64,
+    "epochs": 2,
+    "eval_freq": 256,
+    "eval_episodes": 1,
+    "final_eval_episodes": 1,
+    "progress": False,
+}
 
 
 @pytest.fixture(scope="module")
 def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint trained on the 3-episode recording."""
     folder = tmp_path_factory.mktemp("bc") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, hidden=32, epochs=5, eval_episodes=0, progress=False,
-                         tensorboard=False))
+    train_bc(
+        TrainConfig(
+            dataset=recorded, policy=folder, hidden=32, epochs=5, eval_episodes=0, progress=False, tensorboard=False
+        )
+    )
     return folder
 
 
@@ -42,8 +55,8 @@ def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
     """Before any update, PPO's deterministic actions are the BC policy's, bit for bit."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
     env = WorkerGroupVecEnv([make_env], workers=1)
-    model = build_model(config, env, term=None)
-    bc = PolicyController(policies.load(bc_policy), "bc")
+    model = learner(config, env)
+    bc = PolicyController(checkpoint.load(bc_policy), "bc")
     probe = make_env()
     for seed in range(3):
         obs, _ = probe.reset(seed=seed)
@@ -57,9 +70,9 @@ def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
 def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: Path) -> None:
     """A worker-sampled rollout holds the policy's values and log-probabilities, the steps and the scaled rewards."""
     config = FinetuneConfig(bc_policy=bc_policy, reward_scale=0.01, **TINY_PPO)
-    env = make_vec_env(config)
+    env = vec_env(config)
     try:
-        model = build_model(config, env, term=None)
+        model = learner(config, env)
         _, callback = model._setup_learn(config.rollout_steps, callback=None)
         assert model.collect_rollouts(env, callback, model.rollout_buffer, model.n_steps)
     finally:
@@ -88,9 +101,9 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
 def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path) -> None:
     """Finished training episodes reach SB3's episode statistics (rollout/ep_rew_mean) unscaled: ~5 a step, not 0.05."""
     config = FinetuneConfig(bc_policy=bc_policy, reward_scale=0.01, **TINY_PPO)
-    env = make_vec_env(config)
+    env = vec_env(config)
     try:
-        model = build_model(config, env, term=None)
+        model = learner(config, env)
         model.learn(total_timesteps=512)
     finally:
         env.close()
@@ -102,7 +115,7 @@ def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path)
 def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
     """The critic's parameters are updated at CRITIC_LEARNING_RATE, the actor's and log std's at LEARNING_RATE."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=2e-5, critic_learning_rate=1e-3, **TINY_PPO)
-    model = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None)
+    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
     model._update_learning_rate(model.policy.optimizer)  # what every PPO update starts with
     rates = {id(p): group["lr"] for group in model.policy.optimizer.param_groups for p in group["params"]}
     actor = {id(p) for p in model.policy.actor_parameters()}
@@ -115,11 +128,13 @@ def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
 def test_critic_clips_inputs_far_from_the_demonstrations(bc_policy: Path) -> None:
     """Observations 20 and 1,000 standard deviations from the demonstrations' mean get the same value."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
-    policy = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None).policy
+    policy = learner(config, WorkerGroupVecEnv([make_env], workers=1)).policy
     actor = policy.actor
     with torch.no_grad():
-        mean, far, farther = (float(policy.predict_values((actor.input_mean + distance * actor.input_std)[None]))
-                              for distance in (0, 20, 1000))
+        mean, far, farther = (
+            float(policy.predict_values((actor.input_mean + distance * actor.input_std)[None]))
+            for distance in (0, 20, 1000)
+        )
     assert far == pytest.approx(farther, rel=1e-6)
     assert abs(far - mean) > 1e-3
 
@@ -127,7 +142,7 @@ def test_critic_clips_inputs_far_from_the_demonstrations(bc_policy: Path) -> Non
 def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
     """During the warm-up PPO updates the critic and leaves the actor's weights and log std as they were."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
-    model = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None)
+    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
     actor_before = {k: v.clone() for k, v in model.policy.actor.state_dict().items()}
     log_std_before = model.policy.log_std.detach().clone()
     critic_before = [p.detach().clone() for p in model.policy.mlp_extractor.critic.parameters()]
@@ -135,14 +150,16 @@ def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
     for name, value in model.policy.actor.state_dict().items():
         assert torch.equal(value, actor_before[name]), name
     assert torch.equal(model.policy.log_std, log_std_before)
-    assert any(not torch.equal(p, q) for p, q in zip(model.policy.mlp_extractor.critic.parameters(), critic_before,
-                                                      strict=True))
+    assert any(
+        not torch.equal(p, q)
+        for p, q in zip(model.policy.mlp_extractor.critic.parameters(), critic_before, strict=True)
+    )
 
 
 def test_actor_learns_once_the_warmup_is_over(bc_policy: Path) -> None:
     """With no warm-up the same updates do change the actor (the previous test is not vacuous)."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
-    model = build_model(config, WorkerGroupVecEnv([make_env], workers=1), term=None)
+    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
     before = model.policy.actor.net[0].weight.detach().clone()
     model.learn(total_timesteps=512, callback=Guards(warmup=0, term=None))
     assert not torch.equal(model.policy.actor.net[0].weight, before)
@@ -168,33 +185,46 @@ def test_demonstration_term_pulls_the_actor_to_the_labels() -> None:
 
 def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) -> None:
     """A short fine-tuning run saves the actor in the BC format, an eval.json and periodic checkpoints."""
-    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=256,
-                                 bc_weight=1.0, **TINY_PPO))
-    loaded = policies.load(tmp_path / "ppo")
-    assert loaded.spec == policies.load(bc_policy).spec
+    result = main(
+        FinetuneConfig(
+            bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=256, bc_weight=1.0, **TINY_PPO
+        )
+    )
+    loaded = checkpoint.load(tmp_path / "ppo")
+    assert loaded.spec == checkpoint.load(bc_policy).spec
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512, 768]
-    assert (tmp_path / "ppo" / policies.EVAL_FILE).is_file() and (tmp_path / "ppo" / "learning_curve.png").is_file()
+    assert (tmp_path / "ppo" / policy_files.EVAL_FILE).is_file() and (tmp_path / "ppo" / "learning_curve.png").is_file()
     assert len(list((tmp_path / "ppo" / "checkpoints").iterdir())) == 4
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
 def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:
     """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout."""
-    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=300, critic_warmup=0,
-                                 **{**TINY_PPO, "eval_freq": 100}))
+    result = main(
+        FinetuneConfig(
+            bc_policy=bc_policy,
+            policy=tmp_path / "ppo",
+            timesteps=300,
+            critic_warmup=0,
+            **{**TINY_PPO, "eval_freq": 100},
+        )
+    )
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512]
     assert result["timesteps"] == 512
 
 
 def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> None:
     """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest return."""
-    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0,
-                                 learning_rate=1e-3, **TINY_PPO))
+    result = main(
+        FinetuneConfig(
+            bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0, learning_rate=1e-3, **TINY_PPO
+        )
+    )
     returns = [p["mean_return"] for p in result["training_curve"]]
     best = result["training_curve"][returns.index(max(returns))]
     assert result["kept"] == best
-    kept = policies.load(tmp_path / "ppo" / "checkpoints" / f"step_{best['timesteps']:08d}").state_dict()
-    for name, value in policies.load(tmp_path / "ppo").state_dict().items():
+    kept = checkpoint.load(tmp_path / "ppo" / "checkpoints" / f"step_{best['timesteps']:08d}").state_dict()
+    for name, value in checkpoint.load(tmp_path / "ppo").state_dict().items():
         assert torch.equal(value, kept[name]), name
 
 
@@ -205,9 +235,16 @@ def final_actors(bc_policy: Path, tmp_path: Path, settings: list[dict]) -> list[
     """
     actors = []
     for index, overrides in enumerate(settings):
-        main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / f"ppo_{index}", timesteps=512, keep="last",
-                            **{**TINY_PPO, **overrides}))
-        actors.append(policies.load(tmp_path / f"ppo_{index}").state_dict())
+        main(
+            FinetuneConfig(
+                bc_policy=bc_policy,
+                policy=tmp_path / f"ppo_{index}",
+                timesteps=512,
+                keep="last",
+                **{**TINY_PPO, **overrides},
+            )
+        )
+        actors.append(checkpoint.load(tmp_path / f"ppo_{index}").state_dict())
     return actors
 
 
@@ -216,7 +253,7 @@ def assert_same_trained_actor(actors: list[dict[str, torch.Tensor]], bc_policy: 
     assert actors[0].keys() == actors[1].keys()
     for name, value in actors[0].items():
         assert torch.equal(value, actors[1][name]), name
-    assert not torch.equal(actors[0]["net.0.weight"], policies.load(bc_policy).state_dict()["net.0.weight"])
+    assert not torch.equal(actors[0]["net.0.weight"], checkpoint.load(bc_policy).state_dict()["net.0.weight"])
 
 
 def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
@@ -248,17 +285,21 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "ppo").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--timesteps", "0"], "TIMESTEPS must be positive"),
-    (["--timesteps", "-5"], "TIMESTEPS must be positive"),
-    (["--workers", "0"], "WORKERS must be positive"),
-    (["--envs", "0"], "ENVS must be positive"),
-    (["--envs", "4", "--workers", "5"], "WORKERS (5) must not exceed ENVS (4)"),
-    (["--critic-learning-rate", "0"], "learning rates and REWARD_SCALE must be positive"),
-    (["--reward-scale", "-1"], "learning rates and REWARD_SCALE must be positive"),
-])
-def test_bad_settings_are_refused(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                        args: list[str], message: str) -> None:
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--timesteps", "0"], "--timesteps must be positive"),
+        (["--timesteps", "-5"], "--timesteps must be positive"),
+        (["--workers", "0"], "--workers must be positive"),
+        (["--envs", "0"], "--envs must be positive"),
+        (["--envs", "4", "--workers", "5"], "--workers (5) must not exceed --envs (4)"),
+        (["--critic-learning-rate", "0"], "--critic-learning-rate must be positive"),
+        (["--reward-scale", "-1"], "--reward-scale must be positive"),
+    ],
+)
+def test_bad_settings_are_refused(
+    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
     """A non-positive budget or rate fails in one line before anything starts."""
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(tmp_path / "ppo"), *args], capsys)
     assert code == 1 and len(err) == 1 and message in err[0]
@@ -270,14 +311,15 @@ def test_unwritable_policy_folder_is_refused(bc_policy: Path, capsys: pytest.Cap
     assert code == 1 and len(err) == 1 and "cannot write a checkpoint in /sys/fs" in err[0]
 
 
-def test_existing_checkpoint_is_not_overwritten(bc_policy: Path, tmp_path: Path,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_existing_checkpoint_is_not_overwritten(
+    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """An existing POLICY is left as it was without --overwrite; the BC checkpoint itself is refused as POLICY."""
     before = snapshot(bc_policy)
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(bc_policy), "--overwrite", "true"], capsys)
-    assert code == 1 and "POLICY must differ from BC_POLICY" in err[0]
+    assert code == 1 and "--policy must differ from --bc-policy" in err[0]
     target = tmp_path / "existing"
-    checkpoint.save(policies.load(bc_policy), target, {}, {})
+    checkpoint.save(checkpoint.load(bc_policy), target, {}, {})
     existing = snapshot(target)
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(target)], capsys)
     assert code == 1 and len(err) == 1 and "--overwrite" in err[0]

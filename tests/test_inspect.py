@@ -16,11 +16,11 @@ import pyarrow.parquet as pq
 import pytest
 from matplotlib import image
 
-from teleop import keys
+from common import keys
+from support import snapshot
 from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
-from teleop.lerobot_format import INFO_PATH
-from conftest import snapshot
+from teleop.lerobot_io.format import INFO_PATH
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -77,7 +77,9 @@ def assert_fails(run: Run, *fragments: str) -> None:
 
 def data_file(root: Path, episode: int) -> Path:
     row = read_episodes(root, ["data/chunk_index", "data/file_index"]).to_pylist()[episode]
-    return root / read_info(root)["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+    return root / read_info(root)["data_path"].format(
+        chunk_index=row["data/chunk_index"], file_index=row["data/file_index"]
+    )
 
 
 def rewrite_column(path: Path, column: str, change: Callable[[np.ndarray], None]) -> None:
@@ -87,8 +89,9 @@ def rewrite_column(path: Path, column: str, change: Callable[[np.ndarray], None]
     if pa.types.is_fixed_size_list(array.type):
         values = array.flatten().to_numpy().reshape(len(array), array.type.list_size).copy()
         change(values)
-        new = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1), array.type.value_type),
-                                                array.type.list_size)
+        new = pa.FixedSizeListArray.from_arrays(
+            pa.array(values.reshape(-1), array.type.value_type), array.type.list_size
+        )
     else:
         values = array.to_numpy().copy()
         change(values)
@@ -159,10 +162,12 @@ def test_total_frames_off_by_one_is_named(copy: Path) -> None:
 
 def test_parquet_reward_differing_from_mcap_is_named(copy: Path) -> None:
     """One reward moved by one ulp in parquet (the episode's return still agrees) fails on the exact MCAP comparison."""
-    rewrite_column(data_file(copy, 0), keys.REWARD,
-                   lambda values: values.__setitem__(10, np.nextafter(values[10], np.inf)))
-    assert_fails(inspect("--dataset", copy), "episode 0", "mcap/episode_000000.mcap", "/step.reward",
-                 keys.REWARD, "frame 10")
+    rewrite_column(
+        data_file(copy, 0), keys.REWARD, lambda values: values.__setitem__(10, np.nextafter(values[10], np.inf))
+    )
+    assert_fails(
+        inspect("--dataset", copy), "episode 0", "mcap/episode_000000.mcap", "/step.reward", keys.REWARD, "frame 10"
+    )
 
 
 def test_missing_dataset_is_one_line(tmp_path: Path) -> None:

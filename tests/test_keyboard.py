@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from teleop import keys
-from teleop.dataset_reader import read_episodes, read_frames, read_mcap_episode
-from teleop.episode import DEFAULT_TASK
+from common import keys
+from humanoid.episode import DEFAULT_TASK
+from humanoid.posture import Posture
+from support import read_mcap_episode
+from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
-from teleop.posture import Posture
 
 SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
 HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
@@ -29,9 +30,26 @@ class Terminal:
     def __init__(self, root: Path) -> None:
         self.master, slave = pty.openpty()
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "terminal",
-             "--dataset", str(root), "--noise", "0", "--max-steps", "5000"],
-            stdin=slave, stdout=slave, stderr=slave, close_fds=True)
+            [
+                sys.executable,
+                "-m",
+                "teleop.record",
+                "--controller",
+                "keyboard",
+                "--front-end",
+                "terminal",
+                "--dataset",
+                str(root),
+                "--noise",
+                "0",
+                "--max-steps",
+                "5000",
+            ],
+            stdin=slave,
+            stdout=slave,
+            stderr=slave,
+            close_fds=True,
+        )
         os.close(slave)
         self.output = b""
 
@@ -92,8 +110,11 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
     names = list(keys.COMMAND_NAMES)
     held = command[phases(command)][:, POSTURE]
     # Two presses that arrive together both act before the next step: the command jumps two notches.
-    np.testing.assert_allclose(held, [(0, 0, 0, 0, 0), (0, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 0),
-                                      (0.1, 0, -0.04, 0, 2), (0, 0, 0, 0, 0)], atol=1e-6)
+    np.testing.assert_allclose(
+        held,
+        [(0, 0, 0, 0, 0), (0, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 2), (0, 0, 0, 0, 0)],
+        atol=1e-6,
+    )
     pushed = np.flatnonzero(command[:, names.index("push_x")] > 0)
     assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[4]
     assert np.all(frames["episode_index"] == 0)  # the discarded episode left nothing
@@ -120,8 +141,12 @@ def test_tasks_name_the_commands_in_dataset_and_mcap(teleoperated: tuple[Path, s
     """The episode lists one task per command held, and /command carries the same per step."""
     root, _ = teleoperated
     episode = read_episodes(root).to_pylist()[0]
-    assert episode["tasks"] == [DEFAULT_TASK, "Crouch while standing.", "Lean forward, crouch while standing.",
-                                "Lean forward, crouch, arms up while standing."]  # and back to the first
+    assert episode["tasks"] == [
+        DEFAULT_TASK,
+        "Crouch while standing.",
+        "Lean forward, crouch while standing.",
+        "Lean forward, crouch, arms up while standing.",
+    ]  # and back to the first
     assert episode[keys.EPISODE_CONTROLLER] == "keyboard"
     mcap = read_mcap_episode(root / episode[keys.EPISODE_MCAP])
     frames = read_frames(root, [keys.OBS_COMMAND])
@@ -160,8 +185,22 @@ def test_task_for_neutral_is_the_default_task() -> None:
 
 def test_keyboard_without_a_terminal_is_a_one_line_error(tmp_path: Path) -> None:
     """With stdin not a TTY the recorder exits non-zero with one line and writes no episode."""
-    result = subprocess.run([sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end",
-                             "terminal", "--dataset", str(tmp_path / "d")], stdin=subprocess.DEVNULL,
-                            capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "teleop.record",
+            "--controller",
+            "keyboard",
+            "--front-end",
+            "terminal",
+            "--dataset",
+            str(tmp_path / "d"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode != 0
     assert result.stderr.strip().splitlines()[-1].startswith("error: keyboard teleoperation needs a terminal")

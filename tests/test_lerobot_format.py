@@ -9,16 +9,35 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from teleop import keys, lerobot_format
+from common import keys
+from humanoid.env import make_env
+from support import join_observation
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.env import join_observation, make_env
+from teleop.lerobot_io import format as lerobot_format
 from teleop.store import DatasetSpec
 
-USER_KEYS = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.ACTION, keys.EXECUTED_ACTION, keys.REWARD,
-             keys.DONE, keys.TERMINATED, keys.TRUNCATED]
-PROJECT_EPISODE_COLUMNS = {keys.EPISODE_SEED, keys.EPISODE_CONTROLLER, keys.EPISODE_LABELLER, keys.EPISODE_DAGGER_ROUND,
-                           keys.EPISODE_NOISE_STD, keys.EPISODE_RETURN, keys.EPISODE_TERMINATED,
-                           keys.EPISODE_TRUNCATED, keys.EPISODE_MCAP}
+USER_KEYS = [
+    keys.OBS_STATE,
+    keys.OBS_ENV_STATE,
+    keys.OBS_COMMAND,
+    keys.ACTION,
+    keys.EXECUTED_ACTION,
+    keys.REWARD,
+    keys.DONE,
+    keys.TERMINATED,
+    keys.TRUNCATED,
+]
+PROJECT_EPISODE_COLUMNS = {
+    keys.EPISODE_SEED,
+    keys.EPISODE_CONTROLLER,
+    keys.EPISODE_LABELLER,
+    keys.EPISODE_DAGGER_ROUND,
+    keys.EPISODE_NOISE_STD,
+    keys.EPISODE_RETURN,
+    keys.EPISODE_TERMINATED,
+    keys.EPISODE_TRUNCATED,
+    keys.EPISODE_MCAP,
+}
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +48,9 @@ def lerobot_copy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
     root = tmp_path_factory.mktemp("lerobot") / "dataset"
     frames = read_frames(recorded)
     features = DatasetSpec.from_env(make_env()).features
-    dataset = LeRobotDataset.create("local/reference", fps=67, features=features, root=root,
-                                    robot_type="mujoco_humanoid", use_videos=False)
+    dataset = LeRobotDataset.create(
+        "local/reference", fps=67, features=features, root=root, robot_type="mujoco_humanoid", use_videos=False
+    )
     for episode in np.unique(frames["episode_index"]):
         for row in np.flatnonzero(frames["episode_index"] == episode):
             frame = {key: np.atleast_1d(frames[key][row]) for key in USER_KEYS}
@@ -41,23 +61,34 @@ def lerobot_copy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
 
 
 def test_key_names_are_lerobots() -> None:
-    """The key constants spelled out in teleop.keys are LeRobot's own."""
+    """The key constants spelled out in common.keys are LeRobot's own."""
     from lerobot.utils import constants
 
     assert (keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.DONE, keys.TRUNCATED) == (
-        constants.OBS_STATE, constants.OBS_ENV_STATE, constants.ACTION, constants.REWARD, constants.DONE,
-        constants.TRUNCATED)
+        constants.OBS_STATE,
+        constants.OBS_ENV_STATE,
+        constants.ACTION,
+        constants.REWARD,
+        constants.DONE,
+        constants.TRUNCATED,
+    )
 
 
 def test_format_constants_are_lerobots() -> None:
-    """Paths, version, default features and quantiles in teleop.lerobot_format match lerobot.datasets."""
+    """Paths, version, default features and quantiles in teleop.lerobot_io.format match lerobot.datasets."""
     from lerobot.datasets import compute_stats, dataset_metadata, utils
     from lerobot.utils.constants import DEFAULT_FEATURES
 
     assert lerobot_format.CODEBASE_VERSION == dataset_metadata.CODEBASE_VERSION
     assert (lerobot_format.INFO_PATH, lerobot_format.STATS_PATH, lerobot_format.TASKS_PATH) == (
-        utils.INFO_PATH, utils.STATS_PATH, utils.DEFAULT_TASKS_PATH)
-    assert (lerobot_format.DATA_PATH, lerobot_format.EPISODES_PATH) == (utils.DEFAULT_DATA_PATH, utils.DEFAULT_EPISODES_PATH)
+        utils.INFO_PATH,
+        utils.STATS_PATH,
+        utils.DEFAULT_TASKS_PATH,
+    )
+    assert (lerobot_format.DATA_PATH, lerobot_format.EPISODES_PATH) == (
+        utils.DEFAULT_DATA_PATH,
+        utils.DEFAULT_EPISODES_PATH,
+    )
     assert lerobot_format.CHUNKS_SIZE == utils.DEFAULT_CHUNK_SIZE
     assert lerobot_format.DEFAULT_FEATURES == DEFAULT_FEATURES
     assert list(lerobot_format.QUANTILES) == compute_stats.DEFAULT_QUANTILES
@@ -97,7 +128,10 @@ def test_frames_equal_lerobots(recorded: Path, lerobot_copy: Path) -> None:
     assert ours.keys() == theirs.keys()
     for key in ours:
         np.testing.assert_array_equal(ours[key], theirs[key], err_msg=key)
-    assert read_episodes(recorded)["dataset_to_index"].to_pylist() == read_episodes(lerobot_copy)["dataset_to_index"].to_pylist()
+    assert (
+        read_episodes(recorded)["dataset_to_index"].to_pylist()
+        == read_episodes(lerobot_copy)["dataset_to_index"].to_pylist()
+    )
 
 
 def test_stats_match_lerobots(recorded: Path, lerobot_copy: Path) -> None:

@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from conftest import snapshot
-from teleop import keys, lerobot_format
+from common import keys
+from support import snapshot
+from teleop.lerobot_io import format as lerobot_format
 
 STEPS = 3
 REPO_ID = "local/humanoid_stand"
@@ -72,8 +73,9 @@ def train_run(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Train
         "WANDB_MODE": "disabled",
     }
     before = snapshot(recorded)
-    result = subprocess.run(train_command(recorded, output_dir), cwd=work, env=env, capture_output=True,
-                            text=True, timeout=300)
+    result = subprocess.run(
+        train_command(recorded, output_dir), cwd=work, env=env, capture_output=True, text=True, timeout=300
+    )
     return TrainRun(result.returncode, result.stdout + result.stderr, output_dir, before, snapshot(recorded))
 
 

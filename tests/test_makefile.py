@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from bc.finetune import SCRATCH_POLICY, FinetuneConfig
+from bc.baseline import BaselineConfig
+from bc.finetune import FinetuneConfig
 from bc.train import TrainConfig
 from teleop.record import RecordConfig
 
@@ -27,11 +28,12 @@ def test_dataset_and_policy_defaults_match_the_stages() -> None:
     assert Path(make_default("DATASET")) == RecordConfig().dataset == TrainConfig().dataset
     assert Path(make_default("BC_DEFAULT")) == TrainConfig().policy == FinetuneConfig().bc_policy
     assert Path(make_default("PPO_DEFAULT")) == FinetuneConfig().policy
-    assert Path(make_default("SCRATCH_DEFAULT")) == SCRATCH_POLICY
+    assert Path(make_default("SCRATCH_DEFAULT")) == BaselineConfig().policy
 
 
-@pytest.mark.parametrize("module", ["teleop.record", "teleop.inspect_dataset", "bc.train", "bc.evaluate", "bc.dagger",
-                                    "bc.finetune"])
+@pytest.mark.parametrize(
+    "module", ["teleop.record", "teleop.inspect_dataset", "bc.train", "bc.evaluate", "bc.dagger", "bc.finetune"]
+)
 def test_every_stage_prints_its_help(module: str, capsys: pytest.CaptureFixture[str]) -> None:
     """`python -m <stage> --help` exits 0 and lists the stage's flags (help texts are %-formatted by argparse)."""
     with pytest.raises(SystemExit) as exit_info:

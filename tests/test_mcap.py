@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from teleop import keys
-from teleop.dataset_reader import McapEpisode, read_episodes, read_frames, read_mcap_episode
-from teleop.env import body_names, body_poses, join_observation, make_env, mjcf_path, model_and_data
-from teleop.mcap_writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from common import keys
+from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
+from support import McapEpisode, join_observation, read_mcap_episode
+from teleop.dataset_reader import read_episodes, read_frames
+from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 
 STEP_NS = 15_000_000  # Humanoid-v5: timestep 0.003 s x frame_skip 5
 
@@ -28,10 +29,17 @@ def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: lis
     for index, episode in enumerate(episodes):
         rows = frames["episode_index"] == index
         np.testing.assert_array_equal(episode.steps["frame_index"], frames["frame_index"][rows])
-        np.testing.assert_array_equal(episode.steps["observation"],
-                                      join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows]))
-        for step_field, key in [("action", keys.ACTION), ("executed_action", keys.EXECUTED_ACTION),
-                                ("reward", keys.REWARD), ("terminated", keys.TERMINATED), ("truncated", keys.TRUNCATED)]:
+        np.testing.assert_array_equal(
+            episode.steps["observation"],
+            join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows]),
+        )
+        for step_field, key in [
+            ("action", keys.ACTION),
+            ("executed_action", keys.EXECUTED_ACTION),
+            ("reward", keys.REWARD),
+            ("terminated", keys.TERMINATED),
+            ("truncated", keys.TRUNCATED),
+        ]:
             np.testing.assert_array_equal(episode.steps[step_field], frames[key][rows], err_msg=step_field)
 
 
@@ -73,7 +81,7 @@ def test_scene_draws_every_geom_attached_to_its_body(episodes: list[McapEpisode]
     assert episodes[0].scene_entities == ["world", *body_names(model)]
     with (recorded / "mcap/episode_000000.mcap").open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-        (_, _, _, scene), = reader.iter_decoded_messages(topics=[SCENE_TOPIC])
+        ((_, _, _, scene),) = reader.iter_decoded_messages(topics=[SCENE_TOPIC])
     assert scene.DESCRIPTOR.full_name == "foxglove.SceneUpdate"
     primitives = sum(len(e.cylinders) + len(e.spheres) + len(e.cubes) for e in scene.entities)
     capsules, spheres, planes = (int(np.sum(model.geom_type == t)) for t in (3, 2, 0))
@@ -93,7 +101,15 @@ def test_file_has_metadata_model_and_zstd_protobuf_channels(recorded: Path, epis
     with (recorded / "mcap/episode_000001.mcap").open("rb") as stream:
         summary = make_reader(stream).get_summary()
     assert {c.topic: c.message_encoding for c in summary.channels.values()} == {
-        SCENE_TOPIC: "protobuf", STEP_TOPIC: "protobuf", TF_TOPIC: "protobuf", COMMAND_TOPIC: "protobuf"}
-    assert {s.name for s in summary.schemas.values()} == {"foxglove.SceneUpdate", "humanoid_bc.Step",
-                                                           "foxglove.FrameTransforms", "humanoid_bc.Command"}
+        SCENE_TOPIC: "protobuf",
+        STEP_TOPIC: "protobuf",
+        TF_TOPIC: "protobuf",
+        COMMAND_TOPIC: "protobuf",
+    }
+    assert {s.name for s in summary.schemas.values()} == {
+        "foxglove.SceneUpdate",
+        "humanoid_bc.Step",
+        "foxglove.FrameTransforms",
+        "humanoid_bc.Command",
+    }
     assert summary.chunk_indexes and all(chunk.compression == "zstd" for chunk in summary.chunk_indexes)

@@ -9,7 +9,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from teleop.mcap_bulk import BulkMcapWriter
+from teleop.mcap_io.bulk import BulkMcapWriter
 
 STEPS = 400
 CHANNEL_ORDER = np.array([3, 2, 1])  # a step's messages, in reverse channel-id order
@@ -39,14 +39,22 @@ def write(writer: Writer | BulkMcapWriter, batches: list[slice]) -> None:
             writer.add_messages(channels[batch], times[batch], times[batch], sequences[batch], data[batch])
     else:
         for i in range(sum(len(channels[batch]) for batch in batches)):
-            writer.add_message(int(channels[i]), log_time=int(times[i]), data=data[i], publish_time=int(times[i]),
-                               sequence=int(sequences[i]))
+            writer.add_message(
+                int(channels[i]),
+                log_time=int(times[i]),
+                data=data[i],
+                publish_time=int(times[i]),
+                sequence=int(sequences[i]),
+            )
     writer.finish()
 
 
 @pytest.mark.parametrize("chunk_size", [1024 * 1024, 50_000, 1], ids=["one chunk", "several chunks", "a chunk each"])
-@pytest.mark.parametrize(("compression", "zstd_level"), [(CompressionType.ZSTD, 3), (CompressionType.NONE, None)],
-                         ids=["zstd", "uncompressed"])
+@pytest.mark.parametrize(
+    ("compression", "zstd_level"),
+    [(CompressionType.ZSTD, 3), (CompressionType.NONE, None)],
+    ids=["zstd", "uncompressed"],
+)
 def test_same_bytes_as_mcap_writer(chunk_size: int, compression: CompressionType, zstd_level: int | None) -> None:
     """Given the same records, both writers produce identical files, whatever the chunking."""
     batches = [slice(0, 1), slice(1, 500), slice(500, None)]
@@ -71,7 +79,9 @@ def test_fast_zstd_file_reads_back_with_valid_crcs() -> None:
     stream.seek(0)
     reader = make_reader(stream, validate_crcs=True)
     assert all(chunk.compression == "zstd" for chunk in reader.get_summary().chunk_indexes)
-    read = [(channel.id, message.log_time, message.sequence, message.data)
-            for _, channel, message in reader.iter_messages(log_time_order=False)]
+    read = [
+        (channel.id, message.log_time, message.sequence, message.data)
+        for _, channel, message in reader.iter_messages(log_time_order=False)
+    ]
     channels, times, sequences, data = messages()
     assert read == list(zip(channels.tolist(), times.tolist(), sequences.tolist(), data, strict=True))

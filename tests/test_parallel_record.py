@@ -13,21 +13,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SHORT_EPISODE, snapshot
-from teleop import keys
+from common import keys
+from humanoid.controllers import make_controller
+from humanoid.env import make_env
+from humanoid.episode import run_episode
+from support import SHORT_EPISODE, assert_consistent, assert_no_leftovers, committed_episodes, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.env import make_env
-from teleop.episode import run_episode
-from teleop.controllers import make_controller
 from teleop.record import RecordConfig, cli, main
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
-from test_crash_safety import assert_consistent, assert_no_leftovers, committed_episodes
 
 
 def record(root: Path, workers: int, **settings: object) -> None:
-    config = {"dataset": root, "episodes": 5, "max_steps": SHORT_EPISODE, "workers": workers, "writer": "inline",
-              "progress": False}
+    config = {
+        "dataset": root,
+        "episodes": 5,
+        "max_steps": SHORT_EPISODE,
+        "workers": workers,
+        "writer": "inline",
+        "progress": False,
+    }
     main(RecordConfig(**{**config, **settings}))
 
 
@@ -69,8 +74,9 @@ def test_opening_a_dataset_commits_its_spool_in_seed_order(recorded: Path, tmp_p
 
 
 @pytest.mark.parametrize("already_committed", [True, False])
-def test_an_episode_killed_mid_commit_is_committed_exactly_once(recorded: Path, tmp_path: Path,
-                                                                 already_committed: bool) -> None:
+def test_an_episode_killed_mid_commit_is_committed_exactly_once(
+    recorded: Path, tmp_path: Path, already_committed: bool
+) -> None:
     """A `.committing` spool file counts once: dropped if info.json counts its index, else committed."""
     root = tmp_path / "dataset"
     shutil.copytree(recorded, root)
@@ -87,9 +93,25 @@ def test_kill_9_of_a_parallel_recording_loses_no_finished_episode(tmp_path: Path
     """SIGKILL to the recorder and its workers: committed and spooled episodes all end up in the dataset."""
     root = tmp_path / "dataset"
     recorder = subprocess.Popen(
-        [sys.executable, "-m", "teleop.record", "--dataset", str(root), "--episodes", "100", "--max-steps", "150",
-         "--workers", "2", "--progress", "false"],
-        start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        [
+            sys.executable,
+            "-m",
+            "teleop.record",
+            "--dataset",
+            str(root),
+            "--episodes",
+            "100",
+            "--max-steps",
+            "150",
+            "--workers",
+            "2",
+            "--progress",
+            "false",
+        ],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     deadline = time.monotonic() + 60
     while not ((root / "meta/info.json").exists() and committed_episodes(root) >= 3):
         assert recorder.poll() is None, recorder.stderr.read().decode()

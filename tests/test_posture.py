@@ -9,10 +9,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from teleop import physics
-from teleop.env import make_env, model_and_data
-from teleop.expert import CTRL_LIMIT, LQRExpert
-from teleop.posture import NEUTRAL, Posture, posture_gain, posture_reference
+from humanoid import physics
+from humanoid.env import make_env, model_and_data
+from humanoid.expert import LQRExpert
+from humanoid.lqr import CTRL_LIMIT
+from humanoid.posture import NEUTRAL, Posture, posture_gain, posture_reference
 
 SETTLE_STEPS = 133  # 2 s of neutral stand after the env's reset drop
 HOLD_STEPS = 150  # about 2 s at the posture once the ramp has got there
@@ -195,7 +196,9 @@ def test_combined_limits_then_neutral_return_near_the_neutral_pose(
 ) -> None:
     """Lean forward, crouch and arms up together stay up, and returning to Posture() gets back near the neutral stand."""
     obs = stand(env, expert)
-    obs = hold(env, expert, obs, Posture(lean_forward=Posture.MAX["lean_forward"], height=Posture.MIN["height"], arms=2))
+    obs = hold(
+        env, expert, obs, Posture(lean_forward=Posture.MAX["lean_forward"], height=Posture.MIN["height"], arms=2)
+    )
     hold(env, expert, obs, Posture())
     back = measurements(env)
     assert expert.posture == NEUTRAL

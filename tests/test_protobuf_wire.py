@@ -10,8 +10,8 @@ from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from teleop.mcap_schema import Step
-from teleop.protobuf_wire import FrameTransformsEncoder, StepEncoder, length_delimited, timestamp_fields, varint
+from teleop.mcap_io.schema import Step
+from teleop.mcap_io.wire import FrameTransformsEncoder, StepEncoder, length_delimited, timestamp_fields, varint
 
 
 def test_varint_known_answers() -> None:
@@ -33,9 +33,12 @@ def test_frame_transforms_decode_to_the_api_built_message() -> None:
     for t, data in enumerate(encoded):
         expected = FrameTransforms()
         for frame, p, q in zip(frames, positions[t], orientations[t], strict=True):
-            transform = FrameTransform(parent_frame_id="world", child_frame_id=frame,
-                                       translation=Vector3(x=p[0], y=p[1], z=p[2]),
-                                       rotation=Quaternion(x=q[1], y=q[2], z=q[3], w=q[0]))
+            transform = FrameTransform(
+                parent_frame_id="world",
+                child_frame_id=frame,
+                translation=Vector3(x=p[0], y=p[1], z=p[2]),
+                rotation=Quaternion(x=q[1], y=q[2], z=q[3], w=q[0]),
+            )
             transform.timestamp.FromNanoseconds(int(times[t]))
             expected.transforms.append(transform)
         assert FrameTransforms.FromString(data) == expected
@@ -47,13 +50,23 @@ def test_steps_decode_to_their_fields() -> None:
     times = np.array([0, 15_000_000, 3_000_000_000])
     observation, action = rng.normal(size=(3, 348)), rng.normal(size=(3, 17)).astype(np.float32)
     executed = np.zeros((3, 17), np.float32)
-    reward, terminated, truncated = np.array([4.5, 0.0, -1.25]), np.array([False, False, True]), np.array([False, True, False])
+    reward, terminated, truncated = (
+        np.array([4.5, 0.0, -1.25]),
+        np.array([False, False, True]),
+        np.array([False, True, False]),
+    )
     tasks = np.array(["stand", "crouch", "stand"], dtype=object)
     encoded = StepEncoder().encode(times, 2, observation, action, executed, reward, terminated, truncated, tasks)
     for t, data in enumerate(encoded):
         step = Step.FromString(data)
         assert (step.episode_index, step.frame_index, step.reward, step.terminated, step.truncated, step.task) == (
-            2, t, reward[t], terminated[t], truncated[t], tasks[t])
+            2,
+            t,
+            reward[t],
+            terminated[t],
+            truncated[t],
+            tasks[t],
+        )
         assert step.timestamp.ToNanoseconds() == times[t]
         np.testing.assert_array_equal(np.array(step.observation), observation[t])
         np.testing.assert_array_equal(np.array(step.action, np.float32), action[t])

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SHORT_EPISODE, snapshot
-from teleop import keys
+from common import keys
+from humanoid.episode import injected_noise
+from support import SHORT_EPISODE, snapshot
 from teleop.dataset_reader import read_episodes, read_frames, read_info
-from teleop.episode import injected_noise
 from teleop.record import RecordConfig, cli, main
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -81,7 +81,9 @@ def test_random_controller_records_falls(tmp_path: Path) -> None:
     assert episode[keys.EPISODE_CONTROLLER] == "random"
 
 
-def test_cli_records_with_the_writer_process_and_prints_a_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_records_with_the_writer_process_and_prints_a_summary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The command line records through the writer process and ends with a one-line summary."""
     code = cli(["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--progress", "false"])
     out = capsys.readouterr().out.strip().splitlines()
@@ -90,14 +92,18 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(tmp_path: Path
     assert read_info(tmp_path / "cli")["total_episodes"] == 2
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--controller", "teleport"], "unknown controller 'teleport'"),
-    (["--episodes", "0"], "EPISODES must be positive"),
-    (["--episodes", "-3"], "EPISODES must be positive"),
-    (["--noise", "-0.1"], "NOISE must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--controller", "teleport"], "unknown controller 'teleport'"),
+        (["--episodes", "0"], "EPISODES must be positive"),
+        (["--episodes", "-3"], "EPISODES must be positive"),
+        (["--noise", "-0.1"], "NOISE must be >= 0"),
+    ],
+)
 def test_bad_settings_are_refused_before_touching_the_disk(
-        args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """A bad setting gives one error line and a non-zero exit; the dataset folder is not even created."""
     code, err = run_cli(["--dataset", str(tmp_path / "new"), *args], capsys)
     assert code != 0 and len(err) == 1 and message in err[0]
@@ -118,9 +124,17 @@ def test_dataset_with_other_features_is_refused(tmp_path: Path, capsys: pytest.C
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = tmp_path / "other"
-    other = LeRobotDataset.create("local/other", fps=67, root=root, use_videos=False, robot_type="mujoco_humanoid",
-                                  features={"observation.state": {"dtype": "float32", "shape": (4,), "names": None},
-                                            "action": {"dtype": "float32", "shape": (2,), "names": None}})
+    other = LeRobotDataset.create(
+        "local/other",
+        fps=67,
+        root=root,
+        use_videos=False,
+        robot_type="mujoco_humanoid",
+        features={
+            "observation.state": {"dtype": "float32", "shape": (4,), "names": None},
+            "action": {"dtype": "float32", "shape": (2,), "names": None},
+        },
+    )
     for _ in range(3):
         other.add_frame({"observation.state": np.zeros(4, np.float32), "action": np.ones(2, np.float32), "task": "t"})
     other.save_episode()
@@ -148,12 +162,13 @@ def test_unwritable_folder_is_refused(capsys: pytest.CaptureFixture[str]) -> Non
     assert code != 0 and len(err) == 1 and "cannot write to /sys/fs/humanoid_bc_dataset" in err[0]
 
 
-def test_second_recorder_on_the_same_dataset_refuses(recorded: Path, tmp_path: Path,
-                                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_second_recorder_on_the_same_dataset_refuses(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """While one recorder holds the dataset, another exits with a clear message and writes nothing."""
     root = tmp_path / "busy"
     shutil.copytree(recorded, root)
-    from teleop.env import make_env
+    from humanoid.env import make_env
 
     holder = EpisodeStore(root, DatasetSpec.from_env(make_env()))
     try:

@@ -1,4 +1,4 @@
-"""Environments in worker processes (`bc.vec_env`): the same steps as SB3's DummyVecEnv, whatever the workers."""
+"""Environments in worker processes (`bc.ppo.vec_env`): the same steps as SB3's DummyVecEnv, whatever the workers."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from bc.finetune import training_env
-from bc.vec_env import SB3_INFO_KEYS, WorkerGroupVecEnv, split
-from teleop.env import make_env
-from teleop.perturbations import TorsoPushes
+from bc.ppo.learner import training_env
+from bc.ppo.vec_env import SB3_INFO_KEYS, WorkerGroupVecEnv, split
+from humanoid.env import make_env
+from humanoid.perturbations import TorsoPushes
 
 SHORT = 15  # steps per episode: the rollout below crosses two time limits and a fall or two
 short_env = functools.partial(make_env, SHORT)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from teleop.keys import COMMAND_NAMES
+from common.keys import COMMAND_NAMES
 
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"
@@ -59,7 +59,9 @@ def _build_classes() -> tuple[type, type]:
                 if type_name:
                     field.type_name = type_name
             pool.Add(file_proto)
-    return tuple(message_factory.GetMessageClass(pool.FindMessageTypeByName(name)) for name in (STEP_TYPE, COMMAND_TYPE))
+    return tuple(
+        message_factory.GetMessageClass(pool.FindMessageTypeByName(name)) for name in (STEP_TYPE, COMMAND_TYPE)
+    )
 
 
 Step, Command = _build_classes()

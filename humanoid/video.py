@@ -16,7 +16,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from teleop.cli import UserError
+from common.cli import UserError
 
 # A three-quarter view following the torso with the whole body in frame (gymnasium's default
 # camera for Humanoid looks from the side and cuts the feet off).
@@ -62,9 +62,11 @@ class VideoRecorder(gym.Wrapper):
     def _capture(self) -> None:
         try:
             frame = self.env.render()
-        except Exception as error:  # noqa: BLE001 - GL failures come as RuntimeError, ImportError, GLError...
-            raise VideoError(f"offscreen rendering failed with MUJOCO_GL={self.backend} ({error}); "
-                             f"try MUJOCO_GL=osmesa or MUJOCO_GL=egl") from None
+        except Exception as error:
+            raise VideoError(
+                f"offscreen rendering failed with MUJOCO_GL={self.backend} ({error}); "
+                f"try MUJOCO_GL=osmesa or MUJOCO_GL=egl"
+            ) from None
         if not self._scene_configured:
             # The viewer exists only after the first render: from the second frame on, no shadows.
             viewer = self.env.unwrapped.mujoco_renderer.viewer

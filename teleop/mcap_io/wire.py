@@ -25,15 +25,14 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.message import Message
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from teleop.keys import COMMAND_NAMES
-from teleop.mcap_schema import Command, Step
+from common.keys import COMMAND_NAMES
+from teleop.mcap_io.schema import Command, Step
 
 _VARINT = 0
 _FIXED64 = 1
 _LENGTH_DELIMITED = 2
 _DOUBLE_SIZE = 8
 _NANOS_PER_SECOND = 1_000_000_000
-
 
 
 def varint(value: int) -> bytes:
@@ -67,8 +66,13 @@ _NANOS_KEY = tag(Timestamp, "nanos", _VARINT)
 
 def _byte_rows(steps: int, parts: list[bytes | np.ndarray]) -> np.ndarray:
     """(steps, size) bytes: each row the concatenation of `parts`, constant strings or (steps, n) byte arrays."""
-    return np.concatenate([np.broadcast_to(np.frombuffer(part, np.uint8), (steps, len(part)))
-                           if isinstance(part, bytes) else part for part in parts], axis=1)
+    return np.concatenate(
+        [
+            np.broadcast_to(np.frombuffer(part, np.uint8), (steps, len(part))) if isinstance(part, bytes) else part
+            for part in parts
+        ],
+        axis=1,
+    )
 
 
 def _number_bytes(values: np.ndarray, dtype: str) -> np.ndarray:
@@ -92,10 +96,13 @@ def _timestamp_field(key: bytes, time_ns: int) -> bytes:
     return length_delimited(key, stamp)
 
 
-def _doubles_records(message: type[Message], field: str, sub_message: type[Message], components: list[str],
-                     values: np.ndarray) -> np.ndarray:
+def _doubles_records(
+    message: type[Message], field: str, sub_message: type[Message], components: list[str], values: np.ndarray
+) -> np.ndarray:
     """`field` = sub_message(components...) for each row of `values` (rows, len(components)), as byte rows."""
-    parts: list[bytes | np.ndarray] = [tag(message, field, _LENGTH_DELIMITED) + varint(len(components) * (1 + _DOUBLE_SIZE))]
+    parts: list[bytes | np.ndarray] = [
+        tag(message, field, _LENGTH_DELIMITED) + varint(len(components) * (1 + _DOUBLE_SIZE))
+    ]
     for column, component in enumerate(components):
         parts += [tag(sub_message, component, _FIXED64), _number_bytes(values[:, column], "<f8")]
     return _byte_rows(len(values), parts)
@@ -117,10 +124,13 @@ class FrameTransformsEncoder:
         """Messages for (T,) times, (T, bodies, 3) positions and (T, bodies, 4) w-x-y-z quaternions."""
         steps, bodies = positions.shape[:2]
         xyzw = orientations_wxyz[..., [1, 2, 3, 0]]  # Foxglove orders quaternions x, y, z, w
-        poses = np.concatenate([
-            _doubles_records(FrameTransform, "translation", Vector3, ["x", "y", "z"], positions.reshape(-1, 3)),
-            _doubles_records(FrameTransform, "rotation", Quaternion, ["x", "y", "z", "w"], xyzw.reshape(-1, 4)),
-        ], axis=1).reshape(steps, bodies, -1)
+        poses = np.concatenate(
+            [
+                _doubles_records(FrameTransform, "translation", Vector3, ["x", "y", "z"], positions.reshape(-1, 3)),
+                _doubles_records(FrameTransform, "rotation", Quaternion, ["x", "y", "z", "w"], xyzw.reshape(-1, 4)),
+            ],
+            axis=1,
+        ).reshape(steps, bodies, -1)
         stamps = timestamp_fields(self._timestamp_key, times_ns)
         messages: list[bytes] = [b""] * steps
         # Every step's message has the same layout but for its timestamp's size, which takes a few
@@ -130,7 +140,12 @@ class FrameTransformsEncoder:
             stamp_bytes = np.frombuffer(b"".join(stamps[t] for t in rows), np.uint8).reshape(len(rows), stamp_size)
             parts: list[bytes | np.ndarray] = []
             for frame, pose in zip(self._frame_fields, poses[rows].transpose(1, 0, 2), strict=True):
-                parts += [self._transform_key + varint(stamp_size + len(frame) + pose.shape[1]), stamp_bytes, frame, pose]
+                parts += [
+                    self._transform_key + varint(stamp_size + len(frame) + pose.shape[1]),
+                    stamp_bytes,
+                    frame,
+                    pose,
+                ]
             filled = _byte_rows(len(rows), parts)
             for t, row in zip(rows, filled, strict=True):
                 messages[t] = row.tobytes()
@@ -146,14 +161,26 @@ class StepEncoder:
         self._frame_key = tag(Step, "frame_index", _VARINT)
         self._task_key = tag(Step, "task", _LENGTH_DELIMITED)
 
-    def encode(self, times_ns: np.ndarray, episode_index: int, observation: np.ndarray, action: np.ndarray,
-               executed_action: np.ndarray, reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
-               tasks: np.ndarray) -> list[bytes]:
+    def encode(
+        self,
+        times_ns: np.ndarray,
+        episode_index: int,
+        observation: np.ndarray,
+        action: np.ndarray,
+        executed_action: np.ndarray,
+        reward: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        tasks: np.ndarray,
+    ) -> list[bytes]:
         """Messages for T steps: (T,) times, (T, n) observation and actions, (T,) reward, flags and tasks."""
         steps = len(times_ns)
         parts: list[bytes | np.ndarray] = []
-        for name, values, dtype in (("observation", observation, "<f8"), ("action", action, "<f4"),
-                                    ("executed_action", executed_action, "<f4")):
+        for name, values, dtype in (
+            ("observation", observation, "<f8"),
+            ("action", action, "<f4"),
+            ("executed_action", executed_action, "<f4"),
+        ):
             numbers = _number_bytes(values, dtype)
             parts += [packed_key(Step, name) + varint(numbers.shape[1]), numbers]
         parts += [tag(Step, "reward", _FIXED64), _number_bytes(reward, "<f8")]
@@ -164,8 +191,9 @@ class StepEncoder:
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
             stamp + head + self._frame_key + varint(t) + row.tobytes() + task_fields[task]
-            for t, (stamp, row, task) in enumerate(zip(timestamp_fields(self._timestamp_key, times_ns), rows,
-                                                      tasks.tolist(), strict=True))
+            for t, (stamp, row, task) in enumerate(
+                zip(timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(), strict=True)
+            )
         ]
 
 
@@ -185,6 +213,7 @@ class CommandEncoder:
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
             stamp + row.tobytes() + task_fields[task]
-            for stamp, row, task in zip(timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(),
-                                        strict=True)
+            for stamp, row, task in zip(
+                timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(), strict=True
+            )
         ]

@@ -46,8 +46,16 @@ FAST_ZSTD_LEVEL = -1  # zstd's fast mode; see the module's docstring
 DEFAULT_CHUNK_SIZE = 1024 * 1024  # mcap.Writer's
 
 # A message record up to its data: opcode, record length, channel, sequence, log and publish times.
-_MESSAGE_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
-                          ("log_time", "<u8"), ("publish_time", "<u8")])
+_MESSAGE_HEAD = np.dtype(
+    [
+        ("opcode", "u1"),
+        ("length", "<u8"),
+        ("channel", "<u2"),
+        ("sequence", "<u4"),
+        ("log_time", "<u8"),
+        ("publish_time", "<u8"),
+    ]
+)
 _MESSAGE_FIELDS_SIZE = _MESSAGE_HEAD.itemsize - 9  # what the record length counts besides the data
 _MESSAGE_INDEX_START = struct.Struct("<BQHI")
 
@@ -55,8 +63,9 @@ _MESSAGE_INDEX_START = struct.Struct("<BQHI")
 class BulkMcapWriter:
     """Writes one MCAP file to `stream`; call `start`, register, add, then `finish` once."""
 
-    def __init__(self, stream: BinaryIO, chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 zstd_level: int | None = FAST_ZSTD_LEVEL) -> None:
+    def __init__(
+        self, stream: BinaryIO, chunk_size: int = DEFAULT_CHUNK_SIZE, zstd_level: int | None = FAST_ZSTD_LEVEL
+    ) -> None:
         self._stream = stream
         self._chunk_size = chunk_size
         self._compressor = None if zstd_level is None else zstandard.ZstdCompressor(level=zstd_level)
@@ -79,28 +88,47 @@ class BulkMcapWriter:
         self._chunk.add_record(schema)
         return schema.id
 
-    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
-                         metadata: dict[str, str] | None = None) -> int:
-        channel = Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
-                          schema_id=schema_id, metadata=metadata or {})
+    def register_channel(
+        self, topic: str, message_encoding: str, schema_id: int, metadata: dict[str, str] | None = None
+    ) -> int:
+        channel = Channel(
+            id=len(self._channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            schema_id=schema_id,
+            metadata=metadata or {},
+        )
         self._channels.append(channel)
         self._chunk.add_record(channel)
         return channel.id
 
     def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str, data: bytes) -> None:
-        attachment = Attachment(create_time=create_time, log_time=log_time, name=name, media_type=media_type,
-                                data=data)
+        attachment = Attachment(create_time=create_time, log_time=log_time, name=name, media_type=media_type, data=data)
         offset, length = self._write(attachment)
-        self._attachment_indexes.append(AttachmentIndex(
-            offset=offset, length=length, create_time=create_time, log_time=log_time, data_size=len(data),
-            name=name, media_type=media_type))
+        self._attachment_indexes.append(
+            AttachmentIndex(
+                offset=offset,
+                length=length,
+                create_time=create_time,
+                log_time=log_time,
+                data_size=len(data),
+                name=name,
+                media_type=media_type,
+            )
+        )
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         offset, length = self._write(Metadata(name=name, metadata=data))
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
 
-    def add_messages(self, channels: np.ndarray, log_times: np.ndarray, publish_times: np.ndarray,
-                     sequences: np.ndarray, data: Sequence[bytes]) -> None:
+    def add_messages(
+        self,
+        channels: np.ndarray,
+        log_times: np.ndarray,
+        publish_times: np.ndarray,
+        sequences: np.ndarray,
+        data: Sequence[bytes],
+    ) -> None:
         """Messages in file order: message i is (channels[i], ..., data[i])."""
         count = len(data)
         if count == 0:
@@ -114,7 +142,7 @@ class BulkMcapWriter:
         width = _MESSAGE_HEAD.itemsize
         head_bytes = heads.tobytes()
         records: list[bytes] = [b""] * (2 * count)
-        records[0::2] = [head_bytes[i * width:(i + 1) * width] for i in range(count)]
+        records[0::2] = [head_bytes[i * width : (i + 1) * width] for i in range(count)]
         records[1::2] = data
         record_ends = np.cumsum(sizes + width)
         record_starts = record_ends - (sizes + width)
@@ -127,9 +155,12 @@ class BulkMcapWriter:
             # mcap.Writer closes a chunk after the first message that takes it past chunk_size.
             room = self._chunk_size - self._chunk.size + record_starts[first]
             last = max(first, min(int(np.searchsorted(record_ends, room, side="right")), count - 1))
-            self._chunk.add_messages(b"".join(records[2 * first:2 * last + 2]), channels[first:last + 1],
-                                     log_times[first:last + 1],
-                                     self._chunk.size + record_starts[first:last + 1] - record_starts[first])
+            self._chunk.add_messages(
+                b"".join(records[2 * first : 2 * last + 2]),
+                channels[first : last + 1],
+                log_times[first : last + 1],
+                self._chunk.size + record_starts[first : last + 1] - record_starts[first],
+            )
             if self._chunk.size > self._chunk_size:
                 self._close_chunk()
             first = last + 1
@@ -147,15 +178,24 @@ class BulkMcapWriter:
             start = summary.count
             for record in records:
                 record.write(summary)
-            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
-                                         group_length=summary.count - start))
+            offsets.append(
+                SummaryOffset(
+                    group_opcode=opcode, group_start=summary_start + start, group_length=summary.count - start
+                )
+            )
 
         times = self._message_times or [0]
         statistics = Statistics(
-            attachment_count=len(self._attachment_indexes), channel_count=len(self._channels),
-            channel_message_counts=self._message_counts, chunk_count=len(self._chunk_indexes),
-            message_count=sum(self._message_counts.values()), metadata_count=len(self._metadata_indexes),
-            message_start_time=min(times), message_end_time=max(times), schema_count=len(self._schemas))
+            attachment_count=len(self._attachment_indexes),
+            channel_count=len(self._channels),
+            channel_message_counts=self._message_counts,
+            chunk_count=len(self._chunk_indexes),
+            message_count=sum(self._message_counts.values()),
+            metadata_count=len(self._metadata_indexes),
+            message_start_time=min(times),
+            message_end_time=max(times),
+            schema_count=len(self._schemas),
+        )
         group(Opcode.SCHEMA, self._schemas)
         group(Opcode.CHANNEL, self._channels)
         group(Opcode.STATISTICS, [statistics])
@@ -169,8 +209,13 @@ class BulkMcapWriter:
         # The footer's CRC covers the summary section and the footer up to the CRC itself.
         footer_start = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
         self._stream.write(summary_bytes)
-        self._write(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-                           summary_crc=zlib.crc32(footer_start, zlib.crc32(summary_bytes))))
+        self._write(
+            Footer(
+                summary_start=summary_start,
+                summary_offset_start=summary_offset_start,
+                summary_crc=zlib.crc32(footer_start, zlib.crc32(summary_bytes)),
+            )
+        )
         self._stream.write(MCAP0_MAGIC)
 
     def _write(self, record: McapRecord) -> tuple[int, int]:
@@ -186,20 +231,33 @@ class BulkMcapWriter:
         records = chunk.records()
         compressed = records if self._compressor is None else self._compressor.compress(records)
         start_time, end_time = chunk.time_range()
-        record = Chunk(compression="" if self._compressor is None else "zstd", data=compressed,
-                       message_start_time=start_time, message_end_time=end_time,
-                       uncompressed_crc=zlib.crc32(records), uncompressed_size=len(records))
+        record = Chunk(
+            compression="" if self._compressor is None else "zstd",
+            data=compressed,
+            message_start_time=start_time,
+            message_end_time=end_time,
+            uncompressed_crc=zlib.crc32(records),
+            uncompressed_size=len(records),
+        )
         chunk_offset, chunk_length = self._write(record)
         index_offset = self._stream.tell()
         message_index_offsets = {}
         for channel, index_record in chunk.message_indexes():
             message_index_offsets[channel] = self._stream.tell()
             self._stream.write(index_record)
-        self._chunk_indexes.append(ChunkIndex(
-            message_start_time=start_time, message_end_time=end_time, chunk_start_offset=chunk_offset,
-            chunk_length=chunk_length, message_index_offsets=message_index_offsets,
-            message_index_length=self._stream.tell() - index_offset, compression=record.compression,
-            compressed_size=len(compressed), uncompressed_size=len(records)))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start_time,
+                message_end_time=end_time,
+                chunk_start_offset=chunk_offset,
+                chunk_length=chunk_length,
+                message_index_offsets=message_index_offsets,
+                message_index_length=self._stream.tell() - index_offset,
+                compression=record.compression,
+                compressed_size=len(compressed),
+                uncompressed_size=len(records),
+            )
+        )
 
 
 class _OpenChunk:

@@ -40,8 +40,8 @@ from typing import TYPE_CHECKING, ClassVar
 import mujoco
 import numpy as np
 
-from teleop import physics
-from teleop.expert import LQRDesign, design_gain, feed_forward, load_or_design
+from humanoid import physics
+from humanoid.lqr import LQRDesign, design_gain, feed_forward, load_or_design
 
 if TYPE_CHECKING:
     import scipy.optimize
@@ -70,17 +70,23 @@ class Posture:
     # its limit and the arms up one seed in five fell. Every field at its limit at once falls
     # during the move (each held from rest); 70 % of every limit at once stays up.
     MIN: ClassVar[dict[str, float]] = {
-        "lean_forward": -0.2, "lean_left": -0.3, "height": -0.18, "twist": -0.55, "arms": 0.0,
+        "lean_forward": -0.2,
+        "lean_left": -0.3,
+        "height": -0.18,
+        "twist": -0.55,
+        "arms": 0.0,
     }
     MAX: ClassVar[dict[str, float]] = {
-        "lean_forward": 0.3, "lean_left": 0.3, "height": 0.006, "twist": 0.55, "arms": 3.0,
+        "lean_forward": 0.3,
+        "lean_left": 0.3,
+        "height": 0.006,
+        "twist": 0.55,
+        "arms": 3.0,
     }
 
     def clipped(self) -> Posture:
         """This posture with every field inside [MIN, MAX] (and ``arms`` rounded to a preset)."""
-        values = {
-            name: min(max(getattr(self, name), self.MIN[name]), self.MAX[name]) for name in self.MIN
-        }
+        values = {name: min(max(getattr(self, name), self.MIN[name]), self.MAX[name]) for name in self.MIN}
         values["arms"] = float(round(values["arms"]))
         return Posture(**values)
 
@@ -89,8 +95,12 @@ NEUTRAL = Posture()
 """The never-commanded posture: the design's own balanced pose."""
 
 ARM_JOINTS = (
-    "right_shoulder1", "right_shoulder2", "right_elbow",
-    "left_shoulder1", "left_shoulder2", "left_elbow",
+    "right_shoulder1",
+    "right_shoulder2",
+    "right_elbow",
+    "left_shoulder1",
+    "left_shoulder2",
+    "left_elbow",
 )
 """Joints that ``Posture.arms`` sets, in the order of ``ARM_POSES`` rows."""
 
@@ -139,9 +149,7 @@ def _joint_addresses(model: mujoco.MjModel, names: tuple[str, ...]) -> list[int]
     return [int(model.joint(name).qposadr[0]) for name in names]
 
 
-def _solve(
-    fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, tol: float
-) -> scipy.optimize.OptimizeResult:
+def _solve(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, tol: float) -> scipy.optimize.OptimizeResult:
     """``scipy.optimize.root`` with a central-difference Jacobian of absolute step ``_FD_STEP``.
 
     MINPACK's own differences scale the step with |x|, which for an unknown starting at 0 (the
@@ -157,9 +165,7 @@ def _solve(
     return scipy.optimize.root(fun, x0=x0, jac=jac, tol=tol)
 
 
-def _balance(
-    model: mujoco.MjModel, base: np.ndarray, neutral: np.ndarray, free_knee: bool
-) -> np.ndarray:
+def _balance(model: mujoco.MjModel, base: np.ndarray, neutral: np.ndarray, free_knee: bool) -> np.ndarray:
     """``base`` with the legs solved so that ``physics.static_root_residual`` vanishes.
 
     Unknowns: a right-minus-left knee split, a common hip_y angle, and either the common knee
@@ -249,7 +255,7 @@ def posture_pose(
         raise RuntimeError(f"{posture}: {error}") from None
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _design(model: mujoco.MjModel, design: LQRDesign) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     # The gains' own arrays, not a re-solve: the default expert's setpoint must stay bit-identical
     # even where the cached gains were computed elsewhere.
@@ -300,7 +306,10 @@ def posture_gain(model: mujoco.MjModel, posture: Posture, design: LQRDesign = LQ
 
 
 RATES: dict[str, float] = {
-    "lean_forward": 0.5, "lean_left": 0.5, "height": 0.025, "twist": 0.8,
+    "lean_forward": 0.5,
+    "lean_left": 0.5,
+    "height": 0.025,
+    "twist": 0.8,
 }
 """Mean speed (per second) at which ``PostureRamp`` moves each field toward its target.
 
@@ -309,11 +318,19 @@ for the drop after reset): at 0.05 m/s and more the torso lags the setpoint and 
 ARM_RATE = 0.4
 """Mean speed (rad/s) of the arm joint that has the farthest to go: at 1.5 rad/s the swing of the arms toppled the body."""
 WAYPOINT_STEP: dict[str, float] = {
-    "lean_forward": 0.05, "lean_left": 0.05, "height": 0.01, "twist": 0.05, "arms": 0.1,
+    "lean_forward": 0.05,
+    "lean_left": 0.05,
+    "height": 0.01,
+    "twist": 0.05,
+    "arms": 0.1,
 }
 """Largest change of a field (arms: of any arm joint, rad) between two solved, balanced waypoints (about 3 ms each)."""
 GAIN_STEP: dict[str, float] = {
-    "lean_forward": 0.2, "lean_left": 0.2, "height": 0.06, "twist": 0.3, "arms": 0.5,
+    "lean_forward": 0.2,
+    "lean_left": 0.2,
+    "height": 0.06,
+    "twist": 0.3,
+    "arms": 0.5,
 }
 """Largest change between two gains designed on the path (0.05 to 0.2 s each)."""
 
@@ -326,9 +343,9 @@ def _pieces(start: Posture, target: Posture, arm_change: float, step: dict[str, 
 
 def blend(start: Posture, target: Posture, s: float) -> Posture:
     """The posture fraction ``s`` of the way from ``start`` to ``target``, field by field."""
-    return Posture(**{
-        f.name: (1 - s) * getattr(start, f.name) + s * getattr(target, f.name) for f in dataclasses.fields(Posture)
-    })
+    return Posture(
+        **{f.name: (1 - s) * getattr(start, f.name) + s * getattr(target, f.name) for f in dataclasses.fields(Posture)}
+    )
 
 
 def _smoothstep(s: float) -> float:

@@ -1,6 +1,6 @@
 """Gymnasium `Humanoid-v5` helpers: construction, observation layout and body poses.
 
-Physics queries used by controllers live in `teleop.physics`; this module only knows the
+Physics queries used by controllers live in `humanoid.physics`; this module only knows the
 environment's shapes and names.
 """
 
@@ -82,11 +82,6 @@ def observation_names(model: mujoco.MjModel) -> list[str]:
 def split_observation(obs: np.ndarray, state_size: int) -> tuple[np.ndarray, np.ndarray]:
     """(observation.state, observation.environment_state) views of one or many observations."""
     return obs[..., :state_size], obs[..., state_size:]
-
-
-def join_observation(state: np.ndarray, environment_state: np.ndarray) -> np.ndarray:
-    """The gymnasium observation from its two stored parts."""
-    return np.concatenate([state, environment_state], axis=-1)
 
 
 def body_poses(data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:

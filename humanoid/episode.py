@@ -12,10 +12,10 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from teleop.cli import UserError
-from teleop.controllers import Controller
-from teleop.env import body_poses, model_and_data
-from teleop.keys import COMMAND_NAMES
+from common.cli import UserError
+from common.keys import COMMAND_NAMES
+from humanoid.controllers import Controller
+from humanoid.env import body_poses, model_and_data
 
 DEFAULT_TASK = "Stand still on both feet."
 
@@ -91,8 +91,16 @@ class EpisodeBuffer:
         self.command = np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
         self.tasks = np.empty(max_steps, object)
 
-    def record(self, t: int, obs: np.ndarray, data: mujoco.MjData, action: np.ndarray, executed: np.ndarray,
-               command: np.ndarray | None, task: str) -> None:
+    def record(
+        self,
+        t: int,
+        obs: np.ndarray,
+        data: mujoco.MjData,
+        action: np.ndarray,
+        executed: np.ndarray,
+        command: np.ndarray | None,
+        task: str,
+    ) -> None:
         """Row t before the step: observation o_t, body poses, label and executed action, command and task."""
         self.observation[t] = obs
         self.body_position[t], self.body_orientation[t] = body_poses(data)
@@ -146,7 +154,7 @@ def run_episode(
 
     The stored label of each step is the controller's action, or, with a `labeller` (DAgger), the
     labeller's action in the state the controller led to. Perturbations and rendering come with
-    `env` as wrappers (`teleop.perturbations`, `teleop.video`).
+    `env` as wrappers (`humanoid.perturbations`, `humanoid.video`).
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
@@ -168,12 +176,18 @@ def run_episode(
         t += 1
         if terminated or truncated:
             break
-    return buffer.episode(t, seed=seed, controller=controller.name, noise_std=noise_std,
-                          labeller=controller.name if labeller is None else labeller.name)
+    return buffer.episode(
+        t,
+        seed=seed,
+        controller=controller.name,
+        noise_std=noise_std,
+        labeller=controller.name if labeller is None else labeller.name,
+    )
 
 
 def check_action(action: np.ndarray, controller: Controller, t: int, seed: int) -> None:
     """NonFiniteActionError unless every entry of `action` is finite."""
     if not np.isfinite(action).all():
-        raise NonFiniteActionError(f"controller {controller.name!r} returned a non-finite action at step {t} "
-                                   f"of the episode with seed {seed}")
+        raise NonFiniteActionError(
+            f"controller {controller.name!r} returned a non-finite action at step {t} of the episode with seed {seed}"
+        )

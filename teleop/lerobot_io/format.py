@@ -62,6 +62,7 @@ def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:
 def hf_features(features: dict) -> datasets.Features:
     """The HuggingFace features of the frame table (scalars and 1-D vectors, as LeRobot maps them)."""
     import datasets  # noqa: PLC0415 - half a second: paid at the first write, not at start-up
+
     mapped = {}
     for key, ft in features.items():
         shape = tuple(ft["shape"])
@@ -121,8 +122,11 @@ def aggregate_stats(stats_list: list[Stats]) -> Stats:
             "mean": mean,
             "std": np.sqrt(variance),
             "count": total.astype(np.int64),
-            **{name: (np.stack([part[name] for part in parts]) * counts).sum(axis=0) / total
-               for name in map(quantile_key, QUANTILES) if all(name in part for part in parts)},
+            **{
+                name: (np.stack([part[name] for part in parts]) * counts).sum(axis=0) / total
+                for name in map(quantile_key, QUANTILES)
+                if all(name in part for part in parts)
+            },
         }
     return aggregated
 
@@ -137,7 +141,9 @@ def stats_from_json(data: dict[str, dict[str, list]]) -> Stats:
 
 def flatten_stats(stats: Stats) -> dict[str, list]:
     """Episode statistics as the `stats/<feature>/<stat>` columns of an episodes parquet row."""
-    return {f"stats/{key}/{name}": np.asarray(value).tolist() for key, ft in stats.items() for name, value in ft.items()}
+    return {
+        f"stats/{key}/{name}": np.asarray(value).tolist() for key, ft in stats.items() for name, value in ft.items()
+    }
 
 
 def unflatten_stats(row: dict[str, Any]) -> Stats:

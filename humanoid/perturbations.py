@@ -12,8 +12,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from teleop.env import model_and_data
-from teleop.physics import TORSO_BODY
+from humanoid.env import model_and_data
+from humanoid.physics import TORSO_BODY
 
 PUSH_STREAM = 2  # random stream of the push directions: (seed, 2); the action noise uses (seed, 1)
 

@@ -26,7 +26,7 @@ TERMINATED = "next.terminated"
 TASK = "task"
 
 # The command in force at each step (keyboard teleoperation; all zeros for the plain expert): the
-# posture the expert is asked to hold (teleop.posture.Posture's fields, in this order) and the push
+# posture the expert is asked to hold (humanoid.posture.Posture's fields, in this order) and the push
 # applied to the torso at that step (N, world frame). An observation, so a policy can be conditioned on it.
 OBS_COMMAND = "observation.command"
 COMMAND_NAMES = ("lean_forward", "lean_left", "height", "twist", "arms", "push_x", "push_y")

@@ -7,7 +7,7 @@ of MuJoCo per step). Here each worker process holds a contiguous group of the en
 steps them as SB3's in-process `DummyVecEnv` does (auto-reset, `terminal_observation`, consecutive
 seeds), so N environments give the same observations and rewards whatever the number of workers
 (a test compares them step by step). Besides SB3's `step`, a worker can sample a whole rollout of
-its environments with its own copy of the policy (`install_samplers`, `sample`; `bc.rollouts`),
+its environments with its own copy of the policy (`install_samplers`, `sample`; `bc.ppo.rollouts`),
 so that PPO's learner does not take part in every step.
 """
 
@@ -25,7 +25,6 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-
 # The info keys SB3's PPO reads (bootstrapping at time limits, episode statistics). Humanoid's
 # info holds a dozen NumPy scalars and arrays besides, whose copying and pickling cost more than
 # stepping the environments (about 350 µs per batch of 8), so workers send back only these.
@@ -37,7 +36,7 @@ class _Share:
 
     def __init__(self, envs: list[gym.Env]) -> None:
         self.envs = envs
-        # Where the environments are, for a sampler to act from (`bc.rollouts`): the last observations and
+        # Where the environments are, for a sampler to act from (`bc.ppo.rollouts`): the last observations and
         # whether each is the first of its episode.
         self.observations: np.ndarray | None = None
         self.episode_starts = np.ones(len(envs), bool)
@@ -60,8 +59,10 @@ class _Share:
         return self.observations, np.array(rewards, np.float32), self.episode_starts, infos, reset_infos
 
     def reset(self, seeds: list[int | None], options: list[dict]) -> tuple[np.ndarray, list[dict]]:
-        results = [env.reset(seed=seed, **({"options": opts} if opts else {}))
-                   for env, seed, opts in zip(self.envs, seeds, options, strict=True)]
+        results = [
+            env.reset(seed=seed, **({"options": opts} if opts else {}))
+            for env, seed, opts in zip(self.envs, seeds, options, strict=True)
+        ]
         self.observations, self.episode_starts = np.stack([obs for obs, _ in results]), np.ones(len(self.envs), bool)
         return self.observations, [info for _, info in results]
 
@@ -72,8 +73,9 @@ class _Share:
         """The sampler's rollout of these environments, from where they are, with the policy weights `state`."""
         if self.observations is None:
             raise RuntimeError("reset the environments before sampling")
-        return self.sampler.collect(lambda actions: self.step(actions)[:4], self.observations, self.episode_starts,
-                                    state, n_steps)
+        return self.sampler.collect(
+            lambda actions: self.step(actions)[:4], self.observations, self.episode_starts, state, n_steps
+        )
 
     def get_attr(self, indices: list[int], name: str) -> list[Any]:
         return [self.envs[i].get_wrapper_attr(name) for i in indices]
@@ -117,7 +119,7 @@ def _serve(remote: Connection, factories: CloudpickleWrapper, cpu: int | None) -
         while (message := remote.recv())[0] != "close":
             try:
                 remote.send(_handle(share, *message))
-            except Exception as error:  # noqa: BLE001 - every failure goes back to the learner
+            except Exception as error:
                 remote.send(_Failure(error))
     except (EOFError, KeyboardInterrupt):  # the learner is gone or interrupted: nothing left to serve
         pass
@@ -191,8 +193,13 @@ class WorkerGroupVecEnv(VecEnv):
     it was the bottleneck (its share plus PPO's per-step work), 1.35x against 1.49x end to end.
     """
 
-    def __init__(self, factories: Sequence[Callable[[], gym.Env]], workers: int, start_method: str = "forkserver",
-                 pin: bool = True):
+    def __init__(
+        self,
+        factories: Sequence[Callable[[], gym.Env]],
+        workers: int,
+        start_method: str = "forkserver",
+        pin: bool = True,
+    ):
         if not 1 <= workers <= len(factories):
             raise ValueError(f"need 1 <= workers <= environments, got {workers} workers for {len(factories)}")
         context = mp.get_context(start_method)
@@ -201,8 +208,10 @@ class WorkerGroupVecEnv(VecEnv):
         if workers == 1:
             self.workers: list[_Worker | _InProcess] = [_InProcess(list(factories))]
         else:
-            self.workers = [_Worker(context, [factories[i] for i in group], cpus[index % len(cpus)] if cpus else None)
-                            for index, group in enumerate(self.groups)]
+            self.workers = [
+                _Worker(context, [factories[i] for i in group], cpus[index % len(cpus)] if cpus else None)
+                for index, group in enumerate(self.groups)
+            ]
         self.closed = False
         self.workers[0].send("spaces")
         observation_space, action_space = self.workers[0].recv()
@@ -218,7 +227,7 @@ class WorkerGroupVecEnv(VecEnv):
         self.actions = actions
 
     def step_wait(self) -> VecEnvStepReturn:
-        results = self._all("step", lambda group: (self.actions[group.start:group.stop],))
+        results = self._all("step", lambda group: (self.actions[group.start : group.stop],))
         obs, rewards, dones, infos, reset_infos = zip(*results, strict=True)
         for group, resets in zip(self.groups, reset_infos, strict=True):
             for i, info in resets.items():
@@ -226,8 +235,9 @@ class WorkerGroupVecEnv(VecEnv):
         return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), [i for part in infos for i in part]
 
     def reset(self) -> VecEnvObs:
-        results = self._all("reset", lambda group: (self._seeds[group.start:group.stop],
-                                                    self._options[group.start:group.stop]))
+        results = self._all(
+            "reset", lambda group: (self._seeds[group.start : group.stop], self._options[group.start : group.stop])
+        )
         obs, reset_infos = zip(*results, strict=True)
         self.reset_infos = [info for part in reset_infos for info in part]
         self._reset_seeds()
@@ -235,7 +245,7 @@ class WorkerGroupVecEnv(VecEnv):
         return np.concatenate(obs)
 
     def install_samplers(self, make_sampler: Callable[[range], Any]) -> None:
-        """Gives each worker `make_sampler(the global indices of its environments)` (a `bc.rollouts.Sampler`)."""
+        """Gives each worker `make_sampler(the global indices of its environments)` (a `bc.ppo.rollouts.Sampler`)."""
         self._all("install_sampler", lambda group: (make_sampler(group),))
 
     def sample(self, state: dict, n_steps: int) -> list[Any]:
@@ -268,8 +278,9 @@ class WorkerGroupVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         self._call("set_attr", indices, attr_name, value)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None,
-                   **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         return self._call("env_method", indices, method_name, method_args, method_kwargs)
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:

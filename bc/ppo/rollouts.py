@@ -30,7 +30,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
-from bc.vec_env import WorkerGroupVecEnv
+from bc.ppo.vec_env import WorkerGroupVecEnv
 from policies.actor_critic import scale_learning_rates
 
 
@@ -53,10 +53,12 @@ class Segment:
     def concatenate(parts: list[Segment]) -> Segment:
         """The segments of consecutive groups of environments as one, in environment order."""
         per_step = {name: np.concatenate([getattr(part, name) for part in parts], axis=1) for name in STEP_ARRAYS}
-        return Segment(**per_step,
-                       infos=[[info for part in parts for info in part.infos[t]] for t in range(len(parts[0].infos))],
-                       last_observations=np.concatenate([part.last_observations for part in parts]),
-                       last_values=np.concatenate([part.last_values for part in parts]))
+        return Segment(
+            **per_step,
+            infos=[[info for part in parts for info in part.infos[t]] for t in range(len(parts[0].infos))],
+            last_observations=np.concatenate([part.last_observations for part in parts]),
+            last_values=np.concatenate([part.last_values for part in parts]),
+        )
 
 
 # The fields of a Segment that hold one array per step, stacked along axis 0.
@@ -76,18 +78,27 @@ def without_optimiser(policy: ActorCriticPolicy) -> ActorCriticPolicy:
 class Sampler:
     """A worker's share of PPO's rollouts: its copy of the policy and one noise stream per environment."""
 
-    def __init__(self, policy: ActorCriticPolicy, env_indices: range, seed: int, gamma: float,
-                 reward_scale: float = 1.0) -> None:
+    def __init__(
+        self, policy: ActorCriticPolicy, env_indices: range, seed: int, gamma: float, reward_scale: float = 1.0
+    ) -> None:
         self.policy = policy
         self.gamma, self.reward_scale = gamma, reward_scale
-        self.generators = [torch.Generator().manual_seed(int(np.random.SeedSequence((seed, i)).generate_state(1)[0]))
-                           for i in env_indices]
+        self.generators = [
+            torch.Generator().manual_seed(int(np.random.SeedSequence((seed, i)).generate_state(1)[0]))
+            for i in env_indices
+        ]
 
     def value(self, observations: np.ndarray) -> np.ndarray:
         return self.policy.predict_values(self.policy.obs_to_tensor(observations)[0]).flatten().numpy()
 
-    def collect(self, step: Any, observations: np.ndarray, episode_starts: np.ndarray, state: dict[str, torch.Tensor],
-                n_steps: int) -> Segment:
+    def collect(
+        self,
+        step: Any,
+        observations: np.ndarray,
+        episode_starts: np.ndarray,
+        state: dict[str, torch.Tensor],
+        n_steps: int,
+    ) -> Segment:
         """`n_steps` steps of SB3's `collect_rollouts` for these environments; `step(actions)` steps them.
 
         `step` returns what `_Share.step` does: observations (after auto-reset), rewards, dones, infos.
@@ -112,15 +123,26 @@ class Sampler:
                     # SB3's bootstrapping at time limits (stable-baselines3 issue #633), one observation at a time
                     if dones[i] and info.get("TimeLimit.truncated") and "terminal_observation" in info:
                         rewards[i] += self.gamma * self.value(info["terminal_observation"][None])[0]
-                step_record = {"observations": observations, "actions": actions, "rewards": rewards,
-                               "episode_starts": episode_starts, "values": values.numpy(),
-                               "log_probs": log_probs.numpy(), "dones": dones, "infos": infos}
+                step_record = {
+                    "observations": observations,
+                    "actions": actions,
+                    "rewards": rewards,
+                    "episode_starts": episode_starts,
+                    "values": values.numpy(),
+                    "log_probs": log_probs.numpy(),
+                    "dones": dones,
+                    "infos": infos,
+                }
                 for name, value in step_record.items():
                     records[name].append(value)
                 observations, episode_starts = next_observations, dones
             infos = records.pop("infos")
-            return Segment(**{name: np.stack(values) for name, values in records.items()}, infos=infos,
-                           last_observations=observations, last_values=self.value(observations))
+            return Segment(
+                **{name: np.stack(values) for name, values in records.items()},
+                infos=infos,
+                last_observations=observations,
+                last_values=self.value(observations),
+            )
 
 
 class WorkerRolloutPPO(PPO):
@@ -144,8 +166,9 @@ class WorkerRolloutPPO(PPO):
         finally:
             torch.set_num_threads(rollout_threads)
 
-    def collect_rollouts(self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer,
-                         n_rollout_steps: int) -> bool:
+    def collect_rollouts(
+        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
+    ) -> bool:
         if not isinstance(env, WorkerGroupVecEnv):
             raise TypeError(f"WorkerRolloutPPO samples in a WorkerGroupVecEnv's workers, got {type(env).__name__}")
         if self._samplers_of is not env:
@@ -163,12 +186,18 @@ class WorkerRolloutPPO(PPO):
             if not callback.on_step():
                 return False
             self._update_info_buffer(infos, dones)
-            rollout_buffer.add(segment.observations[n_steps], segment.actions[n_steps], segment.rewards[n_steps],
-                               segment.episode_starts[n_steps], torch.as_tensor(segment.values[n_steps]),
-                               torch.as_tensor(segment.log_probs[n_steps]))
+            rollout_buffer.add(
+                segment.observations[n_steps],
+                segment.actions[n_steps],
+                segment.rewards[n_steps],
+                segment.episode_starts[n_steps],
+                torch.as_tensor(segment.values[n_steps]),
+                torch.as_tensor(segment.log_probs[n_steps]),
+            )
         self._last_obs, self._last_episode_starts = segment.last_observations, segment.dones[-1]
-        rollout_buffer.compute_returns_and_advantage(last_values=torch.as_tensor(segment.last_values),
-                                                     dones=segment.dones[-1])
+        rollout_buffer.compute_returns_and_advantage(
+            last_values=torch.as_tensor(segment.last_values), dones=segment.dones[-1]
+        )
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True

@@ -1,6 +1,6 @@
-"""Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5.
+"""The LQR design behind the standing expert (`humanoid.expert`) and its postures (`humanoid.posture`).
 
-The design, run once at start-up (about a second) and cached on disk:
+The design, run once per model and cached on disk (docs/design.md, "The expert"):
 
 1. a statically balanced pose: knees at ``LQRDesign.knee``, torso height and both hip_y angles
    solved so that inverse dynamics leaves no vertical force and no pitch moment on the root;
@@ -27,15 +27,12 @@ import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from teleop import physics
-
-if TYPE_CHECKING:  # teleop.posture builds on this module, which imports it only when a posture is commanded
-    from teleop.posture import Posture, PostureRamp
+from common.paths import cache_dir
+from humanoid import physics
 
 log = logging.getLogger(__name__)
 
@@ -48,9 +45,9 @@ QVEL_OBS = slice(22, 45)
 """Where qvel sits in the observation."""
 
 _CACHE_FORMAT = 1  # bump when design_lqr changes what it computes, so old cache files go stale
-_ROOT_XY = 2  # the free joint's leading x, y coordinates, left out of the LQR state
-_HEIGHT = 0  # index of the root height error in the position part of the state
-_VERTICAL_VEL = 2  # index of the root vertical velocity in qvel
+ROOT_XY = 2  # the free joint's leading x, y coordinates, left out of the LQR state
+HEIGHT = 0  # index of the root height error in the position part of the state
+VERTICAL_VEL = 2  # index of the root vertical velocity in qvel
 _PITCH = 4  # free-joint dof of the moment about the body y axis
 
 
@@ -102,13 +99,11 @@ def humanoid_model() -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(xml))
 
 
-def state_error(
-    model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, qvel: np.ndarray
-) -> np.ndarray:
+def state_error(model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
     """LQR state of (qpos, qvel) around qpos_ref: tangent-space position error without root x, y, then qvel."""
     dq = np.empty(model.nv)
     mujoco.mj_differentiatePos(model, dq, 1.0, qpos_ref, qpos)
-    return np.concatenate([dq[_ROOT_XY:], qvel])
+    return np.concatenate([dq[ROOT_XY:], qvel])
 
 
 def balanced_pose(model: mujoco.MjModel, knee: float) -> np.ndarray:
@@ -145,9 +140,7 @@ def feed_forward(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
     data.qpos[:] = qpos
     torque = physics.static_inverse_dynamics(model, data)
     moment = np.zeros((model.nu, model.nv))
-    mujoco.mju_sparse2dense(
-        moment, data.actuator_moment, data.moment_rownnz, data.moment_rowadr, data.moment_colind
-    )
+    mujoco.mju_sparse2dense(moment, data.actuator_moment, data.moment_rownnz, data.moment_rowadr, data.moment_colind)
     # Only the joints are actuated; the root's residual is what balanced_pose drove to zero.
     ctrl, *_ = np.linalg.lstsq(moment[:, 6:].T, torque[6:], rcond=None)
     return ctrl
@@ -171,22 +164,20 @@ def linearise(
     nominal.qpos[:], nominal.ctrl[:] = qpos_ref, ctrl_ref
     mujoco.mj_forward(sim, nominal)
     scratch = mujoco.MjData(sim)
-    nx = 2 * sim.nv - _ROOT_XY
+    nx = 2 * sim.nv - ROOT_XY
 
     def step(z: np.ndarray) -> np.ndarray:
         """Next state after perturbing the nominal state by z[:nx] and its control by z[nx:]."""
         mujoco.mj_copyData(scratch, sim, nominal)
-        dq = np.concatenate([np.zeros(_ROOT_XY), z[: sim.nv - _ROOT_XY]])
+        dq = np.concatenate([np.zeros(ROOT_XY), z[: sim.nv - ROOT_XY]])
         mujoco.mj_integratePos(sim, scratch.qpos, dq, 1.0)
-        scratch.qvel[:] += z[sim.nv - _ROOT_XY : nx]
+        scratch.qvel[:] += z[sim.nv - ROOT_XY : nx]
         scratch.ctrl[:] += z[nx:]
         mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
         return state_error(sim, qpos_ref, scratch.qpos, scratch.qvel)
 
     eps = design.fd_eps
-    jac = np.stack(
-        [(step(eps * e) - step(-eps * e)) / (2 * eps) for e in np.eye(nx + sim.nu)], axis=1
-    )
+    jac = np.stack([(step(eps * e) - step(-eps * e)) / (2 * eps) for e in np.eye(nx + sim.nu)], axis=1)
     return jac[:, :nx], jac[:, nx:]
 
 
@@ -223,19 +214,14 @@ def design_gain(
     data = mujoco.MjData(model)
     data.qpos[:] = qpos_ref
     mujoco.mj_forward(model, data)
-    jac = physics.com_over_feet_jacobian(model, data)[:, _ROOT_XY:]
-    npos = model.nv - _ROOT_XY
+    jac = physics.com_over_feet_jacobian(model, data)[:, ROOT_XY:]
+    npos = model.nv - ROOT_XY
     q = scipy.linalg.block_diag(
         design.q_com * jac.T @ jac + design.q_pos * np.eye(npos), design.q_vel * np.eye(model.nv)
     )
     r = design.r * np.eye(model.nu)
     p = scipy.linalg.solve_discrete_are(a, b, q, r)
     return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
-
-
-def cache_dir() -> Path:
-    """Directory of cached gains: ``$HUMANOID_BC_CACHE``, else ``~/.cache/humanoid-bc``."""
-    return Path(os.environ.get("HUMANOID_BC_CACHE", "~/.cache/humanoid-bc")).expanduser()
 
 
 def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
@@ -273,88 +259,3 @@ def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQ
     except OSError as error:
         log.warning("could not cache LQR gains at %s: %s", path, error)
     return gains
-
-
-class LQRExpert:
-    """Standing controller acting from the Humanoid-v5 observation alone.
-
-    ``qpos_ref``, ``ctrl_ff`` and ``gain`` are the setpoint, its feed-forward and the feedback
-    gain: the design's until ``hold`` commands a posture (lean, crouch, twist, arms;
-    ``teleop.posture``), toward whose own (balanced pose, feed-forward, gain) they then move
-    gradually. The neutral gain alone does not hold most postures: it lets them oscillate or fall.
-    """
-
-    name = "expert"
-
-    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign()) -> None:
-        """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's."""
-        self.model = humanoid_model() if model is None else model
-        self.design = design
-        self.gains = load_or_design(self.model, design)
-        self.qpos_ref = self.gains.qpos_ref.copy()
-        self.ctrl_ff = self.gains.ctrl_ff.copy()
-        self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
-        self._qpos = self.qpos_ref.copy()
-        self._vz = self.model.nv - _ROOT_XY + _VERTICAL_VEL  # vertical velocity in the state
-        self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
-        self._moving = False  # one attribute test per act while the setpoint is still
-
-    def reset(self, seed: int | None = None) -> None:
-        """Back to the neutral posture at once (setpoint and target); otherwise deterministic and stateless."""
-        if self._ramp is not None:
-            self._ramp.reset()
-        self._moving = False
-
-    def hold(self, posture: Posture, clip: bool = True) -> None:
-        """Hold ``posture`` (clipped to its limits unless ``clip`` is False) from now on, moving there gradually.
-
-        Plans the move at once: balanced waypoints (about 3 ms each, one per 0.1 s of move) and,
-        the first time a posture is commanded, its LQR gain (0.05 to 0.2 s; cached after). Later
-        calls retarget from wherever the setpoint has got to; ``Posture()`` returns to neutral.
-        """
-        if self._ramp is None:
-            from teleop.posture import PostureRamp  # see TYPE_CHECKING above
-
-            self.gain = self.gains.gain.copy()
-            self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
-        self._ramp.hold(posture, clip)
-        self._moving = self._ramp.moving
-
-    @property
-    def moving(self) -> bool:
-        """True while the setpoint is still on its way to the commanded posture."""
-        return self._moving
-
-    @property
-    def posture(self) -> Posture:
-        """The posture the setpoint is at now (between the previous and the target while moving)."""
-        return self._ramp.posture if self._ramp is not None else _neutral_posture()
-
-    @property
-    def target(self) -> Posture:
-        """The posture last commanded by ``hold`` (clipped), or the neutral one."""
-        return self._ramp.target if self._ramp is not None else _neutral_posture()
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """Action (float32, shape (nu,), within +-CTRL_LIMIT) for a 348-dim Humanoid-v5 observation.
-
-        While a commanded posture is being approached, each call also moves the setpoint one env step.
-        """
-        if self._moving:
-            self._moving = self._ramp.step()
-        # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
-        self._qpos[:_ROOT_XY] = self.qpos_ref[:_ROOT_XY]
-        self._qpos[_ROOT_XY:] = obs[QPOS_OBS]
-        x = state_error(self.model, self.qpos_ref, self._qpos, obs[QVEL_OBS])
-        d = self.design
-        # Builtin min/max: np.clip costs microseconds per scalar call.
-        x[_HEIGHT] = min(max(x[_HEIGHT], -d.height_clip), d.height_clip)
-        x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
-        ctrl = self.ctrl_ff - self.gain @ x
-        return np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
-
-
-def _neutral_posture() -> Posture:
-    from teleop.posture import NEUTRAL  # see TYPE_CHECKING above
-
-    return NEUTRAL

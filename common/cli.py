@@ -17,7 +17,6 @@ from typing import Any, TypeVar
 
 Config = TypeVar("Config")
 
-EXIT_USAGE = 2
 EXIT_FAILURE = 1
 
 
@@ -32,6 +31,11 @@ class DatasetError(UserError):
 def setting(default: Any, help: str, **kwargs: Any) -> Any:
     """A config field with its `--help` text."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})
+
+
+def flag(name: str) -> str:
+    """The command-line flag of config field `name`, for messages that tell the user what to type."""
+    return "--" + name.replace("_", "-")
 
 
 def _parser_type(annotation: Any) -> Callable[[str], Any]:
@@ -50,23 +54,35 @@ def _boolean(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected a boolean, got {text!r}")
 
 
-def parse_config(config_class: type[Config], argv: Sequence[str] | None, description: str,
-                 prog: str | None = None) -> Config:
+def parse_config[Config](
+    config_class: type[Config], argv: Sequence[str] | None, description: str, prog: str | None = None
+) -> Config:
     """Parse `argv` into `config_class`; `--help` lists each field with its default."""
-    parser = argparse.ArgumentParser(prog=prog, description=description,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     hints = typing.get_type_hints(config_class)
     for field in dataclasses.fields(config_class):
-        flag = "--" + field.name.replace("_", "-")
         choices = field.metadata.get("choices")
-        parser.add_argument(flag, dest=field.name, type=_parser_type(hints[field.name]), default=field.default,
-                            choices=choices, metavar=field.metadata.get("metavar"),
-                            help=f"{field.metadata.get('help', '')} (default: {field.default})")
+        parser.add_argument(
+            flag(field.name),
+            dest=field.name,
+            type=_parser_type(hints[field.name]),
+            default=field.default,
+            choices=choices,
+            metavar=field.metadata.get("metavar"),
+            help=f"{field.metadata.get('help', '')} (default: {field.default})",
+        )
     return config_class(**vars(parser.parse_args(argv)))
 
 
-def run_cli(main: Callable[[Config], Any], config_class: type[Config], argv: Sequence[str] | None,
-            description: str, prog: str | None = None) -> int:
+def run_cli[Config](
+    main: Callable[[Config], Any],
+    config_class: type[Config],
+    argv: Sequence[str] | None,
+    description: str,
+    prog: str | None = None,
+) -> int:
     """Parse, run `main`, and turn user errors into one line on stderr and a non-zero exit code."""
     config = parse_config(config_class, argv, description, prog)
     try:

@@ -2,7 +2,7 @@
 
 LeRobot's own writer keeps a parquet file open across episodes: killed before `finalize()`, that
 file has no footer and the whole dataset is unreadable. This writer keeps the v3.0 layout (see
-`teleop.lerobot_format`) but gives every episode its own finished parquet file, for its frames and
+`teleop.lerobot_io.format`) but gives every episode its own finished parquet file, for its frames and
 for its metadata row, and makes `meta/info.json` the commit point:
 
 1. `stage`: data/chunk-C/file-F.parquet and meta/episodes/chunk-C/file-F.parquet (each written to a
@@ -28,8 +28,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from teleop.cli import DatasetError
-from teleop.lerobot_format import (
+from common.cli import DatasetError
+from teleop.lerobot_io.format import (
     DEFAULT_FEATURES,
     EPISODES_DIR,
     EPISODES_PATH,
@@ -84,8 +84,9 @@ class StagedEpisode:
 class LeRobotWriter:
     """Appends episodes to one LeRobot v3.0 dataset; `open` creates it or checks it is compatible."""
 
-    def __init__(self, root: Path, info: dict, tasks: pd.DataFrame, stats: Stats | None,
-                 last_file: tuple[int, int] | None) -> None:
+    def __init__(
+        self, root: Path, info: dict, tasks: pd.DataFrame, stats: Stats | None, last_file: tuple[int, int] | None
+    ) -> None:
         self.root = root
         self.info = info
         self.tasks = tasks
@@ -104,8 +105,9 @@ class LeRobotWriter:
         info_path = root / INFO_PATH
         if not info_path.exists():
             if any(not p.name.startswith(".") for p in root.iterdir()):
-                raise DatasetError(f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); "
-                                   "choose an empty or new folder")
+                raise DatasetError(
+                    f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); choose an empty or new folder"
+                )
             _write_json(info, info_path)
             return cls(root, info, _empty_tasks(), None, None)
 
@@ -113,8 +115,11 @@ class LeRobotWriter:
             existing = json.loads(info_path.read_text())
         except ValueError as error:
             raise DatasetError(f"{info_path} is not valid JSON ({error})") from None
-        problems = [f"{key} {existing.get(key)!r}, not {info[key]!r}"
-                    for key in ("codebase_version", "fps", "robot_type") if existing.get(key) != info[key]]
+        problems = [
+            f"{key} {existing.get(key)!r}, not {info[key]!r}"
+            for key in ("codebase_version", "fps", "robot_type")
+            if existing.get(key) != info[key]
+        ]
         if existing.get("features") != info["features"]:
             theirs, ours = set(existing.get("features", {})), set(info["features"])
             detail = f"keys {sorted(theirs ^ ours)} differ" if theirs != ours else "shapes, dtypes or names differ"
@@ -173,8 +178,16 @@ class LeRobotWriter:
         data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
         # Dictionary encoding, parquet's default, makes writing float columns 40 times slower; one page
         # per column (an episode's column is at most a few MB) instead of 1 MB pages saves a third more.
-        write_atomically(data_path, lambda p: pq.write_table(self._frames_table(frames), p, compression="snappy",
-                                                            use_dictionary=False, data_page_size=_DATA_PAGE_SIZE))
+        write_atomically(
+            data_path,
+            lambda p: pq.write_table(
+                self._frames_table(frames),
+                p,
+                compression="snappy",
+                use_dictionary=False,
+                data_page_size=_DATA_PAGE_SIZE,
+            ),
+        )
         stats = episode_stats(frames)
         row = {
             "episode_index": index,
@@ -190,8 +203,10 @@ class LeRobotWriter:
             **extra,
         }
         table = pa.Table.from_pylist([row])
-        write_atomically(self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=file),
-                         lambda p: pq.write_table(table, p, compression="snappy"))
+        write_atomically(
+            self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=file),
+            lambda p: pq.write_table(table, p, compression="snappy"),
+        )
         self._last_file = (chunk, file)
         return StagedEpisode(index, length, stats, total_tasks=len(self.tasks))
 
@@ -211,8 +226,11 @@ class LeRobotWriter:
         for path in _episode_files(self.root):
             if name in pq.read_schema(path).names:
                 table = pq.read_table(path, columns=["episode_index", name])
-                values += [value for index, value in zip(table["episode_index"].to_pylist(), table[name].to_pylist(),
-                                                         strict=True) if index < self.total_episodes]
+                values += [
+                    value
+                    for index, value in zip(table["episode_index"].to_pylist(), table[name].to_pylist(), strict=True)
+                    if index < self.total_episodes
+                ]
         return values
 
     def _task_index(self, task: str) -> int:
@@ -258,13 +276,17 @@ def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
         if min(indices) >= committed:
             _remove(root, path)
         elif max(indices) >= committed:
-            raise DatasetError(f"{path} mixes committed episodes with some beyond the {committed} that "
-                               "info.json counts; repair the dataset by hand")
+            raise DatasetError(
+                f"{path} mixes committed episodes with some beyond the {committed} that "
+                "info.json counts; repair the dataset by hand"
+            )
         else:
             rows += file_rows
     rows.sort(key=lambda row: row["episode_index"])
-    referenced = {root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
-                  for row in rows}
+    referenced = {
+        root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+        for row in rows
+    }
     for data_file in _data_files(root):
         if data_file not in referenced:
             _remove(root, data_file)

@@ -1,6 +1,6 @@
 """One MCAP file per episode: protobuf messages in zstd chunks, viewable in Foxglove's 3D panel.
 
-The file is written by `teleop.mcap_bulk`, which takes the whole episode's messages at once.
+The file is written by `teleop.mcap_io.bulk`, which takes the whole episode's messages at once.
 
 Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
 - `/step`  humanoid_bc.Step: observation, label and executed action, reward, terminated, truncated.
@@ -31,10 +31,10 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
-from teleop.episode import Episode
-from teleop.mcap_bulk import BulkMcapWriter
-from teleop.mcap_schema import Command, Step
-from teleop.protobuf_wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
+from humanoid.episode import Episode
+from teleop.mcap_io.bulk import BulkMcapWriter
+from teleop.mcap_io.schema import Command, Step
+from teleop.mcap_io.wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
 
 STEP_TOPIC = "/step"
 TF_TOPIC = "/tf"
@@ -48,7 +48,9 @@ _DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
 
 def _pose(position: np.ndarray, wxyz: np.ndarray) -> Pose:
     w, x, y, z = wxyz
-    return Pose(position=Vector3(x=position[0], y=position[1], z=position[2]), orientation=Quaternion(x=x, y=y, z=z, w=w))
+    return Pose(
+        position=Vector3(x=position[0], y=position[1], z=position[2]), orientation=Quaternion(x=x, y=y, z=z, w=w)
+    )
 
 
 def _geom_color(model: mujoco.MjModel, geom: int) -> Color:
@@ -70,21 +72,31 @@ def scene_update(model: mujoco.MjModel, body_frames: list[str]) -> SceneUpdate:
         orientation = model.geom_quat[geom]
         kind = model.geom_type[geom]
         if kind == mujoco.mjtGeom.mjGEOM_PLANE:
-            entity.cubes.append(CubePrimitive(pose=_pose(pose - [0, 0, 0.005], orientation),
-                                              size=Vector3(x=2 * size[0], y=2 * size[1], z=0.01), color=color))
+            entity.cubes.append(
+                CubePrimitive(
+                    pose=_pose(pose - [0, 0, 0.005], orientation),
+                    size=Vector3(x=2 * size[0], y=2 * size[1], z=0.01),
+                    color=color,
+                )
+            )
         elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
             d = 2 * size[0]
-            entity.spheres.append(SpherePrimitive(pose=_pose(pose, orientation), size=Vector3(x=d, y=d, z=d), color=color))
+            entity.spheres.append(
+                SpherePrimitive(pose=_pose(pose, orientation), size=Vector3(x=d, y=d, z=d), color=color)
+            )
         elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
             radius, half_length = size[0], size[1]
             d = 2 * radius
-            entity.cylinders.append(CylinderPrimitive(pose=_pose(pose, orientation),
-                                                      size=Vector3(x=d, y=d, z=2 * half_length), color=color))
+            entity.cylinders.append(
+                CylinderPrimitive(pose=_pose(pose, orientation), size=Vector3(x=d, y=d, z=2 * half_length), color=color)
+            )
             axis = np.empty(9)
             mujoco.mju_quat2Mat(axis, orientation)
             along = axis.reshape(3, 3)[:, 2] * half_length  # capsule axis is the geom's local z
             for end in (pose + along, pose - along):
-                entity.spheres.append(SpherePrimitive(pose=_pose(end, orientation), size=Vector3(x=d, y=d, z=d), color=color))
+                entity.spheres.append(
+                    SpherePrimitive(pose=_pose(end, orientation), size=Vector3(x=d, y=d, z=d), color=color)
+                )
         else:
             raise ValueError(f"geom {geom} has type {kind}, which the Foxglove scene does not draw")
     return SceneUpdate(entities=list(entities.values()))
@@ -103,18 +115,32 @@ def write_episode_mcap(
     """Write `episode` to `path` atomically: a finished file appears under its name, or nothing does."""
     times_ns = np.arange(episode.length, dtype=np.int64) * step_ns
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
-        times_ns, episode.body_position, episode.body_orientation)
+        times_ns, episode.body_position, episode.body_orientation
+    )
     commands = CommandEncoder().encode(times_ns, episode.command, episode.tasks)
-    steps = StepEncoder().encode(times_ns, episode_index, episode.observation, episode.action, episode.executed_action,
-                                 episode.reward, episode.terminated, episode.truncated, episode.tasks)
+    steps = StepEncoder().encode(
+        times_ns,
+        episode_index,
+        episode.observation,
+        episode.action,
+        episode.executed_action,
+        episode.reward,
+        episode.terminated,
+        episode.truncated,
+        episode.tasks,
+    )
     partial = path.with_name(path.name + ".partial")
     with partial.open("wb") as stream:
         writer = BulkMcapWriter(stream)
         writer.start(profile="", library="humanoid-bc")
         channels = {
             topic: writer.register_channel(topic, MessageEncoding.Protobuf, register_schema(writer, message_type))
-            for topic, message_type in ((SCENE_TOPIC, SceneUpdate), (STEP_TOPIC, Step), (TF_TOPIC, FrameTransforms),
-                                        (COMMAND_TOPIC, Command))
+            for topic, message_type in (
+                (SCENE_TOPIC, SceneUpdate),
+                (STEP_TOPIC, Step),
+                (TF_TOPIC, FrameTransforms),
+                (COMMAND_TOPIC, Command),
+            )
         }
         writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
         writer.add_metadata(METADATA_NAME, metadata)
@@ -123,9 +149,14 @@ def write_episode_mcap(
         per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
         data: list[bytes] = [b""] * (len(per_step) * episode.length)
         for offset, messages in enumerate((steps, transforms, commands)):
-            data[offset::len(per_step)] = messages
+            data[offset :: len(per_step)] = messages
         step_times = np.repeat(times_ns, len(per_step))
-        writer.add_messages(np.tile([channels[topic] for topic in per_step], episode.length), step_times, step_times,
-                            np.repeat(np.arange(episode.length), len(per_step)), data)
+        writer.add_messages(
+            np.tile([channels[topic] for topic in per_step], episode.length),
+            step_times,
+            step_times,
+            np.repeat(np.arange(episode.length), len(per_step)),
+            data,
+        )
         writer.finish()
     os.replace(partial, path)

@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from policies import checkpoint_problem  # torch-free: the policies themselves are imported on use
+from policies.folder import checkpoint_problem  # torch-free: the policies themselves are imported on use
 
 
 @runtime_checkable
@@ -48,7 +48,7 @@ class RandomController:
 
 
 def _expert(env: gym.Env) -> Controller:
-    from teleop.expert import LQRExpert  # the LQR design imports scipy; only pay for it when used
+    from humanoid.expert import LQRExpert  # the LQR design imports scipy; only pay for it when used
 
     return LQRExpert(env.unwrapped.model)
 

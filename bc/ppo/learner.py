@@ -1,0 +1,110 @@
+"""The PPO learner: training environments over worker processes, and PPO with the BC actor.
+
+The actor is the BC module itself (`policies.actor_critic`), so at step 0 PPO's deterministic
+actions are the BC policy's, exactly.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import gymnasium as gym
+import torch
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import VecEnv
+
+from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
+from bc.ppo.rollouts import WorkerRolloutPPO
+from bc.ppo.vec_env import WorkerGroupVecEnv
+from humanoid.env import make_env
+from humanoid.perturbations import TorsoPushes
+from policies.actor_critic import BCActorCriticPolicy
+from policies.mlp import MLPPolicy
+
+
+def training_env(push: float) -> gym.Env:
+    """One training environment (module-level, so worker processes can build it).
+
+    SB3's `Monitor` records each episode's return and length (the environment's own rewards, before
+    any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
+    """
+    env = make_env()
+    return Monitor(TorsoPushes(env, push) if push > 0 else env)
+
+
+def make_vec_env(envs: int, workers: int, push: float, seed: int) -> WorkerGroupVecEnv:
+    """`envs` training environments over `workers` processes, seeded from `seed`."""
+    env = WorkerGroupVecEnv([functools.partial(training_env, push)] * envs, workers)
+    env.seed(seed)
+    return env
+
+
+def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
+    """`like`'s shape re-initialised from `seed`, keeping its input normalisation (the scratch baseline's actor)."""
+    torch.manual_seed(seed)
+    fresh = MLPPolicy(like.spec)
+    fresh.load_state_dict({**fresh.state_dict(), **dict(like.named_buffers())})
+    return fresh
+
+
+def build_model(
+    actor: MLPPolicy,
+    env: VecEnv,
+    *,
+    learning_rate: float,
+    critic_learning_rate: float,
+    reward_scale: float,
+    log_std_init: float,
+    n_steps: int,
+    batch_size: int,
+    n_epochs: int,
+    gamma: float,
+    gae_lambda: float,
+    clip_range: float,
+    target_kl: float | None,
+    seed: int,
+    update_threads: int = 0,
+    term: DemonstrationTerm | None = None,
+    tensorboard: Path | None = None,
+) -> WorkerRolloutPPO:
+    """The PPO learner around `actor` (its weights are copied); nothing is trained yet.
+
+    `update_threads` 0 means one per core: the workers are idle during updates.
+    """
+    policy_kwargs = {
+        "actor_spec": actor.spec,
+        "actor_state": actor.state_dict(),
+        "critic_hidden": actor.spec.hidden,
+        "log_std_init": log_std_init,
+        "optimizer_class": RegularisedAdam,
+        "critic_lr_scale": critic_learning_rate / learning_rate,
+        "optimizer_kwargs": {"term": term},
+    }
+    model = WorkerRolloutPPO(
+        BCActorCriticPolicy,
+        env,
+        update_threads=update_threads or len(os.sched_getaffinity(0)),
+        reward_scale=reward_scale,
+        learning_rate=learning_rate,
+        n_steps=n_steps,
+        batch_size=batch_size,
+        n_epochs=n_epochs,
+        gamma=gamma,
+        gae_lambda=gae_lambda,
+        clip_range=clip_range,
+        target_kl=target_kl,
+        policy_kwargs=policy_kwargs,
+        seed=seed,
+        device="cpu",
+        tensorboard_log=None if tensorboard is None else str(tensorboard),
+        verbose=0,
+    )
+    if tensorboard is None:
+        # SB3's own default would create an empty log folder under /tmp for every learner.
+        model.set_logger(Logger(folder=None, output_formats=[]))
+    if term is not None:
+        term.actor = model.policy.actor
+    return model

@@ -1,0 +1,28 @@
+"""The pipeline's default folders and the project's cache: one place, so every stage agrees.
+
+The stages' configs take their defaults from here; the Makefile passes no folder unless the user
+names one, and `tests/test_makefile.py` holds the two together.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+DATASET = Path("datasets/humanoid_stand")
+"""Demonstrations `make record` writes and `make train-bc` reads."""
+BC_POLICY = Path("policies/bc_humanoid_stand")
+"""The behaviour-cloned policy: `make train-bc`'s output, `make finetune-rl`'s starting actor."""
+PPO_POLICY = Path("policies/ppo_humanoid_stand")
+"""The PPO-refined policy of `make finetune-rl`."""
+SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")
+"""PPO from scratch on the same budget (`make baseline-rl`)."""
+DAGGER_DATASET = Path("datasets/humanoid_stand_dagger")
+"""The aggregate dataset of `make dagger`."""
+DAGGER_POLICY = Path("policies/dagger_humanoid_stand")
+"""The final policy of `make dagger`."""
+
+
+def cache_dir() -> Path:
+    """Cached LQR gains and decoded frames: ``$HUMANOID_BC_CACHE``, else ``~/.cache/humanoid-bc``."""
+    return Path(os.environ.get("HUMANOID_BC_CACHE", "~/.cache/humanoid-bc")).expanduser()

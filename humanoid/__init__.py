@@ -1,0 +1,1 @@
+"""The simulated humanoid: environment, physics queries, perturbations, video, controllers and the rollout."""

@@ -1,0 +1,101 @@
+"""Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5.
+
+The gains come from `humanoid.lqr`; commanded postures (`hold`) from `humanoid.posture`.
+At run time the action is ``ctrl_ff - gain @ state``, clipped to the motors' range.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from humanoid.lqr import (
+    CTRL_LIMIT,
+    HEIGHT,
+    QPOS_OBS,
+    QVEL_OBS,
+    ROOT_XY,
+    VERTICAL_VEL,
+    LQRDesign,
+    humanoid_model,
+    load_or_design,
+    state_error,
+)
+from humanoid.posture import NEUTRAL, Posture, PostureRamp
+
+
+class LQRExpert:
+    """Standing controller acting from the Humanoid-v5 observation alone.
+
+    ``qpos_ref``, ``ctrl_ff`` and ``gain`` are the setpoint, its feed-forward and the feedback
+    gain: the design's until ``hold`` commands a posture (lean, crouch, twist, arms;
+    ``humanoid.posture``), toward whose own (balanced pose, feed-forward, gain) they then move
+    gradually. The neutral gain alone does not hold most postures: it lets them oscillate or fall.
+    """
+
+    name = "expert"
+
+    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign()) -> None:
+        """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's."""
+        self.model = humanoid_model() if model is None else model
+        self.design = design
+        self.gains = load_or_design(self.model, design)
+        self.qpos_ref = self.gains.qpos_ref.copy()
+        self.ctrl_ff = self.gains.ctrl_ff.copy()
+        self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
+        self._qpos = self.qpos_ref.copy()
+        self._vz = self.model.nv - ROOT_XY + VERTICAL_VEL  # vertical velocity in the state
+        self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
+        self._moving = False  # one attribute test per act while the setpoint is still
+
+    def reset(self, seed: int | None = None) -> None:
+        """Back to the neutral posture at once (setpoint and target); otherwise deterministic and stateless."""
+        if self._ramp is not None:
+            self._ramp.reset()
+        self._moving = False
+
+    def hold(self, posture: Posture, clip: bool = True) -> None:
+        """Hold ``posture`` (clipped to its limits unless ``clip`` is False) from now on, moving there gradually.
+
+        Plans the move at once: balanced waypoints (about 3 ms each, one per 0.1 s of move) and,
+        the first time a posture is commanded, its LQR gain (0.05 to 0.2 s; cached after). Later
+        calls retarget from wherever the setpoint has got to; ``Posture()`` returns to neutral.
+        """
+        if self._ramp is None:
+            self.gain = self.gains.gain.copy()
+            self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
+        self._ramp.hold(posture, clip)
+        self._moving = self._ramp.moving
+
+    @property
+    def moving(self) -> bool:
+        """True while the setpoint is still on its way to the commanded posture."""
+        return self._moving
+
+    @property
+    def posture(self) -> Posture:
+        """The posture the setpoint is at now (between the previous and the target while moving)."""
+        return self._ramp.posture if self._ramp is not None else NEUTRAL
+
+    @property
+    def target(self) -> Posture:
+        """The posture last commanded by ``hold`` (clipped), or the neutral one."""
+        return self._ramp.target if self._ramp is not None else NEUTRAL
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Action (float32, shape (nu,), within +-CTRL_LIMIT) for a 348-dim Humanoid-v5 observation.
+
+        While a commanded posture is being approached, each call also moves the setpoint one env step.
+        """
+        if self._moving:
+            self._moving = self._ramp.step()
+        # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
+        self._qpos[:ROOT_XY] = self.qpos_ref[:ROOT_XY]
+        self._qpos[ROOT_XY:] = obs[QPOS_OBS]
+        x = state_error(self.model, self.qpos_ref, self._qpos, obs[QVEL_OBS])
+        d = self.design
+        # Builtin min/max: np.clip costs microseconds per scalar call.
+        x[HEIGHT] = min(max(x[HEIGHT], -d.height_clip), d.height_clip)
+        x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
+        ctrl = self.ctrl_ff - self.gain @ x
+        return np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)

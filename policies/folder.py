@@ -1,0 +1,31 @@
+"""A checkpoint folder's file names and the torch-free check that a folder is one.
+
+The recorder checks a controller name with `is_checkpoint` without paying for torch; the files'
+content is read by `policies.checkpoint`.
+"""
+
+
+from __future__ import annotations
+
+from pathlib import Path
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+DATASET_FILE = "dataset.json"
+EVAL_FILE = "eval.json"
+
+
+def checkpoint_problem(path: Path) -> str | None:
+    """Why `path` is not a checkpoint folder, in one line; None if it has a checkpoint's files.
+
+    Their content is checked by `load`.
+    """
+    if not path.exists():
+        return f"no policy checkpoint at {path}"
+    if not ((path / CONFIG_FILE).is_file() and (path / WEIGHTS_FILE).is_file()):
+        return f"{path} is not a policy checkpoint (it needs {CONFIG_FILE} and {WEIGHTS_FILE})"
+    return None
+
+
+def is_checkpoint(path: Path) -> bool:
+    """Whether `path` is a folder with a checkpoint's files."""
+    return checkpoint_problem(path) is None

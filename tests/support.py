@@ -1,0 +1,129 @@
+"""Helpers the tests share: small constants, file snapshots, and a decoder of every MCAP topic.
+
+Importable as `support` because pytest puts `tests/` on the path (its conftest lives there).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from common import keys
+from common.keys import COMMAND_NAMES
+from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
+from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+
+SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under `root` with its content: equal snapshots mean nothing on disk changed."""
+    if root.is_file():
+        return {str(root): root.read_bytes()}
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def join_observation(state: np.ndarray, environment_state: np.ndarray) -> np.ndarray:
+    """The gymnasium observation from its two stored parts."""
+    return np.concatenate([state, environment_state], axis=-1)
+
+
+@dataclass
+class McapEpisode:
+    """The decoded content of one episode's MCAP file."""
+
+    metadata: dict[str, str]
+    attachments: dict[str, bytes]
+    step_times_ns: np.ndarray  # (T,) log times of the /step messages
+    steps: dict[str, np.ndarray]  # Step fields, one row per step
+    tf_times_ns: np.ndarray  # (T,)
+    body_position: np.ndarray  # (T, bodies, 3)
+    body_orientation: np.ndarray  # (T, bodies, 4), w-x-y-z like MuJoCo
+    body_frames: list[str]
+    scene_entities: list[str]  # frame ids of the /scene entities
+    tasks: list[str]  # the /step messages' task strings
+    command_times_ns: np.ndarray  # (T,) log times of the /command messages
+    command: np.ndarray  # (T, len(COMMAND_NAMES)) float64
+    command_tasks: list[str]  # the /command messages' task strings
+
+
+def read_mcap_episode(path: Path) -> McapEpisode:
+    """Decode every message of `path` (which must be a finished MCAP file, with its summary)."""
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+        attachments = {record.name: bytes(record.data) for record in reader.iter_attachments()}
+        step_times, tf_times, steps, positions, orientations, frames, entities = [], [], [], [], [], [], []
+        tasks, command_times, commands, command_tasks = [], [], [], []
+        topics = [STEP_TOPIC, TF_TOPIC, SCENE_TOPIC, COMMAND_TOPIC]
+        for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+            if channel.topic == STEP_TOPIC:
+                step_times.append(message.log_time)
+                steps.append({name: getattr(decoded, name) for name in STEP_FIELDS})
+                tasks.append(decoded.task)
+            elif channel.topic == COMMAND_TOPIC:
+                command_times.append(message.log_time)
+                commands.append([getattr(decoded, name) for name in COMMAND_NAMES])
+                command_tasks.append(decoded.task)
+            elif channel.topic == TF_TOPIC:
+                tf_times.append(message.log_time)
+                frames = [t.child_frame_id for t in decoded.transforms]
+                positions.append([(t.translation.x, t.translation.y, t.translation.z) for t in decoded.transforms])
+                orientations.append(
+                    [(t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z) for t in decoded.transforms]
+                )
+            else:
+                entities += [entity.frame_id for entity in decoded.entities]
+    return McapEpisode(
+        metadata=metadata.get(METADATA_NAME, {}),
+        attachments=attachments,
+        step_times_ns=np.array(step_times, np.int64),
+        steps={name: np.array([step[name] for step in steps], dtype) for name, dtype in STEP_FIELDS.items()},
+        tf_times_ns=np.array(tf_times, np.int64),
+        body_position=np.array(positions, np.float64),
+        body_orientation=np.array(orientations, np.float64),
+        body_frames=frames,
+        scene_entities=entities,
+        tasks=tasks,
+        command_times_ns=np.array(command_times, np.int64),
+        command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
+        command_tasks=command_tasks,
+    )
+
+
+def committed_episodes(root: Path) -> int:
+    return json.loads((root / "meta/info.json").read_text())["total_episodes"]
+
+
+def assert_consistent(root: Path, episodes: int) -> None:
+    """LeRobot loads `episodes` episodes, every frame counted once, every MCAP file readable and matching."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    dataset = LeRobotDataset("local/crashed", root=root)
+    frames = read_frames(root, ["episode_index", "index", keys.ACTION])
+    assert dataset.meta.total_episodes == episodes
+    assert len(dataset) == len(frames["index"])
+    np.testing.assert_array_equal(frames["index"], np.arange(len(frames["index"])))
+    np.testing.assert_array_equal(np.unique(frames["episode_index"]), np.arange(episodes))
+    for row in read_episodes(root).to_pylist():
+        mcap = read_mcap_episode(root / row[keys.EPISODE_MCAP])
+        np.testing.assert_array_equal(
+            mcap.steps["action"], frames[keys.ACTION][frames["episode_index"] == row["episode_index"]]
+        )
+
+
+def assert_no_leftovers(root: Path, episodes: int) -> None:
+    """After a recovery: one data, episode row and MCAP file per episode, and statistics over exactly those.
+
+    (Before it, stats.json may still count the episode a kill interrupted: it is written just before
+    info.json, and the next recording rebuilds it.)
+    """
+    stats = json.loads((root / "meta/stats.json").read_text())
+    assert stats["index"]["count"] == [json.loads((root / "meta/info.json").read_text())["total_frames"]]
+    for folder in ("data", "meta/episodes", "mcap"):
+        assert len([p for p in (root / folder).rglob("*") if p.is_file()]) == episodes, folder

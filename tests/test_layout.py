@@ -1,0 +1,110 @@
+"""The project's own imports go one way: no cycle between modules or between top-level packages.
+
+Function-level imports count too: deferring an import hides a cycle from Python, not from a reader.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("common", "policies", "humanoid", "teleop", "bc", "bench", "tests")
+"""Bottom to top: a package may import only those before it (and itself)."""
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def project_modules() -> dict[str, Path]:
+    return {module_name(p): p for package in PACKAGES for p in (ROOT / package).rglob("*.py")}
+
+
+def imported(path: Path, modules: dict[str, Path]) -> set[str]:
+    """The project modules `path` imports anywhere in its body (module level, functions, TYPE_CHECKING)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            # `from pkg import mod` imports the module pkg.mod; `from mod import name` imports mod
+            names |= {f"{node.module}.{alias.name}" for alias in node.names} | {node.module}
+    return {name for name in names if name in modules}
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = project_modules()
+    return {name: imported(path, modules) - {name} for name, path in modules.items()}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of `graph` as a list of nodes (first repeated at the end), or None."""
+    state: dict[str, int] = {}  # 1 on the current path, 2 finished
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for succ in sorted(graph.get(node, ())):
+            if state.get(succ) == 1:
+                return path[path.index(succ) :] + [succ]
+            if succ not in state and (cycle := visit(succ)):
+                return cycle
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def test_find_cycle_finds_a_known_cycle() -> None:
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_cycle_between_modules() -> None:
+    assert find_cycle(import_graph()) is None
+
+
+def test_packages_import_only_those_below() -> None:
+    wrong = [
+        f"{name} imports {target}"
+        for name, targets in import_graph().items()
+        for target in targets
+        if PACKAGES.index(target.split(".")[0]) > PACKAGES.index(name.split(".")[0])
+    ]
+    assert wrong == []
+
+
+def test_common_imports_nothing_of_ours() -> None:
+    graph = import_graph()
+    assert {
+        t for name, targets in graph.items() if name.startswith("common") for t in targets if not t.startswith("common")
+    } == set()
+
+
+def test_datasets_folder_is_not_a_package() -> None:
+    """`import datasets` must stay HuggingFace's: the data folder holds no Python."""
+    assert not list((ROOT / "datasets").glob("*.py"))
+    result = subprocess.run(
+        [sys.executable, "-c", "import datasets; print(datasets.__file__)"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "site-packages" in result.stdout
+
+
+def test_recorder_and_writer_start_without_torch() -> None:
+    """The random-controller recorder and the writer process import no torch (start-up stays cheap)."""
+    code = "import sys, teleop.record, teleop.writer_process, humanoid.controllers; print('torch' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"
