@@ -201,7 +201,8 @@ def main(argv: list[str] | None = None) -> None:
         moving.append((target, plan, (time.perf_counter() - t0) / max(steps, 1), steps))
     for target, plan, per_act, steps in moving:
         print(
-            f"- moving to {target}: hold() {1e3 * plan:.1f} ms (waypoints, and the target's gain if new), then {1e6 * per_act:.1f} us per act over {steps} steps"
+            f"- moving to {target}: hold() {1e3 * plan:.1f} ms (waypoints, and the target's gain if new), "
+            f"then {1e6 * per_act:.1f} us per act over {steps} steps"
         )
     print(f"\n(total {time.perf_counter() - start:.0f} s)")
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
 import statistics
 import tempfile
 import threading
@@ -21,6 +22,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
@@ -73,8 +75,8 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
     as fast as the simulation alone.
     """
     from teleop.mcap_io.writer import write_episode_mcap  # noqa: PLC0415 - the writing stack, for this measure only
-    from teleop.spool import Spool
-    from teleop.store import DatasetSpec, EpisodeStore
+    from teleop.spool import Spool  # noqa: PLC0415 - the writing stack, for this measure only
+    from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415 - the writing stack, for this measure only
 
     env = make_env()
     controller = make_controller("expert", env)
@@ -89,35 +91,25 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
         "of which MCAP": [],
     }
 
-    def timed(stage: str, work: Callable[[], object]) -> object:
+    def timed(stage: str, work: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         start = time.process_time()
-        result = work()
+        result = work(*args, **kwargs)
         costs[stage].append((time.process_time() - start) * 1000)
         return result
 
     seed = 50_000
     while len(costs["append (both formats)"]) < episodes:
-        episode = timed("simulate", lambda: run_episode(env, controller, seed, DEFAULT_NOISE, buffer))
+        episode = timed("simulate", run_episode, env, controller, seed, DEFAULT_NOISE, buffer)
         seed += 1
         if episode.length < env.spec.max_episode_steps:  # compare whole episodes only
             costs["simulate"].pop()
             continue
-        path = timed("spool write", lambda: store.spool.put(episode))
-        loaded = timed("spool read", lambda: Spool.load(path))
-        timed(
-            "of which MCAP",
-            lambda: write_episode_mcap(
-                root / "scratch.mcap",
-                loaded,
-                0,
-                store.spec.scene,
-                store.spec.body_frames,
-                store.spec.step_ns,
-                {},
-                store.spec.mjcf,
-            ),
-        )
-        timed("append (both formats)", lambda: store.append(loaded, spooled=path))
+        path = timed("spool write", store.spool.put, episode)
+        loaded = timed("spool read", Spool.load, path)
+        spec = store.spec
+        mcap_args = (root / "scratch.mcap", loaded, 0, spec.scene, spec.body_frames, spec.step_ns, {}, spec.mjcf)
+        timed("of which MCAP", write_episode_mcap, *mcap_args)
+        timed("append (both formats)", store.append, loaded, spooled=path)
     store.close()
     return {stage: statistics.median(values) for stage, values in costs.items()}
 
@@ -141,8 +133,6 @@ class MemorySampler(threading.Thread):
         self.root, self.samples, self.stop = root, [], threading.Event()
 
     def run(self) -> None:
-        import os
-
         while not self.stop.wait(0.1):
             info = self.root / "meta/info.json"
             committed = int(info.read_text().split('"total_episodes": ')[1].split(",")[0]) if info.exists() else 0

@@ -48,7 +48,7 @@ class RandomController:
 
 
 def _expert(env: gym.Env) -> Controller:
-    from humanoid.expert import LQRExpert  # the LQR design imports scipy; only pay for it when used
+    from humanoid.expert import LQRExpert  # noqa: PLC0415 - the LQR design imports scipy; only pay for it when used
 
     return LQRExpert(env.unwrapped.model)
 

@@ -93,7 +93,7 @@ class LQRGains:
 
 def humanoid_model() -> mujoco.MjModel:
     """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
-    import gymnasium.envs.mujoco  # deferred: only needed when no model is given
+    import gymnasium.envs.mujoco  # noqa: PLC0415 - deferred: only needed when no model is given
 
     xml = Path(gymnasium.envs.mujoco.__file__).parent / "assets" / "humanoid.xml"
     return mujoco.MjModel.from_xml_path(str(xml))

@@ -85,13 +85,13 @@ def torso_tilt(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[float, float
 
 
 def torso_yaw_relative_to_pelvis(model: mujoco.MjModel, data: mujoco.MjData) -> float:
-    """Yaw of the torso relative to the pelvis (rad), + when the torso turns to the left (counter-clockwise from above)."""
+    """Yaw of the torso relative to the pelvis (rad), + when the torso turns left (counter-clockwise from above)."""
     relative = data.body(PELVIS_BODY).xmat.reshape(3, 3).T @ data.body(TORSO_BODY).xmat.reshape(3, 3)
     return float(np.arctan2(relative[1, 0], relative[0, 0]))
 
 
 def static_root_residual(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
-    """What the contacts leave unsupported at rest in ``data.qpos``: (vertical force, world x and y moments), shape (3,).
+    """What the contacts leave unsupported at rest in ``data.qpos``: (vertical force, world x, y moments), shape (3,).
 
     Gravity and the (vertical) contact normals make no horizontal force and no moment about the
     vertical, so these three are the whole of the root's static imbalance; all zero means the pose

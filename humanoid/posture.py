@@ -56,7 +56,8 @@ class Posture:
     lean_left: float = 0.0
     """Sideways waist bend (rad): + rolls the torso to the left, - to the right; the centre of mass follows."""
     height: float = 0.0
-    """Offset of the torso's height from the neutral stand (m): - crouches, + rises (little room: the knees are nearly straight)."""
+    """Offset of the torso's height from the neutral stand (m): - crouches, + rises (little room: the knees are
+    nearly straight)."""
     twist: float = 0.0
     """Torso yaw relative to the pelvis and legs (rad), + to the left (abdomen_z)."""
     arms: float = 0.0
@@ -290,7 +291,8 @@ def posture_reference(
 
 
 GAIN_DISCOUNT = 0.9999
-"""Per-step discount of the posture gains' LQR cost (see ``design_gain``): the gain at the neutral pose is then within 0.2 % of the plain one."""
+"""Per-step discount of the posture gains' LQR cost (see ``design_gain``): the gain at the neutral pose is then
+within 0.2 % of the plain one."""
 
 
 @functools.lru_cache(maxsize=1024)
@@ -316,7 +318,7 @@ RATES: dict[str, float] = {
 Crouching is slow because the expert clips its height error to 2 cm (``LQRDesign.height_clip``,
 for the drop after reset): at 0.05 m/s and more the torso lags the setpoint and the body falls."""
 ARM_RATE = 0.4
-"""Mean speed (rad/s) of the arm joint that has the farthest to go: at 1.5 rad/s the swing of the arms toppled the body."""
+"""Mean speed (rad/s) of the arm joint that has the farthest to go: at 1.5 rad/s the arms' swing toppled the body."""
 WAYPOINT_STEP: dict[str, float] = {
     "lean_forward": 0.05,
     "lean_left": 0.05,

@@ -44,8 +44,8 @@ def _work(settings: RolloutSettings, dataset: Path, seeds: Connection, results: 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the recorder stops us
     try:
         from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
-        from humanoid.env import make_env
-        from humanoid.episode import EpisodeBuffer, run_episode
+        from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
+        from humanoid.episode import EpisodeBuffer, run_episode  # noqa: PLC0415 - heavy imports in the worker only
 
         env = make_env(settings.max_steps)
         controller = make_controller(settings.controller, env)

@@ -7,9 +7,9 @@
 An episode is written in the order parquet -> MCAP -> info.json; the last step commits it, so a
 kill at any moment leaves the committed episodes readable in both formats, and the next `open`
 removes the rest. Episodes a parallel recording finished but had not committed yet wait in the
-spool (`teleop.spool`); the next `open` commits them. A recorder holds an exclusive lock on the folder while it appends; a second one
-refuses. `WriterProcess` runs a store in a child process, so that writing overlaps with
-simulation instead of stalling it.
+spool (`teleop.spool`); the next `open` commits them. A recorder holds an exclusive lock on the
+folder while it appends; a second one refuses. `WriterProcess` runs a store in a child process,
+so that writing overlaps with simulation instead of stalling it.
 """
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def _send(results: Connection, kind: str, payload: object) -> None:
 
 def _serve(root: Path, episodes: Connection, results: Connection) -> None:
     from humanoid.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
-    from teleop.store import DatasetSpec, EpisodeStore
+    from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415 - heavy imports happen in the child only
 
     try:
         store = EpisodeStore(root, DatasetSpec.from_env(make_env()))

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from support import SHORT_EPISODE
+from teleop.record import RecordConfig, main
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -27,8 +28,6 @@ def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
 @pytest.fixture(scope="session")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset of 3 short noisy expert episodes (seeds 0..2), written in-process."""
-    from teleop.record import RecordConfig, main
-
     root = tmp_path_factory.mktemp("recorded") / "dataset"
     main(RecordConfig(dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False))
     return root

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -102,8 +103,6 @@ def committed_episodes(root: Path) -> int:
 
 def assert_consistent(root: Path, episodes: int) -> None:
     """LeRobot loads `episodes` episodes, every frame counted once, every MCAP file readable and matching."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     dataset = LeRobotDataset("local/crashed", root=root)
     frames = read_frames(root, ["episode_index", "index", keys.ACTION])
     assert dataset.meta.total_episodes == episodes

@@ -14,6 +14,7 @@ import pytest
 
 from common import keys
 from common.cli import DatasetError
+from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from support import assert_consistent, assert_no_leftovers, committed_episodes
@@ -61,8 +62,6 @@ def test_crash_before_commit_keeps_the_committed_episodes(
 
 
 def store_controller(env):
-    from humanoid.controllers import make_controller
-
     return make_controller("expert", env)
 
 

@@ -11,6 +11,7 @@ import pytest
 from bc.dagger import DaggerConfig, DaggerResult, cli, main
 from common import keys
 from humanoid.expert import LQRExpert
+from policies import checkpoint
 from support import join_observation, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
 
@@ -64,8 +65,6 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
     """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate."""
-    from policies import checkpoint
-
     demonstrations, output, result, before = dagger
     assert snapshot(demonstrations) == before
     assert result.final.train_frames + result.final.val_frames == len(read_frames(output, ["index"])["index"])

@@ -6,6 +6,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
@@ -99,8 +100,6 @@ def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
 
 def test_video_has_a_frame_per_step(tmp_path: Path) -> None:
     """VIDEO writes an MP4 of the episode, rendered offscreen: one frame after reset and after each step."""
-    import imageio.v3 as iio
-
     path = tmp_path / "clip.mp4"
     try:
         result = evaluate("random", episodes=1, video=path)

@@ -19,6 +19,7 @@ from humanoid.posture import Posture
 from support import read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
+from teleop.record import cli
 
 SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
 HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
@@ -171,7 +172,6 @@ def test_every_key_of_the_map_is_documented_once() -> None:
     """No key is bound twice, and --help lists every binding."""
     bound = [key for binding in KEY_MAP for key in binding.keys]
     assert len(bound) == len(set(bound))
-    from teleop.record import cli
 
     with pytest.raises(SystemExit):
         cli(["--help"])

@@ -8,6 +8,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from lerobot.datasets import compute_stats, dataset_metadata, utils
+from lerobot.datasets.compute_stats import aggregate_stats
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils import constants
+from lerobot.utils.constants import DEFAULT_FEATURES
 
 from common import keys
 from humanoid.env import make_env
@@ -43,8 +48,6 @@ PROJECT_EPISODE_COLUMNS = {
 @pytest.fixture(scope="module")
 def lerobot_copy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The same frames written by LeRobot's own LeRobotDataset.create / add_frame / save_episode."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     root = tmp_path_factory.mktemp("lerobot") / "dataset"
     frames = read_frames(recorded)
     features = DatasetSpec.from_env(make_env()).features
@@ -62,8 +65,6 @@ def lerobot_copy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
 
 def test_key_names_are_lerobots() -> None:
     """The key constants spelled out in common.keys are LeRobot's own."""
-    from lerobot.utils import constants
-
     assert (keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.DONE, keys.TRUNCATED) == (
         constants.OBS_STATE,
         constants.OBS_ENV_STATE,
@@ -76,9 +77,6 @@ def test_key_names_are_lerobots() -> None:
 
 def test_format_constants_are_lerobots() -> None:
     """Paths, version, default features and quantiles in teleop.lerobot_io.format match lerobot.datasets."""
-    from lerobot.datasets import compute_stats, dataset_metadata, utils
-    from lerobot.utils.constants import DEFAULT_FEATURES
-
     assert lerobot_format.CODEBASE_VERSION == dataset_metadata.CODEBASE_VERSION
     assert (lerobot_format.INFO_PATH, lerobot_format.STATS_PATH, lerobot_format.TASKS_PATH) == (
         utils.INFO_PATH,
@@ -152,8 +150,6 @@ def test_stats_match_lerobots(recorded: Path, lerobot_copy: Path) -> None:
 
 def test_aggregate_stats_equals_lerobots() -> None:
     """Aggregating per-episode statistics gives LeRobot's aggregate, on a hand-built case."""
-    from lerobot.datasets.compute_stats import aggregate_stats
-
     rng = np.random.default_rng(0)
     episodes = [{"x": rng.normal(size=(n, 4))} for n in (5, 40, 11)]
     per_episode = [lerobot_format.episode_stats(frames) for frames in episodes]
@@ -167,8 +163,6 @@ def test_aggregate_stats_equals_lerobots() -> None:
 
 def test_lerobot_dataset_loads_offline_and_serves_our_values(recorded: Path) -> None:
     """LeRobotDataset(root=...) opens the recording without the Hub; its items hold the recorded values."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     dataset = LeRobotDataset("local/humanoid", root=recorded)
     frames = read_frames(recorded)
     assert len(dataset) == len(frames["index"]) == dataset.meta.total_frames

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.act.modeling_act import ACTPolicy
+from lerobot.policies.factory import make_pre_post_processors
 
 from common import keys
 from support import snapshot
@@ -120,11 +124,6 @@ def test_training_leaves_the_dataset_untouched(train_run: TrainRun) -> None:
 
 def test_saved_policy_acts_on_a_recorded_frame(recorded: Path, train_run: TrainRun) -> None:
     """LeRobot's ACTPolicy loads the checkpoint and gives a finite 17-dim action for a frame of the recording."""
-    import torch
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.policies.act.modeling_act import ACTPolicy
-    from lerobot.policies.factory import make_pre_post_processors
-
     model = train_run.output_dir / "checkpoints" / "last" / "pretrained_model"
     policy = ACTPolicy.from_pretrained(model)
     preprocess, postprocess = make_pre_post_processors(policy.config, pretrained_path=str(model))

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from common import keys
 from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
@@ -75,8 +76,6 @@ def test_transforms_are_the_13_body_poses(episodes: list[McapEpisode]) -> None:
 
 def test_scene_draws_every_geom_attached_to_its_body(episodes: list[McapEpisode], recorded: Path) -> None:
     """The /scene update has an entity per body frame (and the world's floor), capsules as 3 primitives."""
-    from mcap_protobuf.decoder import DecoderFactory
-
     model, _ = model_and_data(make_env())
     assert episodes[0].scene_entities == ["world", *body_names(model)]
     with (recorded / "mcap/episode_000000.mcap").open("rb") as stream:

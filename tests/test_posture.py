@@ -194,7 +194,7 @@ def test_arms_forward_and_out_stay_up(env: gym.Env, expert: LQRExpert, arms: flo
 def test_combined_limits_then_neutral_return_near_the_neutral_pose(
     env: gym.Env, expert: LQRExpert, neutral_stand: dict[str, float]
 ) -> None:
-    """Lean forward, crouch and arms up together stay up, and returning to Posture() gets back near the neutral stand."""
+    """Lean forward, crouch and arms up together stay up; returning to Posture() gets back near the neutral stand."""
     obs = stand(env, expert)
     obs = hold(
         env, expert, obs, Posture(lean_forward=Posture.MAX["lean_forward"], height=Posture.MIN["height"], arms=2)

@@ -8,8 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from common import keys
+from humanoid.env import make_env
 from humanoid.episode import injected_noise
 from support import SHORT_EPISODE, snapshot
 from teleop.dataset_reader import read_episodes, read_frames, read_info
@@ -121,8 +123,6 @@ def test_dataset_that_is_a_file_is_refused(tmp_path: Path, capsys: pytest.Captur
 
 def test_dataset_with_other_features_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A LeRobot dataset with other features is left exactly as it was."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     root = tmp_path / "other"
     other = LeRobotDataset.create(
         "local/other",
@@ -168,7 +168,6 @@ def test_second_recorder_on_the_same_dataset_refuses(
     """While one recorder holds the dataset, another exits with a clear message and writes nothing."""
     root = tmp_path / "busy"
     shutil.copytree(recorded, root)
-    from humanoid.env import make_env
 
     holder = EpisodeStore(root, DatasetSpec.from_env(make_env()))
     try:
