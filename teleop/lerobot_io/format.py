@@ -2,7 +2,7 @@
 
 Spelled out here rather than imported from `lerobot.datasets`, whose import pulls in torch and
 costs about 3.5 s: the recorder's writer process starts in 1 s without it. The tests hold each
-constant and function to LeRobot's own (`tests/test_lerobot_format.py`): same paths, same
+constant and function to LeRobot's own (`tests/teleop/test_lerobot_format.py`): same paths, same
 info.json, same parquet schemas, same statistics keys and aggregation.
 """
 
