@@ -7,6 +7,9 @@ SHELL := /bin/bash
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+UV := $(VENV)/bin/uv
+LOCK := requirements.lock
+UV_VERSION = $(shell sed -n 's/^uv==\([^ ]*\).*/\1/p' $(LOCK))
 # First interpreter >= 3.12 found: on PATH, then pyenv's versions (a pyenv shim alone may refuse).
 PYTHON312 ?= $(shell for p in python3.12 python3.13 python3 $(HOME)/.pyenv/versions/3.1[2-9]*/bin/python3; do \
 	command -v $$p >/dev/null 2>&1 && $$p -c 'import sys; sys.exit(sys.version_info < (3, 12))' 2>/dev/null \
@@ -54,16 +57,19 @@ RL_ARGS = --bc-policy $(BC_POLICY) $(call opt,TIMESTEPS,timesteps) $(call opt,WO
 EVAL_ARGS = --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
 	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
 
-.PHONY: help venv record inspect train-bc eval dagger finetune-rl baseline-rl pipeline test bench clean-venv
+.PHONY: help venv record inspect train-bc eval dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
 
-$(STAMP): pyproject.toml
+# Installed from the lock (exact versions and hashes), never by resolving pyproject.toml afresh;
+# `make lock` re-resolves it. uv installs (pinned to the lock's own uv); pip only bootstraps it.
+$(STAMP): $(LOCK) pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: no Python >= 3.12 found (set PYTHON312=/path/to/python3.12)" >&2; exit 1; }
 	@test -x $(PY) || $(PYTHON312) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet uv==$(UV_VERSION)
+	$(UV) pip install --quiet --python $(PY) --require-hashes -r $(LOCK)
+	$(UV) pip install --quiet --python $(PY) --no-deps -e .
 	@touch $@
 
 venv: $(STAMP)  ## build .venv and install the project
@@ -102,8 +108,19 @@ pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl, then th
 	else $(MAKE) --no-print-directory finetune-rl POLICY=$(PPO_DEFAULT) BC_POLICY=$(BC_DEFAULT); fi
 	@$(PY) -m bc.report $(BC_DEFAULT) $(PPO_DEFAULT) $(SCRATCH_DEFAULT)
 
-test: $(STAMP)  ## run the test suite
+test: $(STAMP)  ## run the whole test suite (a few minutes)
 	$(PY) -m pytest
+
+test-fast: $(STAMP)  ## the tests that take well under a second each (under 30 s in all)
+	$(PY) -m pytest -m "not slow"
+
+lint: $(STAMP)  ## ruff: lint and format check (configured in pyproject.toml)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newest allowed versions
+	$(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
+		--custom-compile-command "make lock" -o $(LOCK)
 
 bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05

@@ -15,6 +15,8 @@ from policies import checkpoint
 from support import join_observation, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 
 @pytest.fixture(scope="module")
 def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, DaggerResult, dict]:

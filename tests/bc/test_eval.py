@@ -98,6 +98,7 @@ def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
     assert all(np.array_equal(a, b) for a, b in zip(applied, forces(3), strict=True))
 
 
+@pytest.mark.slow
 def test_video_has_a_frame_per_step(tmp_path: Path) -> None:
     """VIDEO writes an MP4 of the episode, rendered offscreen: one frame after reset and after each step."""
     path = tmp_path / "clip.mp4"

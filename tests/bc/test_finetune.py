@@ -21,6 +21,8 @@ from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
 from support import snapshot
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 TINY_PPO = {
     "envs": 4,
     "workers": 2,

@@ -13,6 +13,8 @@ from bc.ppo.vec_env import SB3_INFO_KEYS, WorkerGroupVecEnv, split
 from humanoid.env import make_env
 from humanoid.perturbations import TorsoPushes
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 SHORT = 15  # steps per episode: the rollout below crosses two time limits and a fall or two
 short_env = functools.partial(make_env, SHORT)
 

@@ -22,6 +22,8 @@ from teleop.dataset_reader import read_episodes
 from teleop.record import RecordConfig, main
 from teleop.store import DatasetSpec, EpisodeStore
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 FILES_PER_EPISODE = 5  # renames in one append: data, episode row, MCAP, stats.json, info.json (the commit)
 
 

@@ -22,6 +22,8 @@ from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
 from teleop.lerobot_io.format import INFO_PATH
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 

@@ -21,6 +21,8 @@ from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
 from teleop.record import cli
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
 HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
 

@@ -21,6 +21,8 @@ from common import keys
 from support import snapshot
 from teleop.lerobot_io import format as lerobot_format
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 STEPS = 3
 REPO_ID = "local/humanoid_stand"
 LOSS = re.compile(r"\bstep:(\d+)\b.*?\sloss:(\S+)")  # LeRobot's log line: "step:3 smpl:6 ... loss:68.272 grdn:..."

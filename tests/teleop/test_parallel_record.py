@@ -23,6 +23,8 @@ from teleop.record import RecordConfig, cli, main
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
 
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
 
 def record(root: Path, workers: int, **settings: object) -> None:
     config = {
