@@ -421,9 +421,9 @@ def _read_tasks(root: Path, info: dict) -> list[str]:
         table = pq.read_table(root / TASKS_PATH)
     except (OSError, pa.ArrowException) as error:
         raise DatasetError(f"{TASKS_PATH} is not readable ({_one_line(error)})") from None
-    if "task_index" not in table.column_names or "task" not in table.column_names:
+    if "task_index" not in table.column_names or keys.TASK not in table.column_names:
         raise DatasetError(f"{TASKS_PATH} has no 'task' and 'task_index' columns")
-    indices, names = table["task_index"].to_pylist(), table["task"].to_pylist()
+    indices, names = table["task_index"].to_pylist(), table[keys.TASK].to_pylist()
     counted = sorted((index, name) for index, name in zip(indices, names, strict=True) if index < info["total_tasks"])
     if [index for index, _ in counted] != list(range(info["total_tasks"])):
         raise DatasetError(

@@ -104,7 +104,11 @@ def test_datasets_folder_is_not_a_package() -> None:
 
 
 def test_recorder_and_writer_start_without_torch() -> None:
-    """The random-controller recorder and the writer process import no torch (start-up stays cheap)."""
-    code = "import sys, teleop.record, teleop.writer_process, humanoid.controllers; print('torch' in sys.modules)"
+    """Checking a recording, building the random controller and the writer process's modules leave torch unimported."""
+    code = (
+        "import sys; from teleop.record import validate, RecordConfig; import teleop.writer_process; "
+        "from humanoid.controllers import make_controller; from humanoid.env import make_env; "
+        "validate(RecordConfig()); make_controller('random', make_env()); print('torch' in sys.modules)"
+    )
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"

@@ -28,6 +28,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from common import keys
 from common.cli import DatasetError
 from teleop.lerobot_io.format import (
     DEFAULT_FEATURES,
@@ -257,7 +258,7 @@ class LeRobotWriter:
 
 
 def _empty_tasks() -> pd.DataFrame:
-    return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name="task", dtype="object"))
+    return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name=keys.TASK, dtype="object"))
 
 
 def _episode_files(root: Path) -> list[Path]:
