@@ -1,0 +1,199 @@
+"""`make robustness`: a policy (or the expert) on the same seeds under every condition of the suite.
+
+    conditions x seeds --(chunks, both cores)--> rollouts under `Condition.wrap` --> per condition:
+    survival rate, mean return --> a table, POLICY/robustness.json, POLICY/robustness.png, and the
+    JSON summary as the last line printed
+
+The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/robustness.md.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import sys
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from tqdm import tqdm
+
+from bc.evaluate import EVAL_SEED
+from common import paths
+from common.cli import UserError, flag, run_cli, setting
+from humanoid.conditions import SUITE, condition
+from humanoid.controllers import check_controller, make_controller
+from humanoid.env import EPISODE_STEPS, make_env
+from humanoid.episode import EpisodeBuffer, run_episode
+
+RESULT_FILE = "robustness.json"
+FIGURE_FILE = "robustness.png"
+EXPERT_FOLDER = Path("policies/expert")
+"""Where the expert's results go: it has no checkpoint folder of its own."""
+
+
+@dataclass
+class RobustnessConfig:
+    """Settings of one robustness run."""
+
+    policy: str = setting(str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert)")
+    episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
+    seed: int = setting(EVAL_SEED, "seed of the first episode")
+    conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
+    workers: int = setting(2, "processes the episodes are spread over")
+    output: Path | None = setting(None, f"folder for {RESULT_FILE} and {FIGURE_FILE} (default: POLICY's folder)")
+    progress: bool = setting(True, "show a progress bar")
+
+
+def selected(cfg: RobustnessConfig) -> list[str]:
+    names = list(SUITE) if cfg.conditions == "all" else [n.strip() for n in cfg.conditions.split(",") if n.strip()]
+    for name in names:
+        try:
+            condition(name)
+        except ValueError as error:
+            raise UserError(str(error)) from None
+    if not names:
+        raise UserError(f"{flag('conditions')} names no condition")
+    return names
+
+
+def validate(cfg: RobustnessConfig) -> list[str]:
+    """Reject bad settings before anything runs; returns the conditions to run."""
+    for name in ("episodes", "workers"):
+        if getattr(cfg, name) <= 0:
+            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
+    if cfg.seed < 0:
+        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
+    try:
+        check_controller(cfg.policy)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    return selected(cfg)
+
+
+def output_folder(cfg: RobustnessConfig) -> Path:
+    if cfg.output is not None:
+        return cfg.output
+    return EXPERT_FOLDER if cfg.policy == "expert" else Path(cfg.policy)
+
+
+def run_chunk(policy: str, name: str, seeds: list[int]) -> tuple[str, list[tuple[int, float, int, bool]]]:
+    """(seed, return, length, survived) of `policy` under condition `name` on `seeds`, in a worker."""
+    cond = condition(name)
+    env = cond.wrap(make_env())
+    try:
+        controller = make_controller(policy, env)
+        buffer = EpisodeBuffer(env, EPISODE_STEPS)
+        rows = []
+        for seed in seeds:
+            episode = run_episode(env, controller, seed, cond.action_noise, buffer)
+            survived = episode.length == EPISODE_STEPS and not episode.fell
+            rows.append((seed, episode.episode_return, episode.length, survived))
+        return name, rows
+    finally:
+        env.close()
+
+
+def _init_worker() -> None:
+    import torch  # noqa: PLC0415 - a policy's forward pass of one row gains nothing from more threads
+
+    torch.set_num_threads(1)
+
+
+def summarise(rows: list[tuple[int, float, int, bool]]) -> dict[str, Any]:
+    rows = sorted(rows)
+    returns = np.array([r[1] for r in rows])
+    return {
+        "survival_rate": float(np.mean([r[3] for r in rows])),
+        "mean_return": float(returns.mean()),
+        "std_return": float(returns.std()),
+        "episodes": len(rows),
+        "returns": [round(float(r), 3) for r in returns],
+        "lengths": [r[2] for r in rows],
+    }
+
+
+def run_suite(policy: str, names: list[str], seeds: list[int], workers: int, progress: bool = False) -> dict:
+    """Every condition in `names` on `seeds`, in chunks over `workers` processes; results per condition."""
+    chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
+    tasks = [(name, seeds[i : i + chunk]) for name in names for i in range(0, len(seeds), chunk)]
+    rows: dict[str, list] = {name: [] for name in names}
+    bar = tqdm(total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
+    if workers == 1:
+        _init_worker()
+        results = (run_chunk(policy, name, chunk_seeds) for name, chunk_seeds in tasks)
+        for name, chunk_rows in results:
+            rows[name] += chunk_rows
+            bar.update(len(chunk_rows))
+    else:
+        context = mp.get_context("forkserver")
+        with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
+            futures = [pool.submit(run_chunk, policy, name, chunk_seeds) for name, chunk_seeds in tasks]
+            for future in futures:
+                name, chunk_rows = future.result()
+                rows[name] += chunk_rows
+                bar.update(len(chunk_rows))
+    bar.close()
+    return {name: summarise(rows[name]) for name in names}
+
+
+def plot(result: dict[str, Any], path: Path) -> None:
+    """Survival rate and mean return per condition, side by side."""
+    names = list(result["conditions"])
+    figure = Figure(figsize=(9, 4))
+    survival, returns = figure.subplots(1, 2)
+    survival.bar(names, [100 * result["conditions"][n]["survival_rate"] for n in names], color="tab:green")
+    survival.set_ylabel("survival (%)")
+    survival.set_ylim(0, 100)
+    returns.bar(names, [result["conditions"][n]["mean_return"] for n in names], color="tab:blue")
+    returns.set_ylabel("mean return")
+    for axes in (survival, returns):
+        axes.tick_params(axis="x", rotation=60)
+    seeds = result["seeds"]
+    figure.suptitle(f"{result['policy']}: {len(seeds)} episodes per condition, seeds {seeds[0]}..{seeds[-1]}")
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+
+
+def table(result: dict[str, Any]) -> str:
+    lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}"]
+    for name, row in result["conditions"].items():
+        lines.append(f"{name:<10} {row['survival_rate']:>8.0%} {row['mean_return']:>12.1f}")
+    return "\n".join(lines)
+
+
+def main(cfg: RobustnessConfig) -> dict[str, Any]:
+    """Run the suite as configured; writes robustness.json and the figure, returns the summary."""
+    names = validate(cfg)
+    folder = output_folder(cfg)
+    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
+    conditions = run_suite(cfg.policy, names, seeds, cfg.workers, cfg.progress)
+    result = {"policy": cfg.policy, "seeds": seeds, "conditions": conditions, "config": asdict(cfg)}
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / RESULT_FILE).write_text(json.dumps(result, indent=1, default=str))
+        plot(result, folder / FIGURE_FILE)
+    except OSError as error:
+        raise UserError(f"cannot write the results to {folder}: {error.strerror or error}") from None
+    return result
+
+
+def _main_and_print(cfg: RobustnessConfig) -> None:
+    result = main(cfg)
+    print(table(result))
+    brief = {
+        k: {m: v[m] for m in ("survival_rate", "mean_return", "episodes")} for k, v in result["conditions"].items()
+    }
+    print(json.dumps({"policy": result["policy"], "seeds": result["seeds"], "conditions": brief}))
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, RobustnessConfig, argv, description=__doc__, prog="python -m bc.robustness")
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,234 @@
+"""Off-nominal conditions as gymnasium wrappers: domain randomisation, action latency, sensor noise.
+
+Data flow of one condition (`Condition.wrap`), innermost first:
+
+    Humanoid-v5 --DomainRandomization (masses, friction, motor strength; drawn at reset)
+               --TorsoPushes (humanoid.perturbations)
+               --ActionLatency (the env executes the action of k steps before)
+               --ObservationNoise (what the policy reads)
+
+Executed-action noise is not a wrapper: the rollout adds it (`humanoid.episode.injected_noise`), as
+it does for DART recordings. Every draw comes from a random stream of the reset's seed, so an
+episode repeats exactly; the model's nominal values are restored before each draw and on close.
+The suite's conditions and why each magnitude: docs/robustness.md.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from humanoid.env import model_and_data
+from humanoid.perturbations import TorsoPushes
+
+RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
+OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
+
+# Where the sensed parts sit in the 348-dim observation: qpos[2:] (22) then qvel (23). The rest
+# (cinert, cvel, qfrc_actuator, cfrc_ext) is simulator state no sensor measures: left noiseless.
+QPOS_PART = slice(0, 22)
+QVEL_PART = slice(22, 45)
+OBS_NOISE_STD = {"qpos": 0.002, "qvel": 0.02}
+"""Sensor noise std: joint angles and root orientation (rad; root height m), joint and root rates (rad/s; m/s)."""
+
+
+Range = tuple[float, float]
+
+
+def check_range(name: str, bounds: Range) -> None:
+    """ValueError unless `bounds` is a finite scale range 0 <= low <= high."""
+    low, high = bounds
+    if not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high):
+        raise ValueError(f"{name} range must be finite with 0 <= low <= high, got {low}..{high}")
+
+
+@dataclass(frozen=True)
+class Randomization:
+    """Scale ranges of the physical parameters drawn at each reset; None leaves a parameter nominal."""
+
+    mass: Range | None = None
+    """Each body's mass and inertia times U(low, high), one draw per body."""
+    friction: Range | None = None
+    """Every geom's sliding friction times one U(low, high) draw (the floor's contacts scale with it)."""
+    strength: Range | None = None
+    """Each motor's gear times U(low, high), one draw per motor: the torque a given action gives."""
+
+    def __post_init__(self) -> None:
+        for spec in fields(self):
+            bounds = getattr(self, spec.name)
+            if bounds is not None:
+                check_range(spec.name, bounds)
+
+    @property
+    def active(self) -> bool:
+        return any(getattr(self, spec.name) is not None for spec in fields(self))
+
+
+def subtree_masses(model: Any) -> None:
+    """Recompute `body_subtreemass` from `body_mass` (MuJoCo does it only at compile time, in mj_setConst).
+
+    mj_comPos divides by it to place each subtree's centre of mass, so it must follow the masses.
+    """
+    model.body_subtreemass[:] = model.body_mass
+    for body in range(model.nbody - 1, 0, -1):
+        model.body_subtreemass[model.body_parentid[body]] += model.body_subtreemass[body]
+
+
+class DomainRandomization(gym.Wrapper):
+    """Draws the physical parameters of `randomization` from the seed at every seeded reset.
+
+    `parameters` holds the last draw (scale factors, JSON-ready), also returned in the reset's info
+    under "parameters"; an unseeded reset draws from the stream the last seed left.
+    """
+
+    def __init__(self, env: gym.Env, randomization: Randomization) -> None:
+        super().__init__(env)
+        self.randomization = randomization
+        self._model, _ = model_and_data(env)
+        self._nominal = {
+            "body_mass": self._model.body_mass.copy(),
+            "body_inertia": self._model.body_inertia.copy(),
+            "body_subtreemass": self._model.body_subtreemass.copy(),
+            "geom_friction": self._model.geom_friction.copy(),
+            "actuator_gear": self._model.actuator_gear.copy(),
+        }
+        self._rng = np.random.default_rng()
+        self.parameters: dict[str, Any] = {}
+
+    def restore(self) -> None:
+        """Put the model's nominal masses, inertias, friction and gears back."""
+        for name, value in self._nominal.items():
+            getattr(self._model, name)[:] = value
+
+    def draw(self) -> dict[str, Any]:
+        """Restore, then apply a new draw; returns it."""
+        self.restore()
+        model, r = self._model, self.randomization
+        parameters: dict[str, Any] = {}
+        if r.mass is not None:
+            scale = self._rng.uniform(*r.mass, size=model.nbody - 1)  # the world body has no mass
+            model.body_mass[1:] *= scale
+            model.body_inertia[1:] *= scale[:, None]  # the same density change: the shape's inertia scales alike
+            subtree_masses(model)
+            parameters["mass_scale"] = scale.round(6).tolist()
+        if r.friction is not None:
+            scale = float(self._rng.uniform(*r.friction))
+            model.geom_friction[:, 0] *= scale
+            parameters["friction_scale"] = round(scale, 6)
+        if r.strength is not None:
+            scale = self._rng.uniform(*r.strength, size=model.nu)
+            model.actuator_gear[:, 0] *= scale
+            parameters["strength_scale"] = scale.round(6).tolist()
+        self.parameters = parameters
+        return parameters
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng((seed, RANDOMIZATION_STREAM))
+        parameters = self.draw()  # before the reset, so the first observation is of the drawn body
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs, {**info, "parameters": parameters}
+
+    def close(self) -> None:
+        self.restore()
+        super().close()
+
+
+class ActionLatency(gym.Wrapper):
+    """The environment executes the action given `steps` steps before (zeros until then)."""
+
+    def __init__(self, env: gym.Env, steps: int = 1) -> None:
+        super().__init__(env)
+        if steps < 0:
+            raise ValueError(f"latency must be >= 0 steps, got {steps}")
+        self.steps = steps
+        self._queue: deque[np.ndarray] = deque()
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict]:
+        zero = np.zeros(self.env.action_space.shape, self.env.action_space.dtype)
+        self._queue = deque([zero] * self.steps)
+        return self.env.reset(**kwargs)
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        self._queue.append(np.asarray(action))
+        return self.env.step(self._queue.popleft())
+
+
+class ObservationNoise(gym.Wrapper):
+    """Gaussian noise on the sensed parts of the observation (`OBS_NOISE_STD`), drawn from the seed."""
+
+    def __init__(self, env: gym.Env, scale: float = 1.0) -> None:
+        super().__init__(env)
+        if not (math.isfinite(scale) and scale >= 0):
+            raise ValueError(f"observation noise scale must be >= 0, got {scale}")
+        self.std = np.zeros(env.observation_space.shape)
+        self.std[QPOS_PART] = scale * OBS_NOISE_STD["qpos"]
+        self.std[QVEL_PART] = scale * OBS_NOISE_STD["qvel"]
+        self._rng = np.random.default_rng()
+
+    def _noisy(self, obs: np.ndarray) -> np.ndarray:
+        return obs + self.std * self._rng.standard_normal(obs.shape)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng((seed, OBS_NOISE_STREAM))
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self._noisy(obs), info
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self._noisy(obs), reward, terminated, truncated, info
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One condition of the robustness suite: what is changed, each part off by default."""
+
+    action_noise: float = 0.0
+    """Std of Gaussian noise added to every executed action (the rollout adds it)."""
+    push: float = 0.0
+    """Newtons of a horizontal torso push for 0.1 s every 2 s (`TorsoPushes`)."""
+    randomization: Randomization = field(default_factory=Randomization)
+    latency: int = 0
+    """Env steps between choosing an action and its execution."""
+    obs_noise: float = 0.0
+    """Scale of `OBS_NOISE_STD` on what the policy reads."""
+
+    def wrap(self, env: gym.Env) -> gym.Env:
+        """`env` under this condition (the action noise excepted: pass `action_noise` to the rollout)."""
+        if self.randomization.active:
+            env = DomainRandomization(env, self.randomization)
+        if self.push > 0:
+            env = TorsoPushes(env, self.push)
+        if self.latency > 0:
+            env = ActionLatency(env, self.latency)
+        if self.obs_noise > 0:
+            env = ObservationNoise(env, self.obs_noise)
+        return env
+
+
+SUITE: dict[str, Condition] = {
+    "clean": Condition(),
+    "noise": Condition(action_noise=0.05),
+    "push10": Condition(push=10.0),
+    "push20": Condition(push=20.0),
+    "push40": Condition(push=40.0),
+    "mass": Condition(randomization=Randomization(mass=(0.8, 1.2))),
+    "friction": Condition(randomization=Randomization(friction=(0.5, 1.5))),
+    "strength": Condition(randomization=Randomization(strength=(0.8, 1.2))),
+    "latency": Condition(latency=1),
+    "obs_noise": Condition(obs_noise=1.0),
+}
+"""The robustness suite: each condition changes one thing (docs/robustness.md says why each size)."""
+
+
+def condition(name: str) -> Condition:
+    """The suite's condition `name`; ValueError naming the known ones otherwise."""
+    if name not in SUITE:
+        raise ValueError(f"unknown condition {name!r}; known: {', '.join(SUITE)}")
+    return SUITE[name]

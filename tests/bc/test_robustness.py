@@ -1,0 +1,55 @@
+"""`make robustness`: every condition on the same seeds, a table, the JSON line, the files; bad input refused."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bc.robustness import FIGURE_FILE, RESULT_FILE, cli, run_suite
+from humanoid.conditions import SUITE
+
+
+@pytest.mark.slow
+def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = cli(
+        ["--policy", "expert", "--episodes", "2", "--seed", "1000", "--output", str(tmp_path), "--progress", "0"]
+    )
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert code == 0
+    summary = json.loads(lines[-1])
+    assert summary["policy"] == "expert" and summary["seeds"] == [1000, 1001]
+    assert list(summary["conditions"]) == list(SUITE)
+    assert all(row["episodes"] == 2 and 0 <= row["survival_rate"] <= 1 for row in summary["conditions"].values())
+    assert summary["conditions"]["clean"]["survival_rate"] == 1.0  # the expert stands on clean seeds
+    assert [line.split()[0] for line in lines[1:-1]] == list(SUITE)  # the table, a row per condition
+    saved = json.loads((tmp_path / RESULT_FILE).read_text())
+    assert len(saved["conditions"]["latency"]["returns"]) == 2
+    assert (tmp_path / FIGURE_FILE).stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_the_same_seeds_give_the_same_results_in_one_or_two_workers() -> None:
+    one = run_suite("expert", ["mass", "latency"], [1000, 1001], workers=1)
+    two = run_suite("expert", ["mass", "latency"], [1000, 1001], workers=2)
+    assert one == two
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--conditions", "gravity"], "unknown condition 'gravity'"),
+        (["--episodes", "0"], "--episodes must be positive"),
+        (["--policy", "nowhere/policy"], "no policy checkpoint at nowhere/policy"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    code = cli(["--policy", "expert", "--output", str(tmp_path / "out"), "--progress", "0", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and message in err[0]
+    assert not (tmp_path / "out").exists()

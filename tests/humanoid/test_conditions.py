@@ -1,0 +1,118 @@
+"""The robustness conditions change exactly what they name, repeat with the seed, and restore the model."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from humanoid.conditions import (
+    OBS_NOISE_STD,
+    QPOS_PART,
+    QVEL_PART,
+    SUITE,
+    ActionLatency,
+    DomainRandomization,
+    ObservationNoise,
+    Randomization,
+    condition,
+)
+from humanoid.env import make_env, model_and_data
+
+MODEL_FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "geom_friction", "actuator_gear", "dof_damping")
+
+
+def model_values(env: gym.Env) -> dict[str, np.ndarray]:
+    model, _ = model_and_data(env)
+    return {name: getattr(model, name).copy() for name in MODEL_FIELDS}
+
+
+def changed_fields(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> set[str]:
+    return {name for name in MODEL_FIELDS if not np.array_equal(before[name], after[name])}
+
+
+@pytest.mark.parametrize(
+    "name, fields",
+    [
+        ("mass", {"body_mass", "body_inertia", "body_subtreemass"}),
+        ("friction", {"geom_friction"}),
+        ("strength", {"actuator_gear"}),
+    ],
+)
+def test_randomization_changes_only_what_it_names_and_close_restores(name: str, fields: set[str]) -> None:
+    env = condition(name).wrap(make_env())
+    nominal = model_values(env)
+    env.reset(seed=3)
+    assert changed_fields(nominal, model_values(env)) == fields
+    env.close()
+    assert changed_fields(nominal, model_values(env)) == set()
+
+
+def test_drawn_scales_are_within_their_ranges_and_applied() -> None:
+    env = DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2), friction=(0.5, 1.5), strength=(0.8, 1.2)))
+    nominal = model_values(env)
+    _, info = env.reset(seed=11)
+    drawn, now = info["parameters"], model_values(env)
+    mass = np.array(drawn["mass_scale"])
+    assert mass.shape == (13,) and np.all((0.8 <= mass) & (mass <= 1.2))
+    np.testing.assert_allclose(now["body_mass"][1:], nominal["body_mass"][1:] * mass, rtol=1e-5)
+    np.testing.assert_allclose(now["body_subtreemass"][0], now["body_mass"].sum())
+    assert 0.5 <= drawn["friction_scale"] <= 1.5
+    np.testing.assert_allclose(now["geom_friction"][:, 0], nominal["geom_friction"][:, 0] * drawn["friction_scale"])
+    np.testing.assert_array_equal(now["geom_friction"][:, 1:], nominal["geom_friction"][:, 1:])
+    strength = np.array(drawn["strength_scale"])
+    np.testing.assert_allclose(now["actuator_gear"][:, 0], nominal["actuator_gear"][:, 0] * strength, rtol=1e-5)
+
+
+def test_the_same_seed_gives_the_same_draw_and_another_seed_another() -> None:
+    env = condition("mass").wrap(make_env())
+    first = env.reset(seed=5)[1]["parameters"]
+    other = env.reset(seed=6)[1]["parameters"]
+    again = env.reset(seed=5)[1]["parameters"]
+    assert first == again and first != other
+
+
+def test_a_new_draw_starts_from_the_nominal_model() -> None:
+    """Draws do not compound: after many resets the masses are still nominal times the last draw."""
+    env = DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2)))
+    nominal = model_values(env)["body_mass"]
+    for seed in range(5):
+        drawn = env.reset(seed=seed)[1]["parameters"]
+    np.testing.assert_allclose(model_values(env)["body_mass"][1:], nominal[1:] * drawn["mass_scale"], rtol=1e-5)
+
+
+def test_latency_executes_the_previous_action() -> None:
+    env = ActionLatency(make_env(), steps=1)
+    _, data = model_and_data(env)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-0.4, 0.4, (4, 17)).astype(np.float32)
+    executed = []
+    for action in actions:
+        env.step(action)
+        executed.append(data.ctrl.copy())
+    np.testing.assert_array_equal(executed[0], 0.0)
+    np.testing.assert_allclose(executed[1:], actions[:-1])
+
+
+def test_observation_noise_touches_only_the_sensed_parts_with_the_documented_std() -> None:
+    clean, noisy = make_env(), ObservationNoise(make_env())
+    differences = np.array([noisy.reset(seed=s)[0] - clean.reset(seed=s)[0] for s in range(400)])
+    np.testing.assert_array_equal(differences[:, QVEL_PART.stop :], 0.0)
+    assert differences[:, QPOS_PART].std() == pytest.approx(OBS_NOISE_STD["qpos"], rel=0.05)
+    assert differences[:, QVEL_PART].std() == pytest.approx(OBS_NOISE_STD["qvel"], rel=0.05)
+
+
+@pytest.mark.parametrize("bounds", [(1.2, 0.8), (-0.1, 1.0), (0.5, float("inf"))])
+def test_bad_ranges_are_refused(bounds: tuple[float, float]) -> None:
+    with pytest.raises(ValueError, match="0 <= low <= high"):
+        Randomization(mass=bounds)
+
+
+def test_unknown_condition_names_the_known_ones() -> None:
+    with pytest.raises(ValueError, match="known: clean, noise"):
+        condition("gravity")
+
+
+def test_suite_has_the_conditions_the_issue_names() -> None:
+    names = {"clean", "noise", "push10", "push20", "push40", "mass", "friction", "strength", "latency", "obs_noise"}
+    assert names <= set(SUITE)
