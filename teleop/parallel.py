@@ -14,15 +14,12 @@ the spool, and the next recording commits the spool before it starts.
 
 from __future__ import annotations
 
-import multiprocessing as mp
-import signal
-import traceback
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from multiprocessing.connection import Connection, wait
+from multiprocessing.connection import wait
 from pathlib import Path
 
-from common.cli import UserError
+from common.workers import Channel, Worker, close_all
 from teleop.spool import Spool
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
@@ -39,54 +36,37 @@ class RolloutSettings:
     task: str
 
 
-def _work(settings: RolloutSettings, dataset: Path, seeds: Connection, results: Connection) -> None:
-    """A worker's loop: simulate each seed received, spool the episode, report the seed."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the recorder stops us
-    try:
-        from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
-        from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
-        from humanoid.episode import EpisodeBuffer, run_episode  # noqa: PLC0415 - heavy imports in the worker only
+def _work(channel: Channel, settings: RolloutSettings, dataset: Path) -> None:
+    """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed."""
+    from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
+    from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
+    from humanoid.episode import EpisodeBuffer, run_episode  # noqa: PLC0415 - heavy imports in the worker only
 
-        env = make_env(settings.max_steps)
-        controller = make_controller(settings.controller, env)
-        buffer = EpisodeBuffer(env, settings.max_steps)
-        spool = Spool(dataset)
-        while (seed := seeds.recv()) is not None:
-            spool.put(run_episode(env, controller, seed, settings.noise, buffer, settings.task))
-            results.send(("done", seed))
-    except (EOFError, BrokenPipeError):  # the recorder is gone
-        return
-    except UserError as error:
-        results.send(("error", str(error)))
-    except Exception as error:  # one line for the user; the traceback on stderr for debugging
-        traceback.print_exc()
-        results.send(("error", f"a recording worker failed: {error!r}"))
+    env = make_env(settings.max_steps)
+    controller = make_controller(settings.controller, env)
+    buffer = EpisodeBuffer(env, settings.max_steps)
+    spool = Spool(dataset)
+    for seed in channel:
+        spool.put(run_episode(env, controller, seed, settings.noise, buffer, settings.task))
+        channel.send(seed)
 
 
 class ParallelRollouts:
     """`workers` simulation processes for one recording; a context manager that stops them on exit."""
 
     def __init__(self, settings: RolloutSettings, dataset: Path, workers: int) -> None:
-        # forkserver: workers start from a clean interpreter, not a fork of a process holding locks.
-        context = mp.get_context("forkserver")
-        # Imported once by the server (when this process starts it) instead of by every worker: a
-        # worker then starts in milliseconds instead of 0.2 s. Later calls do not change a running server.
-        context.set_forkserver_preload(["__main__", *WORKER_MODULES])
         self._spool = Spool(dataset)
-        self._seeds: list[Connection] = []
-        self._results: list[Connection] = []
-        self._processes = []
+        self._workers: list[Worker] = []
         self._closed = False
-        for _ in range(workers):
-            seeds_out, seeds_in = context.Pipe(duplex=False)
-            results_out, results_in = context.Pipe(duplex=False)
-            process = context.Process(target=_work, args=(settings, dataset, seeds_out, results_in), daemon=True)
-            process.start()
-            seeds_out.close()
-            results_in.close()
-            self._seeds.append(seeds_in)
-            self._results.append(results_out)
-            self._processes.append(process)
+        try:
+            for index in range(workers):
+                # The forkserver imports WORKER_MODULES once: a worker then starts in milliseconds instead of 0.2 s.
+                self._workers.append(
+                    Worker(_work, settings, dataset, name=f"recording worker {index}", preload=WORKER_MODULES)
+                )
+        except BaseException:
+            self.close(interrupted=True)
+            raise
 
     def in_seed_order(self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None) -> Iterator[Path]:
         """The spool file of each seed's episode, in the order of `seeds`, as soon as all before it are done.
@@ -94,32 +74,24 @@ class ParallelRollouts:
         `meanwhile` runs once the workers have their first seeds, before waiting for them.
         """
         handed = 0
-        holding = [0] * len(self._processes)
+        holding = dict.fromkeys(self._workers, 0)
         done: set[int] = set()
 
-        def hand_out(worker: int) -> None:
+        def hand_out(worker: Worker) -> None:
             nonlocal handed
             while holding[worker] < SEEDS_AHEAD and handed < len(seeds):
-                self._seeds[worker].send(seeds[handed])
+                worker.send(seeds[handed])
                 holding[worker] += 1
                 handed += 1
 
-        for worker in range(len(self._processes)):
+        for worker in self._workers:
             hand_out(worker)
         meanwhile()
         for seed in seeds:
             while seed not in done:
-                for connection in wait(self._results):
-                    worker = self._results.index(connection)
-                    try:
-                        kind, payload = connection.recv()
-                    except EOFError:
-                        raise UserError(
-                            f"recording worker {worker} died (exit code {self._processes[worker].exitcode})"
-                        ) from None
-                    if kind == "error":
-                        raise UserError(payload)
-                    done.add(payload)
+                for worker in wait(self._workers):
+                    # A worker's failure is raised here as one line (a UserError), as is a worker that died.
+                    done.add(worker.recv())
                     holding[worker] -= 1
                     hand_out(worker)
             done.discard(seed)
@@ -133,19 +105,8 @@ class ParallelRollouts:
         if self._closed:
             return
         self._closed = True
-        for connection in self._seeds:
-            if not interrupted:
-                try:
-                    connection.send(None)
-                except OSError:  # the worker is already gone
-                    pass
-            connection.close()
-        for process in self._processes:
-            if interrupted:
-                process.kill()  # an unfinished episode is worth nothing; the finished ones are spooled
-            process.join()
-        for connection in self._results:
-            connection.close()
+        # Interrupted: an unfinished episode is worth nothing, and the finished ones are spooled.
+        close_all(self._workers, kill=interrupted)
 
     def __enter__(self) -> ParallelRollouts:
         return self

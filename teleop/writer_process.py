@@ -8,149 +8,82 @@ memory stays flat.
 Crash behaviour: the child ignores Ctrl-C and stops only when the pipe closes, so every episode
 that reached it is committed even if the recorder is interrupted or killed. It holds the dataset
 lock until then, so a new recorder cannot interleave with it.
+
+The child is a `common.workers.Worker` with `outlives_parent` (a forkserver child, as the
+recording workers are; it used to be a `python -m` interpreter of its own, and reaches "ready" as
+fast as that did: docs/processes.md).
 """
 
 from __future__ import annotations
 
-import argparse
-import os
-import signal
-import subprocess
-import sys
-import traceback
-from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.cli import DatasetError
+from common.workers import Channel, Worker
 
 if TYPE_CHECKING:
     from humanoid.episode import Episode
     from teleop.store import CommittedEpisode
 
+WRITER_MODULES = ("humanoid.env", "teleop.store")  # what `_serve` imports
+
 
 class WriterProcess:
-    """The `EpisodeSink` that appends episodes to `root` from a child process."""
+    """The `EpisodeSink` that appends episodes to `root` from a child process (a `common.workers.Worker`)."""
 
     def __init__(self, root: Path) -> None:
-        # A fresh interpreter started with `-m`: unlike multiprocessing's spawn, it never re-imports
-        # the caller's __main__, and it inherits exactly the two pipe ends it needs.
-        episodes_in, episodes_out = os.pipe()
-        results_in, results_out = os.pipe()
-        self._process = subprocess.Popen(
-            [sys.executable, "-m", __name__, str(root), str(episodes_in), str(results_out)],
-            pass_fds=(episodes_in, results_out),
+        # outlives_parent: the writer commits what it received even if the recorder is killed.
+        self._worker = Worker(
+            _serve, root, name=f"the writer process of {root}", preload=WRITER_MODULES, outlives_parent=True
         )
-        os.close(episodes_in)  # the child alone reads episodes: it sees end-of-file when ours closes
-        os.close(results_out)
-        self._episodes = Connection(episodes_out, readable=False)
-        self._results = Connection(results_in, writable=False)
         self.num_episodes = -1
         self._next_seed = -1
-        self._error: str | None = None
+        self._ready = False
 
     def wait_ready(self) -> None:
-        """Block until the child has opened the dataset; DatasetError if it could not."""
-        kind, payload = self._receive()
-        if kind != "ready":
-            self._fail(payload)
-        self.num_episodes, self._next_seed = payload
+        """Block until the child has opened the dataset; DatasetError (or WorkerError) if it could not."""
+        self.num_episodes, self._next_seed = self._worker.recv()
+        self._ready = True
 
     def next_seed(self) -> int:
         return self._next_seed
 
     def submit(self, episode: Episode) -> list[CommittedEpisode]:
         """Hand `episode` over (blocks while the child is still writing the previous one)."""
-        try:
-            self._episodes.send(episode)
-        except (BrokenPipeError, ConnectionResetError):
-            self._committed(until_closed=True)  # the child stopped: collect its reason
-        return self._committed(until_closed=False)
+        self._worker.send(episode)  # if the child stopped, raises its reason
+        committed = []
+        while self._worker.poll():
+            committed.append(self._worker.recv())
+        self.num_episodes += len(committed)
+        return committed
 
     def close(self) -> list[CommittedEpisode]:
         """Signal the end of the recording and wait until every episode sent is committed."""
-        if self._episodes.closed:
+        if self._worker.exitcode is not None or self._worker.failed:
+            self._worker.close()
             return []
-        self._episodes.close()
         try:
-            return [] if self._error else self._committed(until_closed=True)
+            self._worker.stop_sending()
+            rest = self._worker.rest()  # the child has closed the dataset when its channel ends
+            if not self._ready:  # interrupted before `wait_ready`: its message comes first
+                next(rest, None)
+            committed = list(rest)
+            self.num_episodes += len(committed)
+            return committed
         finally:
-            self._results.close()
-            self._process.wait()
-
-    def _receive(self) -> tuple[str, object]:
-        try:
-            return self._results.recv()
-        except (EOFError, ConnectionResetError):
-            return "error", f"the writer process died (exit code {self._process.wait()})"
-
-    def _committed(self, until_closed: bool) -> list[CommittedEpisode]:
-        committed = []
-        while until_closed or self._results.poll():
-            kind, payload = self._receive()
-            if kind == "closed":
-                break
-            if kind != "committed":
-                self._fail(payload)
-            committed.append(payload)
-            self.num_episodes += 1
-        return committed
-
-    def _fail(self, message: str) -> None:
-        """Remember that the child stopped (so `close` just cleans up) and raise its reason."""
-        self._error = message
-        self._process.wait()
-        raise DatasetError(message)
+            self._worker.close()
 
 
-def _send(results: Connection, kind: str, payload: object) -> None:
-    """Report to the recorder; if it is gone (killed), keep writing what it already sent."""
-    try:
-        results.send((kind, payload))
-    except (BrokenPipeError, ConnectionResetError):
-        pass
-
-
-def _serve(root: Path, episodes: Connection, results: Connection) -> None:
+def _serve(channel: Channel, root: Path) -> None:
+    """The writer (`common.workers`): open the dataset, report it ready, commit each episode received, report it."""
     from humanoid.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
     from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415 - heavy imports happen in the child only
 
+    store = EpisodeStore(root, DatasetSpec.from_env(make_env()))
     try:
-        store = EpisodeStore(root, DatasetSpec.from_env(make_env()))
-    except DatasetError as error:
-        _send(results, "error", str(error))
-        return
-    except Exception as error:
-        traceback.print_exc()
-        _send(results, "error", f"cannot open {root}: {error}")
-        return
-    try:
-        _send(results, "ready", (store.num_episodes, store.next_seed()))
+        channel.send((store.num_episodes, store.next_seed()))
         store.prepare()  # while the recorder simulates the first episode
-        while True:
-            try:
-                episode = episodes.recv()
-            except (EOFError, OSError):  # the recorder closed the pipe, finished or killed mid-send
-                break
-            _send(results, "committed", store.append(episode))
-    except Exception as error:  # report it as one line; the traceback goes to stderr for debugging
-        traceback.print_exc()
-        _send(results, "error", f"writing to {root} failed: {error}")
-    else:
-        store.close()  # releases the dataset before the recorder hears that it may go on
-        _send(results, "closed", None)
+        for episode in channel:  # until the recorder closes the channel, finished or killed (mid-send too)
+            channel.send(store.append(episode))
     finally:
-        store.close()
-
-
-if __name__ == "__main__":
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the recorder decides
-    parser = argparse.ArgumentParser(description="internal: the recorder's writer process")
-    parser.add_argument("root", type=Path)
-    parser.add_argument("episodes_fd", type=int)
-    parser.add_argument("results_fd", type=int)
-    args = parser.parse_args()
-    _serve(args.root, Connection(args.episodes_fd, writable=False), Connection(args.results_fd, readable=False))
-    # Every file is closed and renamed: skip the interpreter's teardown (a few hundred ms of module cleanup).
-    sys.stderr.flush()
-    os._exit(0)
+        store.close()  # releases the dataset before the recorder hears that the channel ended

@@ -13,10 +13,8 @@ so that PPO's learner does not take part in every step.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 from collections.abc import Callable, Sequence
-from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium as gym
@@ -24,6 +22,8 @@ import numpy as np
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+from common.workers import Channel, Worker, close_all
 
 # The info keys SB3's PPO reads (bootstrapping at time limits, episode statistics). Humanoid's
 # info holds a dozen NumPy scalars and arrays besides, whose copying and pickling cost more than
@@ -103,59 +103,16 @@ def _handle(share: _Share, command: str, data: tuple) -> Any:
     return getattr(share, command)(*data)
 
 
-class _Failure:
-    """An exception raised in a worker, sent back so that the learner raises it (a bare EOFError says nothing)."""
+def _serve(channel: Channel, factories: CloudpickleWrapper) -> None:
+    """A worker (`common.workers`): runs its share of the environments, one command per message, until closed.
 
-    def __init__(self, error: BaseException) -> None:
-        self.error = error
-
-
-def _serve(remote: Connection, factories: CloudpickleWrapper, cpu: int | None) -> None:
-    """A worker process: runs its share of the environments, one command per message, until told to close."""
-    if cpu is not None:
-        os.sched_setaffinity(0, {cpu})
+    A command's exception is its answer: the learner raises it as itself (SB3 catches AttributeError).
+    """
     share = _Share([factory() for factory in factories.var])
     try:
-        while (message := remote.recv())[0] != "close":
-            try:
-                remote.send(_handle(share, *message))
-            except Exception as error:
-                remote.send(_Failure(error))
-    except (EOFError, KeyboardInterrupt):  # the learner is gone or interrupted: nothing left to serve
-        pass
+        channel.serve(lambda message: _handle(share, *message))
     finally:
         share.close()
-        remote.close()
-
-
-class _Worker:
-    """A worker process and its pipe."""
-
-    def __init__(self, context: Any, factories: list[Callable[[], gym.Env]], cpu: int | None) -> None:
-        self.pipe, child_end = context.Pipe()
-        # daemon: a learner that dies leaves no orphans behind
-        self.process = context.Process(target=_serve, args=(child_end, CloudpickleWrapper(factories), cpu), daemon=True)
-        self.process.start()
-        child_end.close()
-
-    def send(self, command: str, data: tuple = ()) -> None:
-        self.pipe.send((command, data))
-
-    def recv(self) -> Any:
-        result = self.pipe.recv()
-        if isinstance(result, _Failure):
-            raise result.error
-        return result
-
-    def close(self) -> None:
-        try:
-            self.pipe.send(("close", ()))
-        except OSError:  # already gone (Ctrl-C reaches the whole process group): the join below still reaps it
-            pass
-        self.process.join(timeout=10)
-        if self.process.is_alive():
-            self.process.kill()
-        self.pipe.close()
 
 
 class _InProcess:
@@ -165,13 +122,13 @@ class _InProcess:
         self.share = _Share([factory() for factory in factories])
         self.pending: tuple[str, tuple] | None = None
 
-    def send(self, command: str, data: tuple = ()) -> None:
-        self.pending = (command, data)
+    def send(self, message: tuple[str, tuple]) -> None:
+        self.pending = message
 
     def recv(self) -> Any:
         assert self.pending is not None, "recv without send"
-        (command, data), self.pending = self.pending, None
-        return _handle(self.share, command, data)
+        message, self.pending = self.pending, None
+        return _handle(self.share, *message)
 
     def close(self) -> None:
         self.share.close()
@@ -197,30 +154,39 @@ class WorkerGroupVecEnv(VecEnv):
         self,
         factories: Sequence[Callable[[], gym.Env]],
         workers: int,
-        start_method: str = "forkserver",
         pin: bool = True,
     ):
         if not 1 <= workers <= len(factories):
             raise ValueError(f"need 1 <= workers <= environments, got {workers} workers for {len(factories)}")
-        context = mp.get_context(start_method)
         self.groups = split(len(factories), workers)
         cpus = sorted(os.sched_getaffinity(0)) if pin else []
-        if workers == 1:
-            self.workers: list[_Worker | _InProcess] = [_InProcess(list(factories))]
-        else:
-            self.workers = [
-                _Worker(context, [factories[i] for i in group], cpus[index % len(cpus)] if cpus else None)
-                for index, group in enumerate(self.groups)
-            ]
+        self.workers: list[Worker | _InProcess] = []
         self.closed = False
-        self.workers[0].send("spaces")
+        if workers == 1:
+            self.workers.append(_InProcess(list(factories)))
+        else:
+            try:
+                for index, group in enumerate(self.groups):
+                    self.workers.append(
+                        Worker(
+                            _serve,
+                            CloudpickleWrapper([factories[i] for i in group]),
+                            name=f"environment worker {index}",
+                            cpu=cpus[index % len(cpus)] if cpus else None,
+                            ignore_interrupt=False,  # Ctrl-C stops a worker mid-rollout, as it stops the learner
+                        )
+                    )
+            except BaseException:
+                self.close()
+                raise
+        self.workers[0].send(("spaces", ()))
         observation_space, action_space = self.workers[0].recv()
         super().__init__(len(factories), observation_space, action_space)
 
     def _all(self, command: str, data_per_group: Callable[[range], tuple]) -> list[Any]:
         """Send each worker its command, then collect the answers: the workers run theirs at the same time."""
         for worker, group in zip(self.workers, self.groups, strict=True):
-            worker.send(command, data_per_group(group))
+            worker.send((command, data_per_group(group)))
         return [worker.recv() for worker in self.workers]
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -254,9 +220,11 @@ class WorkerGroupVecEnv(VecEnv):
 
     def close(self) -> None:
         if not self.closed:
-            for worker in self.workers:
-                worker.close()
             self.closed = True
+            close_all(worker for worker in self.workers if isinstance(worker, Worker))
+            for worker in self.workers:
+                if isinstance(worker, _InProcess):
+                    worker.close()
 
     def _call(self, method: str, indices: VecEnvIndices, *args: Any) -> list[Any]:
         """`_Share.<method>(local indices, *args)` in each worker holding some of `indices`; results in their order."""
@@ -265,7 +233,7 @@ class WorkerGroupVecEnv(VecEnv):
         for worker, group in zip(self.workers, self.groups, strict=True):
             local = [i - group.start for i in wanted if i in group]
             if local:
-                worker.send(method, (local, *args))
+                worker.send((method, (local, *args)))
                 asked.append((worker, [group.start + i for i in local]))
         by_index = {}
         for worker, global_indices in asked:

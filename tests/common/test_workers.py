@@ -1,0 +1,161 @@
+"""The worker-process mechanism (`common.workers`) with real processes: failures, deaths, shutdown."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from common.cli import DatasetError
+from common.workers import Channel, Worker, WorkerError
+
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (processes)
+
+HERE = Path(__file__).resolve().parent
+
+# The children's targets: module-level, so that a forkserver child can unpickle them.
+
+
+def echo(channel: Channel) -> None:
+    for message in channel:
+        channel.send(message)
+
+
+def raise_value_error(channel: Channel) -> None:
+    channel.recv()
+    raise ValueError("bad value")
+
+
+def raise_user_error(channel: Channel) -> None:
+    raise DatasetError("the dataset is locked")
+
+
+def report_pid_then_wait(channel: Channel) -> None:
+    channel.send(os.getpid())
+    channel.recv()
+
+
+def never_stop(channel: Channel) -> None:
+    channel.send(os.getpid())
+    while True:
+        time.sleep(1)
+
+
+def look_up(channel: Channel) -> None:
+    channel.serve(lambda key: {"a": 1}[key])
+
+
+def write_slowly(channel: Channel, path: Path) -> None:
+    """Each message is appended to `path` after a while, and acknowledged (to a parent that may be gone)."""
+    for message in channel:
+        time.sleep(0.2)
+        with path.open("a") as file:
+            file.write(f"{message}\n")
+        channel.send(message)
+
+
+def fail_in_a_child() -> None:
+    """For the subprocess test below: prints the one line the parent gets."""
+    with Worker(raise_value_error, name="test worker") as worker:
+        worker.send("go")
+        try:
+            worker.recv()
+        except WorkerError as error:
+            print(error)
+
+
+def gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_messages_go_both_ways_and_the_rest_comes_after_the_input_ends() -> None:
+    with Worker(echo, name="echo") as worker:
+        worker.send({"seed": 3})
+        assert worker.recv() == {"seed": 3}
+        worker.send(4)
+        worker.send(5)
+        worker.stop_sending()
+        assert list(worker.rest()) == [4, 5]
+        assert worker.exitcode == 0
+
+
+def test_a_child_exception_is_one_line_in_the_parent_with_the_traceback_on_stderr() -> None:
+    """The parent raises `<name> failed: ValueError('bad value')`; the child's stderr has the traceback."""
+    code = f"import sys; sys.path.insert(0, {str(HERE)!r}); import test_workers; test_workers.fail_in_a_child()"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert result.stdout == "test worker failed: ValueError('bad value')\n"
+    assert "Traceback (most recent call last)" in result.stderr
+    assert 'raise ValueError("bad value")' in result.stderr
+
+
+def test_a_child_exception_ends_it_with_exit_code_1_and_a_user_error_stays_itself() -> None:
+    worker = Worker(raise_value_error, name="test worker")
+    worker.send("go")
+    with pytest.raises(WorkerError, match=r"^test worker failed: ValueError\('bad value'\)$") as raised:
+        worker.recv()
+    assert isinstance(raised.value.__cause__, ValueError)
+    assert worker.close() == 1
+    with Worker(raise_user_error, name="writer") as worker:
+        with pytest.raises(DatasetError, match="^the dataset is locked$"):
+            worker.recv()
+        assert worker.close() == 1
+
+
+def test_a_child_killed_by_sigkill_is_reported_with_its_exit_code() -> None:
+    worker = Worker(report_pid_then_wait, name="recording worker 1")
+    pid = worker.recv()
+    os.kill(pid, signal.SIGKILL)
+    with pytest.raises(WorkerError, match=r"^recording worker 1 died \(exit code -9, SIGKILL\)$"):
+        worker.recv()
+    assert worker.exitcode == -9
+    with pytest.raises(WorkerError, match="died"):  # sending to it says the same
+        worker.send("more")
+    assert worker.close() == -9
+
+
+def test_close_is_idempotent_and_reaps_the_child() -> None:
+    worker = Worker(report_pid_then_wait, name="waiting")
+    pid = worker.recv()
+    assert worker.close() == 0  # its input ended: it returned
+    assert worker.close() == 0
+    assert gone(pid)
+
+
+def test_close_kills_a_child_that_does_not_stop_after_the_timeout() -> None:
+    worker = Worker(never_stop, name="stubborn")
+    pid = worker.recv()
+    start = time.monotonic()
+    assert worker.close(timeout=0.5) == -signal.SIGKILL
+    assert 0.5 <= time.monotonic() - start < 5
+    assert gone(pid)
+    assert worker.close() == -signal.SIGKILL
+
+
+def test_a_failed_request_is_raised_as_itself_and_the_child_goes_on() -> None:
+    """`Channel.serve`: the handler's exception is the answer (with the child's traceback as a note)."""
+    with Worker(look_up, name="server") as worker:
+        worker.send("b")
+        with pytest.raises(KeyError) as raised:
+            worker.recv()
+        assert "in a worker process" in raised.value.__notes__[0]
+        worker.send("a")
+        assert worker.recv() == 1
+
+
+def test_a_child_that_outlives_its_parent_finishes_what_it_was_sent(tmp_path: Path) -> None:
+    """`outlives_parent`: the parent closes at once (it reads nothing more); the child still does all three."""
+    out = tmp_path / "out.txt"
+    worker = Worker(write_slowly, out, name="writer", outlives_parent=True)
+    for message in ("a", "b", "c"):
+        worker.send(message)
+    assert worker.close() == 0
+    assert out.read_text() == "a\nb\nc\n"
