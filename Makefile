@@ -1,6 +1,6 @@
 # humanoid-bc: every target builds .venv on first use (Python >= 3.12 from the package registries).
-# Stage settings are Make variables passed on as flags; an empty one leaves the stage's default
-# (`python -m teleop.record --help`, `python -m bc.train --help`, `python -m bc.evaluate --help`).
+# Stage settings are Make variables passed on as flags; an unset one leaves the stage's default
+# (`make help` lists each target's variables, flags and defaults).
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 
@@ -20,47 +20,32 @@ export HF_DATASETS_OFFLINE := 1
 export MUJOCO_GL ?= egl
 export PYTHONUNBUFFERED := 1
 
-# The pipeline's folders (the stages' own defaults are the same; a test checks it). POLICY is each
-# stage's output (or, for eval, its input): empty means that stage's default folder below.
-DATASET ?= datasets/humanoid_stand
-BC_DEFAULT := policies/bc_humanoid_stand
-PPO_DEFAULT := policies/ppo_humanoid_stand
-SCRATCH_DEFAULT := policies/ppo_scratch_humanoid_stand
-POLICY ?=
-BC_POLICY ?= $(BC_DEFAULT)
-EPISODES ?=
-SEED ?=
-CONTROLLER ?=
-NOISE ?=
-MAX_STEPS ?=
-PUSH ?=
-VIDEO ?=
-EPOCHS ?=
-OVERWRITE ?=
-ROUNDS ?=
-TIMESTEPS ?=
-WORKERS ?=
-ENVS ?=
-PLOT ?=
-# Any other flag of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last"
-ARGS ?=
+# A stage target's Make variables are its config's fields in capitals (MAX_STEPS=v is --max-steps v),
+# passed only when set, so an unset one keeps the default of the stage's config: no default is typed
+# here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
+# flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
+# of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
+VARS.record := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS
+VARS.inspect := DATASET PLOT
+VARS.train-bc := DATASET POLICY EPOCHS OVERWRITE
+VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO
+VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
+VARS.dagger := DATASET OUTPUT POLICY ROUNDS EPISODES OVERWRITE
+VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
+VARS.baseline-rl := $(VARS.finetune-rl)
+VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BC_POLICY EPOCHS SCRATCH_POLICY \
+	PPO_POLICY TIMESTEPS ENVS PUSH ARGS OVERWRITE
+# --name='value' for each variable of the target being made ($@) that is set.
+flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-opt = $(if $($(1)),--$(2) $($(1)))
-RECORD_ARGS = --dataset $(DATASET) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) \
-	$(call opt,CONTROLLER,controller) $(call opt,NOISE,noise) $(call opt,MAX_STEPS,max-steps) $(call opt,WORKERS,workers)
-TRAIN_ARGS = --dataset $(DATASET) --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPOCHS,epochs) \
-	$(call opt,OVERWRITE,overwrite)
-DAGGER_ARGS = --dataset $(DATASET) $(call opt,ROUNDS,rounds) $(call opt,EPISODES,episodes) \
-	$(call opt,OVERWRITE,overwrite)
-RL_ARGS = --bc-policy $(BC_POLICY) $(call opt,TIMESTEPS,timesteps) $(call opt,WORKERS,workers) $(call opt,ENVS,envs) \
-	$(call opt,PUSH,push) $(call opt,OVERWRITE,overwrite) $(ARGS)
-EVAL_ARGS = --policy $(or $(POLICY),$(BC_DEFAULT)) $(call opt,EPISODES,episodes) $(call opt,SEED,seed) $(call opt,PUSH,push) \
-	$(call opt,NOISE,noise) $(call opt,VIDEO,video)
+.PHONY: help venv record inspect train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
 
-.PHONY: help venv record inspect train-bc eval dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
-
-help:  ## list the targets
+# The variables come from the stages' configs (bc/targets.py), so they need .venv.
+help:  ## list the targets and their variables
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
+	@echo
+	@if [ -x $(PY) ]; then $(PY) -m bc.targets; \
+	else echo "Each target's variables are listed here once .venv exists (make venv)."; fi
 
 # Installed from the lock (exact versions and hashes), never by resolving pyproject.toml afresh;
 # `make lock` re-resolves it. uv installs (pinned to the lock's own uv); pip only bootstraps it.
@@ -74,39 +59,33 @@ $(STAMP): $(LOCK) pyproject.toml
 
 venv: $(STAMP)  ## build .venv and install the project
 
-record: $(STAMP)  ## record demonstrations: DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS
-	$(PY) -m teleop.record $(RECORD_ARGS)
+record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
+	$(PY) -m teleop.record $(flags)
 
-inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 writes DATASET/inspect.png: DATASET PLOT
-	$(PY) -m teleop.inspect_dataset --dataset $(DATASET) $(call opt,PLOT,plot)
+inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 also draws DATASET/inspect.png
+	$(PY) -m teleop.inspect_dataset $(flags)
 
-train-bc: $(STAMP)  ## behaviour cloning, then evaluation: DATASET POLICY EPOCHS OVERWRITE
-	$(PY) -m bc.train $(TRAIN_ARGS)
+train-bc: $(STAMP)  ## behaviour cloning, then evaluation
+	$(PY) -m bc.train $(flags)
 
-eval: $(STAMP)  ## evaluate a policy (or POLICY=expert): POLICY EPISODES SEED PUSH NOISE VIDEO
-	$(PY) -m bc.evaluate $(EVAL_ARGS)
+eval: $(STAMP)  ## evaluate a policy (or POLICY=expert), print JSON
+	$(PY) -m bc.evaluate $(flags)
 
-dagger: $(STAMP)  ## DAgger with the expert as oracle: DATASET ROUNDS EPISODES OVERWRITE
-	$(PY) -m bc.dagger $(DAGGER_ARGS)
+robustness: $(STAMP)  ## a policy (or POLICY=expert) under every condition of the robustness suite
+	$(PY) -m bc.robustness $(flags)
 
-finetune-rl: $(STAMP)  ## PPO refinement of the BC policy: BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE ARGS
-	$(PY) -m bc.finetune --policy $(or $(POLICY),$(PPO_DEFAULT)) $(RL_ARGS)
+dagger: $(STAMP)  ## DAgger with the expert as oracle, on a copy of the dataset
+	$(PY) -m bc.dagger $(flags)
 
-baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget: POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE ARGS
-	$(PY) -m bc.baseline --policy $(or $(POLICY),$(SCRATCH_DEFAULT)) $(RL_ARGS)
+finetune-rl: $(STAMP)  ## PPO refinement of the BC policy
+	$(PY) -m bc.finetune $(flags) $(ARGS)
 
-# Each stage runs only if its output is missing, so the pipeline can be re-run (or resumed)
-# without growing the dataset or refusing to overwrite the checkpoint.
-pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl, then the table (existing outputs are reused)
-	@if [ -f $(DATASET)/meta/info.json ]; then echo "pipeline: $(DATASET) exists, not recording"; \
-	else $(MAKE) --no-print-directory record; fi
-	@if [ -f $(BC_DEFAULT)/eval.json ]; then echo "pipeline: $(BC_DEFAULT) exists, not training"; \
-	else $(MAKE) --no-print-directory train-bc POLICY=$(BC_DEFAULT); fi
-	@if [ -f $(SCRATCH_DEFAULT)/eval.json ]; then echo "pipeline: $(SCRATCH_DEFAULT) exists, not training"; \
-	else $(MAKE) --no-print-directory baseline-rl POLICY=$(SCRATCH_DEFAULT) BC_POLICY=$(BC_DEFAULT); fi
-	@if [ -f $(PPO_DEFAULT)/eval.json ]; then echo "pipeline: $(PPO_DEFAULT) exists, not fine-tuning"; \
-	else $(MAKE) --no-print-directory finetune-rl POLICY=$(PPO_DEFAULT) BC_POLICY=$(BC_DEFAULT); fi
-	@$(PY) -m bc.report $(BC_DEFAULT) $(PPO_DEFAULT) $(SCRATCH_DEFAULT)
+baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget
+	$(PY) -m bc.baseline $(flags) $(ARGS)
+
+# Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
+pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl, then the table
+	$(PY) -m bc.pipeline $(flags)
 
 test: $(STAMP)  ## run the whole test suite (a few minutes)
 	$(PY) -m pytest

@@ -30,7 +30,7 @@ class BaselineConfig(FinetuneConfig):
 
 
 def _main_and_print(cfg: BaselineConfig) -> None:
-    print_summary(cfg, main(cfg))
+    print_summary(cfg, main(cfg, made_by="bc.baseline"))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

@@ -13,7 +13,8 @@ itself goes:
 4. The last round's policy is the checkpoint at POLICY, evaluated like any BC policy (eval.json).
 
 Rounds continue the seeds after the dataset's last one; a second run on the same OUTPUT adds
-further rounds.
+further rounds. The run's settings go with what it writes: a line in OUTPUT/recordings.jsonl for
+the episodes it added, and "dagger" in the final checkpoint's config.json (and its TensorBoard text).
 """
 
 from __future__ import annotations
@@ -31,14 +32,17 @@ from tqdm import tqdm
 from bc.train import TrainConfig, TrainResult
 from bc.train import main as train
 from common import keys, paths
-from common.cli import DatasetError, UserError, run_cli, setting
+from common.cli import DatasetError, UserError, config_dict, flag, run_cli, setting
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from policies import checkpoint
 from policies.controller import PolicyController
+from teleop import recordings
 from teleop.dataset_reader import read_episodes
-from teleop.store import DatasetSpec, EpisodeStore
+from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
+
+MADE_BY = "bc.dagger"
 
 
 @dataclass
@@ -89,18 +93,26 @@ class DaggerResult:
 
 
 def validate(cfg: DaggerConfig) -> None:
-    if cfg.rounds <= 0 or cfg.episodes <= 0:
-        raise UserError(f"ROUNDS and EPISODES must be positive, got {cfg.rounds} and {cfg.episodes}")
+    for name in ("rounds", "episodes", "epochs"):
+        if getattr(cfg, name) <= 0:
+            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
+    if cfg.patience < 0 or cfg.eval_episodes < 0:
+        raise UserError(f"--patience and --eval-episodes must be >= 0, got {cfg.patience} and {cfg.eval_episodes}")
     if cfg.output.resolve() == cfg.dataset.resolve():
-        raise UserError("OUTPUT must differ from DATASET: DAgger leaves the demonstrations unchanged")
+        raise UserError("--output must differ from --dataset: DAgger leaves the demonstrations unchanged")
     if not (cfg.dataset / "meta/info.json").is_file() and not cfg.output.exists():
-        raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record`")
+        raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record DATASET={cfg.dataset}`")
 
 
 def collect_round(
-    store: EpisodeStore, policy_dir: Path, round_index: int, episodes: int, progress: bool
+    store: EpisodeStore,
+    policy_dir: Path,
+    round_index: int,
+    episodes: int,
+    progress: bool,
+    committed: list[CommittedEpisode] | None = None,
 ) -> RoundReport:
-    """Roll the policy out, label its states with the expert, append the episodes to `store`."""
+    """Roll the policy out, label its states with the expert, append the episodes to `store` (and to `committed`)."""
     env = make_env()
     policy = PolicyController.load(policy_dir, env)
     expert = make_controller("expert", env)
@@ -117,7 +129,9 @@ def collect_round(
     ):
         episode = run_episode(env, policy, seed, buffer=buffer, labeller=expert)
         episode.dagger_round = round_index
-        store.append(episode)
+        added = store.append(episode)
+        if committed is not None:
+            committed.append(added)
         returns.append(episode.episode_return)
         frames += episode.length
         survived += not episode.fell
@@ -133,20 +147,25 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         shutil.copytree(cfg.dataset, cfg.output)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(make_env()))
     result = DaggerResult()
+    context = {"dagger": config_dict(cfg)}
+    added: list[CommittedEpisode] = []
+    complete = False
     try:
         done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
         training = {"epochs": cfg.epochs, "patience": cfg.patience}
         quiet = {**training, "eval_episodes": 0, "progress": False, "tensorboard": False}
         with tempfile.TemporaryDirectory(prefix=".dagger-", dir=cfg.policy.parent) as scratch:
             policy_dir = Path(scratch) / f"round{done}"
-            train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet))
+            train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)
             for round_index in range(done + 1, done + cfg.rounds + 1):
-                result.rounds.append(collect_round(store, policy_dir, round_index, cfg.episodes, cfg.progress))
+                result.rounds.append(collect_round(store, policy_dir, round_index, cfg.episodes, cfg.progress, added))
                 if round_index < done + cfg.rounds:
                     policy_dir = Path(scratch) / f"round{round_index}"
-                    train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet))
+                    train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)
+        complete = True
     finally:
         store.close()
+        recordings.append(cfg.output, MADE_BY, config_dict(cfg), added, complete)
     result.final = train(
         TrainConfig(
             dataset=cfg.output,
@@ -155,7 +174,9 @@ def main(cfg: DaggerConfig) -> DaggerResult:
             **training,
             eval_episodes=cfg.eval_episodes,
             progress=cfg.progress,
-        )
+        ),
+        MADE_BY,
+        context,
     )
     return result
 

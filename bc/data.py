@@ -1,12 +1,13 @@
 """Demonstrations for behaviour cloning: a recorded dataset read in bulk into tensors, split by episode.
 
 Frames come from the parquet files through Arrow (`teleop.dataset_reader.iter_frames`), never
-through LeRobot's per-item `__getitem__`. Decoding parquet is the slow part: about 70 k rows/s on
-2 cores in a fresh process (348 float64 list elements a row, and every episode's metadata file
-to find the data files). So the decoded float32 arrays are cached as .npy files under the
-project's cache folder (`common.paths.cache_dir`), keyed by the dataset's path, its info.json
+through LeRobot's per-item `__getitem__`. Decoding parquet is the slow part (every row holds a few
+hundred list elements, which Arrow's parquet reader decodes slowly, and every episode's metadata
+file is read to find the data files). So the decoded float32 arrays are cached as .npy files under
+the project's cache folder (`common.paths.cache_dir`), keyed by the dataset's path, its info.json
 and the size and modification time of every data file: recording more episodes changes the key.
-Later loads copy them out of a memory map at about 2 M rows/s.
+Later loads copy them out of a memory map, an order of magnitude faster. Measured load speeds:
+docs/benchmarks.md, "Behaviour cloning".
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from common.cli import DatasetError
 from common.paths import cache_dir
 from humanoid.env import ENV_ID, observation_names
 from policies.controller import OBSERVATION_KEYS
-from teleop.dataset_reader import iter_frames, read_info
+from teleop.dataset_reader import fingerprint, iter_frames, read_info
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
 # Dataset columns concatenated into the policy's input: the gymnasium observation, in its order.
@@ -54,6 +55,7 @@ class Demonstrations:
     info: dict[str, Any]
     seconds: float  # time to load, from files to tensors
     from_cache: bool
+    fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
 
     @property
     def frames(self) -> int:
@@ -72,6 +74,7 @@ class Demonstrations:
             "codebase_version": self.info.get("codebase_version"),
             "robot_type": self.info.get("robot_type"),
             "fps": self.info.get("fps"),
+            "fingerprint": self.fingerprint,
         }
 
 
@@ -175,6 +178,10 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonst
     """Every committed frame of the dataset at `root`, checked against `env`, as float32 tensors."""
     start = time.perf_counter()
     info = check_compatible(root, env)
+    try:
+        digest = fingerprint(root)
+    except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # damaged episode metadata
+        raise DatasetError(f"cannot read the episode metadata of {root}: {error}") from None
     folder = _cache_folder(root, (root / INFO_PATH).read_text())
     from_cache = cache and all((folder / f"{name}.npy").is_file() for name in _ARRAYS)
     if from_cache:
@@ -197,6 +204,7 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonst
         info=info,
         seconds=time.perf_counter() - start,
         from_cache=from_cache,
+        fingerprint=digest,
     )
 
 

@@ -3,11 +3,15 @@
 Episodes start from the environment's own reset on seeds SEED..SEED+EPISODES-1; the default
 SEED 1000 keeps clear of the recorder's seeds (0, 1, 2, ...). Survival is the fraction of
 episodes that reach the 1000-step time limit without falling. The last line printed is one JSON
-object; `evaluate()` returns the same dict to callers such as `bc.train`.
+object, with the run's full settings under "config"; `evaluate()` returns the same dict (without
+them) to callers such as `bc.train`.
 
     PUSH=F     a horizontal push of F newtons on the torso for 0.1 s every 2 s, random direction
     NOISE=σ    Gaussian noise of std σ added to every executed action (then clipped)
-    VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU (about 30 ms a step)
+    CONDITION=name  a condition of the robustness suite instead (`humanoid.conditions.SUITE`:
+               masses, friction, motor strength, latency, sensor noise, pushes; docs/robustness.md)
+    VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
+               (docs/learning.md, "Evaluation"); use a few episodes
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ import numpy as np
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, run_cli, setting
+from common.cli import UserError, config_dict, run_cli, setting
+from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
@@ -43,22 +48,27 @@ class EvalConfig:
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")
     noise: float = setting(0.0, "std of the Gaussian noise added to every executed action; 0 = none")
-    video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen, CPU: about 30 ms a step)")
+    condition: str = setting("clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/robustness.md)")
+    video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
     progress: bool = setting(True, "show a progress bar")
 
 
 def validate(cfg: EvalConfig) -> None:
     """Reject bad settings before anything runs."""
     if cfg.episodes <= 0:
-        raise UserError(f"EPISODES must be positive, got {cfg.episodes}")
+        raise UserError(f"--episodes must be positive, got {cfg.episodes}")
     if cfg.seed < 0:
-        raise UserError(f"SEED must be >= 0, got {cfg.seed}")
+        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if not (math.isfinite(cfg.push) and cfg.push >= 0):
-        raise UserError(f"PUSH must be a force >= 0 in newtons, got {cfg.push}")
+        raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
     if not (math.isfinite(cfg.noise) and cfg.noise >= 0):
-        raise UserError(f"NOISE must be >= 0, got {cfg.noise}")
+        raise UserError(f"--noise must be >= 0, got {cfg.noise}")
+    if cfg.condition not in SUITE:
+        raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")
+    if cfg.condition != "clean" and (cfg.push or cfg.noise):
+        raise UserError("--condition brings its own perturbation: leave --push and --noise at 0 with it")
     if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
-        raise UserError(f"VIDEO must be an .mp4 path, got {cfg.video}")
+        raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
 
 
 def evaluate(
@@ -69,9 +79,16 @@ def evaluate(
     noise: float = 0.0,
     video: Path | None = None,
     progress: bool = False,
+    condition: str = "clean",
 ) -> dict[str, Any]:
-    """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary."""
+    """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
+
+    `push` and `noise` add to what the robustness `condition` (by name) brings.
+    """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
+    suite_condition = SUITE[condition]
+    env = suite_condition.wrap(env)
+    noise = noise + suite_condition.action_noise
     if push > 0:
         env = TorsoPushes(env, push)
     if video is not None:
@@ -104,16 +121,21 @@ def evaluate(
         "survived": int(sum(survived)),
         "push_newtons": push,
         "noise_std": noise,
+        "condition": condition,
         "returns": [round(float(r), 3) for r in returns],
+        "survivals": survived,
         "lengths": lengths.tolist(),
         "video": None if video is None else str(video),
     }
 
 
 def main(cfg: EvalConfig) -> dict[str, Any]:
-    """Evaluate `cfg.policy` as configured; returns the summary `cli` prints."""
+    """Evaluate `cfg.policy` as configured; returns the summary `cli` prints, `cfg` under "config"."""
     validate(cfg)
-    return evaluate(cfg.policy, cfg.episodes, cfg.seed, cfg.push, cfg.noise, cfg.video, cfg.progress)
+    result = evaluate(
+        cfg.policy, cfg.episodes, cfg.seed, cfg.push, cfg.noise, cfg.video, cfg.progress, condition=cfg.condition
+    )
+    return {**result, "config": config_dict(cfg)}
 
 
 def _main_and_print(cfg: EvalConfig) -> None:

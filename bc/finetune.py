@@ -13,7 +13,9 @@ Data flow:
    critic warm-up, an optional DAPG-style BC term, a conservative learning rate, clip range and
    target KL; and a critic that can learn (its own rate, scaled rewards, clipped inputs).
 3. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
-   with eval.json and a learning curve beside BC's level and the scratch baseline's curve.
+   with eval.json and a learning curve beside BC's level and the scratch baseline's curve. Its
+   config.json holds every setting, who ran it and the BC weights' digest (`bc_policy_sha256`);
+   TensorBoard gets the same as text.
 
 `make baseline-rl` (`bc.baseline`) runs the same with fresh weights and no guards. Why each
 default is what it is: docs/learning.md.
@@ -21,12 +23,13 @@ default is what it is: docs/learning.md.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,11 +45,11 @@ from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
-from common.cli import UserError, flag, run_cli, setting
+from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.env import make_env
 from policies import checkpoint
 from policies.controller import PolicyController
-from policies.folder import DATASET_FILE, EVAL_FILE
+from policies.folder import DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -213,6 +216,11 @@ def bc_dataset(bc_policy: Path) -> dict[str, Any]:
     return json.loads((bc_policy / DATASET_FILE).read_text())
 
 
+def weights_digest(policy: Path) -> str:
+    """SHA-256 of a checkpoint's weights file: which BC policy a PPO run started from."""
+    return hashlib.sha256((policy / WEIGHTS_FILE).read_bytes()).hexdigest()
+
+
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
     """The BC term on the BC checkpoint's own training data, or None when off."""
     if cfg.bc_weight == 0:
@@ -221,12 +229,16 @@ def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
     return DemonstrationTerm(demos.inputs, demos.actions, cfg.bc_weight, cfg.bc_decay, cfg.batch_size, cfg.seed)
 
 
-def main(cfg: FinetuneConfig) -> dict[str, Any]:
-    """Train as configured; returns the final evaluation written to POLICY/eval.json."""
+def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
+    """Train as configured; returns the final evaluation written to POLICY/eval.json.
+
+    `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
+    """
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
+    settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     term = demonstration_term(cfg)
     env = vec_env(cfg)
@@ -241,7 +253,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
                 seed=cfg.validation_seed,
                 push=cfg.push,
                 freq=cfg.eval_freq,
-                settings=asdict(cfg),
+                settings=settings,
                 folder=folder,
                 bar=bar,
             )
@@ -255,7 +267,7 @@ def main(cfg: FinetuneConfig) -> dict[str, Any]:
             kept = evaluator.best if cfg.keep == "best" else evaluator.curve[-1]
             if cfg.keep == "best":
                 actor.load_state_dict(evaluator.best_state)
-            checkpoint.save(actor, folder, {**asdict(cfg), "seconds": seconds, "kept": kept}, bc_dataset(cfg.bc_policy))
+            checkpoint.save(actor, folder, {**settings, "seconds": seconds, "kept": kept}, bc_dataset(cfg.bc_policy))
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
     finally:
         env.close()

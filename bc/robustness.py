@@ -14,7 +14,7 @@ import multiprocessing as mp
 import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,13 +22,11 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from bc.evaluate import EVAL_SEED
+from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
-from common.cli import UserError, flag, run_cli, setting
+from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.conditions import SUITE, condition
-from humanoid.controllers import check_controller, make_controller
-from humanoid.env import EPISODE_STEPS, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.controllers import check_controller
 
 RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
@@ -81,21 +79,9 @@ def output_folder(cfg: RobustnessConfig) -> Path:
     return EXPERT_FOLDER if cfg.policy == "expert" else Path(cfg.policy)
 
 
-def run_chunk(policy: str, name: str, seeds: list[int]) -> tuple[str, list[tuple[int, float, int, bool]]]:
-    """(seed, return, length, survived) of `policy` under condition `name` on `seeds`, in a worker."""
-    cond = condition(name)
-    env = cond.wrap(make_env())
-    try:
-        controller = make_controller(policy, env)
-        buffer = EpisodeBuffer(env, EPISODE_STEPS)
-        rows = []
-        for seed in seeds:
-            episode = run_episode(env, controller, seed, cond.action_noise, buffer)
-            survived = episode.length == EPISODE_STEPS and not episode.fell
-            rows.append((seed, episode.episode_return, episode.length, survived))
-        return name, rows
-    finally:
-        env.close()
+def run_chunk(policy: str, name: str, seeds: range) -> tuple[str, dict[str, Any]]:
+    """`bc.evaluate.evaluate` of `policy` under condition `name` on the consecutive `seeds`, in a worker."""
+    return name, evaluate(policy, len(seeds), seeds.start, condition=name)
 
 
 def _init_worker() -> None:
@@ -104,20 +90,21 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
-def summarise(rows: list[tuple[int, float, int, bool]]) -> dict[str, Any]:
-    rows = sorted(rows)
-    returns = np.array([r[1] for r in rows])
+def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
+    """One condition's row from its chunks' evaluations, in seed order."""
+    chunks = sorted(chunks, key=lambda chunk: chunk["seeds"][0])
+    returns = np.array([r for chunk in chunks for r in chunk["returns"]])
     return {
-        "survival_rate": float(np.mean([r[3] for r in rows])),
+        "survival_rate": float(np.mean([s for chunk in chunks for s in chunk["survivals"]])),
         "mean_return": float(returns.mean()),
         "std_return": float(returns.std()),
-        "episodes": len(rows),
-        "returns": [round(float(r), 3) for r in returns],
-        "lengths": [r[2] for r in rows],
+        "episodes": len(returns),
+        "returns": returns.tolist(),
+        "lengths": [n for chunk in chunks for n in chunk["lengths"]],
     }
 
 
-def run_suite(policy: str, names: list[str], seeds: list[int], workers: int, progress: bool = False) -> dict:
+def run_suite(policy: str, names: list[str], seeds: range, workers: int, progress: bool = False) -> dict:
     """Every condition in `names` on `seeds`, in chunks over `workers` processes; results per condition."""
     chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
     tasks = [(name, seeds[i : i + chunk]) for name in names for i in range(0, len(seeds), chunk)]
@@ -125,18 +112,17 @@ def run_suite(policy: str, names: list[str], seeds: list[int], workers: int, pro
     bar = tqdm(total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
     if workers == 1:
         _init_worker()
-        results = (run_chunk(policy, name, chunk_seeds) for name, chunk_seeds in tasks)
-        for name, chunk_rows in results:
-            rows[name] += chunk_rows
-            bar.update(len(chunk_rows))
+        for name, chunk_seeds in tasks:
+            rows[name].append(run_chunk(policy, name, chunk_seeds)[1])
+            bar.update(len(chunk_seeds))
     else:
         context = mp.get_context("forkserver")
         with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
             futures = [pool.submit(run_chunk, policy, name, chunk_seeds) for name, chunk_seeds in tasks]
             for future in futures:
-                name, chunk_rows = future.result()
-                rows[name] += chunk_rows
-                bar.update(len(chunk_rows))
+                name, evaluation = future.result()
+                rows[name].append(evaluation)
+                bar.update(evaluation["episodes"])
     bar.close()
     return {name: summarise(rows[name]) for name in names}
 
@@ -170,9 +156,9 @@ def main(cfg: RobustnessConfig) -> dict[str, Any]:
     """Run the suite as configured; writes robustness.json and the figure, returns the summary."""
     names = validate(cfg)
     folder = output_folder(cfg)
-    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
+    seeds = range(cfg.seed, cfg.seed + cfg.episodes)
     conditions = run_suite(cfg.policy, names, seeds, cfg.workers, cfg.progress)
-    result = {"policy": cfg.policy, "seeds": seeds, "conditions": conditions, "config": asdict(cfg)}
+    result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         folder.mkdir(parents=True, exist_ok=True)
         (folder / RESULT_FILE).write_text(json.dumps(result, indent=1, default=str))

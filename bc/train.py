@@ -7,16 +7,16 @@
    with Adam on the mean squared error of the actions, minibatches drawn from tensors in memory.
    Training stops when the validation loss has not improved for PATIENCE epochs and keeps the
    weights of the best epoch.
-4. Write the checkpoint to POLICY (weights, config, dataset identity, learning curve, TensorBoard
-   logs) through a hidden staging folder: an existing checkpoint is replaced only with
-   --overwrite and only once the new one is complete.
+4. Write the checkpoint to POLICY (weights, the run's full config, the dataset's identity and
+   fingerprint, learning curve, TensorBoard logs with the config as text) through a hidden
+   staging folder: an existing checkpoint is replaced only with --overwrite and only once the new
+   one is complete.
 5. Evaluate it on EVAL_EPISODES unseen seeds, next to the expert on the same seeds: POLICY/eval.json.
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import os
 import sys
@@ -36,7 +36,7 @@ from tqdm import tqdm
 from bc.data import INPUT_KEYS, Demonstrations, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
-from common.cli import UserError, run_cli, setting
+from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
 from policies import checkpoint
 from policies.controller import PolicyController
@@ -50,6 +50,7 @@ LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
 }
 LEARNING_CURVE_FILE = "learning_curve.png"
 TENSORBOARD_DIR = "tensorboard"
+CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
 @dataclass
@@ -133,20 +134,16 @@ class TrainResult:
 
 def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
-    positive = {"HIDDEN": cfg.hidden, "LAYERS": cfg.layers, "BATCH_SIZE": cfg.batch_size, "EPOCHS": cfg.epochs}
-    for name, value in positive.items():
-        if value <= 0:
-            raise UserError(f"{name} must be positive, got {value}")
-    if not (math.isfinite(cfg.lr) and cfg.lr > 0):
-        raise UserError(f"LR must be positive, got {cfg.lr}")
-    if not (math.isfinite(cfg.weight_decay) and cfg.weight_decay >= 0):
-        raise UserError(f"WEIGHT_DECAY must be >= 0, got {cfg.weight_decay}")
+    for name in ("hidden", "layers", "batch_size", "epochs", "lr", "std_floor"):
+        value = getattr(cfg, name)
+        if not (math.isfinite(value) and value > 0):
+            raise UserError(f"{flag(name)} must be positive, got {value}")
+    for name in ("weight_decay", "patience", "threads", "eval_episodes", "eval_seed"):
+        value = getattr(cfg, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise UserError(f"{flag(name)} must be >= 0, got {value}")
     if not 0 < cfg.val_fraction < 1:
-        raise UserError(f"VAL_FRACTION must be between 0 and 1, got {cfg.val_fraction}")
-    if not (math.isfinite(cfg.std_floor) and cfg.std_floor > 0):
-        raise UserError(f"STD_FLOOR must be positive, got {cfg.std_floor}")
-    if cfg.patience < 0 or cfg.threads < 0 or cfg.eval_episodes < 0 or cfg.eval_seed < 0:
-        raise UserError("PATIENCE, THREADS, EVAL_EPISODES and EVAL_SEED must be >= 0")
+        raise UserError(f"--val-fraction must be between 0 and 1, got {cfg.val_fraction}")
 
 
 def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -225,8 +222,12 @@ def plot_learning_curve(result: TrainResult, path: Path) -> None:
     figure.savefig(path, dpi=100)
 
 
-def main(cfg: TrainConfig) -> TrainResult:
-    """Train, save and evaluate a behaviour-cloning policy as configured."""
+def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | None = None) -> TrainResult:
+    """Train, save and evaluate a behaviour-cloning policy as configured.
+
+    config.json's `training` holds every setting, `made_by` (the command that ran: bc.train,
+    bc.dagger, bc.pipeline) and `context` (e.g. the DAgger settings), and so does TensorBoard's text.
+    """
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)  # before minutes of work, not after
     torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
@@ -259,8 +260,11 @@ def main(cfg: TrainConfig) -> TrainResult:
         loaded_from_cache=demos.from_cache,
     )
 
+    settings = {**config_dict(cfg), "made_by": made_by, **(context or {})}
     with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
         writer = SummaryWriter(str(folder / TENSORBOARD_DIR)) if cfg.tensorboard else None
+        if writer is not None:
+            writer.add_text(CONFIG_TAG, config_text(settings), 0)
         start = time.perf_counter()
         try:
             result.curves = fit(policy, train, val, cfg, writer)
@@ -269,7 +273,7 @@ def main(cfg: TrainConfig) -> TrainResult:
                 writer.close()
         result.train_seconds = time.perf_counter() - start
         training = {
-            **dataclasses.asdict(cfg),
+            **settings,
             "kept_epoch": result.curves.best_epoch + 1,
             "epochs_run": len(result.curves.val_loss),
             "best_val_loss": result.curves.best_val_loss,

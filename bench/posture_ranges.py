@@ -29,7 +29,7 @@ SETTLE_S = 2.0
 MAGNITUDES: dict[str, tuple[float, ...]] = {
     "lean_forward": (0.1, 0.2, 0.3, 0.35, 0.4, 0.5),
     "lean_left": (0.1, 0.2, 0.3, 0.4, 0.5),
-    "height": (0.005, 0.008, -0.05, -0.1, -0.15, -0.2, -0.25, -0.3),  # signed: rise has ~1 cm of room
+    "height": (0.005, 0.008, -0.05, -0.1, -0.15, -0.2, -0.25, -0.3),  # signed: rise has under 1 cm of room
     "twist": (0.2, 0.4, 0.6, 0.7, 0.75),
     "arms": (1.0, 2.0, 3.0),
 }

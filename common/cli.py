@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import types
 import typing
@@ -36,6 +37,17 @@ def setting(default: Any, help: str, **kwargs: Any) -> Any:
 def flag(name: str) -> str:
     """The command-line flag of config field `name`, for messages that tell the user what to type."""
     return "--" + name.replace("_", "-")
+
+
+def config_dict(config: Any) -> dict[str, Any]:
+    """Every field of a config dataclass as a JSON value (paths as strings): what a run saves as its config."""
+    values = {field.name: getattr(config, field.name) for field in dataclasses.fields(config)}
+    return {name: str(value) if isinstance(value, Path) else value for name, value in values.items()}
+
+
+def config_text(settings: dict[str, Any]) -> str:
+    """`settings` as TensorBoard text (Markdown): a code block of indented JSON, which `json.loads` reads back."""
+    return "\n".join("    " + line for line in json.dumps(settings, indent=2, default=str).splitlines())
 
 
 def _parser_type(annotation: Any) -> Callable[[str], Any]:

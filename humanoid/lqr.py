@@ -182,7 +182,7 @@ def linearise(
 
 
 def design_lqr(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
-    """Balanced pose, feed-forward and LQR feedback gain for ``model`` (about a second)."""
+    """Balanced pose, feed-forward and LQR feedback gain for ``model`` (under a second; cached: ``load_or_design``)."""
     qpos_ref = balanced_pose(model, design.knee)
     ctrl_ff = feed_forward(model, qpos_ref)
     if np.abs(ctrl_ff).max() > CTRL_LIMIT:

@@ -19,7 +19,8 @@ of about 0.2 m, so the centre of mass can move toward one foot.
   unequally (solved through a small knee difference, which sets how deep each foot presses).
 - ``height`` moves the torso (the root, whose height the env's healthy check reads) up or down:
   the knees take the angle that puts an upright torso ``height`` lower or higher, and the hips
-  re-solve. Rising has about 1 cm of room: the neutral knees (-0.3 rad) are nearly straight.
+  re-solve. Rising has little room (``Posture.MAX``, under a centimetre): the neutral knees
+  (-0.3 rad) are nearly straight.
 - ``twist`` yaws the torso relative to the pelvis (abdomen_z); legs and pelvis keep their yaw.
 - ``arms`` selects a preset of shoulder and elbow angles (``ARM_POSES``).
 

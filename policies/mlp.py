@@ -17,10 +17,10 @@ from torch import nn
 # The gymnasium observation has exactly constant entries (body masses in cinert; contact forces
 # of bodies that never touch anything), which need some floor. Beyond that, the floor decides how
 # much the policy may amplify inputs that barely vary in the demonstrations (waist inertia terms
-# with std 3e-5 in clean data): flooring them at 0.1 rather than 1e-6, with DART data (sigma 0.05)
-# and 3 training seeds, gave a lower validation loss on every seed (4.3-5.4e-5 against 5.9-7.5e-5),
-# the same clean survival (20/20) and returns under 10 N pushes of 1,240-1,590 instead of 750
-# Joint angles and velocities, the signals that matter for balance, keep a scale of order one.
+# with std 3e-5 in clean data): flooring them at 0.1 rather than 1e-6 gave a lower validation loss
+# on every training seed and higher returns under pushes (measured: docs/learning.md, "The input
+# normalisation floor"). Joint angles and velocities, the signals that matter for balance, keep a
+# scale of order one.
 STD_FLOOR = 0.1
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}

@@ -1,4 +1,4 @@
-"""Recording: the Humanoid-v5 environment, controllers, and the LeRobot + MCAP writers."""
+"""Recording: the recorder, keyboard teleoperation, parallel workers, and the LeRobot + MCAP writers and readers."""
 
 import logging
 

@@ -7,6 +7,7 @@ committed episodes that meta/info.json counts.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections import deque
 from collections.abc import Iterator
@@ -72,6 +73,23 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     order = np.argsort(episodes["episode_index"].to_numpy(), kind="stable")
     episodes = episodes.take(pa.array(order))
     return episodes if columns is None else episodes.select(columns)
+
+
+def fingerprint(root: Path) -> str:
+    """A digest of what the dataset at `root` holds: its info.json and every committed episode's row.
+
+    The rows carry each episode's seed, length, return, files and per-feature statistics, so any
+    episode added, removed or changed changes the digest; the same recording made again (the
+    recorder is deterministic, whatever its workers) has the same one. Checkpoints record it
+    (dataset.json), and `make pipeline` compares it with the dataset's to decide what to re-make.
+    """
+    info = read_info(root)
+    paths = sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+    rows = pa.concat_tables(list(_read_in_order(paths, None)), promote_options="default") if paths else None
+    episodes = [] if rows is None else _rows_before(rows, "episode_index", info["total_episodes"]).to_pylist()
+    episodes.sort(key=lambda row: row["episode_index"])
+    content = json.dumps([info, episodes], sort_keys=True, default=str)
+    return hashlib.sha256(content.encode()).hexdigest()
 
 
 def column_to_numpy(column: pa.ChunkedArray) -> np.ndarray:

@@ -1,8 +1,8 @@
 """`make inspect`: what a dataset folder holds, and whether its LeRobot and MCAP halves agree.
 
-Prints a summary (episodes, frames, tasks, controllers, seeds, return and length per episode,
-features, disk size, the MCAP files' message counts), then verifies the dataset and exits with
-`error: <the first problem found>` if anything is wrong:
+Prints a summary (episodes, frames, tasks, controllers, seeds, the sessions of recordings.jsonl,
+return and length per episode, features, disk size, the MCAP files' message counts), then verifies
+the dataset and exits with `error: <the first problem found>` if anything is wrong:
 
 - LeRobot metadata: info.json (v3.0), the episode rows, the frame indices, the tasks and stats.json
   agree with each other and with the frames; every declared feature is a column of that shape;
@@ -37,6 +37,7 @@ from mcap.reader import make_reader
 
 from common import keys, paths
 from common.cli import DatasetError, run_cli, setting
+from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_steps
 from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
 from teleop.mcap_io.writer import SCENE_TOPIC, STEP_TOPIC
@@ -150,6 +151,7 @@ class Report:
     mcap_counts: dict[str, int]  # messages per topic over the readable files
     mcap_counts_match: int  # episodes whose every per-step topic has one message per frame
     leftovers: list[str] = field(default_factory=list)
+    runs: list[dict] = field(default_factory=list)  # recordings.jsonl: the sessions that added the episodes
     verified: list[str] = field(default_factory=list)  # what passed, once everything has
     plot: Path | None = None
     seconds: float = 0.0
@@ -177,6 +179,8 @@ class Report:
         lines += _listing("tasks", [f"{task!r}: {frames:,} frames" for task, frames in self.tasks.items()])
         if self.controllers is not None:
             lines += _listing("controllers", [f"{name}: {count} episodes" for name, count in self.controllers.items()])
+        if self.runs:
+            lines += _listing("sessions", [_run(run) for run in self.runs])
         lines.append(_row("length", _min_mean_max(self.lengths, "{:,.0f}", "{:,.1f}") + " steps"))
         lines.append(_row("return", _min_mean_max(self.returns, "{:,.1f}", "{:,.1f}")))
         if self.fell is not None:
@@ -220,6 +224,13 @@ class Report:
         if self.seconds:
             lines.append(_row("time", f"{self.seconds:.1f} s"))
         return "\n".join(lines)
+
+
+def _run(run: dict) -> str:
+    """One line of recordings.jsonl: who recorded, when, which episodes (its settings are in the file)."""
+    first, last = (run.get("episodes") or ["?", "?"])[:2]
+    interrupted = "" if run.get("complete", True) else ", interrupted"
+    return f"{run.get('made_by', '?')} at {run.get('time', '?')}: episodes {first}..{last}{interrupted}"
 
 
 def _row(label: str, text: str) -> str:
@@ -525,6 +536,7 @@ def _summarise(dataset: Dataset) -> Report:
             for m, length in zip(dataset.mcap, episodes["length"], strict=True)
         ),
         leftovers=dataset.leftovers,
+        runs=recordings.read(dataset.root),
     )
 
 

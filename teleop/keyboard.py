@@ -38,10 +38,10 @@ if TYPE_CHECKING:
     from teleop.store import CommittedEpisode, EpisodeSink
 
 CONTROLLER_NAME = "keyboard"
-LEAN_STEP = 0.05  # rad per key press: five presses reach the measured limit
+LEAN_STEP = 0.05  # rad per key press: four to six presses reach the limits (Posture.MIN, Posture.MAX)
 HEIGHT_STEP = 0.02  # m per key press
 TWIST_STEP = 0.1  # rad per key press
-PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples half the seeds)
+PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
 PUSH_SECONDS = 0.1
 ARM_NAMES = ("neutral", "forward", "up", "out")
 STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
@@ -86,7 +86,7 @@ KEY_ACTIONS = {key: binding.effect for binding in KEY_MAP for key in binding.key
 
 
 def key_help() -> str:
-    """The key map as aligned lines, for --help and the README."""
+    """The key map as aligned lines, for --help (docs/design.md, "Keyboard teleoperation", explains it)."""
     return "\n".join(f"  {' / '.join(binding.keys):<12} {binding.help}" for binding in KEY_MAP)
 
 

@@ -10,6 +10,9 @@ action. The data then shows how the expert recovers from the small errors a clon
 clean demonstrations never leave the expert's own path, and a policy cloned from them falls.
 Episodes in which the noisy expert falls are kept, with `terminated` set: their states are the
 ones a policy most needs labels for, and dropping them would bias the dataset towards easy seeds.
+
+Each session adds a line to DATASET/recordings.jsonl (`teleop.recordings`): its full config and
+the episodes it added, also when interrupted.
 """
 
 from __future__ import annotations
@@ -26,10 +29,11 @@ import numpy as np
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, run_cli, setting
+from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
+from teleop import recordings
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
@@ -37,7 +41,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# Measured (README, "Choosing the noise"): at 0.05 the expert still stands on most seeds and behaviour
+# Measured (docs/learning.md, "Choosing the noise: DART"): at 0.05 the expert still stands on most seeds and behaviour
 # cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
 DEFAULT_NOISE = 0.05
 
@@ -114,31 +118,41 @@ def validate(cfg: RecordConfig) -> None:
         check_controller(cfg.controller)
     except ValueError as error:
         raise UserError(str(error)) from None
-    if cfg.episodes <= 0:
-        raise UserError(f"EPISODES must be positive, got {cfg.episodes}")
-    if cfg.max_steps <= 0:
-        raise UserError(f"MAX_STEPS must be positive, got {cfg.max_steps}")
+    for name in ("episodes", "max_steps", "workers"):
+        if getattr(cfg, name) <= 0:
+            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     if not cfg.noise >= 0:  # also rejects NaN
-        raise UserError(f"NOISE must be >= 0, got {cfg.noise}")
+        raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
-        raise UserError(f"SEED must be >= 0, got {cfg.seed}")
-    if cfg.workers <= 0:
-        raise UserError(f"WORKERS must be positive, got {cfg.workers}")
+        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if cfg.controller in INTERACTIVE and cfg.workers != 1:
-        raise UserError(f"CONTROLLER={cfg.controller} records in one process: WORKERS must be 1, got {cfg.workers}")
+        raise UserError(f"--controller {cfg.controller} records in one process: --workers must be 1, got {cfg.workers}")
 
 
-def main(cfg: RecordConfig) -> RecordSummary:
-    """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed."""
+def main(cfg: RecordConfig, summary: RecordSummary | None = None) -> RecordSummary:
+    """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given)."""
     validate(cfg)
+    summary = RecordSummary(cfg.dataset) if summary is None else summary
     if cfg.workers == 1:
-        return _record(cfg, rollouts=None)
+        return _record(cfg, None, summary)
     # Workers start first: their start-up overlaps with opening the dataset.
     with _start_workers(cfg) as rollouts:
-        return _record(cfg, rollouts)
+        return _record(cfg, rollouts, summary)
 
 
-def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None) -> RecordSummary:
+def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
+    """`make record`: `main`, then the session's line in DATASET/recordings.jsonl, also after Ctrl-C or an error."""
+    summary = RecordSummary(cfg.dataset)
+    complete = False
+    try:
+        main(cfg, summary)
+        complete = True
+    finally:
+        recordings.append(cfg.dataset, made_by, config_dict(cfg), summary.episodes, complete)
+    return summary
+
+
+def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: RecordSummary) -> RecordSummary:
     env = make_env(cfg.max_steps)
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
@@ -150,7 +164,6 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None) -> RecordSumma
         from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
         sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
-    summary = RecordSummary(cfg.dataset)
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
     bar = tqdm(
@@ -215,7 +228,7 @@ def _record_in_parallel(
 
 
 def _main_and_print(cfg: RecordConfig) -> None:
-    print(main(cfg).describe())
+    print(record(cfg).describe())
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""Helpers the tests share: small constants, file snapshots, and a decoder of every MCAP topic.
+"""Helpers the tests share: small constants, file snapshots, a decoder of every MCAP topic, TensorBoard text.
 
 Importable as `support` because pytest puts `tests/` on the path (its conftest lives there).
 """
@@ -13,6 +13,7 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from common import keys
 from common.keys import COMMAND_NAMES
@@ -126,3 +127,10 @@ def assert_no_leftovers(root: Path, episodes: int) -> None:
     assert stats["index"]["count"] == [json.loads((root / "meta/info.json").read_text())["total_frames"]]
     for folder in ("data", "meta/episodes", "mcap"):
         assert len([p for p in (root / folder).rglob("*") if p.is_file()]) == episodes, folder
+
+
+def tensorboard_text(folder: Path, tag: str) -> str:
+    """The text written under `tag` (the first, if several) in the TensorBoard event files in `folder`."""
+    events = EventAccumulator(str(folder), size_guidance={"tensors": 0})
+    events.Reload()
+    return events.Tensors(f"{tag}/text_summary")[0].tensor_proto.string_val[0].decode()

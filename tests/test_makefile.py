@@ -1,43 +1,186 @@
-"""The Makefile's folders and the stages' own defaults agree, so `make X` and `python -m X` do the same."""
+"""`make <stage> VAR=value` is `python -m <stage> --var value`, as bc/targets.py's table says, and nothing else.
+
+Every check runs the real `make -n` (which prints the command without running it) with the venv's
+install stamp satisfied, so the stage's command line is what `make` would run.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import os
 import re
+import shlex
+import subprocess
+import types
+import typing
 from pathlib import Path
 
 import pytest
 
-from bc.baseline import BaselineConfig
-from bc.finetune import FinetuneConfig
-from bc.train import TrainConfig
-from teleop.record import RecordConfig
+from bc.targets import ARGS, TARGETS, Target, help_text
+from common.cli import flag, parse_config
 
-MAKEFILE = Path(__file__).resolve().parent.parent / "Makefile"
-
-
-def make_default(variable: str) -> str:
-    """The `VARIABLE ?= value` (or `:=`) default in the Makefile."""
-    match = re.search(rf"^{variable} [?:]= *(\S*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
-    assert match, f"{variable} has no default in the Makefile"
-    return match.group(1)
+ROOT = Path(__file__).resolve().parent.parent
+MAKEFILE = ROOT / "Makefile"
+EVERY_VARIABLE = sorted({var for target in TARGETS.values() for var in target.variables} | {ARGS})
+PPO_ARGS = "--keep last --learning-rate 1e-4"
 
 
-def test_dataset_and_policy_defaults_match_the_stages() -> None:
-    """The Makefile's dataset and checkpoint folders are those the stages use when called directly."""
-    assert Path(make_default("DATASET")) == RecordConfig().dataset == TrainConfig().dataset
-    assert Path(make_default("BC_DEFAULT")) == TrainConfig().policy == FinetuneConfig().bc_policy
-    assert Path(make_default("PPO_DEFAULT")) == FinetuneConfig().policy
-    assert Path(make_default("SCRATCH_DEFAULT")) == BaselineConfig().policy
+@pytest.fixture(scope="module")
+def stamp(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A fresh file standing in for .venv's install stamp: newer than the lock, so make installs nothing."""
+    path = tmp_path_factory.mktemp("make") / "installed"
+    path.touch()
+    return path
 
 
-@pytest.mark.parametrize(
-    "module", ["teleop.record", "teleop.inspect_dataset", "bc.train", "bc.evaluate", "bc.dagger", "bc.finetune"]
-)
-def test_every_stage_prints_its_help(module: str, capsys: pytest.CaptureFixture[str]) -> None:
+def make_env() -> dict[str, str]:
+    """The environment without any stage variable (nor a calling make's), so only the command line sets them."""
+    drop = {*EVERY_VARIABLE, "MAKEFLAGS", "MFLAGS", "MAKELEVEL", "MAKEOVERRIDES"}
+    return {name: value for name, value in os.environ.items() if name not in drop}
+
+
+def make(*args: str) -> list[str]:
+    """Lines printed by `make ARGS` in the project folder."""
+    result = subprocess.run(
+        ["make", "--no-print-directory", *args], cwd=ROOT, env=make_env(), capture_output=True, text=True, check=True
+    )
+    return result.stdout.splitlines()
+
+
+def stage_command(target: str, stamp: Path, **variables: str) -> list[str]:
+    """The words after `python -m <module>` in what `make -n <target> VAR=value ...` would run."""
+    module = TARGETS[target].module
+    lines = make("-n", target, f"STAMP={stamp}", *(f"{name}={value}" for name, value in variables.items()))
+    commands = [shlex.split(line) for line in lines if f" -m {module}" in line]
+    assert len(commands) == 1, lines
+    words = commands[0]
+    assert words[0].endswith("/bin/python") and words[1:3] == ["-m", module], words
+    return words[3:]
+
+
+def flags_given(words: list[str]) -> dict[str, str]:
+    """`--name=value` words as {--name: value}."""
+    given = {}
+    for word in words:
+        name, equals, value = word.partition("=")
+        assert name.startswith("--") and equals, f"{word!r} is not --name=value"
+        given[name] = value
+    return given
+
+
+def typed_value(target: Target, field_name: str) -> str:
+    """A value of the field's type that differs from its default, as typed on a command line."""
+    kind = typing.get_type_hints(target.config)[field_name]
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):
+        kind = next(arg for arg in typing.get_args(kind) if arg is not type(None))
+    if field_name == "args":
+        return PPO_ARGS
+    if field_name == "video":
+        return "out dir/run.mp4"
+    if field_name == "controller":
+        return "random"
+    return {int: "7", float: "0.25", bool: "true", Path: f"some dir/{field_name}", str: f"text-{field_name}"}[kind]
+
+
+def makefile_variables(target: str) -> set[str]:
+    """The variables the Makefile passes to `target`'s stage (its VARS.<target> list), as make expands it."""
+    query = f"print-target-variables: ; @echo $(VARS.{target})"
+    (line,) = make("-s", "--eval", query, "print-target-variables")
+    return set(line.split())
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_the_table_lists_the_variables_the_makefile_passes(target: str) -> None:
+    """The Makefile's variable list of each target is the table's: no variable passed that the table does not map."""
+    assert makefile_variables(target) == set(TARGETS[target].variables)
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_the_recipe_passes_only_its_variables(target: str) -> None:
+    """Each target's recipe runs its stage with `$(flags)` (its listed variables), plus ARGS for the PPO stages."""
+    recipe = re.search(rf"^{re.escape(target)}: .*\n\t(.*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
+    assert recipe, f"no recipe for {target}"
+    extra = " $(ARGS)" if TARGETS[target].passes_args else ""
+    assert recipe.group(1) == f"$(PY) -m {TARGETS[target].module} $(flags){extra}"
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_each_variable_becomes_its_flag(target: str, stamp: Path) -> None:
+    """With every stage variable of every target set, a target passes exactly its own, each as its flag and value."""
+    values = {var: f"value of {var}" for var in EVERY_VARIABLE}
+    words = stage_command(target, stamp, **values)
+    spec = TARGETS[target]
+    if spec.passes_args:
+        assert words[-len(shlex.split(values[ARGS])) :] == shlex.split(values[ARGS])
+        words = words[: -len(shlex.split(values[ARGS]))]
+    assert flags_given(words) == {flag(field): values[var] for var, field in spec.variables.items()}
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_unset_variables_pass_nothing(target: str, stamp: Path) -> None:
+    """With no variable set the stage runs bare, so every setting is its config's default."""
+    assert stage_command(target, stamp) == []
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_one_variable_passes_one_flag(target: str, stamp: Path) -> None:
+    """Setting one variable passes that flag alone: the others stay unset, at the stage's defaults."""
+    for var, field in TARGETS[target].variables.items():
+        value = typed_value(TARGETS[target], field)
+        assert stage_command(target, stamp, **{var: value}) == [f"{flag(field)}={value}"]
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_make_command_parses_into_the_stage_config(target: str, stamp: Path) -> None:
+    """The flags make passes are fields of the stage's config, and parse into it with the values given."""
+    spec = TARGETS[target]
+    module = importlib.import_module(spec.module)
+    assert getattr(module, spec.config.__name__) is spec.config
+    values = {var: typed_value(spec, field) for var, field in spec.variables.items()}
+    config = parse_config(spec.config, stage_command(target, stamp, **values), description="")
+    expected = parse_config(spec.config, [f"{flag(field)}={values[var]}" for var, field in spec.variables.items()], "")
+    for field in spec.fields:
+        assert getattr(config, field) == getattr(expected, field) != getattr(spec.config(), field), field
+
+
+@pytest.mark.parametrize("target", ["finetune-rl", "baseline-rl"])
+def test_args_reach_the_ppo_stages_as_typed(target: str, stamp: Path) -> None:
+    """ARGS are appended word for word: any other flag of the PPO stage."""
+    assert stage_command(target, stamp, ARGS=PPO_ARGS, TIMESTEPS="5") == ["--timesteps=5", *shlex.split(PPO_ARGS)]
+
+
+def test_the_makefile_types_no_default() -> None:
+    """No stage variable gets a value in the Makefile: the defaults are the stage configs' alone."""
+    assigned = re.findall(r"^(?:export +)?([A-Z_][A-Z0-9_]*) *[:?+!]?=", MAKEFILE.read_text(), flags=re.MULTILINE)
+    assert set(assigned) & set(EVERY_VARIABLE) == set()
+
+
+def test_help_lists_each_targets_variables_with_flag_help_and_default() -> None:
+    """`make help`'s table names, for every target, each variable's flag, its help and the config's default."""
+    text = help_text(width=1000)  # unwrapped: one line per variable
+    for name, target in TARGETS.items():
+        section = text.split(f"  make {name} (python -m {target.module}):\n")[1].split("\n  make ")[0]
+        for var, field_name in target.variables.items():
+            field = next(f for f in dataclasses.fields(target.config) if f.name == field_name)
+            line = next(line for line in section.splitlines() if line.split()[0] == var)
+            assert line.split()[1] == flag(field_name) and field.metadata["help"] in line
+            assert f"(default: {field.default})" in line or "default:" in field.metadata["help"]
+
+
+def test_make_help_prints_the_table(stamp: Path) -> None:
+    """`make help` lists the targets, then the table (from .venv)."""
+    lines = make("help")
+    assert any(line.startswith("  make pipeline ") for line in lines)
+    assert "    DATASET" in "\n".join(lines) and "--scratch-policy" in "\n".join(lines)
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_every_stage_prints_its_help(target: str, capsys: pytest.CaptureFixture[str]) -> None:
     """`python -m <stage> --help` exits 0 and lists the stage's flags (help texts are %-formatted by argparse)."""
     with pytest.raises(SystemExit) as exit_info:
-        importlib.import_module(module).cli(["--help"])
+        importlib.import_module(TARGETS[target].module).cli(["--help"])
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
-    assert out.startswith("usage:") and "--help" in out
+    assert out.startswith("usage:") and all(flag(field) in out for field in TARGETS[target].fields)

@@ -11,18 +11,21 @@ from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
 from bc.evaluate import evaluate
+from common.cli import config_text
 from policies import checkpoint
 from policies.controller import PolicyController
 
 CURVE_FILE = "learning_curve.json"
 CURVE_PNG = "learning_curve.png"
 CHECKPOINTS_DIR = "checkpoints"
+CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
-    Each evaluation saves a checkpoint (with `settings` as its training record). The evaluator also
+    Each evaluation saves a checkpoint (with `settings` as its training record); `settings` also go to
+    TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The evaluator also
     remembers the best of them (the first on ties), so that a run that ends worse than it went, or
     worse than the BC policy it started from, can keep its best actor.
     """
@@ -65,6 +68,7 @@ class Evaluator(BaseCallback):
         self.next_at = self.num_timesteps + self.freq
 
     def _on_training_start(self) -> None:
+        self.logger.record(CONFIG_TAG, config_text(self.settings), exclude=("stdout", "log", "json", "csv"))
         self.evaluate_now()
 
     def _on_rollout_start(self) -> None:

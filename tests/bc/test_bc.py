@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,14 +16,15 @@ import torch
 from safetensors.torch import load_file
 
 from bc.data import INPUT_KEYS, load_demonstrations, split_by_episode
-from bc.train import LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
-from common.cli import UserError
+from bc.train import CONFIG_TAG, LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
+from common.cli import UserError, config_dict
 from humanoid.controllers import make_controller
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.controller import PolicyController
 from policies.mlp import STD_FLOOR
-from support import snapshot
+from support import snapshot, tensorboard_text
+from teleop.dataset_reader import fingerprint
 from teleop.record import RecordConfig, validate
 
 TINY = {"hidden": 32, "epochs": 40, "batch_size": 32, "patience": 0, "eval_episodes": 0, "progress": False}
@@ -95,6 +98,24 @@ def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, reco
     assert dataset["frames"] == trained.train_frames + trained.val_frames
     assert (folder / LEARNING_CURVE_FILE).stat().st_size > 0
     assert list((folder / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
+
+
+def test_config_json_holds_every_setting_and_the_datasets_fingerprint(trained: TrainResult, recorded: Path) -> None:
+    """config.json's training record has every TrainConfig field as run, and who ran it; dataset.json the digest."""
+    folder = trained.policy_dir
+    training = json.loads((folder / policy_files.CONFIG_FILE).read_text())["training"]
+    config = TrainConfig(dataset=recorded, policy=folder, **TINY)
+    assert {name: training[name] for name in config_dict(config)} == config_dict(config)
+    assert training["made_by"] == "bc.train"
+    assert json.loads((folder / policy_files.DATASET_FILE).read_text())["fingerprint"] == fingerprint(recorded)
+
+
+def test_tensorboard_holds_the_config_as_text(trained: TrainResult) -> None:
+    """The run's settings are in its TensorBoard logs as text: the JSON of config.json's settings."""
+    settings = json.loads(textwrap.dedent(tensorboard_text(trained.policy_dir / TENSORBOARD_DIR, CONFIG_TAG)))
+    training = json.loads((trained.policy_dir / policy_files.CONFIG_FILE).read_text())["training"]
+    assert settings == {name: training[name] for name in settings}
+    assert set(settings) >= {field.name for field in dataclasses.fields(TrainConfig)} | {"made_by"}
 
 
 def test_saved_policy_is_a_controller(trained: TrainResult, env: gym.Env) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -10,9 +11,12 @@ import pytest
 
 from bc.dagger import DaggerConfig, DaggerResult, cli, main
 from common import keys
+from common.cli import config_dict
 from humanoid.expert import LQRExpert
 from policies import checkpoint
+from policies.folder import CONFIG_FILE
 from support import join_observation, snapshot
+from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -26,23 +30,22 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     shutil.copytree(recorded, demonstrations)
     before = snapshot(demonstrations)
     output = folder / "aggregate"
-    result = main(
-        DaggerConfig(
-            dataset=demonstrations,
-            output=output,
-            policy=folder / "policy",
-            rounds=1,
-            episodes=2,
-            eval_episodes=0,
-            progress=False,
-        )
+    config = DaggerConfig(
+        dataset=demonstrations,
+        output=output,
+        policy=folder / "policy",
+        rounds=1,
+        episodes=2,
+        eval_episodes=0,
+        progress=False,
     )
-    return demonstrations, output, result, before
+    result = main(config)
+    return demonstrations, output, result, before, config
 
 
 def test_rounds_are_appended_after_the_demonstrations(dagger: tuple) -> None:
     """The aggregate holds the demonstrations (round 0) then the round's policy episodes, seeds continuing."""
-    _, output, result, _ = dagger
+    _, output, result, _, _ = dagger
     episodes = read_episodes(output).to_pylist()
     assert [e[keys.EPISODE_DAGGER_ROUND] for e in episodes] == [0, 0, 0, 1, 1]
     assert [e[keys.EPISODE_SEED] for e in episodes] == [0, 1, 2, 3, 4]
@@ -55,7 +58,7 @@ def test_rounds_are_appended_after_the_demonstrations(dagger: tuple) -> None:
 
 def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> None:
     """Every DAgger frame's label is what the expert does in the stored state; what ran was the policy's action."""
-    _, output, _, _ = dagger
+    _, output, _, _, _ = dagger
     frames = read_frames(output)
     rows = frames["episode_index"] >= 3
     observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
@@ -67,14 +70,29 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
     """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate."""
-    demonstrations, output, result, before = dagger
+    demonstrations, output, result, before, _ = dagger
     assert snapshot(demonstrations) == before
     assert result.final.train_frames + result.final.val_frames == len(read_frames(output, ["index"])["index"])
     checkpoint.load(result.final.policy_dir)
+
+
+def test_final_checkpoint_records_the_dagger_settings(dagger: tuple) -> None:
+    """The final policy's config.json holds every DaggerConfig field beside its training's, and who ran it."""
+    *_, config = dagger
+    training = json.loads((config.policy / CONFIG_FILE).read_text())["training"]
+    assert training["dagger"] == config_dict(config) and training["made_by"] == "bc.dagger"
+
+
+def test_aggregate_logs_the_rounds_in_recordings_jsonl(dagger: tuple) -> None:
+    """OUTPUT/recordings.jsonl ends with the DAgger run's line: its settings and the episodes the round added."""
+    _, output, _, _, config = dagger
+    line = recordings.read(output)[-1]
+    assert (line["made_by"], line["config"], line["complete"]) == ("bc.dagger", config_dict(config), True)
+    assert (line["episodes"], line["seeds"], line["count"]) == ([3, 4], [3, 4], 2)
 
 
 def test_output_equal_to_dataset_is_refused(recorded: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """DAgger never appends to the demonstrations themselves."""
     code = cli(["--dataset", str(recorded), "--output", str(recorded), "--progress", "false"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code != 0 and len(err) == 1 and "OUTPUT must differ from DATASET" in err[0]
+    assert code != 0 and len(err) == 1 and "--output must differ from --dataset" in err[0]

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from bc.evaluate import cli, evaluate
+from bc.evaluate import EvalConfig, cli, evaluate
+from common.cli import config_dict
 from humanoid.env import make_env
 from humanoid.perturbations import TorsoPushes
 from humanoid.video import VideoError
@@ -57,6 +58,13 @@ def test_json_last_line_has_the_fields(capsys: pytest.CaptureFixture[str]) -> No
     assert result["episodes"] == 2 and result["seeds"] == [5, 6]
 
 
+def test_json_holds_the_runs_full_config(capsys: pytest.CaptureFixture[str]) -> None:
+    """What `make eval` writes carries every setting it ran with, defaults included."""
+    code, out, _ = eval_cli(["--policy", "random", "--episodes", "1", "--push", "5"], capsys)
+    expected = EvalConfig(policy="random", episodes=1, push=5.0, progress=False)
+    assert code == 0 and json.loads(out[-1])["config"] == config_dict(expected)
+
+
 def test_random_controller_falls_at_once() -> None:
     """Random actions survive no episode and end within a few dozen steps."""
     result = evaluate("random", episodes=3)
@@ -74,6 +82,15 @@ def test_saved_policy_runs_by_path(tmp_path: Path, capsys: pytest.CaptureFixture
     folder = untrained_checkpoint(tmp_path / "policy")
     code, out, _ = eval_cli(["--policy", str(folder), "--episodes", "1"], capsys)
     assert code == 0 and json.loads(out[-1])["policy"] == str(folder)
+
+
+def test_a_suite_condition_is_applied_by_name(capsys: pytest.CaptureFixture[str]) -> None:
+    """CONDITION=latency topples the expert, which stands the same seed clean (docs/robustness.md)."""
+    clean = evaluate("expert", episodes=1, seed=1000)
+    delayed = evaluate("expert", episodes=1, seed=1000, condition="latency")
+    assert clean["survival_rate"] == 1.0 and delayed["survival_rate"] == 0.0
+    code, out, _ = eval_cli(["--policy", "expert", "--episodes", "1", "--condition", "latency"], capsys)
+    assert code == 0 and json.loads(out[-1])["returns"] == delayed["returns"]
 
 
 def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
@@ -134,7 +151,17 @@ def test_bad_policy_is_refused_in_one_line(
     assert code == 1 and out == [] and len(err) == 1 and message in err[0]
 
 
-@pytest.mark.parametrize("args", [["--episodes", "0"], ["--push", "-1"], ["--noise", "nan"], ["--video", "x.avi"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--episodes", "0"],
+        ["--push", "-1"],
+        ["--noise", "nan"],
+        ["--video", "x.avi"],
+        ["--condition", "gravity"],
+        ["--condition", "mass", "--push", "10"],
+    ],
+)
 def test_bad_settings_are_refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     """Impossible settings fail in one line before anything runs."""
     code, out, err = eval_cli(["--policy", "random", *args], capsys)

@@ -2,24 +2,28 @@
 
 from __future__ import annotations
 
+import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from bc.finetune import FinetuneConfig, cli, learner, main, vec_env
+from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
+from bc.ppo.evaluator import CONFIG_TAG
 from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from bc.train import TrainConfig
 from bc.train import main as train_bc
+from common.cli import config_dict
 from humanoid.env import make_env
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
-from support import snapshot
+from support import snapshot, tensorboard_text
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -185,19 +189,46 @@ def test_demonstration_term_pulls_the_actor_to_the_labels() -> None:
     assert term.weight == 0.125
 
 
-def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tmp_path: Path) -> None:
-    """A short fine-tuning run saves the actor in the BC format, an eval.json and periodic checkpoints."""
-    result = main(
-        FinetuneConfig(
-            bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=256, bc_weight=1.0, **TINY_PPO
-        )
+@pytest.fixture(scope="module")
+def tiny_run(bc_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[FinetuneConfig, dict]:
+    """A short fine-tuning run (768 steps, 4 evaluations) and its final evaluation."""
+    config = FinetuneConfig(
+        bc_policy=bc_policy,
+        policy=tmp_path_factory.mktemp("tiny") / "ppo",
+        timesteps=768,
+        critic_warmup=256,
+        bc_weight=1.0,
+        **TINY_PPO,
     )
-    loaded = checkpoint.load(tmp_path / "ppo")
+    return config, main(config)
+
+
+def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tiny_run: tuple[FinetuneConfig, dict]) -> None:
+    """A short fine-tuning run saves the actor in the BC format, an eval.json and periodic checkpoints."""
+    config, result = tiny_run
+    loaded = checkpoint.load(config.policy)
     assert loaded.spec == checkpoint.load(bc_policy).spec
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512, 768]
-    assert (tmp_path / "ppo" / policy_files.EVAL_FILE).is_file() and (tmp_path / "ppo" / "learning_curve.png").is_file()
-    assert len(list((tmp_path / "ppo" / "checkpoints").iterdir())) == 4
+    assert (config.policy / policy_files.EVAL_FILE).is_file() and (config.policy / "learning_curve.png").is_file()
+    assert len(list((config.policy / "checkpoints").iterdir())) == 4
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
+
+
+def test_config_json_holds_every_setting_and_the_bc_policy(tiny_run: tuple[FinetuneConfig, dict]) -> None:
+    """config.json's training record: every FinetuneConfig field as run, who ran it, the BC weights' digest."""
+    config, _ = tiny_run
+    training = json.loads((config.policy / policy_files.CONFIG_FILE).read_text())["training"]
+    assert {name: training[name] for name in config_dict(config)} == config_dict(config)
+    assert training["made_by"] == "bc.finetune" and training["bc_policy_sha256"] == weights_digest(config.bc_policy)
+
+
+def test_tensorboard_holds_the_config_as_text(tiny_run: tuple[FinetuneConfig, dict]) -> None:
+    """PPO's TensorBoard logs (SB3's) hold the run's settings as text, as config.json has them."""
+    config, _ = tiny_run
+    (events,) = {path.parent for path in (config.policy / "tensorboard").rglob("events.out.tfevents.*")}
+    settings = json.loads(textwrap.dedent(tensorboard_text(events, CONFIG_TAG)))
+    training = json.loads((config.policy / policy_files.CONFIG_FILE).read_text())["training"]
+    assert settings == {name: training[name] for name in settings} and set(config_dict(config)) <= set(settings)
 
 
 def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:

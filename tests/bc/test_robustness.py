@@ -33,8 +33,8 @@ def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
 
 @pytest.mark.slow
 def test_the_same_seeds_give_the_same_results_in_one_or_two_workers() -> None:
-    one = run_suite("expert", ["mass", "latency"], [1000, 1001], workers=1)
-    two = run_suite("expert", ["mass", "latency"], [1000, 1001], workers=2)
+    one = run_suite("expert", ["mass", "latency"], range(1000, 1002), workers=1)
+    two = run_suite("expert", ["mass", "latency"], range(1000, 1002), workers=2)
     assert one == two
 
 

@@ -21,6 +21,7 @@ from support import snapshot
 from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
 from teleop.lerobot_io.format import INFO_PATH
+from teleop.record import RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -125,6 +126,17 @@ def test_inspection_writes_nothing_but_the_png(clean: CleanRun) -> None:
     """Every file of the dataset is left byte for byte as it was; the PNG is the only new one."""
     assert set(clean.after) - set(clean.before) == {PLOT_NAME}
     assert {name: clean.after[name] for name in clean.before} == clean.before
+
+
+def test_recording_sessions_are_listed(tmp_path: Path) -> None:
+    """The summary lists each session of recordings.jsonl: who recorded which episodes (and the dataset passes)."""
+    root = tmp_path / "logged"
+    for episodes in (2, 1):
+        record(RecordConfig(dataset=root, episodes=episodes, max_steps=30, writer="inline", progress=False))
+    run = inspect("--dataset", root, "--lerobot", "false")
+    sessions = [line for line in run.out.splitlines() if "teleop.record at " in line]
+    assert run.code == 0 and len(sessions) == 2 and sessions[0].startswith("sessions    ")
+    assert sessions[0].endswith(": episodes 0..1") and sessions[1].endswith(": episodes 2..2")
 
 
 def test_nan_in_a_frame_is_named(copy: Path) -> None:

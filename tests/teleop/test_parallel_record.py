@@ -140,8 +140,8 @@ def test_kill_9_of_a_parallel_recording_loses_no_finished_episode(tmp_path: Path
 
 
 def test_zero_workers_is_refused_before_touching_the_disk(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """WORKERS=0: one-line error, non-zero exit, no dataset folder created."""
+    """--workers 0: one-line error, non-zero exit, no dataset folder created."""
     code = cli(["--dataset", str(tmp_path / "new"), "--workers", "0", "--progress", "false"])
     assert code != 0
-    assert capsys.readouterr().err.strip() == "error: WORKERS must be positive, got 0"
+    assert capsys.readouterr().err.strip() == "error: --workers must be positive, got 0"
     assert not (tmp_path / "new").exists()

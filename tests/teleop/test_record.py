@@ -10,10 +10,13 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+import teleop.record
 from common import keys
+from common.cli import config_dict, parse_config
 from humanoid.env import make_env
-from humanoid.episode import injected_noise
-from support import SHORT_EPISODE, snapshot
+from humanoid.episode import injected_noise, run_episode
+from support import SHORT_EPISODE, assert_consistent, snapshot
+from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
 from teleop.record import RecordConfig, cli, main
 from teleop.store import DatasetSpec, EpisodeStore
@@ -98,9 +101,9 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
     "args, message",
     [
         (["--controller", "teleport"], "unknown controller 'teleport'"),
-        (["--episodes", "0"], "EPISODES must be positive"),
-        (["--episodes", "-3"], "EPISODES must be positive"),
-        (["--noise", "-0.1"], "NOISE must be >= 0"),
+        (["--episodes", "0"], "--episodes must be positive"),
+        (["--episodes", "-3"], "--episodes must be positive"),
+        (["--noise", "-0.1"], "--noise must be >= 0"),
     ],
 )
 def test_bad_settings_are_refused_before_touching_the_disk(
@@ -178,3 +181,42 @@ def test_second_recorder_on_the_same_dataset_refuses(
     finally:
         holder.close()
     assert json.loads((root / "meta/info.json").read_text())["total_episodes"] == 3
+
+
+def test_each_session_adds_its_config_to_recordings_jsonl(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`make record` appends one line per session: who ran, every setting, the episodes and seeds it added."""
+    root = tmp_path / "logged"
+    args = ["--dataset", str(root), "--episodes", "2", "--max-steps", "30", "--progress", "false"]
+    assert cli(args) == 0 and cli([*args[:3], "1", *args[4:]]) == 0
+    first, second = recordings.read(root)
+    assert first["config"] == config_dict(parse_config(RecordConfig, args, description=""))
+    assert (first["made_by"], first["complete"]) == ("teleop.record", True)
+    assert (first["episodes"], first["seeds"], first["count"]) == ([0, 1], [0, 1], 2)
+    assert (second["episodes"], second["seeds"], second["count"]) == ([2, 2], [2, 2], 1)
+
+
+def test_dataset_with_recordings_jsonl_still_loads_in_lerobot(tmp_path: Path) -> None:
+    """The line beside meta/ and data/ leaves LeRobot's loader, the frames and the MCAP files as they were."""
+    root = tmp_path / "logged"
+    teleop.record.record(RecordConfig(dataset=root, episodes=2, max_steps=30, writer="inline", progress=False))
+    assert (root / recordings.RECORDINGS_FILE).is_file()
+    assert_consistent(root, 2)
+
+
+def test_interrupted_session_still_logs_what_it_committed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C during the second episode: the session's line says so, with the one episode committed."""
+    root = tmp_path / "interrupted"
+    episodes_run = []
+
+    def run_then_interrupt(*args: object, **kwargs: object) -> object:
+        if episodes_run:
+            raise KeyboardInterrupt
+        episodes_run.append(1)
+        return run_episode(*args, **kwargs)
+
+    monkeypatch.setattr(teleop.record, "run_episode", run_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        teleop.record.record(RecordConfig(dataset=root, episodes=3, max_steps=30, writer="inline", progress=False))
+    (line,) = recordings.read(root)
+    assert (line["complete"], line["count"], line["episodes"]) == (False, 1, [0, 0])
+    assert read_info(root)["total_episodes"] == 1

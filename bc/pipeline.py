@@ -1,0 +1,373 @@
+"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl, then the table of `bc.report`.
+
+Each stage runs in this process through its own `main`, with the config `make <stage>` would use
+for the same variables: what the pipeline does not set keeps the stage's default, every field of
+`PipelineConfig` takes its default from the stage it feeds, and ARGS holds further flags of both
+PPO stages. Every stage's checks run before the first one starts.
+
+A stage is skipped only if its output exists and was made from the same inputs:
+
+- the dataset: its recordings.jsonl (`teleop.recordings`) accounts for every episode in it, and
+  those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
+- a checkpoint: its config.json holds the same settings and its eval.json exists, and it was made
+  from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json) or the BC
+  weights' digest (PPO: `bc_policy_sha256` in config.json).
+
+Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
+counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
+they change nothing else). Otherwise the pipeline says in one line why the stage runs, and what
+happens to an output that differs depends on who made it:
+
+- the pipeline (`made_by` "bc.pipeline" in config.json, or on every line of recordings.jsonl): made
+  again. A checkpoint is replaced once the new one is complete (the stage's --overwrite). A dataset
+  recorded with other settings is deleted and recorded again; one that holds only the first
+  episodes asked for (an interrupted pipeline) gets the others appended, which gives the dataset a
+  single recording would (each episode depends only on its seed).
+- anyone else (`make record`, `make train-bc`, a version before recordings.jsonl and `made_by`):
+  refused in one line and left as it is; before any stage runs when the refusal can be foreseen
+  (an output downstream of one that will be made again). OVERWRITE=1 lets the pipeline replace
+  such a checkpoint. A dataset the pipeline did not record is never deleted nor appended to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import shutil
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bc import report
+from bc import train as bc_train
+from bc.baseline import BaselineConfig
+from bc.finetune import FinetuneConfig, print_summary, weights_digest
+from bc.finetune import main as ppo_main
+from bc.finetune import validate as validate_ppo
+from bc.train import TrainConfig
+from common.cli import UserError, config_dict, flag, parse_config, run_cli, setting
+from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, checkpoint_problem, is_checkpoint
+from teleop import recordings
+from teleop.dataset_reader import fingerprint, read_info
+from teleop.lerobot_io.format import INFO_PATH
+from teleop.record import RecordConfig, record
+from teleop.record import validate as validate_record
+
+MADE_BY = "bc.pipeline"
+
+NOT_COMPARED = frozenset({"progress", "overwrite", "cache", "writer", "front_end", "workers", "update_threads"})
+"""Settings that change only speed, display or permissions: never a reason to make an output again."""
+
+REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
+
+
+def _like(config_class: type, name: str, help: str | None = None) -> Any:
+    """A pipeline setting with the default (and, unless given, the help) of `config_class`'s field `name`."""
+    field = next(f for f in dataclasses.fields(config_class) if f.name == name)
+    metadata = {key: value for key, value in field.metadata.items() if key != "help"}
+    return setting(field.default, help or field.metadata["help"], **metadata)
+
+
+@dataclass
+class PipelineConfig:
+    """Settings of the pipeline: each is the stage's own setting of the same name, with its default."""
+
+    dataset: Path = _like(RecordConfig, "dataset", "dataset folder: recorded, unless it holds what is asked already")
+    episodes: int = _like(RecordConfig, "episodes", "episodes to record")
+    seed: int | None = setting(None, "seed of the first recorded episode (episode i uses SEED+i); default: 0")
+    controller: str = _like(RecordConfig, "controller")
+    noise: float = _like(RecordConfig, "noise")
+    max_steps: int = _like(RecordConfig, "max_steps")
+    workers: int | None = setting(
+        None, "simulation processes of the recording and of both PPO stages; default: each stage's (record 1, PPO 2)"
+    )
+    bc_policy: Path = _like(TrainConfig, "policy", "checkpoint folder of the behaviour-cloned policy (train-bc)")
+    epochs: int = _like(TrainConfig, "epochs")
+    scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
+    ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
+    timesteps: int = _like(FinetuneConfig, "timesteps")
+    envs: int = _like(FinetuneConfig, "envs")
+    push: float = _like(FinetuneConfig, "push")
+    args: str = setting("", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --keep last'; default: none")
+    overwrite: bool = setting(
+        False, "also replace checkpoints the pipeline did not make when they differ (never a dataset it did not record)"
+    )
+
+
+@dataclass
+class Stages:
+    """The config of every stage, as the pipeline runs them."""
+
+    record: RecordConfig
+    train: TrainConfig
+    baseline: BaselineConfig
+    finetune: FinetuneConfig
+
+
+def stages(cfg: PipelineConfig) -> Stages:
+    """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
+    workers = {} if cfg.workers is None else {"workers": cfg.workers}
+    ppo = {
+        "bc_policy": cfg.bc_policy,
+        "timesteps": cfg.timesteps,
+        "envs": cfg.envs,
+        "push": cfg.push,
+        "baseline": cfg.scratch_policy,
+        **workers,
+    }
+    return Stages(
+        record=RecordConfig(
+            dataset=cfg.dataset,
+            episodes=cfg.episodes,
+            seed=cfg.seed,
+            controller=cfg.controller,
+            noise=cfg.noise,
+            max_steps=cfg.max_steps,
+            **workers,
+        ),
+        train=TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs),
+        baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
+        finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
+    )
+
+
+def _with_args[Config](config_class: type[Config], args: str, settings: dict[str, Any]) -> Config:
+    """`config_class` from the flags in `args`, then `settings` (which `args` may not set too)."""
+    module = f"python -m {config_class.__module__}"
+    try:
+        given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
+    except ValueError as error:  # shlex: an unclosed quote
+        raise UserError(f"--args {args!r}: {error}") from None
+    except SystemExit:  # argparse has printed why (an unknown flag, a bad value)
+        raise UserError(f"--args {args!r} holds something other than flags of {module}") from None
+    defaults = config_class()
+    repeated = [name for name in settings if getattr(given, name) != getattr(defaults, name)]
+    if repeated:
+        raise UserError(f"--args sets {flag(repeated[0])}, a setting of the pipeline's own: set it as such")
+    return dataclasses.replace(given, **settings)
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the pipeline does about a stage, the config it runs it with, and the line that says why."""
+
+    action: str  # REUSE, RUN (nothing there yet), REMAKE (differs: made again), RESUME (append what is missing)
+    line: str
+    config: Any = None
+
+
+def first_difference(saved: dict[str, Any], config: Any, skip: frozenset[str] | set[str]) -> str | None:
+    """The first setting of `config` that `saved` (a saved config) holds otherwise: "--epochs 30, not 5"."""
+    for name, wanted in config_dict(config).items():
+        if name in skip:
+            continue
+        if name not in saved:
+            return f"no {flag(name)} (an older version)"
+        have = saved[name]
+        if isinstance(getattr(config, name), Path) and isinstance(have, str):
+            same = Path(have).resolve() == getattr(config, name).resolve()
+        else:
+            same = have == wanted
+        if not same:
+            return f"{flag(name)} {have}, not {wanted}"
+    return None
+
+
+def _committed_episodes(root: Path) -> int | None:
+    """info.json's total_episodes, or None without a readable one."""
+    try:
+        return int(read_info(root)["total_episodes"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _dataset_problem(cfg: RecordConfig, total: int, runs: list[dict[str, Any]]) -> str | None:
+    """Why the dataset's `total` episodes are not the first ones of a recording `cfg` asks for; None if they are."""
+    if not runs:
+        return "has no recordings.jsonl saying how it was recorded"
+    next_index, next_seed = 0, 0 if cfg.seed is None else cfg.seed
+    for run in runs:
+        try:
+            (first, last), (first_seed, last_seed), count = run["episodes"], run["seeds"], run["count"]
+            settings = run["config"]
+        except (KeyError, TypeError, ValueError):
+            return "has a recordings.jsonl line this version cannot read"
+        if (first, last - first + 1) != (next_index, count):
+            return f"holds episodes {next_index}.. that recordings.jsonl does not account for (a run killed?)"
+        difference = first_difference(settings, cfg, NOT_COMPARED | {"dataset", "episodes", "seed"})
+        if difference:
+            return f"was recorded with {difference}"
+        if (first_seed, last_seed - first_seed + 1) != (next_seed, count):
+            return f"holds seeds {first_seed}..{last_seed} where {next_seed}.. were asked for"
+        next_index, next_seed = next_index + count, next_seed + count
+    if next_index != total:
+        return f"holds {total - next_index} episodes that recordings.jsonl does not account for (a run killed?)"
+    if total > cfg.episodes:
+        return f"holds {total} episodes, not {cfg.episodes}"
+    return None
+
+
+def dataset_decision(cfg: RecordConfig) -> Decision:
+    """Whether the recording stage reuses, records, records again or completes `cfg.dataset`."""
+    root = cfg.dataset
+    total = _committed_episodes(root)
+    if not total:
+        return Decision(RUN, f"recording {root}: {'no dataset there yet' if total is None else 'no episode yet'}", cfg)
+    runs = recordings.read(root)
+    problem = _dataset_problem(cfg, total, runs)
+    ours = all(run.get("made_by") == MADE_BY for run in runs) and bool(runs)
+    if problem is None and total == cfg.episodes:
+        return Decision(REUSE, f"{root} holds the {total} episodes asked for, recorded so: not recording")
+    if problem is None:
+        if ours:
+            rest = dataclasses.replace(cfg, episodes=cfg.episodes - total, seed=(cfg.seed or 0) + total)
+            line = f"{root} holds {total} of the {cfg.episodes} episodes asked for: recording the other {rest.episodes}"
+            return Decision(RESUME, line, rest)
+        problem = f"holds {total} of the {cfg.episodes} episodes asked for"
+    if ours:
+        return Decision(REMAKE, f"recording {root} again: it {problem}", cfg)
+    raise UserError(
+        f"{root} {problem}, and the pipeline did not record it: it is left as it is "
+        "(ask for what it holds, or choose another --dataset)"
+    )
+
+
+def _training_record(folder: Path) -> dict[str, Any]:
+    try:
+        training = json.loads((folder / CONFIG_FILE).read_text()).get("training")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return training if isinstance(training, dict) else {}
+
+
+def checkpoint_decision(
+    cfg: TrainConfig | FinetuneConfig,
+    verb: str,
+    option: str,
+    source: str,
+    saved_source: str | None,
+    current_source: Callable[[], str | None],
+    overwrite: bool,
+    source_remade: bool = False,
+) -> Decision:
+    """Whether a training stage reuses its checkpoint `cfg.policy`, makes it, or makes it again.
+
+    `source` names its input ("dataset", "BC policy"); `saved_source` is the input's identity the
+    checkpoint records, `current_source` gives the one there now; `source_remade` foresees an input
+    the pipeline will make again. `option` is the pipeline's flag of the folder, for the refusal.
+    """
+    folder = cfg.policy
+    if not folder.exists():
+        return Decision(RUN, f"{verb} {folder}: no checkpoint there yet", cfg)
+    problem = checkpoint_problem(folder)
+    if problem:
+        raise UserError(f"{problem}: it is left as it is (choose another {option})")
+    training = _training_record(folder)
+    difference = first_difference(training, cfg, NOT_COMPARED | {"policy"})
+    if source_remade:
+        problem = f"was made from the {source} the pipeline makes again"
+    elif difference:
+        problem = f"was made with {difference}"
+    elif saved_source is None:
+        problem = f"does not record which {source} it was made from (an older version)"
+    elif saved_source != current_source():
+        problem = f"was made from another {source}"
+    elif not (folder / EVAL_FILE).is_file():
+        problem = f"has no {EVAL_FILE} (its evaluation did not finish)"
+    if problem is None:
+        return Decision(REUSE, f"{folder} was made from this {source} with these settings: not {verb}")
+    if training.get("made_by") == MADE_BY or overwrite:
+        return Decision(REMAKE, f"{verb} {folder} again: it {problem}", dataclasses.replace(cfg, overwrite=True))
+    raise UserError(
+        f"{folder} {problem}, and the pipeline did not make it: it is left as it is "
+        f"(--overwrite true replaces it; or choose another {option})"
+    )
+
+
+def _dataset_json(folder: Path) -> dict[str, Any]:
+    try:
+        content = json.loads((folder / DATASET_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return content if isinstance(content, dict) else {}
+
+
+def bc_decision(cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
+    """train-bc's decision: its input is the dataset, identified by its fingerprint."""
+
+    def current() -> str | None:
+        return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
+
+    saved = _dataset_json(cfg.policy).get("fingerprint")
+    return checkpoint_decision(cfg, "training", "--bc-policy", "dataset", saved, current, overwrite, dataset_remade)
+
+
+def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: bool = False) -> Decision:
+    """A PPO stage's decision: its input is the BC checkpoint, identified by its weights' digest."""
+
+    def current() -> str | None:
+        return weights_digest(cfg.bc_policy) if is_checkpoint(cfg.bc_policy) else None
+
+    saved = _training_record(cfg.policy).get("bc_policy_sha256")
+    verb = "fine-tuning" if cfg.init == "bc" else "training from scratch"
+    return checkpoint_decision(cfg, verb, option, "BC policy", saved, current, overwrite, bc_remade)
+
+
+def validate(run: Stages) -> None:
+    """Every stage's own checks, before the first one starts."""
+    validate_record(run.record)
+    bc_train.validate(run.train)
+    validate_ppo(run.baseline)
+    validate_ppo(run.finetune)
+
+
+def foresee(run: Stages, overwrite: bool) -> None:
+    """Refuse now what the run would refuse later: a checkpoint downstream of an output made again."""
+    dataset_remade = dataset_decision(run.record).action != REUSE
+    bc_remade = bc_decision(run.train, overwrite, dataset_remade).action != REUSE
+    ppo_decision(run.baseline, "--scratch-policy", overwrite, bc_remade)
+    ppo_decision(run.finetune, "--ppo-policy", overwrite, bc_remade)
+
+
+def run(stages: Stages, overwrite: bool = False) -> str:
+    """Run what has to run, say why in one line each, and print and return the table."""
+    validate(stages)
+    foresee(stages, overwrite)
+
+    decision = dataset_decision(stages.record)
+    print(f"pipeline: {decision.line}", flush=True)
+    if decision.action == REMAKE:
+        shutil.rmtree(stages.record.dataset)
+    if decision.action != REUSE:
+        print(record(decision.config, made_by=MADE_BY).describe(), flush=True)
+
+    decision = bc_decision(stages.train, overwrite)
+    print(f"pipeline: {decision.line}", flush=True)
+    if decision.action != REUSE:
+        print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
+
+    for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
+        decision = ppo_decision(config, option, overwrite)
+        print(f"pipeline: {decision.line}", flush=True)
+        if decision.action != REUSE:
+            print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
+
+    table = report.table([stages.train.policy, stages.finetune.policy, stages.baseline.policy])
+    print(table)
+    return table
+
+
+def main(cfg: PipelineConfig) -> str:
+    """The whole pipeline as configured; returns the table it printed."""
+    return run(stages(cfg), cfg.overwrite)
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(main, PipelineConfig, argv, description=__doc__, prog="python -m bc.pipeline")
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,109 @@
+"""Which Make variable sets which flag of which stage: the one table, printed by `make help`.
+
+A Make variable is the name of its stage's config field in capitals (MAX_STEPS is --max-steps), and
+the Makefile passes it only when it is set, so an unset one leaves the default of the stage's
+config. The same name can belong to several targets, each time as that stage's own setting (SEED
+is the first recorded seed for `make record`, the first evaluation seed for `make eval`): `make
+help` lists every target's variables with their flags, help and defaults.
+
+    python -m bc.targets          # what `make help` prints after the targets
+
+tests/test_makefile.py holds the Makefile to this table: every variable of a target becomes its
+flag with its value, an unset one passes nothing, and the Makefile passes no variable the table
+does not list.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import sys
+import textwrap
+from dataclasses import dataclass
+from typing import Any
+
+from bc.baseline import BaselineConfig
+from bc.dagger import DaggerConfig
+from bc.evaluate import EvalConfig
+from bc.finetune import FinetuneConfig
+from bc.pipeline import PipelineConfig
+from bc.robustness import RobustnessConfig
+from bc.train import TrainConfig
+from common.cli import flag
+from teleop.inspect_dataset import InspectConfig
+from teleop.record import RecordConfig
+
+ARGS = "ARGS"
+"""The PPO targets' pass-through variable: any other flag of the stage, as typed."""
+
+
+@dataclass(frozen=True)
+class Target:
+    """A Make target that runs a stage: `python -m <module>`, its config, the fields Make variables set."""
+
+    module: str
+    config: type
+    fields: tuple[str, ...]
+    passes_args: bool = False  # ARGS is appended as it is (further flags)
+
+    @property
+    def variables(self) -> dict[str, str]:
+        """Make variable -> config field."""
+        return {name.upper(): name for name in self.fields}
+
+    def field(self, name: str) -> dataclasses.Field[Any]:
+        return next(f for f in dataclasses.fields(self.config) if f.name == name)
+
+
+_PPO = ("bc_policy", "policy", "timesteps", "workers", "envs", "push", "overwrite")
+
+TARGETS: dict[str, Target] = {
+    "record": Target(
+        "teleop.record", RecordConfig, ("dataset", "episodes", "seed", "controller", "noise", "max_steps", "workers")
+    ),
+    "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
+    "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "epochs", "overwrite")),
+    "eval": Target("bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video")),
+    "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),
+    "dagger": Target("bc.dagger", DaggerConfig, ("dataset", "output", "policy", "rounds", "episodes", "overwrite")),
+    "finetune-rl": Target("bc.finetune", FinetuneConfig, _PPO, passes_args=True),
+    "baseline-rl": Target("bc.baseline", BaselineConfig, _PPO, passes_args=True),
+    "pipeline": Target("bc.pipeline", PipelineConfig, tuple(f.name for f in dataclasses.fields(PipelineConfig))),
+}
+
+
+def help_text(width: int = 120) -> str:
+    """Every target's variables: flag, help and the stage's default, wrapped to `width` columns."""
+    lines = [
+        "Variables of each target (VAR=value is the stage's --var value; unset, the stage's default applies):",
+    ]
+    name_width = max(len(var) for target in TARGETS.values() for var in target.variables) + 2
+    flag_width = max(len(flag(field)) for target in TARGETS.values() for field in target.fields) + 2
+    indent = " " * (4 + name_width + flag_width)
+    for name, target in TARGETS.items():
+        lines.append(f"  make {name} (python -m {target.module}):")
+        for var, field_name in target.variables.items():
+            field = target.field(field_name)
+            text = field.metadata.get("help", "")
+            if "default:" not in text:  # the help says it itself when the default is not one value
+                text += f" (default: {field.default})"
+            head = f"    {var:<{name_width}}{flag(field_name):<{flag_width}}"
+            lines += textwrap.wrap(
+                text, width=max(width, len(indent) + 40), initial_indent=head, subsequent_indent=indent
+            )
+        if target.passes_args:
+            extra = f"any other flag, as typed (`python -m {target.module} --help`)"
+            lines.append(f"    {ARGS:<{name_width}}{'...':<{flag_width}}{extra}")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    try:
+        print(help_text(min(shutil.get_terminal_size((120, 24)).columns, 120)), flush=True)
+    except BrokenPipeError:  # `make help | head`
+        sys.stdout = None
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,303 @@
+"""`make pipeline`: each stage reuses its output only if made from the same inputs, says why it runs, refuses
+to touch what someone else made, and ends with `bc.report`'s table.
+
+One tiny real pipeline runs first (2 episodes, a few BC epochs, 256 PPO steps a run); each test works on a
+copy of its outputs, with the relative paths the configs saved, so the copy is the same pipeline's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from bc import report
+from bc import train as bc_train
+from bc.baseline import BaselineConfig
+from bc.finetune import FinetuneConfig
+from bc.pipeline import (
+    MADE_BY,
+    REMAKE,
+    RESUME,
+    REUSE,
+    PipelineConfig,
+    Stages,
+    bc_decision,
+    dataset_decision,
+    ppo_decision,
+    run,
+    stages,
+)
+from bc.train import TrainConfig
+from common.cli import UserError
+from policies.folder import CONFIG_FILE, EVAL_FILE
+from support import snapshot
+from teleop import recordings
+from teleop.dataset_reader import fingerprint
+from teleop.record import RecordConfig, record
+
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
+FOLDERS = ("data", "bc", "scratch", "ppo")
+
+
+def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict | None = None) -> Stages:
+    """The pipeline's stages at a tiny size, in the current folder (relative paths)."""
+    ppo = {
+        "bc_policy": Path("bc"),
+        "baseline": Path("scratch"),
+        "timesteps": 256,
+        "envs": 4,
+        "workers": 1,
+        "rollout_steps": 256,
+        "batch_size": 64,
+        "epochs": 1,
+        "eval_freq": 256,
+        "eval_episodes": 1,
+        "final_eval_episodes": 1,
+        "critic_warmup": 0,
+        "progress": False,
+        **(ppo or {}),
+    }
+    record = {
+        "dataset": Path("data"),
+        "episodes": 2,
+        "max_steps": 40,
+        "writer": "inline",
+        "progress": False,
+        **(record or {}),
+    }
+    train = {
+        "dataset": Path("data"),
+        "policy": Path("bc"),
+        "hidden": 16,
+        "epochs": 2,
+        "batch_size": 32,
+        "eval_episodes": 1,
+        "tensorboard": False,
+        "progress": False,
+        **(train or {}),
+    }
+    return Stages(
+        record=RecordConfig(**record),
+        train=TrainConfig(**train),
+        baseline=BaselineConfig(policy=Path("scratch"), **ppo),
+        finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
+    )
+
+
+def run_here(folder: Path, run_stages: Stages) -> list[str]:
+    """`run(run_stages)` in `folder`: the lines it printed."""
+    out = io.StringIO()
+    cwd = Path.cwd()
+    os.chdir(folder)
+    try:
+        with contextlib.redirect_stdout(out):
+            run(run_stages)
+    finally:
+        os.chdir(cwd)
+    return out.getvalue().splitlines()
+
+
+def pipeline_lines(lines: list[str]) -> list[str]:
+    return [line for line in lines if line.startswith("pipeline: ")]
+
+
+def report_table() -> list[str]:
+    """What `python -m bc.report bc ppo scratch` prints, in the current folder."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert report.main(["bc", "ppo", "scratch"]) == 0
+    return out.getvalue().splitlines()
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
+    """A tiny pipeline run from nothing: its folder and what it printed."""
+    folder = tmp_path_factory.mktemp("pipeline")
+    return folder, run_here(folder, tiny_stages())
+
+
+@pytest.fixture
+def outputs(first_run: tuple[Path, list[str]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A copy of the first run's outputs, made the current folder."""
+    copy = tmp_path / "copy"
+    shutil.copytree(first_run[0], copy)
+    monkeypatch.chdir(copy)
+    return copy
+
+
+def edit_json(path: Path, edit: dict) -> None:
+    content = json.loads(path.read_text())
+    content["training"].update(edit)
+    path.write_text(json.dumps(content))
+
+
+def made_by_someone_else(dataset: Path) -> None:
+    """recordings.jsonl as `make record` would have written it."""
+    lines = [{**line, "made_by": "teleop.record"} for line in recordings.read(dataset)]
+    (dataset / recordings.RECORDINGS_FILE).write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str]]) -> None:
+    """From nothing, each stage runs, one line saying so, in the order record, BC, scratch, fine-tuning."""
+    assert pipeline_lines(first_run[1]) == [
+        "pipeline: recording data: no dataset there yet",
+        "pipeline: training bc: no checkpoint there yet",
+        "pipeline: training from scratch scratch: no checkpoint there yet",
+        "pipeline: fine-tuning ppo: no checkpoint there yet",
+    ]
+
+
+def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path) -> None:
+    """Run again with the same inputs: nothing is made or changed, and the table is `bc.report`'s, line for line."""
+    before = snapshot(outputs)
+    lines = run_here(outputs, tiny_stages())
+    assert pipeline_lines(lines) == [
+        "pipeline: data holds the 2 episodes asked for, recorded so: not recording",
+        "pipeline: bc was made from this dataset with these settings: not training",
+        "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
+        "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
+    ]
+    assert lines[len(pipeline_lines(lines)) :] == report_table()
+    assert snapshot(outputs) == before
+
+
+def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(outputs: Path) -> None:
+    """Other noise: the pipeline's own dataset is recorded again, so BC is trained again, so both PPO runs are."""
+    lines = pipeline_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
+    assert lines == [
+        "pipeline: recording data again: it was recorded with --noise 0.05, not 0.02",
+        "pipeline: training bc again: it was made from another dataset",
+        "pipeline: training from scratch scratch again: it was made from another BC policy",
+        "pipeline: fine-tuning ppo again: it was made from another BC policy",
+    ]
+    assert [line["config"]["noise"] for line in recordings.read(Path("data"))] == [0.02]
+    assert json.loads(Path("bc/dataset.json").read_text())["fingerprint"] == fingerprint(Path("data"))
+
+
+def test_other_training_setting_retrains_the_pipelines_checkpoint(outputs: Path) -> None:
+    """A BC setting that differs from the saved config makes BC again, replacing it (--overwrite)."""
+    decision = bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=False)
+    assert (decision.action, decision.line) == (REMAKE, "training bc again: it was made with --epochs 2, not 3")
+    assert decision.config.overwrite and decision.config.epochs == 3
+
+
+def test_changed_dataset_retrains_bc(outputs: Path) -> None:
+    """An episode added to the dataset changes its fingerprint: BC, trained on the old one, is made again."""
+    record(RecordConfig(dataset=Path("data"), episodes=1, max_steps=40, writer="inline", progress=False))
+    decision = bc_decision(tiny_stages().train, overwrite=False)
+    assert (decision.action, decision.line) == (REMAKE, "training bc again: it was made from another dataset")
+
+
+def test_retrained_bc_policy_makes_the_ppo_runs_again(outputs: Path) -> None:
+    """PPO runs record the BC weights they started from: new weights, new runs."""
+    bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).train)
+    for config in (tiny_stages().baseline, tiny_stages().finetune):
+        assert ppo_decision(config, "--ppo-policy", overwrite=False).line.endswith("it was made from another BC policy")
+
+
+def test_speed_settings_are_not_compared(outputs: Path) -> None:
+    """Worker counts, threads and progress bars change no output, so they are no reason to make one again."""
+    speed = {"workers": 2, "update_threads": 1, "progress": True}
+    assert ppo_decision(tiny_stages(ppo=speed).finetune, "--ppo-policy", overwrite=False).action == REUSE
+    assert dataset_decision(tiny_stages(record={"workers": 2, "writer": "process"}).record).action == REUSE
+
+
+def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:
+    """A run stopped during its final evaluation left no eval.json: the table needs it, so BC is made again."""
+    (outputs / "bc" / EVAL_FILE).unlink()
+    decision = bc_decision(tiny_stages().train, overwrite=False)
+    assert (decision.action, decision.line) == (
+        REMAKE,
+        f"training bc again: it has no {EVAL_FILE} (its evaluation did not finish)",
+    )
+
+
+def test_user_recorded_dataset_that_differs_is_refused_and_left_alone(outputs: Path) -> None:
+    """A dataset `make record` made with other settings: one line naming the setting, nothing touched."""
+    made_by_someone_else(outputs / "data")
+    before = snapshot(outputs)
+    with pytest.raises(UserError) as refusal:
+        run(tiny_stages(record={"noise": 0.02}))
+    assert str(refusal.value) == (
+        "data was recorded with --noise 0.05, not 0.02, and the pipeline did not record it: it is left as it is "
+        "(ask for what it holds, or choose another --dataset)"
+    )
+    assert snapshot(outputs) == before
+
+
+def test_user_recorded_dataset_with_the_same_settings_is_used(outputs: Path) -> None:
+    """What `make record` recorded with the pipeline's settings is what the pipeline would record: reused."""
+    made_by_someone_else(outputs / "data")
+    assert dataset_decision(tiny_stages().record).action == REUSE
+
+
+def test_user_made_checkpoint_downstream_is_refused_before_anything_runs(outputs: Path) -> None:
+    """BC would be made again, so PPO would too; a PPO run the pipeline did not make is refused before BC trains."""
+    edit_json(outputs / "ppo" / CONFIG_FILE, {"made_by": "bc.finetune"})
+    before = snapshot(outputs)
+    with pytest.raises(UserError) as refusal:
+        run(tiny_stages(train={"epochs": 3}))
+    assert str(refusal.value) == (
+        "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
+        "it is (--overwrite true replaces it; or choose another --ppo-policy)"
+    )
+    assert snapshot(outputs) == before
+
+
+def test_overwrite_lets_the_pipeline_replace_a_user_made_checkpoint(outputs: Path) -> None:
+    """With --overwrite true a differing checkpoint made by `make train-bc` is made again like the pipeline's own."""
+    edit_json(outputs / "bc" / CONFIG_FILE, {"made_by": "bc.train"})
+    with pytest.raises(UserError):
+        bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=False)
+    assert bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=True).action == REMAKE
+
+
+def test_folder_that_is_not_a_checkpoint_is_refused(outputs: Path) -> None:
+    """Something else at a checkpoint's place is never replaced."""
+    shutil.rmtree(outputs / "scratch")
+    (outputs / "scratch").mkdir()
+    (outputs / "scratch" / "notes.txt").write_text("mine")
+    with pytest.raises(UserError, match="scratch is not a policy checkpoint"):
+        ppo_decision(tiny_stages().baseline, "--scratch-policy", overwrite=False)
+
+
+def test_interrupted_recording_is_completed_into_the_same_dataset(outputs: Path, tmp_path: Path) -> None:
+    """The pipeline's dataset holding the first episodes asked for gets the rest: the dataset one recording makes."""
+    decision = dataset_decision(tiny_stages(record={"episodes": 3}).record)
+    assert (decision.action, decision.line) == (
+        RESUME,
+        "data holds 2 of the 3 episodes asked for: recording the other 1",
+    )
+    assert (decision.config.episodes, decision.config.seed) == (1, 2)
+    record(decision.config, made_by=MADE_BY)
+    fresh = tiny_stages(record={"episodes": 3, "dataset": tmp_path / "fresh"}).record
+    record(fresh)
+    assert fingerprint(Path("data")) == fingerprint(fresh.dataset)
+    assert dataset_decision(tiny_stages(record={"episodes": 3}).record).action == REUSE
+
+
+def test_pipeline_defaults_are_the_stages() -> None:
+    """Unset, every pipeline setting is the stage's own default: the same configs as `make <stage>` alone."""
+    assert stages(PipelineConfig()) == Stages(RecordConfig(), TrainConfig(), BaselineConfig(), FinetuneConfig())
+
+
+def test_pipeline_settings_and_args_reach_their_stages() -> None:
+    """WORKERS goes to the recording and both PPO runs, EPOCHS to BC, ARGS to both PPO runs."""
+    run_stages = stages(PipelineConfig(episodes=3, workers=1, epochs=4, args="--keep last --eval-episodes 2"))
+    assert (run_stages.record.episodes, run_stages.record.workers, run_stages.train.epochs) == (3, 1, 4)
+    for config in (run_stages.baseline, run_stages.finetune):
+        assert (config.workers, config.keep, config.eval_episodes) == (1, "last", 2)
+    assert run_stages.baseline.learning_rate == BaselineConfig().learning_rate  # each keeps its own defaults
+
+
+def test_args_may_not_repeat_a_pipeline_setting() -> None:
+    """--timesteps in ARGS would silently lose to TIMESTEPS: refused, naming the flag."""
+    with pytest.raises(UserError, match="--args sets --timesteps, a setting of the pipeline's own"):
+        stages(PipelineConfig(args="--timesteps 5"))
