@@ -6,6 +6,9 @@ Importable as `support` because pytest puts `tests/` on the path (its conftest l
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -134,3 +137,36 @@ def tensorboard_text(folder: Path, tag: str) -> str:
     events = EventAccumulator(str(folder), size_guidance={"tensors": 0})
     events.Reload()
     return events.Tensors(f"{tag}/text_summary")[0].tensor_proto.string_val[0].decode()
+
+
+def start_recording(root: Path, episodes: int, *flags: str) -> subprocess.Popen:
+    """`python -m teleop.record` (writer process included) of 150-step episodes in a process group of its own."""
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "teleop.record",
+            "--dataset",
+            str(root),
+            "--episodes",
+            str(episodes),
+            "--max-steps",
+            "150",
+            "--progress",
+            "false",
+            *flags,
+        ],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+
+
+def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if (root / "meta/info.json").exists() and committed_episodes(root) >= count:
+            return
+        assert process.poll() is None, process.stderr.read().decode()
+        time.sleep(0.01)
+    raise TimeoutError(f"fewer than {count} episodes after {timeout} s")

@@ -219,17 +219,24 @@ def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:
     )
 
 
+def assert_refused_untouched(outputs: Path, stages: Stages, message: str) -> None:
+    """Running `stages` fails with exactly `message` and changes nothing under `outputs`."""
+    before = snapshot(outputs)
+    with pytest.raises(UserError) as refusal:
+        run(stages)
+    assert str(refusal.value) == message
+    assert snapshot(outputs) == before
+
+
 def test_user_recorded_dataset_that_differs_is_refused_and_left_alone(outputs: Path) -> None:
     """A dataset `make record` made with other settings: one line naming the setting, nothing touched."""
     made_by_someone_else(outputs / "data")
-    before = snapshot(outputs)
-    with pytest.raises(UserError) as refusal:
-        run(tiny_stages(record={"noise": 0.02}))
-    assert str(refusal.value) == (
+    assert_refused_untouched(
+        outputs,
+        tiny_stages(record={"noise": 0.02}),
         "data was recorded with --noise 0.05, not 0.02, and the pipeline did not record it: it is left as it is "
-        "(ask for what it holds, or choose another --dataset)"
+        "(ask for what it holds, or choose another --dataset)",
     )
-    assert snapshot(outputs) == before
 
 
 def test_user_recorded_dataset_with_the_same_settings_is_used(outputs: Path) -> None:
@@ -241,14 +248,12 @@ def test_user_recorded_dataset_with_the_same_settings_is_used(outputs: Path) -> 
 def test_user_made_checkpoint_downstream_is_refused_before_anything_runs(outputs: Path) -> None:
     """BC would be made again, so PPO would too; a PPO run the pipeline did not make is refused before BC trains."""
     edit_json(outputs / "ppo" / CONFIG_FILE, {"made_by": "bc.finetune"})
-    before = snapshot(outputs)
-    with pytest.raises(UserError) as refusal:
-        run(tiny_stages(train={"epochs": 3}))
-    assert str(refusal.value) == (
+    assert_refused_untouched(
+        outputs,
+        tiny_stages(train={"epochs": 3}),
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
-        "it is (--overwrite true replaces it; or choose another --ppo-policy)"
+        "it is (--overwrite true replaces it; or choose another --ppo-policy)",
     )
-    assert snapshot(outputs) == before
 
 
 def test_overwrite_lets_the_pipeline_replace_a_user_made_checkpoint(outputs: Path) -> None:

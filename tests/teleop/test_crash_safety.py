@@ -5,8 +5,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -17,7 +15,7 @@ from common.cli import DatasetError
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
-from support import assert_consistent, assert_no_leftovers, committed_episodes
+from support import assert_consistent, assert_no_leftovers, committed_episodes, start_recording, wait_for_episodes
 from teleop.dataset_reader import read_episodes
 from teleop.record import RecordConfig, main
 from teleop.store import DatasetSpec, EpisodeStore
@@ -65,38 +63,6 @@ def test_crash_before_commit_keeps_the_committed_episodes(
 
 def store_controller(env):
     return make_controller("expert", env)
-
-
-def start_recording(root: Path, episodes: int) -> subprocess.Popen:
-    """`python -m teleop.record` (writer process included) in a process group of its own."""
-    return subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "teleop.record",
-            "--dataset",
-            str(root),
-            "--episodes",
-            str(episodes),
-            "--max-steps",
-            "150",
-            "--progress",
-            "false",
-        ],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-
-
-def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, timeout: float = 60) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if (root / "meta/info.json").exists() and committed_episodes(root) >= count:
-            return
-        assert process.poll() is None, process.stderr.read().decode()
-        time.sleep(0.01)
-    raise TimeoutError(f"fewer than {count} episodes after {timeout} s")
 
 
 @pytest.mark.parametrize("delay", [0.0, 0.037, 0.081])

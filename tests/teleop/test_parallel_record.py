@@ -5,8 +5,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -17,7 +15,15 @@ from common import keys
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
-from support import SHORT_EPISODE, assert_consistent, assert_no_leftovers, committed_episodes, snapshot
+from support import (
+    SHORT_EPISODE,
+    assert_consistent,
+    assert_no_leftovers,
+    committed_episodes,
+    snapshot,
+    start_recording,
+    wait_for_episodes,
+)
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.record import RecordConfig, cli, main
 from teleop.spool import Spool
@@ -94,31 +100,9 @@ def test_an_episode_killed_mid_commit_is_committed_exactly_once(
 def test_kill_9_of_a_parallel_recording_loses_no_finished_episode(tmp_path: Path) -> None:
     """SIGKILL to the recorder and its workers: committed and spooled episodes all end up in the dataset."""
     root = tmp_path / "dataset"
-    recorder = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "teleop.record",
-            "--dataset",
-            str(root),
-            "--episodes",
-            "100",
-            "--max-steps",
-            "150",
-            "--workers",
-            "2",
-            "--progress",
-            "false",
-        ],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
+    recorder = start_recording(root, 100, "--workers", "2")
+    wait_for_episodes(root, 3, recorder)
     deadline = time.monotonic() + 60
-    while not ((root / "meta/info.json").exists() and committed_episodes(root) >= 3):
-        assert recorder.poll() is None, recorder.stderr.read().decode()
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
     # Freeze the committing process so that the workers' next episodes are finished but not committed.
     os.kill(recorder.pid, signal.SIGSTOP)
     while len(Spool(root).ready()) < 2:
