@@ -25,7 +25,7 @@ export PYTHONUNBUFFERED := 1
 # here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
-VARS.record := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS
+VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS
 VARS.inspect := DATASET PLOT
 VARS.train-bc := DATASET POLICY EPOCHS OVERWRITE
 VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO

@@ -15,8 +15,10 @@ A stage is skipped only if its output exists and was made from the same inputs:
 
 Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
 counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
-they change nothing else). Otherwise the pipeline says in one line why the stage runs, and what
-happens to an output that differs depends on who made it:
+they change nothing else). A setting added after an output was made counts as the value that does
+what the version before it did (ADDED_SINCE: --randomize none), so such outputs stay reusable; the
+pipeline records without domain randomisation. Otherwise the pipeline says in one line why the stage
+runs, and what happens to an output that differs depends on who made it:
 
 - the pipeline (`made_by` "bc.pipeline" in config.json, or on every line of recordings.jsonl): made
   again. A checkpoint is replaced once the new one is complete (the stage's --overwrite). A dataset
@@ -49,6 +51,7 @@ from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
 from bc.train import TrainConfig
 from common.cli import UserError, config_dict, flag, parse_config, run_cli, setting
+from humanoid.conditions import NO_RANDOMIZATION
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, checkpoint_problem, is_checkpoint
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_info
@@ -60,6 +63,11 @@ MADE_BY = "bc.pipeline"
 
 NOT_COMPARED = frozenset({"progress", "overwrite", "cache", "writer", "front_end", "workers", "update_threads"})
 """Settings that change only speed, display or permissions: never a reason to make an output again."""
+
+ADDED_SINCE = {"randomize": NO_RANDOMIZATION}
+"""Settings added after runs began saving their config, with the value that does what the versions before
+them did: a saved config without the setting was made with that value (a dataset recorded before
+--randomize existed is one recorded with --randomize none, byte for byte)."""
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
 
@@ -164,9 +172,9 @@ def first_difference(saved: dict[str, Any], config: Any, skip: frozenset[str] | 
     for name, wanted in config_dict(config).items():
         if name in skip:
             continue
-        if name not in saved:
+        if name not in saved and name not in ADDED_SINCE:
             return f"no {flag(name)} (an older version)"
-        have = saved[name]
+        have = saved.get(name, ADDED_SINCE.get(name))
         if isinstance(getattr(config, name), Path) and isinstance(have, str):
             same = Path(have).resolve() == getattr(config, name).resolve()
         else:

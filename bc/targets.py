@@ -59,7 +59,9 @@ _PPO = ("bc_policy", "policy", "timesteps", "workers", "envs", "push", "overwrit
 
 TARGETS: dict[str, Target] = {
     "record": Target(
-        "teleop.record", RecordConfig, ("dataset", "episodes", "seed", "controller", "noise", "max_steps", "workers")
+        "teleop.record",
+        RecordConfig,
+        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers"),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "epochs", "overwrite")),

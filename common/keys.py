@@ -41,3 +41,13 @@ EPISODE_RETURN = "return"
 EPISODE_TERMINATED = "terminated"
 EPISODE_TRUNCATED = "truncated"
 EPISODE_MCAP = "mcap_path"
+
+# Columns of meta/episodes/*.parquet holding the physical parameters drawn for the episode
+# (`make record RANDOMIZE=...`, humanoid.conditions.DomainRandomization): scale factors of the nominal
+# model, one column per randomised parameter, PREFIX + the drawn value's name. Only datasets recorded
+# with randomisation have them, and then every episode has the same ones. The MCAP metadata record
+# holds them too, under the same keys, as JSON text.
+RANDOMIZATION_PREFIX = "randomization."
+EPISODE_MASS_SCALE = "randomization.mass_scale"  # 13 floats, one per body (the world excluded), in model order
+EPISODE_FRICTION_SCALE = "randomization.friction_scale"  # one float: every geom's sliding friction
+EPISODE_STRENGTH_SCALE = "randomization.strength_scale"  # 17 floats, one per motor's gear, in actuator order

@@ -10,6 +10,8 @@ Data flow of one condition (`Condition.wrap`), innermost first:
 Executed-action noise is not a wrapper: the rollout adds it (`humanoid.episode.injected_noise`), as
 it does for DART recordings. Every draw comes from a random stream of the reset's seed, so an
 episode repeats exactly; the model's nominal values are restored before each draw and on close.
+`parse_randomization` reads the `--randomize` setting (a preset of PRESETS or a list of ranges)
+that recording (`make record RANDOMIZE=...`) draws its episodes' physical parameters with.
 The suite's conditions and why each magnitude: docs/robustness.md.
 """
 
@@ -38,6 +40,7 @@ OBS_NOISE_STD = {"qpos": 0.002, "qvel": 0.02}
 
 
 Range = tuple[float, float]
+SCALE_SUFFIX = "_scale"  # a drawn value is named after its parameter: mass -> mass_scale
 
 
 def check_range(name: str, bounds: Range) -> None:
@@ -67,6 +70,17 @@ class Randomization:
     @property
     def active(self) -> bool:
         return any(getattr(self, spec.name) is not None for spec in fields(self))
+
+    @property
+    def ranges(self) -> dict[str, list[float]]:
+        """The randomised parameters' ranges, e.g. {"mass": [0.8, 1.2]} (JSON-ready; {} when nothing is randomised)."""
+        bounds = {spec.name: getattr(self, spec.name) for spec in fields(self)}
+        return {name: list(value) for name, value in bounds.items() if value is not None}
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """The names of the drawn values (`DomainRandomization.parameters`), e.g. ("mass_scale",); () for none."""
+        return tuple(f"{name}{SCALE_SUFFIX}" for name in self.ranges)
 
 
 def subtree_masses(model: Any) -> None:
@@ -115,15 +129,15 @@ class DomainRandomization(gym.Wrapper):
             model.body_mass[1:] *= scale
             model.body_inertia[1:] *= scale[:, None]  # the same density change: the shape's inertia scales alike
             subtree_masses(model)
-            parameters["mass_scale"] = scale.round(6).tolist()
+            parameters["mass" + SCALE_SUFFIX] = scale.round(6).tolist()
         if r.friction is not None:
             scale = float(self._rng.uniform(*r.friction))
             model.geom_friction[:, 0] *= scale
-            parameters["friction_scale"] = round(scale, 6)
+            parameters["friction" + SCALE_SUFFIX] = round(scale, 6)
         if r.strength is not None:
             scale = self._rng.uniform(*r.strength, size=model.nu)
             model.actuator_gear[:, 0] *= scale
-            parameters["strength_scale"] = scale.round(6).tolist()
+            parameters["strength" + SCALE_SUFFIX] = scale.round(6).tolist()
         self.parameters = parameters
         return parameters
 
@@ -232,3 +246,59 @@ def condition(name: str) -> Condition:
     if name not in SUITE:
         raise ValueError(f"unknown condition {name!r}; known: {', '.join(SUITE)}")
     return SUITE[name]
+
+
+# Domain randomisation as a setting (`make record RANDOMIZE=...`; later PPO): a preset or a list of ranges.
+RANDOMIZE_FLAG = "--randomize"
+NO_RANDOMIZATION = "none"
+PRESETS: dict[str, Randomization] = {
+    NO_RANDOMIZATION: Randomization(),
+    # Narrow: the link-mass range common in humanoid RL, half the suite's friction spread.
+    "mild": Randomization(mass=(0.9, 1.1), friction=(0.7, 1.3), strength=(0.9, 1.1)),
+    # The robustness suite's own ranges, all three at once: data from the conditions a policy is tested on.
+    "suite": Randomization(
+        mass=SUITE["mass"].randomization.mass,
+        friction=SUITE["friction"].randomization.friction,
+        strength=SUITE["strength"].randomization.strength,
+    ),
+}
+"""Named randomisations (docs/robustness.md, "Randomised demonstrations", says why these sizes)."""
+RANDOMIZE_EXAMPLE = "mass=0.8:1.2,friction=0.5:1.5"
+
+
+def parse_randomization(text: str, option: str = RANDOMIZE_FLAG) -> Randomization:
+    """`text` as a randomisation: a name of PRESETS ("none" randomises nothing) or a list NAME=LOW:HIGH,...
+
+    NAME is a field of `Randomization` (mass, friction, strength) and LOW:HIGH the range of its
+    scale factor. ValueError, one line naming `option`, for an unknown preset or parameter, a
+    parameter given twice, a malformed item, a non-finite or negative scale, or LOW > HIGH.
+    """
+    spec = text.strip()
+    where = f"{option} {text!r}"
+    if "=" not in spec:
+        if spec in PRESETS:
+            return PRESETS[spec]
+        raise ValueError(f"{where}: unknown preset; presets: {', '.join(PRESETS)}, or a list like {RANDOMIZE_EXAMPLE}")
+    names = [f.name for f in fields(Randomization)]
+    ranges: dict[str, Range] = {}
+    for item in (part.strip() for part in spec.split(",")):
+        name, _, bounds = (part.strip() for part in item.partition("="))
+        low_text, colon, high_text = bounds.partition(":")
+        if not name or not colon:
+            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH (e.g. {RANDOMIZE_EXAMPLE})")
+        if name not in names:
+            raise ValueError(f"{where}: unknown parameter {name!r}; parameters: {', '.join(names)}")
+        if name in ranges:
+            raise ValueError(f"{where}: {name} is given twice")
+        try:
+            low, high = float(low_text), float(high_text)
+        except ValueError:
+            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH with numbers LOW and HIGH") from None
+        if not (math.isfinite(low) and math.isfinite(high)):
+            raise ValueError(f"{where}: {name} scales must be finite, got {low_text}:{high_text}")
+        if low < 0:
+            raise ValueError(f"{where}: {name} scales must be >= 0, got {low:g}")
+        if low > high:
+            raise ValueError(f"{where}: {name} range has low {low:g} > high {high:g}")
+        ranges[name] = (low, high)
+    return Randomization(**ranges)

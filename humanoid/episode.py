@@ -6,7 +6,8 @@ The rollout is shared by the recorder, the benchmarks and evaluation, so that "r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -44,6 +45,9 @@ class Episode:
     command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the command in force (keys.OBS_COMMAND)
     tasks: np.ndarray  # (T,) str: the task string in force, which names the command
     dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger
+    # The physical parameters drawn for the episode (humanoid.conditions.DomainRandomization, e.g.
+    # {"friction_scale": 1.2}: JSON-ready scale factors); empty when nothing is randomised.
+    parameters: dict[str, Any] = field(default_factory=dict)
 
     @property
     def length(self) -> int:
@@ -153,15 +157,16 @@ def run_episode(
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
     The stored label of each step is the controller's action, or, with a `labeller` (DAgger), the
-    labeller's action in the state the controller led to. Perturbations and rendering come with
-    `env` as wrappers (`humanoid.perturbations`, `humanoid.video`).
+    labeller's action in the state the controller led to. Perturbations, domain randomisation and
+    rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
+    `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
 
-    obs, _ = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed)
     controller.reset(seed)
     if labeller is not None:
         labeller.reset(seed)
@@ -182,6 +187,7 @@ def run_episode(
         controller=controller.name,
         noise_std=noise_std,
         labeller=controller.name if labeller is None else labeller.name,
+        parameters=info.get("parameters", {}),
     )
 
 

@@ -22,8 +22,9 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from common import keys
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
-from teleop.mcap_io.writer import STEP_TOPIC
+from teleop.mcap_io.writer import METADATA_NAME, STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
@@ -73,6 +74,32 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     order = np.argsort(episodes["episode_index"].to_numpy(), kind="stable")
     episodes = episodes.take(pa.array(order))
     return episodes if columns is None else episodes.select(columns)
+
+
+def read_parameters(root: Path) -> list[dict[str, Any]]:
+    """Each committed episode's drawn physical parameters, e.g. {"friction_scale": 1.2}; {} if not randomised.
+
+    From the episode columns `randomization.*` (`keys.RANDOMIZATION_PREFIX`), in episode order.
+    """
+    table = read_episodes(root)
+    prefix = keys.RANDOMIZATION_PREFIX
+    columns = [name for name in table.column_names if name.startswith(prefix)]
+    rows = table.select(columns).to_pylist() if columns else [{} for _ in range(table.num_rows)]
+    return [{name.removeprefix(prefix): value for name, value in row.items()} for row in rows]
+
+
+def read_mcap_parameters(path: Path) -> dict[str, Any]:
+    """The drawn physical parameters in one episode's MCAP metadata record (JSON text, decoded); {} if none."""
+    prefix = keys.RANDOMIZATION_PREFIX
+    with path.open("rb") as stream:
+        for record in make_reader(stream).iter_metadata():
+            if record.name == METADATA_NAME:
+                return {
+                    name.removeprefix(prefix): json.loads(value)
+                    for name, value in record.metadata.items()
+                    if name.startswith(prefix)
+                }
+    return {}
 
 
 def fingerprint(root: Path) -> str:

@@ -1,7 +1,8 @@
 """`make inspect`: what a dataset folder holds, and whether its LeRobot and MCAP halves agree.
 
-Prints a summary (episodes, frames, tasks, controllers, seeds, the sessions of recordings.jsonl,
-return and length per episode, features, disk size, the MCAP files' message counts), then verifies
+Prints a summary (episodes, frames, tasks, controllers, seeds, the range of each randomised physical
+parameter, the sessions of recordings.jsonl, return and length per episode, features, disk size, the
+MCAP files' message counts), then verifies
 the dataset and exits with `error: <the first problem found>` if anything is wrong:
 
 - LeRobot metadata: info.json (v3.0), the episode rows, the frame indices, the tasks and stats.json
@@ -142,6 +143,7 @@ class Report:
     frames: int
     tasks: dict[str, int]  # task -> frames
     controllers: dict[str, int] | None  # "controller (noise σ)" -> episodes; None for datasets without the column
+    randomized: dict[str, str]  # drawn parameter -> the range of its values over the episodes (randomised datasets)
     seeds: list[int]
     lengths: np.ndarray
     returns: np.ndarray
@@ -179,6 +181,8 @@ class Report:
         lines += _listing("tasks", [f"{task!r}: {frames:,} frames" for task, frames in self.tasks.items()])
         if self.controllers is not None:
             lines += _listing("controllers", [f"{name}: {count} episodes" for name, count in self.controllers.items()])
+        if self.randomized:
+            lines += _listing("randomised", [f"{name}: {drawn}" for name, drawn in self.randomized.items()])
         if self.runs:
             lines += _listing("sessions", [_run(run) for run in self.runs])
         lines.append(_row("length", _min_mean_max(self.lengths, "{:,.0f}", "{:,.1f}") + " steps"))
@@ -513,6 +517,11 @@ def _summarise(dataset: Dataset) -> Report:
                 for name, sigma in zip(episodes[keys.EPISODE_CONTROLLER], noise, strict=True)
             )
         )
+    randomized = {
+        name.removeprefix(keys.RANDOMIZATION_PREFIX): _drawn_range(values)
+        for name, values in episodes.items()
+        if name.startswith(keys.RANDOMIZATION_PREFIX)
+    }
     readable = [m for m in dataset.mcap if m.problem is None]
     topics: Counter[str] = Counter()
     for m in readable:
@@ -524,6 +533,7 @@ def _summarise(dataset: Dataset) -> Report:
         frames=len(frames["index"]) if "index" in frames else 0,
         tasks=tasks,
         controllers=controllers,
+        randomized=randomized,
         seeds=[seed for seed in episodes.get(keys.EPISODE_SEED, []) if seed is not None],
         lengths=np.array(episodes["length"]),
         returns=dataset.returns(),
@@ -538,6 +548,17 @@ def _summarise(dataset: Dataset) -> Report:
         leftovers=dataset.leftovers,
         runs=recordings.read(dataset.root),
     )
+
+
+def _drawn_range(values: list) -> str:
+    """The values a randomised parameter took over the episodes: "0.803..1.197 (13 per episode)"."""
+    per_episode = [np.atleast_1d(np.array(value, dtype=float)) for value in values if value is not None]
+    if not per_episode:
+        return "no value"
+    drawn = np.concatenate(per_episode)
+    counts = sorted({len(value) for value in per_episode})
+    each = "" if counts == [1] else f" ({'/'.join(map(str, counts))} per episode)"
+    return f"{drawn.min():.3f}..{drawn.max():.3f}{each}"
 
 
 def _disk_sizes(root: Path) -> dict[str, int]:

@@ -20,10 +20,12 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from common.workers import Channel, Worker, close_all
+from humanoid.conditions import Randomization
 from teleop.spool import Spool
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
-WORKER_MODULES = ("humanoid.controllers", "humanoid.env", "humanoid.episode", "teleop.spool")  # what `_work` imports
+# What `_work` imports.
+WORKER_MODULES = ("humanoid.conditions", "humanoid.controllers", "humanoid.env", "humanoid.episode", "teleop.spool")
 
 
 @dataclass(frozen=True)
@@ -34,15 +36,19 @@ class RolloutSettings:
     noise: float
     max_steps: int
     task: str
+    randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
 
 
 def _work(channel: Channel, settings: RolloutSettings, dataset: Path) -> None:
     """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed."""
+    from humanoid.conditions import DomainRandomization  # noqa: PLC0415 - heavy imports in the worker only
     from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
     from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
     from humanoid.episode import EpisodeBuffer, run_episode  # noqa: PLC0415 - heavy imports in the worker only
 
     env = make_env(settings.max_steps)
+    if settings.randomization.active:
+        env = DomainRandomization(env, settings.randomization)
     controller = make_controller(settings.controller, env)
     buffer = EpisodeBuffer(env, settings.max_steps)
     spool = Spool(dataset)

@@ -11,8 +11,13 @@ clean demonstrations never leave the expert's own path, and a policy cloned from
 Episodes in which the noisy expert falls are kept, with `terminated` set: their states are the
 ones a policy most needs labels for, and dropping them would bias the dataset towards easy seeds.
 
-Each session adds a line to DATASET/recordings.jsonl (`teleop.recordings`): its full config and
-the episodes it added, also when interrupted.
+Domain randomisation (`--randomize`, a preset or a list of ranges: `humanoid.conditions`): each
+episode's masses, friction and motor strengths are drawn from its seed at its reset, and the draw
+is stored with the episode (columns `randomization.*` of meta/episodes, and the MCAP metadata), so
+that a user can filter or condition on it. A dataset holds randomised episodes or plain ones, not both.
+
+Each session adds a line to DATASET/recordings.jsonl (`teleop.recordings`): its full config (and
+the randomisation's ranges), and the episodes it added, also when interrupted.
 """
 
 from __future__ import annotations
@@ -23,13 +28,14 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from humanoid.conditions import NO_RANDOMIZATION, PRESETS, RANDOMIZE_EXAMPLE, DomainRandomization, parse_randomization
 from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
@@ -63,6 +69,12 @@ class RecordConfig:
         metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH",
     )
     noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
+    randomize: str = setting(
+        NO_RANDOMIZATION,
+        "domain randomisation, drawn per episode from its seed and stored with it: "
+        f"{NO_RANDOMIZATION} (nothing), a preset ({', '.join(name for name in PRESETS if name != NO_RANDOMIZATION)}: "
+        f"docs/robustness.md) or ranges of the scale factors of mass, friction, strength like {RANDOMIZE_EXAMPLE}",
+    )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
     workers: int = setting(
@@ -127,6 +139,13 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if cfg.controller in INTERACTIVE and cfg.workers != 1:
         raise UserError(f"--controller {cfg.controller} records in one process: --workers must be 1, got {cfg.workers}")
+    try:
+        randomization = parse_randomization(cfg.randomize)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    if cfg.controller in INTERACTIVE and randomization.active:
+        # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
+        raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
 
 
 def main(cfg: RecordConfig, summary: RecordSummary | None = None) -> RecordSummary:
@@ -148,22 +167,35 @@ def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
         main(cfg, summary)
         complete = True
     finally:
-        recordings.append(cfg.dataset, made_by, config_dict(cfg), summary.episodes, complete)
+        recordings.append(cfg.dataset, made_by, config_dict(cfg), summary.episodes, complete, _logged_ranges(cfg))
     return summary
+
+
+def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
+    """The randomisation's ranges for the session's line: what a preset's name stands for is this version's code."""
+    try:
+        ranges = parse_randomization(cfg.randomize).ranges
+    except ValueError:  # refused before anything was recorded: the line is not written
+        return {}
+    return {"randomization": ranges} if ranges else {}
 
 
 def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: RecordSummary) -> RecordSummary:
     env = make_env(cfg.max_steps)
+    randomization = parse_randomization(cfg.randomize)
+    if randomization.active:
+        env = DomainRandomization(env, randomization)  # draws at each seeded reset; the controller sees nominal
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
     if cfg.writer == "process" and rollouts is None:
         from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
-        sink = WriterProcess(cfg.dataset)  # opens the dataset while this process builds the controller
+        # Opens the dataset while this process builds the controller.
+        sink = WriterProcess(cfg.dataset, randomization.parameters)
     else:
         from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
-        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env))
+        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, randomization.parameters))
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
     bar = tqdm(
@@ -209,7 +241,7 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: Recor
 def _start_workers(cfg: RecordConfig) -> ParallelRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
-    settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task)
+    settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize))
     return ParallelRollouts(settings, cfg.dataset, min(cfg.workers, cfg.episodes))
 
 

@@ -2,7 +2,9 @@
 
 `make record` (and `make pipeline` when it records, and `make dagger` on its aggregate) append a line
 when the run ends, also when it is interrupted: who ran (`made_by`), when, the resolved config, and
-which episodes (indices and seeds) the run committed. A run that committed nothing writes nothing.
+which episodes (indices and seeds) the run committed; a randomised recording adds the ranges its
+`randomize` setting stands for (`"randomization": {"mass": [0.8, 1.2], ...}`). A run that committed
+nothing writes nothing.
 LeRobot reads only meta/ and data/ and ignores the file; `make inspect` lists the sessions.
 
     {"made_by": "teleop.record", "time": "2026-01-01T12:00:00+00:00", "complete": true,
@@ -31,8 +33,18 @@ class Committed(Protocol):
     seed: int
 
 
-def append(root: Path, made_by: str, config: dict[str, Any], committed: Sequence[Committed], complete: bool) -> None:
-    """Add the line of a run that committed `committed` (in commit order) to `root`'s recordings.jsonl."""
+def append(
+    root: Path,
+    made_by: str,
+    config: dict[str, Any],
+    committed: Sequence[Committed],
+    complete: bool,
+    extra: dict[str, Any] | None = None,
+) -> None:
+    """Add the line of a run that committed `committed` (in commit order) to `root`'s recordings.jsonl.
+
+    `extra` adds keys to the line (the recorder's "randomization": the ranges its --randomize stands for).
+    """
     if not committed:
         return
     line = {
@@ -43,6 +55,7 @@ def append(root: Path, made_by: str, config: dict[str, Any], committed: Sequence
         "episodes": [committed[0].index, committed[-1].index],
         "seeds": [committed[0].seed, committed[-1].seed],
         "count": len(committed),
+        **(extra or {}),
     }
     try:
         with (root / RECORDINGS_FILE).open("a") as stream:

@@ -8,16 +8,20 @@ An episode is written in the order parquet -> MCAP -> info.json; the last step c
 kill at any moment leaves the committed episodes readable in both formats, and the next `open`
 removes the rest. Episodes a parallel recording finished but had not committed yet wait in the
 spool (`teleop.spool`); the next `open` commits them. A recorder holds an exclusive lock on the
-folder while it appends; a second one refuses. `WriterProcess` runs a store in a child process,
+folder while it appends; a second one refuses. Episodes recorded with domain randomisation carry
+their draw as episode columns (`keys.RANDOMIZATION_PREFIX`); a dataset holds either none or the
+same ones in every episode (LeRobot loads episode rows of one schema only), so a store for other
+parameters than the dataset's refuses to open. `WriterProcess` runs a store in a child process,
 so that writing overlaps with simulation instead of stalling it.
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Protocol
 
@@ -26,6 +30,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from common import keys
 from common.cli import DatasetError
+from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
     ENV_ID,
     LEROBOT_FPS,
@@ -62,13 +67,16 @@ class DatasetSpec:
     scene: SceneUpdate
     step_ns: int
     mjcf: bytes
+    parameters: tuple[str, ...] = ()
+    """The physical parameters every episode's draw holds (`Randomization.parameters`); () for none."""
 
     @property
     def state_size(self) -> int:
         return self.features[keys.OBS_STATE]["shape"][0]
 
     @classmethod
-    def from_env(cls, env: gym.Env) -> DatasetSpec:
+    def from_env(cls, env: gym.Env, parameters: tuple[str, ...] = ()) -> DatasetSpec:
+        """The spec of datasets recorded in `env`, whose episodes draw `parameters` (domain randomisation)."""
         model, _ = model_and_data(env)
         names = observation_names(model)
         n = state_dim(model)
@@ -90,7 +98,8 @@ class DatasetSpec:
             keys.TRUNCATED: flag,
         }
         frames = body_names(model)
-        return cls(features, frames, scene_update(model, frames), step_duration_ns(env), mjcf_path(env).read_bytes())
+        scene = scene_update(model, frames)
+        return cls(features, frames, scene, step_duration_ns(env), mjcf_path(env).read_bytes(), parameters)
 
 
 @dataclass(frozen=True)
@@ -149,6 +158,8 @@ class EpisodeStore:
         self.root = root
         self.spec = spec
         self._remove_uncommitted_mcap()
+        # The parameters the dataset's episodes draw; None while it has none (the first episode decides).
+        self._parameters: frozenset[str] | None = self._drawn_parameters() if self.num_episodes else None
         self.spool = Spool(root)
         self.spool.recover(self.num_episodes)
         recovered = self.commit_spool()
@@ -159,6 +170,11 @@ class EpisodeStore:
                 len(recovered),
                 ", ".join(str(e.seed) for e in recovered),
             )
+        try:
+            self._check_parameters(frozenset(spec.parameters))
+        except DatasetError:
+            self.close()
+            raise
 
     @property
     def num_episodes(self) -> int:
@@ -187,6 +203,8 @@ class EpisodeStore:
             keys.TERMINATED: episode.terminated,
             keys.TRUNCATED: episode.truncated,
         }
+        drawn = {keys.RANDOMIZATION_PREFIX + name: value for name, value in episode.parameters.items()}
+        self._check_parameters(frozenset(episode.parameters))
         index = self.num_episodes
         mcap_path = Path(MCAP_DIR) / mcap_name(index)
         facts = {
@@ -205,9 +223,10 @@ class EpisodeStore:
             "env_id": ENV_ID,
             "step_duration_ns": str(self.spec.step_ns),
             **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP},
+            **{key: json.dumps(value) for key, value in drawn.items()},
         }
         try:
-            staged = self.lerobot.stage(columns, episode.tasks, facts)
+            staged = self.lerobot.stage(columns, episode.tasks, {**facts, **drawn})
             write_episode_mcap(
                 self.root / mcap_path,
                 episode,
@@ -246,7 +265,33 @@ class EpisodeStore:
             self._lock = -1
         return []
 
+    def _drawn_parameters(self) -> frozenset[str]:
+        """The drawn parameters of the last committed episode, from its metadata row's columns."""
+        prefix = keys.RANDOMIZATION_PREFIX
+        columns = self.lerobot.last_episode_columns()
+        return frozenset(name.removeprefix(prefix) for name in columns if name.startswith(prefix))
+
+    def _check_parameters(self, parameters: frozenset[str]) -> None:
+        """DatasetError unless episodes drawing `parameters` fit the dataset's (any do while it is empty)."""
+        if self._parameters is None:
+            self._parameters = parameters
+        elif parameters != self._parameters:
+            raise DatasetError(
+                f"{self.root} holds episodes {_randomised(self._parameters)}, these would be "
+                f"{_randomised(parameters)}: a dataset does not mix them (LeRobot loads episode rows "
+                "with one set of columns only); use another dataset folder"
+            )
+
     def _remove_uncommitted_mcap(self) -> None:
         for path in (self.root / MCAP_DIR).glob("episode_*.mcap"):
             if int(path.stem.removeprefix("episode_")) >= self.num_episodes:
                 path.unlink()
+
+
+def _randomised(parameters: frozenset[str]) -> str:
+    """How episodes drawing `parameters` were recorded, for a message: "with mass, friction randomised"."""
+    if not parameters:
+        return "without domain randomisation"
+    order = [spec.name + SCALE_SUFFIX for spec in fields(Randomization)]
+    names = sorted(parameters, key=lambda name: (order.index(name) if name in order else len(order), name))
+    return f"with {', '.join(name.removesuffix(SCALE_SUFFIX) for name in names)} randomised"

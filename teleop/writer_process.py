@@ -31,10 +31,11 @@ WRITER_MODULES = ("humanoid.env", "teleop.store")  # what `_serve` imports
 class WriterProcess:
     """The `EpisodeSink` that appends episodes to `root` from a child process (a `common.workers.Worker`)."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, parameters: tuple[str, ...] = ()) -> None:
+        """`parameters`: what every episode's domain randomisation draws (`teleop.store.DatasetSpec.parameters`)."""
         # outlives_parent: the writer commits what it received even if the recorder is killed.
         self._worker = Worker(
-            _serve, root, name=f"the writer process of {root}", preload=WRITER_MODULES, outlives_parent=True
+            _serve, root, parameters, name=f"the writer process of {root}", preload=WRITER_MODULES, outlives_parent=True
         )
         self.num_episodes = -1
         self._next_seed = -1
@@ -74,12 +75,12 @@ class WriterProcess:
             self._worker.close()
 
 
-def _serve(channel: Channel, root: Path) -> None:
+def _serve(channel: Channel, root: Path, parameters: tuple[str, ...]) -> None:
     """The writer (`common.workers`): open the dataset, report it ready, commit each episode received, report it."""
     from humanoid.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
     from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415 - heavy imports happen in the child only
 
-    store = EpisodeStore(root, DatasetSpec.from_env(make_env()))
+    store = EpisodeStore(root, DatasetSpec.from_env(make_env(), parameters))
     try:
         channel.send((store.num_episodes, store.next_seed()))
         store.prepare()  # while the recorder simulates the first episode

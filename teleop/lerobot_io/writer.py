@@ -234,6 +234,13 @@ class LeRobotWriter:
                 ]
         return values
 
+    def last_episode_columns(self) -> list[str]:
+        """The columns of the last staged episode's metadata row: the last committed one's right after `open`."""
+        if self._last_file is None:
+            return []
+        chunk, file = self._last_file
+        return pq.read_schema(self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=file)).names
+
     def _task_index(self, task: str) -> int:
         if task not in self.tasks.index:
             self.tasks.loc[task] = len(self.tasks)

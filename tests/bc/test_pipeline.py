@@ -12,6 +12,7 @@ import io
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -207,6 +208,30 @@ def test_speed_settings_are_not_compared(outputs: Path) -> None:
     speed = {"workers": 2, "update_threads": 1, "progress": True}
     assert ppo_decision(tiny_stages(ppo=speed).finetune, "--ppo-policy", overwrite=False).action == REUSE
     assert dataset_decision(tiny_stages(record={"workers": 2, "writer": "process"}).record).action == REUSE
+
+
+def edit_recordings(dataset: Path, edit: Callable[[dict], None]) -> None:
+    """Apply `edit` to the config of every line of `dataset`'s recordings.jsonl."""
+    lines = recordings.read(dataset)
+    for line in lines:
+        edit(line["config"])
+    (dataset / recordings.RECORDINGS_FILE).write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+def test_dataset_recorded_before_randomize_existed_is_reused(outputs: Path) -> None:
+    """A log line without --randomize is one from before it existed, when recordings were what `none` records."""
+    edit_recordings(outputs / "data", lambda config: config.pop("randomize"))
+    assert dataset_decision(tiny_stages().record).action == REUSE
+
+
+def test_randomised_dataset_is_recorded_again(outputs: Path) -> None:
+    """The pipeline records without randomisation: its dataset recorded with --randomize is not what it asks for."""
+    edit_recordings(outputs / "data", lambda config: config.update(randomize="suite"))
+    decision = dataset_decision(tiny_stages().record)
+    assert (decision.action, decision.line) == (
+        REMAKE,
+        "recording data again: it was recorded with --randomize suite, not none",
+    )
 
 
 def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:

@@ -16,6 +16,7 @@ from humanoid.conditions import (
     ObservationNoise,
     Randomization,
     condition,
+    parse_randomization,
 )
 from humanoid.env import make_env, model_and_data
 
@@ -116,3 +117,33 @@ def test_unknown_condition_names_the_known_ones() -> None:
 def test_suite_has_the_conditions_the_issue_names() -> None:
     names = {"clean", "noise", "push10", "push20", "push40", "mass", "friction", "strength", "latency", "obs_noise"}
     assert names <= set(SUITE)
+
+
+def test_randomize_presets_and_lists_parse_into_ranges() -> None:
+    """`none` randomises nothing, `suite` is the suite's three ranges at once, a list sets what it names."""
+    assert not parse_randomization("none").active
+    suite = [SUITE[name].randomization for name in ("mass", "friction", "strength")]
+    assert parse_randomization("suite") == Randomization(suite[0].mass, suite[1].friction, suite[2].strength)
+    listed = parse_randomization(" mass=0.8:1.2, friction = 0.5:1.5")
+    assert listed == Randomization(mass=(0.8, 1.2), friction=(0.5, 1.5))
+    assert parse_randomization("strength=1:1").parameters == ("strength_scale",)
+
+
+@pytest.mark.parametrize(
+    "text, problem",
+    [
+        ("wild", "unknown preset"),
+        ("gravity=1:2", "unknown parameter 'gravity'"),
+        ("mass=1.2:0.8", "low 1.2 > high 0.8"),
+        ("mass=-0.2:1", "mass scales must be >= 0, got -0.2"),
+        ("mass=nan:1", "mass scales must be finite"),
+        ("mass=0.9:1.1,mass=1:1", "mass is given twice"),
+        ("mass=0.9", "is not NAME=LOW:HIGH"),
+        ("mass=0.9:1.1,", "'' is not NAME=LOW:HIGH"),
+    ],
+)
+def test_bad_randomize_text_is_one_line_naming_the_flag(text: str, problem: str) -> None:
+    with pytest.raises(ValueError) as error:
+        parse_randomization(text)
+    message = str(error.value)
+    assert message.startswith(f"--randomize {text!r}: ") and problem in message and "\n" not in message
