@@ -50,7 +50,7 @@ from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
 from bc.train import TrainConfig
-from common.cli import UserError, config_dict, flag, parse_config, run_cli, setting
+from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
 from humanoid.conditions import NO_RANDOMIZATION
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, checkpoint_problem, is_checkpoint
 from teleop import recordings
@@ -142,7 +142,7 @@ def stages(cfg: PipelineConfig) -> Stages:
     )
 
 
-def _with_args[Config](config_class: type[Config], args: str, settings: dict[str, Any]) -> Config:
+def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) -> Config:
     """`config_class` from the flags in `args`, then `settings` (which `args` may not set too)."""
     module = f"python -m {config_class.__module__}"
     try:
@@ -243,11 +243,18 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
     )
 
 
-def _training_record(folder: Path) -> dict[str, Any]:
+def _json_object(path: Path) -> dict[str, Any]:
+    """The JSON object in `path`; {} if it is missing, unreadable or not an object."""
     try:
-        training = json.loads((folder / CONFIG_FILE).read_text()).get("training")
-    except (OSError, ValueError, AttributeError):
+        content = json.loads(path.read_text())
+    except (OSError, ValueError):
         return {}
+    return content if isinstance(content, dict) else {}
+
+
+def _training_record(folder: Path) -> dict[str, Any]:
+    """The settings a checkpoint's config.json records under "training"."""
+    training = _json_object(folder / CONFIG_FILE).get("training")
     return training if isinstance(training, dict) else {}
 
 
@@ -295,21 +302,13 @@ def checkpoint_decision(
     )
 
 
-def _dataset_json(folder: Path) -> dict[str, Any]:
-    try:
-        content = json.loads((folder / DATASET_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
-    return content if isinstance(content, dict) else {}
-
-
 def bc_decision(cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
     """train-bc's decision: its input is the dataset, identified by its fingerprint."""
 
     def current() -> str | None:
         return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
 
-    saved = _dataset_json(cfg.policy).get("fingerprint")
+    saved = _json_object(cfg.policy / DATASET_FILE).get("fingerprint")
     return checkpoint_decision(cfg, "training", "--bc-policy", "dataset", saved, current, overwrite, dataset_remade)
 
 

@@ -66,7 +66,7 @@ def _boolean(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected a boolean, got {text!r}")
 
 
-def parse_config[Config](
+def parse_config(
     config_class: type[Config], argv: Sequence[str] | None, description: str, prog: str | None = None
 ) -> Config:
     """Parse `argv` into `config_class`; `--help` lists each field with its default."""
@@ -88,7 +88,7 @@ def parse_config[Config](
     return config_class(**vars(parser.parse_args(argv)))
 
 
-def run_cli[Config](
+def run_cli(
     main: Callable[[Config], Any],
     config_class: type[Config],
     argv: Sequence[str] | None,

@@ -90,6 +90,17 @@ def test_common_imports_nothing_of_ours() -> None:
     } == set()
 
 
+def test_every_module_parses_with_the_python_3_11_grammar() -> None:
+    """The workplace's own checks (an import-cycle check among them) read the code with Python 3.11's parser."""
+    newer = []
+    for path in project_modules().values():
+        try:
+            ast.parse(path.read_text(), str(path), feature_version=(3, 11))
+        except SyntaxError as error:
+            newer.append(f"{path.relative_to(ROOT)}:{error.lineno}: {error.msg}")
+    assert newer == []
+
+
 def test_datasets_folder_is_not_a_package() -> None:
     """`import datasets` must stay HuggingFace's: the data folder holds no Python."""
     assert not list((ROOT / "datasets").glob("*.py"))
