@@ -27,10 +27,10 @@ export PYTHONUNBUFFERED := 1
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
 VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS
 VARS.inspect := DATASET PLOT
-VARS.train-bc := DATASET POLICY EPOCHS OVERWRITE
+VARS.train-bc := DATASET POLICY INPUTS EPOCHS OVERWRITE
 VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO
 VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
-VARS.dagger := DATASET OUTPUT POLICY ROUNDS EPISODES OVERWRITE
+VARS.dagger := DATASET OUTPUT POLICY INPUTS ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BC_POLICY EPOCHS SCRATCH_POLICY \
@@ -105,6 +105,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
+	$(PY) -m bench.data_efficiency
 	$(PY) -m bench.ppo_throughput
 
 clean-venv:  ## remove .venv

@@ -36,8 +36,9 @@ from common.cli import DatasetError, UserError, config_dict, flag, run_cli, sett
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.learned import PolicyController
+from humanoid.sensors import INPUTS
 from policies import checkpoint
-from policies.controller import PolicyController
 from teleop import recordings
 from teleop.dataset_reader import read_episodes
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
@@ -52,6 +53,9 @@ class DaggerConfig:
     dataset: Path = setting(paths.DATASET, "demonstrations to start from (left unchanged)")
     output: Path = setting(paths.DAGGER_DATASET, "aggregate dataset: a copy of DATASET, then every round appended")
     policy: Path = setting(paths.DAGGER_POLICY, "checkpoint folder of the final policy")
+    inputs: str = setting(
+        "full", "what the student reads (see `make train-bc`); the expert labels from the full state", choices=INPUTS
+    )
     rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
     epochs: int = setting(30, "training epochs of every round's policy")
@@ -152,7 +156,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     complete = False
     try:
         done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
-        training = {"epochs": cfg.epochs, "patience": cfg.patience}
+        training = {"epochs": cfg.epochs, "patience": cfg.patience, "inputs": cfg.inputs}
         quiet = {**training, "eval_episodes": 0, "progress": False, "tensorboard": False}
         with tempfile.TemporaryDirectory(prefix=".dagger-", dir=cfg.policy.parent) as scratch:
             policy_dir = Path(scratch) / f"round{done}"

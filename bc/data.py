@@ -30,17 +30,17 @@ import torch
 from common import keys
 from common.cli import DatasetError
 from common.paths import cache_dir
-from humanoid.env import ENV_ID, observation_names
-from policies.controller import OBSERVATION_KEYS
+from humanoid.env import ENV_ID
+from humanoid.sensors import INPUT_COLUMNS, INPUTS, input_names, observation_index
 from teleop.dataset_reader import fingerprint, iter_frames, read_info
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
-# Dataset columns concatenated into the policy's input: the gymnasium observation, in its order.
-# A dataset that records a command (keyboard teleoperation) would append that column here (it
-# then reaches `MLPSpec.input_keys`, and the normalisation covers it like any other input), and
-# `PolicyController` would take the command from its source besides the observation.
-INPUT_KEYS = OBSERVATION_KEYS
-_CACHE_FORMAT = 1  # bump when what the cache holds changes
+# The policy's input is built from the dataset columns `humanoid.sensors.INPUT_COLUMNS[inputs]`, their
+# entries placed by name in the order the policy reads (`input_names`): the gymnasium observation's
+# order for "full" (whichever way a dataset split it), the sensed features' for "proprio". A dataset
+# that records a command (keyboard teleoperation) would add that column (it then reaches
+# `MLPSpec.input_keys`), and `PolicyController` would take the command from its source.
+_CACHE_FORMAT = 2  # bump when what the cache holds changes
 _ARRAYS = ("inputs", "actions", "episode_index")
 
 
@@ -49,13 +49,14 @@ class Demonstrations:
     """Every committed frame of a dataset as tensors, in index order."""
 
     root: Path
-    inputs: torch.Tensor  # (N, input_dim) float32: the INPUT_KEYS columns side by side
+    inputs: torch.Tensor  # (N, input_dim) float32: what the policy reads (see `kind`)
     actions: torch.Tensor  # (N, action_dim) float32: the label actions
     episode_index: np.ndarray  # (N,) int64
     info: dict[str, Any]
     seconds: float  # time to load, from files to tensors
     from_cache: bool
     fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
+    kind: str = "full"  # humanoid.sensors.INPUTS: which input `inputs` holds
 
     @property
     def frames(self) -> int:
@@ -78,8 +79,11 @@ class Demonstrations:
         }
 
 
-def check_compatible(root: Path, env: gym.Env) -> dict[str, Any]:
-    """meta/info.json of the dataset at `root`; DatasetError says in one line why it cannot train for `env`."""
+def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[dict[str, Any], np.ndarray]:
+    """(meta/info.json, where each input entry sits among the input columns' entries) of the dataset at
+    `root`; DatasetError says in one line why it cannot train a policy on `inputs` for `env`."""
+    if inputs not in INPUT_COLUMNS:
+        raise DatasetError(f"unknown inputs {inputs!r}; known: {', '.join(INPUTS)}")
     if not (root / INFO_PATH).is_file():
         reason = "no such folder" if not root.exists() else f"no {INFO_PATH}"
         raise DatasetError(f"no LeRobot dataset at {root} ({reason}); record one with `make record DATASET={root}`")
@@ -90,36 +94,44 @@ def check_compatible(root: Path, env: gym.Env) -> dict[str, Any]:
         raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
-    missing = [key for key in (*INPUT_KEYS, keys.ACTION) if key not in features]
+    columns = INPUT_COLUMNS[inputs]
+    missing = [key for key in (*columns, keys.ACTION) if key not in features]
     if missing:
-        needed = ", ".join((*INPUT_KEYS, keys.ACTION))
+        needed = ", ".join((*columns, keys.ACTION))
         raise DatasetError(f"{root} has no {', '.join(missing)} feature (it needs {needed})")
-    obs_dim, action_dim = env.observation_space.shape[0], env.action_space.shape[0]
-    input_dims = [features[key]["shape"][0] for key in INPUT_KEYS]
     recorded_action_dim = features[keys.ACTION]["shape"][0]
-    if sum(input_dims) != obs_dim or recorded_action_dim != action_dim:
+    if recorded_action_dim != env.action_space.shape[0]:
         raise DatasetError(
-            f"{root} records {'+'.join(map(str, input_dims))} observation and {recorded_action_dim} "
-            f"action dimensions; {ENV_ID} has {obs_dim} and {action_dim}"
+            f"{root} records {recorded_action_dim} action dimensions; {ENV_ID} has {env.action_space.shape[0]}"
         )
-    recorded_names = [name for key in INPUT_KEYS for name in features[key].get("names") or []]
-    if recorded_names and recorded_names != observation_names(env.unwrapped.model):
-        raise DatasetError(f"{root} orders its observation differently from {ENV_ID} (feature names differ)")
+    recorded = [name for key in columns for name in features[key].get("names") or []]
+    wanted = input_names(inputs, env.unwrapped.model)
+    index = observation_index(env.unwrapped.model, recorded) if inputs == "full" else None
+    if inputs == "proprio" and recorded == wanted:
+        index = np.arange(len(wanted))
+    if index is None:
+        if inputs == "proprio":
+            raise DatasetError(
+                f"{root} has no sensed {keys.OBS_STATE} (recorded before it existed: its {keys.OBS_STATE} has "
+                f"{features[keys.OBS_STATE]['shape'][0]} entries, not the {len(wanted)} humanoid.sensors names); "
+                f"train on it with INPUTS=full or record a new dataset"
+            )
+        raise DatasetError(f"{root}: {' + '.join(columns)} do not name every entry of the {ENV_ID} observation")
     if info.get("total_episodes", 0) < 2:
         raise DatasetError(
             f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least 2 "
             f"(one is held out for validation)"
         )
-    return info
+    return info, index
 
 
-def _cache_folder(root: Path, info_text: str) -> Path:
+def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
     """Where the decoded arrays of this version of the dataset live: <path hash>-<content hash>."""
     files = sorted((root / "data").glob("*/*.parquet"))
     content = json.dumps(
         [
             _CACHE_FORMAT,
-            INPUT_KEYS,
+            inputs,
             info_text,
             [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files],
         ]
@@ -128,28 +140,25 @@ def _cache_folder(root: Path, info_text: str) -> Path:
     return cache_dir() / "bc-frames" / f"{path_hash}-{hashlib.sha256(content.encode()).hexdigest()[:16]}"
 
 
-def _decode(root: Path, info: dict[str, Any]) -> dict[str, np.ndarray]:
-    """The arrays read from the parquet files, inputs joined and in float32, rows placed by frame index."""
+def _decode(root: Path, info: dict[str, Any], columns: tuple[str, ...], index: np.ndarray) -> dict[str, np.ndarray]:
+    """The arrays read from the parquet files in float32, rows placed by frame index: the input `columns`
+    side by side, entries ordered by `index`."""
     features = info["features"]
     rows = info["total_frames"]
-    widths = [features[key]["shape"][0] for key in INPUT_KEYS]
     arrays = {
-        "inputs": np.empty((rows, sum(widths)), np.float32),
+        "inputs": np.empty((rows, len(index)), np.float32),
         "actions": np.empty((rows, features[keys.ACTION]["shape"][0]), np.float32),
         "episode_index": np.empty(rows, np.int64),
     }
     filled = 0
-    for batch in iter_frames(root, [*INPUT_KEYS, keys.ACTION, "episode_index"]):
-        index = batch["index"]
+    for batch in iter_frames(root, [*columns, keys.ACTION, "episode_index"]):
+        frame = batch["index"]
         # Recorded files hold consecutive frames: a slice assigns faster than an index array.
-        at = slice(index[0], index[-1] + 1) if len(index) and index[-1] - index[0] + 1 == len(index) else index
-        start = 0
-        for key, width in zip(INPUT_KEYS, widths, strict=True):  # float64 -> float32 in the same pass
-            arrays["inputs"][at, start : start + width] = batch[key]
-            start += width
+        at = slice(frame[0], frame[-1] + 1) if len(frame) and frame[-1] - frame[0] + 1 == len(frame) else frame
+        arrays["inputs"][at] = np.concatenate([batch[key] for key in columns], axis=1)[:, index]
         arrays["actions"][at] = batch[keys.ACTION]
         arrays["episode_index"][at] = batch["episode_index"]
-        filled += len(index)
+        filled += len(frame)
     if filled != rows:
         raise DatasetError(f"{root} holds {filled} committed frames; its {INFO_PATH} counts {rows}")
     return arrays
@@ -174,22 +183,22 @@ def _store(folder: Path, arrays: dict[str, np.ndarray]) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
-def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonstrations:
-    """Every committed frame of the dataset at `root`, checked against `env`, as float32 tensors."""
+def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: str = "full") -> Demonstrations:
+    """Every committed frame of the dataset at `root`, checked against `env`, as float32 tensors of `inputs`."""
     start = time.perf_counter()
-    info = check_compatible(root, env)
+    info, index = check_compatible(root, env, inputs)
     try:
         digest = fingerprint(root)
     except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # damaged episode metadata
         raise DatasetError(f"cannot read the episode metadata of {root}: {error}") from None
-    folder = _cache_folder(root, (root / INFO_PATH).read_text())
+    folder = _cache_folder(root, (root / INFO_PATH).read_text(), inputs)
     from_cache = cache and all((folder / f"{name}.npy").is_file() for name in _ARRAYS)
     if from_cache:
         # Copying out of a memory map is faster than np.load's buffered read, and gives owned, writable arrays.
         arrays = {name: np.array(np.load(folder / f"{name}.npy", mmap_mode="r")) for name in _ARRAYS}
     else:
         try:
-            arrays = _decode(root, info)
+            arrays = _decode(root, info, INPUT_COLUMNS[inputs], index)
         except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
             raise DatasetError(f"cannot read the frames of {root}: {error}") from None
         if not (np.isfinite(arrays["inputs"]).all() and np.isfinite(arrays["actions"]).all()):
@@ -205,6 +214,7 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True) -> Demonst
         seconds=time.perf_counter() - start,
         from_cache=from_cache,
         fingerprint=digest,
+        kind=inputs,
     )
 
 

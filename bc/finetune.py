@@ -47,8 +47,8 @@ from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.env import make_env
+from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.controller import PolicyController
 from policies.folder import DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
@@ -237,7 +237,9 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
-    PolicyController.load(cfg.bc_policy, make_env())
+    inputs = PolicyController.load(cfg.bc_policy, make_env()).policy.spec.inputs
+    if inputs != "full":
+        raise UserError(f"{cfg.bc_policy} reads {inputs!r} inputs; the PPO actor reads the full observation")
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     term = demonstration_term(cfg)

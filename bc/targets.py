@@ -64,10 +64,12 @@ TARGETS: dict[str, Target] = {
         ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers"),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
-    "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "epochs", "overwrite")),
+    "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),
     "eval": Target("bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video")),
     "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),
-    "dagger": Target("bc.dagger", DaggerConfig, ("dataset", "output", "policy", "rounds", "episodes", "overwrite")),
+    "dagger": Target(
+        "bc.dagger", DaggerConfig, ("dataset", "output", "policy", "inputs", "rounds", "episodes", "overwrite")
+    ),
     "finetune-rl": Target("bc.finetune", FinetuneConfig, _PPO, passes_args=True),
     "baseline-rl": Target("bc.baseline", BaselineConfig, _PPO, passes_args=True),
     "pipeline": Target("bc.pipeline", PipelineConfig, tuple(f.name for f in dataclasses.fields(PipelineConfig))),

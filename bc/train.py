@@ -33,13 +33,14 @@ from torch.nn import functional as F
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from bc.data import INPUT_KEYS, Demonstrations, load_demonstrations, split_by_episode
+from bc.data import Demonstrations, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
+from humanoid.learned import PolicyController
+from humanoid.sensors import INPUT_COLUMNS, INPUTS
 from policies import checkpoint
-from policies.controller import PolicyController
 from policies.folder import EVAL_FILE
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
 
@@ -59,6 +60,12 @@ class TrainConfig:
 
     dataset: Path = setting(paths.DATASET, "LeRobot dataset folder recorded by `make record`")
     policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
+    inputs: str = setting(
+        "full",
+        "what the policy reads: the gymnasium observation (full) or what a robot senses (proprio, "
+        "humanoid/sensors.py); full by measurement, see docs/robustness.md",
+        choices=INPUTS,
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
     hidden: int = setting(256, "width of each hidden layer")
     layers: int = setting(2, "number of hidden layers")
@@ -68,7 +75,11 @@ class TrainConfig:
     weight_decay: float = setting(0.0, "Adam weight decay (L2)")
     batch_size: int = setting(256, "minibatch size")
     epochs: int = setting(30, "maximum number of passes over the training frames")
-    patience: int = setting(5, "stop after this many epochs without a better validation loss; 0 = never stop early")
+    patience: int = setting(
+        0,
+        "stop after this many epochs without a better validation loss and keep the best epoch; 0 = train all "
+        "EPOCHS and keep the last (the default: the validation loss says little about standing, docs/learning.md)",
+    )
     val_fraction: float = setting(0.1, "fraction of the episodes held out for validation (at least one)")
     std_floor: float = setting(
         STD_FLOOR, "floor on the input standard deviations, in the observation's units (see policies/mlp.py)"
@@ -89,11 +100,16 @@ class LearningCurves:
     initial_val_loss: float
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
-    best_epoch: int = 0
+    best_epoch: int = 0  # the lowest validation loss so far
+    kept_epoch: int = 0  # whose weights the policy holds: the best with early stopping, else the last
 
     @property
     def best_val_loss(self) -> float:
         return self.val_loss[self.best_epoch]
+
+    @property
+    def kept_val_loss(self) -> float:
+        return self.val_loss[self.kept_epoch]
 
 
 @dataclass
@@ -118,7 +134,7 @@ class TrainResult:
         curves = self.curves
         line = (
             f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, kept epoch "
-            f"{curves.best_epoch + 1} (validation loss {curves.best_val_loss:.3g}, untrained "
+            f"{curves.kept_epoch + 1} (validation loss {curves.kept_val_loss:.3g}, untrained "
             f"{curves.initial_val_loss:.3g}); {self.train_frames} training and {self.val_frames} validation "
             f"frames loaded in {self.load_seconds:.2f} s ({self.load_rows_per_s:.3g} rows/s"
             f"{', cached' if self.loaded_from_cache else ''})"
@@ -159,7 +175,8 @@ def fit(
     cfg: TrainConfig,
     writer: SummaryWriter | None,
 ) -> LearningCurves:
-    """Minibatch Adam with early stopping; leaves the best epoch's weights in `policy`."""
+    """Minibatch Adam; with `cfg.patience`, early stopping that leaves the best epoch's weights in `policy`,
+    else every epoch and the last one's weights."""
     loss_fn = LOSSES[cfg.loss]
     optimiser = torch.optim.Adam(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     order = torch.Generator().manual_seed(cfg.seed)
@@ -201,7 +218,11 @@ def fit(
         if cfg.patience and epoch - curves.best_epoch >= cfg.patience:
             break
     bar.close()
-    policy.load_state_dict(best_state)
+    if cfg.patience:
+        curves.kept_epoch = curves.best_epoch
+        policy.load_state_dict(best_state)
+    else:
+        curves.kept_epoch = len(curves.val_loss) - 1
     return curves
 
 
@@ -213,7 +234,7 @@ def plot_learning_curve(result: TrainResult, path: Path) -> None:
     axes = figure.subplots()
     axes.semilogy(epochs, curves.train_loss, label="training")
     axes.semilogy([0, *epochs], [curves.initial_val_loss, *curves.val_loss], label="validation")
-    axes.axvline(curves.best_epoch + 1, color="grey", linestyle=":", label=f"kept (epoch {curves.best_epoch + 1})")
+    axes.axvline(curves.kept_epoch + 1, color="grey", linestyle=":", label=f"kept (epoch {curves.kept_epoch + 1})")
     axes.set_xlabel("epoch")
     axes.set_ylabel(f"{result.loss} loss")
     axes.set_title(f"{result.policy_dir.name}: {result.train_frames} training frames")
@@ -234,11 +255,12 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
     torch.manual_seed(cfg.seed)
 
     env = make_env()
-    demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache)
+    demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache, inputs=cfg.inputs)
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
     spec = MLPSpec(
-        input_keys=INPUT_KEYS,
+        input_keys=INPUT_COLUMNS[cfg.inputs],
+        inputs=cfg.inputs,
         input_dim=demos.inputs.shape[1],
         action_dim=demos.actions.shape[1],
         hidden=(cfg.hidden,) * cfg.layers,
@@ -274,7 +296,8 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
         result.train_seconds = time.perf_counter() - start
         training = {
             **settings,
-            "kept_epoch": result.curves.best_epoch + 1,
+            "kept_epoch": result.curves.kept_epoch + 1,
+            "kept_val_loss": result.curves.kept_val_loss,
             "epochs_run": len(result.curves.val_loss),
             "best_val_loss": result.curves.best_val_loss,
             "train_seconds": result.train_seconds,

@@ -107,7 +107,17 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
         path = timed("spool write", store.spool.put, episode)
         loaded = timed("spool read", Spool.load, path)
         spec = store.spec
-        mcap_args = (root / "scratch.mcap", loaded, 0, spec.scene, spec.body_frames, spec.step_ns, {}, spec.mjcf)
+        mcap_args = (
+            root / "scratch.mcap",
+            loaded,
+            spec.split(loaded.observation)[0],
+            0,
+            spec.scene,
+            spec.body_frames,
+            spec.step_ns,
+            {},
+            spec.mjcf,
+        )
         timed("of which MCAP", write_episode_mcap, *mcap_args)
         timed("append (both formats)", store.append, loaded, spooled=path)
     store.close()

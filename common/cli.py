@@ -66,13 +66,18 @@ def _boolean(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected a boolean, got {text!r}")
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Bad flags or values get one line (`--help` still prints the usage): the project's rule for bad input."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def parse_config(
     config_class: type[Config], argv: Sequence[str] | None, description: str, prog: str | None = None
 ) -> Config:
     """Parse `argv` into `config_class`; `--help` lists each field with its default."""
-    parser = argparse.ArgumentParser(
-        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = _OneLineParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     hints = typing.get_type_hints(config_class)
     for field in dataclasses.fields(config_class):
         choices = field.metadata.get("choices")

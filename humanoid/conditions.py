@@ -173,6 +173,17 @@ class ActionLatency(gym.Wrapper):
         return self.env.step(self._queue.popleft())
 
 
+def action_delay(env: gym.Env) -> int:
+    """Steps of action latency the `ActionLatency` wrappers around `env` add: a known property of the
+    system, which a controller designed for it (the expert) may compensate."""
+    delay = 0
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, ActionLatency):
+            delay += env.steps
+        env = env.env
+    return delay
+
+
 class ObservationNoise(gym.Wrapper):
     """Gaussian noise on the sensed parts of the observation (`OBS_NOISE_STD`), drawn from the seed."""
 

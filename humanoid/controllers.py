@@ -14,6 +14,7 @@ from typing import Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
+from humanoid.conditions import action_delay
 from policies.folder import checkpoint_problem  # torch-free: the policies themselves are imported on use
 
 
@@ -50,7 +51,7 @@ class RandomController:
 def _expert(env: gym.Env) -> Controller:
     from humanoid.expert import LQRExpert  # noqa: PLC0415 - the LQR design imports scipy; only pay for it when used
 
-    return LQRExpert(env.unwrapped.model)
+    return LQRExpert(env.unwrapped.model, delay=action_delay(env))
 
 
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
@@ -88,6 +89,6 @@ def make_controller(name: str, env: gym.Env) -> Controller:
     if name in INTERACTIVE:
         raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
     check_controller(name)
-    from policies.controller import PolicyController  # noqa: PLC0415 - imports torch: only for policies
+    from humanoid.learned import PolicyController  # noqa: PLC0415 - imports torch: only for policies
 
     return PolicyController.load(Path(name), env)

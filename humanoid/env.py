@@ -61,11 +61,6 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
     return _names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu)
 
 
-def state_dim(model: mujoco.MjModel) -> int:
-    """Length of the proprioceptive part of the observation: qpos without root x, y, then qvel."""
-    return model.nq - 2 + model.nv
-
-
 def observation_names(model: mujoco.MjModel) -> list[str]:
     """One name per observation entry, following gymnasium's Humanoid-v5 `_get_obs` order."""
     joints = _names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt, start=1)  # joint 0 is the free root
@@ -77,11 +72,6 @@ def observation_names(model: mujoco.MjModel) -> list[str]:
     qfrc_actuator = [f"{j}.qfrc_actuator" for j in joints]
     cfrc_ext = [f"{b}.cfrc_ext{i}" for b in bodies for i in range(6)]
     return qpos + qvel + cinert + cvel + qfrc_actuator + cfrc_ext
-
-
-def split_observation(obs: np.ndarray, state_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """(observation.state, observation.environment_state) views of one or many observations."""
-    return obs[..., :state_size], obs[..., state_size:]
 
 
 def body_poses(data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:

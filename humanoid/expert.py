@@ -6,6 +6,9 @@ At run time the action is ``ctrl_ff - gain @ state``, clipped to the motors' ran
 
 from __future__ import annotations
 
+import copy
+from collections import deque
+
 import mujoco
 import numpy as np
 
@@ -35,10 +38,23 @@ class LQRExpert:
 
     name = "expert"
 
-    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign()) -> None:
-        """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's."""
+    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign(), delay: int = 0) -> None:
+        """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's.
+
+        ``delay`` is the system's known action latency in env steps: the environment executes each
+        action that many steps late (``humanoid.conditions.ActionLatency``). The expert then acts
+        on the state its pending actions will have led to, predicted by stepping its own copy of
+        the model (the nominal one: it knows no randomised parameter) from the observed state.
+        Without it one step of latency topples the expert at once (docs/robustness.md, "A sturdier
+        expert").
+        """
         self.model = humanoid_model() if model is None else model
         self.design = design
+        if delay < 0:
+            raise ValueError(f"delay must be >= 0 steps, got {delay}")
+        self.delay = delay
+        self._predictor = Predictor(copy.copy(self.model), design.frame_skip) if delay else None
+        self._pending: deque[np.ndarray] = deque()
         self.gains = load_or_design(self.model, design)
         self.qpos_ref = self.gains.qpos_ref.copy()
         self.ctrl_ff = self.gains.ctrl_ff.copy()
@@ -49,10 +65,12 @@ class LQRExpert:
         self._moving = False  # one attribute test per act while the setpoint is still
 
     def reset(self, seed: int | None = None) -> None:
-        """Back to the neutral posture at once (setpoint and target); otherwise deterministic and stateless."""
+        """Back to the neutral posture at once (setpoint and target); no action pending; otherwise deterministic."""
         if self._ramp is not None:
             self._ramp.reset()
         self._moving = False
+        # As ActionLatency does: the first `delay` steps execute zeros.
+        self._pending = deque([np.zeros(self.model.nu)] * self.delay)
 
     def hold(self, posture: Posture, clip: bool = True) -> None:
         """Hold ``posture`` (clipped to its limits unless ``clip`` is False) from now on, moving there gradually.
@@ -92,10 +110,36 @@ class LQRExpert:
         # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
         self._qpos[:ROOT_XY] = self.qpos_ref[:ROOT_XY]
         self._qpos[ROOT_XY:] = obs[QPOS_OBS]
-        x = state_error(self.model, self.qpos_ref, self._qpos, obs[QVEL_OBS])
+        qpos, qvel = self._qpos, obs[QVEL_OBS]
+        if self._predictor is not None:
+            qpos, qvel = self._predictor.predict(qpos, qvel, self._pending)
+        x = state_error(self.model, self.qpos_ref, qpos, qvel)
         d = self.design
         # Builtin min/max: np.clip costs microseconds per scalar call.
         x[HEIGHT] = min(max(x[HEIGHT], -d.height_clip), d.height_clip)
         x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
         ctrl = self.ctrl_ff - self.gain @ x
-        return np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
+        action = np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
+        if self._predictor is not None:
+            self._pending.append(action.astype(np.float64))
+            self._pending.popleft()
+        return action
+
+
+class Predictor:
+    """Where pending actions take the humanoid: MuJoCo steps of a model from a given state (a Smith predictor)."""
+
+    def __init__(self, model: mujoco.MjModel, frame_skip: int) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.frame_skip = frame_skip
+
+    def predict(self, qpos: np.ndarray, qvel: np.ndarray, actions: deque[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos, qvel) after applying `actions` in turn for one env step each from (qpos, qvel); copies."""
+        data = self.data
+        data.qpos[:], data.qvel[:] = qpos, qvel
+        data.act[:] = 0.0
+        for action in actions:
+            data.ctrl[:] = action
+            mujoco.mj_step(self.model, data, nstep=self.frame_skip)
+        return data.qpos.copy(), data.qvel.copy()

@@ -31,12 +31,15 @@ class MLPSpec:
     """What sizes an `MLPPolicy` (stored in the checkpoint's config.json; the weights hold the rest)."""
 
     input_keys: tuple[str, ...]
-    """Dataset columns concatenated, in this order, into the input: the gymnasium observation's two
-    parts today; a dataset that records a command (keyboard teleoperation) appends its key here."""
+    """Dataset columns the input is built from (see `inputs`); a dataset that records a command
+    (keyboard teleoperation) would append its key here."""
     input_dim: int
     action_dim: int
     hidden: tuple[int, ...] = (256, 256)
     activation: str = "relu"
+    inputs: str = "full"
+    """What the policy reads (humanoid.sensors.INPUTS): "full", the gymnasium observation, or
+    "proprio", what a robot senses. Checkpoints written before this field read "full"."""
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:

@@ -171,6 +171,7 @@ def read_frames(root: Path, columns: list[str] | None = None) -> dict[str, np.nd
 STEP_FIELDS = {
     "frame_index": np.int64,
     "observation": np.float64,
+    "state": np.float64,
     "action": np.float32,
     "executed_action": np.float32,
     "reward": np.float64,

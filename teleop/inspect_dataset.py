@@ -29,6 +29,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,8 @@ from mcap.reader import make_reader
 
 from common import keys, paths
 from common.cli import DatasetError, run_cli, setting
+from humanoid.env import make_env
+from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_steps
 from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
@@ -61,16 +64,18 @@ class InspectConfig:
 
 
 PLOT_NAME = "inspect.png"
-TORSO_HEIGHT = "root.z"  # the name of the torso height in observation.state's `names`
+TORSO_HEIGHT = "root.z"  # the name of the torso height in the observation features' `names`
 PLOTTED_EPISODES = 5
 TIMESTAMP_TOLERANCE_S = 1e-4
 MCAP_MAGIC = b"\x89MCAP0\r\n"  # opens and closes every finished MCAP file
 
-# The /step fields and the parquet columns they were written from (concatenated, for the observation).
+# The /step fields and the parquet columns they were written from (the observation: joined by name).
+OBSERVATION_COLUMNS = (keys.OBS_STATE, keys.OBS_ENV_STATE)
 STEP_COLUMNS: dict[str, tuple[str, ...]] = {
     "episode_index": ("episode_index",),
     "frame_index": ("frame_index",),
-    "observation": (keys.OBS_STATE, keys.OBS_ENV_STATE),
+    "observation": OBSERVATION_COLUMNS,
+    "state": (keys.OBS_STATE,),
     "action": (keys.ACTION,),
     "executed_action": (keys.EXECUTED_ACTION,),
     "reward": (keys.REWARD,),
@@ -118,6 +123,17 @@ class Dataset:
     @property
     def num_episodes(self) -> int:
         return len(self.episodes["episode_index"])
+
+    @cached_property
+    def observation_order(self) -> np.ndarray | None:
+        """Where each gymnasium observation entry sits in observation.state + environment_state (by name)."""
+        features = self.info["features"]
+        names = [name for key in OBSERVATION_COLUMNS for name in features.get(key, {}).get("names") or []]
+        env = make_env()
+        try:
+            return observation_index(env.unwrapped.model, names)
+        finally:
+            env.close()
 
     def rows(self, episode: int) -> slice:
         return slice(self.episodes["dataset_from_index"][episode], self.episodes["dataset_to_index"][episode])
@@ -793,6 +809,13 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
         for name, columns in STEP_COLUMNS.items()
         if all(c in frames for c in columns)
     }
+    if "observation" in expected:
+        order = dataset.observation_order
+        if order is None:
+            return f"cannot be compared: {' + '.join(OBSERVATION_COLUMNS)} do not name every observation entry"
+        expected["observation"] = expected["observation"][:, order]
+    if "state" in expected and not steps["state"].size:  # recorded before /step carried the state
+        del expected["state"]
     for name, values in expected.items():
         got = steps[name].reshape(length, -1)
         what = f"{STEP_TOPIC}.{name} differs from parquet {' + '.join(STEP_COLUMNS[name])}"
@@ -861,16 +884,19 @@ def plot(dataset: Dataset, path: Path) -> None:
     axes.set_title(f"return per episode ({n} episodes)")
 
     axes = figure.add_subplot(grid[0, columns // 2 :])
-    state_names = info["features"].get(keys.OBS_STATE, {}).get("names") or []
-    if TORSO_HEIGHT in state_names and keys.OBS_STATE in frames:
-        column = state_names.index(TORSO_HEIGHT)
+    holder = next(
+        (key for key in OBSERVATION_COLUMNS if TORSO_HEIGHT in (info["features"].get(key, {}).get("names") or [])),
+        None,
+    )
+    if holder is not None and holder in frames:
+        column = info["features"][holder]["names"].index(TORSO_HEIGHT)
         for e in _plotted_episodes(returns):
-            height = frames[keys.OBS_STATE][dataset.rows(e), column]
+            height = frames[holder][dataset.rows(e), column]
             axes.plot(np.arange(len(height)), height, label=f"episode {e} (return {returns[e]:,.0f})")
         axes.legend(fontsize="small")
         axes.set_title("torso height")
     else:
-        axes.set_title(f"no {TORSO_HEIGHT} in {keys.OBS_STATE}")
+        axes.set_title(f"no {TORSO_HEIGHT} in {' or '.join(OBSERVATION_COLUMNS)}")
     axes.set_xlabel("step")
     axes.set_ylabel(f"{TORSO_HEIGHT} (m)")
 

@@ -39,12 +39,10 @@ from humanoid.env import (
     body_names,
     mjcf_path,
     model_and_data,
-    observation_names,
-    split_observation,
-    state_dim,
     step_duration_ns,
 )
 from humanoid.episode import Episode
+from humanoid.sensors import ObservationSplit, privileged_names, proprioception_names
 from teleop.lerobot_io.writer import LeRobotWriter
 from teleop.mcap_io.writer import scene_update, write_episode_mcap
 from teleop.spool import Spool
@@ -52,6 +50,7 @@ from teleop.spool import Spool
 log = logging.getLogger(__name__)
 
 MCAP_DIR = "mcap"
+STATE_NAMES_METADATA = "state_names"  # the MCAP metadata entry naming each entry of /step's `state` (JSON list)
 
 
 def mcap_name(episode_index: int) -> str:
@@ -67,24 +66,20 @@ class DatasetSpec:
     scene: SceneUpdate
     step_ns: int
     mjcf: bytes
+    split: ObservationSplit
     parameters: tuple[str, ...] = ()
     """The physical parameters every episode's draw holds (`Randomization.parameters`); () for none."""
-
-    @property
-    def state_size(self) -> int:
-        return self.features[keys.OBS_STATE]["shape"][0]
 
     @classmethod
     def from_env(cls, env: gym.Env, parameters: tuple[str, ...] = ()) -> DatasetSpec:
         """The spec of datasets recorded in `env`, whose episodes draw `parameters` (domain randomisation)."""
         model, _ = model_and_data(env)
-        names = observation_names(model)
-        n = state_dim(model)
+        sensed, privileged = proprioception_names(model), privileged_names(model)
         actions = actuator_names(model)
         flag = {"dtype": "bool", "shape": (1,), "names": None}
         features = {
-            keys.OBS_STATE: {"dtype": "float64", "shape": (n,), "names": names[:n]},
-            keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(names) - n,), "names": names[n:]},
+            keys.OBS_STATE: {"dtype": "float64", "shape": (len(sensed),), "names": sensed},
+            keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(privileged),), "names": privileged},
             keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
             keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
             keys.OBS_COMMAND: {
@@ -99,7 +94,8 @@ class DatasetSpec:
         }
         frames = body_names(model)
         scene = scene_update(model, frames)
-        return cls(features, frames, scene, step_duration_ns(env), mjcf_path(env).read_bytes(), parameters)
+        mjcf = mjcf_path(env).read_bytes()
+        return cls(features, frames, scene, step_duration_ns(env), mjcf, ObservationSplit(model), parameters)
 
 
 @dataclass(frozen=True)
@@ -191,7 +187,7 @@ class EpisodeStore:
 
     def append(self, episode: Episode, spooled: Path | None = None) -> CommittedEpisode:
         """Write `episode` to both formats and commit it; `spooled` is its spool file, removed exactly once."""
-        state, environment_state = split_observation(episode.observation, self.spec.state_size)
+        state, environment_state = self.spec.split(episode.observation)
         columns = {
             keys.OBS_STATE: state,
             keys.OBS_ENV_STATE: environment_state,
@@ -222,6 +218,7 @@ class EpisodeStore:
             "episode_index": str(index),
             "env_id": ENV_ID,
             "step_duration_ns": str(self.spec.step_ns),
+            STATE_NAMES_METADATA: json.dumps(self.spec.features[keys.OBS_STATE]["names"]),
             **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP},
             **{key: json.dumps(value) for key, value in drawn.items()},
         }
@@ -230,6 +227,7 @@ class EpisodeStore:
             write_episode_mcap(
                 self.root / mcap_path,
                 episode,
+                state,
                 index,
                 self.spec.scene,
                 self.spec.body_frames,

@@ -81,6 +81,9 @@ def typed_value(target: Target, field_name: str) -> str:
         return "out dir/run.mp4"
     if field_name == "controller":
         return "random"
+    choices = target.field(field_name).metadata.get("choices")
+    if choices:  # a value the stage accepts other than its default
+        return next(choice for choice in choices if choice != target.field(field_name).default)
     return {int: "7", float: "0.25", bool: "true", Path: f"some dir/{field_name}", str: f"text-{field_name}"}[kind]
 
 

@@ -12,8 +12,8 @@ from tqdm import tqdm
 
 from bc.evaluate import evaluate
 from common.cli import config_text
+from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.controller import PolicyController
 
 CURVE_FILE = "learning_curve.json"
 CURVE_PNG = "learning_curve.png"

@@ -1,6 +1,7 @@
 """The protobuf messages of this project's MCAP channels, built at import time (no generated code).
 
-- `humanoid_bc.Step` (`/step`): one step's observation, actions, reward and outcome.
+- `humanoid_bc.Step` (`/step`): one step's observation (the gymnasium one, and the sensed part of it as
+  `state`, named by the metadata record's `state_names`), actions, reward and outcome.
 - `humanoid_bc.Command` (`/command`): the command in force at that step, one field per entry of
   the dataset's `observation.command` (so Foxglove plots each by name), and the task that names it.
 
@@ -31,6 +32,7 @@ _STEP_FIELDS = (
     ("terminated", 8, _F.TYPE_BOOL, _F.LABEL_OPTIONAL, None),
     ("truncated", 9, _F.TYPE_BOOL, _F.LABEL_OPTIONAL, None),
     ("task", 10, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
+    ("state", 11, _F.TYPE_DOUBLE, _F.LABEL_REPEATED, None),  # observation.state: what a robot senses
 )
 _COMMAND_FIELDS = (
     ("timestamp", 1, _F.TYPE_MESSAGE, _F.LABEL_OPTIONAL, ".google.protobuf.Timestamp"),

@@ -166,6 +166,7 @@ class StepEncoder:
         times_ns: np.ndarray,
         episode_index: int,
         observation: np.ndarray,
+        state: np.ndarray,
         action: np.ndarray,
         executed_action: np.ndarray,
         reward: np.ndarray,
@@ -173,11 +174,12 @@ class StepEncoder:
         truncated: np.ndarray,
         tasks: np.ndarray,
     ) -> list[bytes]:
-        """Messages for T steps: (T,) times, (T, n) observation and actions, (T,) reward, flags and tasks."""
+        """Messages for T steps: (T,) times, (T, n) observation, state and actions, (T,) reward, flags and tasks."""
         steps = len(times_ns)
         parts: list[bytes | np.ndarray] = []
         for name, values, dtype in (
             ("observation", observation, "<f8"),
+            ("state", state, "<f8"),
             ("action", action, "<f4"),
             ("executed_action", executed_action, "<f4"),
         ):

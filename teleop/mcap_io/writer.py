@@ -3,7 +3,7 @@
 The file is written by `teleop.mcap_io.bulk`, which takes the whole episode's messages at once.
 
 Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
-- `/step`  humanoid_bc.Step: observation, label and executed action, reward, terminated, truncated.
+- `/step`  humanoid_bc.Step: observation, sensed state, label and executed action, reward, terminated, truncated.
 - `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
 - `/command` humanoid_bc.Command: the command in force (posture held, push) and the task naming it.
 - `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
@@ -105,6 +105,7 @@ def scene_update(model: mujoco.MjModel, body_frames: list[str]) -> SceneUpdate:
 def write_episode_mcap(
     path: Path,
     episode: Episode,
+    state: np.ndarray,
     episode_index: int,
     scene: SceneUpdate,
     body_frames: list[str],
@@ -122,6 +123,7 @@ def write_episode_mcap(
         times_ns,
         episode_index,
         episode.observation,
+        state,
         episode.action,
         episode.executed_action,
         episode.reward,

@@ -15,16 +15,19 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from bc.data import INPUT_KEYS, load_demonstrations, split_by_episode
+from bc.data import load_demonstrations, split_by_episode
 from bc.train import CONFIG_TAG, LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
+from common import keys
 from common.cli import UserError, config_dict
 from humanoid.controllers import make_controller
+from humanoid.env import observation_names
+from humanoid.learned import PolicyController
+from humanoid.sensors import INPUT_COLUMNS
 from policies import checkpoint
 from policies import folder as policy_files
-from policies.controller import PolicyController
 from policies.mlp import STD_FLOOR
-from support import snapshot, tensorboard_text
-from teleop.dataset_reader import fingerprint
+from support import join_observation, snapshot, tensorboard_text
+from teleop.dataset_reader import fingerprint, read_frames
 from teleop.record import RecordConfig, validate
 
 TINY = {"hidden": 32, "epochs": 40, "batch_size": 32, "patience": 0, "eval_episodes": 0, "progress": False}
@@ -91,7 +94,7 @@ def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, reco
     """config.json has the resolved settings, dataset.json the data's identity; curve and logs are there."""
     folder = trained.policy_dir
     config = json.loads((folder / policy_files.CONFIG_FILE).read_text())
-    assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(INPUT_KEYS)
+    assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(INPUT_COLUMNS["full"])
     assert config["training"]["dataset"] == str(recorded) and config["training"]["lr"] == 1e-3
     dataset = json.loads((folder / policy_files.DATASET_FILE).read_text())
     assert dataset["path"] == str(recorded.resolve()) and dataset["episodes"] == 3
@@ -202,4 +205,56 @@ def test_missing_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixtur
     """A dataset path with nothing there fails in one line naming it."""
     code, err = train_cli(["--dataset", str(tmp_path / "none"), "--policy", str(tmp_path / "policy")], capsys)
     assert code == 1 and len(err) == 1 and "no LeRobot dataset" in err[0]
+    assert not (tmp_path / "policy").exists()
+
+
+@pytest.fixture(scope="module")
+def proprio(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
+    """A small MLP trained on the sensed features of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("policies") / "proprio"
+    return main(TrainConfig(dataset=recorded, policy=folder, inputs="proprio", **TINY))
+
+
+def test_proprio_checkpoint_records_what_it_reads(proprio: TrainResult) -> None:
+    config = json.loads((proprio.policy_dir / policy_files.CONFIG_FILE).read_text())
+    assert config["policy"]["inputs"] == "proprio" and config["training"]["inputs"] == "proprio"
+    assert config["policy"]["input_keys"] == ["observation.state"] and config["policy"]["input_dim"] == 42
+
+
+def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult, recorded: Path, env: gym.Env) -> None:
+    """Run on the gymnasium observation, the controller acts as the policy does on the stored observation.state:
+    what the recorder stored is what the controller computes."""
+    frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE])
+    observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    controller = make_controller(str(proprio.policy_dir), env)
+    with torch.no_grad():
+        expected = proprio.policy(torch.from_numpy(frames[keys.OBS_STATE]).float()).numpy()
+    np.testing.assert_array_equal(np.array([controller.features(obs) for obs in observations]), frames[keys.OBS_STATE])
+    # One row at a time against a batch: float32 matmuls may differ in the last bits.
+    actions = np.array([controller.act(obs) for obs in observations[::20]])
+    np.testing.assert_allclose(actions, expected[::20], rtol=0, atol=1e-6)
+
+
+def test_dataset_recorded_before_the_sensed_state_is_refused_for_proprio(
+    recorded: Path, tmp_path: Path, env: gym.Env, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A dataset whose observation.state is qpos[2:] and qvel (45, the earlier layout) cannot train on proprio:
+    one line saying so, exit 1, no checkpoint."""
+    legacy = observation_names(env.unwrapped.model)[:45]
+    root = edited_copy(
+        recorded, tmp_path, lambda info: info["features"]["observation.state"].update(shape=[45], names=legacy)
+    )
+    before = snapshot(root)
+    code, err = train_cli(["--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", "proprio"], capsys)
+    assert code == 1 and len(err) == 1 and "recorded before" in err[0] and "INPUTS=full" in err[0]
+    assert not (tmp_path / "policy").exists() and snapshot(root) == before
+
+
+def test_unknown_inputs_are_refused_in_one_line(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "camera"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1 and "'camera'" in err[0]
     assert not (tmp_path / "policy").exists()

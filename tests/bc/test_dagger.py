@@ -24,7 +24,8 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (second
 
 @pytest.fixture(scope="module")
 def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, DaggerResult, dict]:
-    """One DAgger round of 2 episodes on a copy of the 3-episode recording."""
+    """One DAgger round of 2 episodes on a copy of the 3-episode recording, the student on the sensed features
+    (the privileged expert teaching a proprioceptive student)."""
     folder = tmp_path_factory.mktemp("dagger")
     demonstrations = folder / "demonstrations"
     shutil.copytree(recorded, demonstrations)
@@ -34,6 +35,7 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
         dataset=demonstrations,
         output=output,
         policy=folder / "policy",
+        inputs="proprio",
         rounds=1,
         episodes=2,
         eval_episodes=0,
@@ -69,11 +71,11 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
-    """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate."""
+    """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate, on the inputs asked."""
     demonstrations, output, result, before, _ = dagger
     assert snapshot(demonstrations) == before
     assert result.final.train_frames + result.final.val_frames == len(read_frames(output, ["index"])["index"])
-    checkpoint.load(result.final.policy_dir)
+    assert checkpoint.load(result.final.policy_dir).spec.inputs == "proprio"
 
 
 def test_final_checkpoint_records_the_dagger_settings(dagger: tuple) -> None:

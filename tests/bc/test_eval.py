@@ -85,12 +85,12 @@ def test_saved_policy_runs_by_path(tmp_path: Path, capsys: pytest.CaptureFixture
 
 
 def test_a_suite_condition_is_applied_by_name(capsys: pytest.CaptureFixture[str]) -> None:
-    """CONDITION=latency topples the expert, which stands the same seed clean (docs/robustness.md)."""
+    """CONDITION=push20 topples the expert, which stands the same seed clean (docs/robustness.md)."""
     clean = evaluate("expert", episodes=1, seed=1000)
-    delayed = evaluate("expert", episodes=1, seed=1000, condition="latency")
-    assert clean["survival_rate"] == 1.0 and delayed["survival_rate"] == 0.0
-    code, out, _ = eval_cli(["--policy", "expert", "--episodes", "1", "--condition", "latency"], capsys)
-    assert code == 0 and json.loads(out[-1])["returns"] == delayed["returns"]
+    pushed = evaluate("expert", episodes=1, seed=1000, condition="push20")
+    assert clean["survival_rate"] == 1.0 and pushed["survival_rate"] == 0.0
+    code, out, _ = eval_cli(["--policy", "expert", "--episodes", "1", "--condition", "push20"], capsys)
+    assert code == 0 and json.loads(out[-1])["returns"] == pushed["returns"]
 
 
 def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
@@ -168,9 +168,16 @@ def test_bad_settings_are_refused(args: list[str], capsys: pytest.CaptureFixture
     assert code == 1 and out == [] and len(err) == 1
 
 
-def test_policy_that_does_not_fit_the_env_is_refused(tmp_path: Path) -> None:
-    """A checkpoint sized for another observation fails with a message giving both sizes."""
-    policy = MLPPolicy(MLPSpec(("observation.state", "observation.environment_state"), 45, 17, hidden=(8,)))
-    checkpoint.save(policy, tmp_path / "small", {}, {})
-    with pytest.raises(checkpoint.CheckpointError, match="45 inputs"):
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        (MLPSpec(("observation.state", "observation.environment_state"), 45, 17, hidden=(8,)), "45 full inputs"),
+        (MLPSpec(("observation.state",), 45, 17, hidden=(8,), inputs="proprio"), "45 proprio inputs"),
+        (MLPSpec(("observation.state",), 42, 17, hidden=(8,), inputs="camera"), "reads 'camera'"),
+    ],
+)
+def test_policy_that_does_not_fit_the_env_is_refused(tmp_path: Path, spec: MLPSpec, message: str) -> None:
+    """A checkpoint whose inputs the environment cannot give fails with a message saying what differs."""
+    checkpoint.save(MLPPolicy(spec), tmp_path / "small", {}, {})
+    with pytest.raises(checkpoint.CheckpointError, match=message):
         evaluate(str(tmp_path / "small"), episodes=1)

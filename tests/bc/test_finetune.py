@@ -19,9 +19,9 @@ from bc.train import TrainConfig
 from bc.train import main as train_bc
 from common.cli import config_dict
 from humanoid.env import make_env
+from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
-from policies.controller import PolicyController
 from policies.mlp import MLPPolicy, MLPSpec
 from support import snapshot, tensorboard_text
 
@@ -314,7 +314,17 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     spec = MLPSpec(("observation.state", "observation.environment_state"), 10, 3, hidden=(8,))
     checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
     code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
-    assert code == 1 and len(err) == 1 and "348 observations and 17 actions" in err[0]
+    assert code == 1 and len(err) == 1 and "gives 348 and takes 17" in err[0]
+    assert not (tmp_path / "ppo").exists()
+
+
+def test_proprio_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The PPO actor reads the full observation: a policy on the sensed features fails in one line."""
+    folder = tmp_path / "proprio"
+    spec = MLPSpec(("observation.state",), 42, 17, hidden=(8,), inputs="proprio")
+    checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
+    code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
+    assert code == 1 and len(err) == 1 and "'proprio'" in err[0]
     assert not (tmp_path / "ppo").exists()
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,7 +13,10 @@ import numpy as np
 import pytest
 
 from humanoid import physics
-from humanoid.expert import LQRExpert
+from humanoid.conditions import ActionLatency, action_delay
+from humanoid.controllers import make_controller
+from humanoid.episode import run_episode
+from humanoid.expert import LQRExpert, Predictor
 from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, humanoid_model, load_or_design
 
 STANDING_RETURN = 4_900.0
@@ -131,3 +135,33 @@ def test_cache_is_rebuilt_when_the_file_is_corrupt(model: mujoco.MjModel, cache:
     np.testing.assert_allclose(gains.gain, design_lqr(model).gain)
     with np.load(path) as rewritten:
         np.testing.assert_array_equal(rewritten["gain"], gains.gain)
+
+
+def test_expert_built_for_a_delayed_env_knows_the_delay() -> None:
+    """The registry gives the expert the latency of the env it will drive (the wrappers' sum)."""
+    env = ActionLatency(ActionLatency(gym.make("Humanoid-v5"), steps=1), steps=2)
+    assert action_delay(env) == 3 and make_controller("expert", env).delay == 3
+    assert make_controller("expert", gym.make("Humanoid-v5")).delay == 0
+
+
+def test_prediction_of_the_pending_action_is_where_the_env_goes(model: mujoco.MjModel) -> None:
+    """Stepping the predictor from the observed state with the pending action gives the env's next state."""
+    env = gym.make("Humanoid-v5")
+    obs, _ = env.reset(seed=4)
+    data = env.unwrapped.data
+    action = np.random.default_rng(4).uniform(-0.4, 0.4, 17)
+    qpos, qvel = Predictor(model, frame_skip=5).predict(data.qpos.copy(), data.qvel.copy(), deque([action]))
+    env.step(action.astype(np.float32))
+    # The env's solver starts from its previous step's accelerations (warm start); the predictor from zero.
+    np.testing.assert_allclose(qpos, data.qpos, atol=1e-6)
+    np.testing.assert_allclose(qvel, data.qvel, atol=1e-3)
+
+
+@pytest.mark.parametrize("seed", [1000, 1001])
+def test_delay_aware_expert_stands_where_the_plain_one_falls(expert: LQRExpert, seed: int) -> None:
+    """With one step of action latency the plain expert falls within 100 steps; told the delay, it stands."""
+    env = ActionLatency(gym.make("Humanoid-v5", max_episode_steps=300), steps=1)
+    plain = run_episode(env, expert, seed)
+    aware = run_episode(env, make_controller("expert", env), seed)
+    assert plain.fell and plain.length < 100
+    assert not aware.fell and aware.length == 300 and aware.episode_return > 4.9 * 300

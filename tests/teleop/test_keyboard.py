@@ -16,7 +16,7 @@ import pytest
 from common import keys
 from humanoid.episode import DEFAULT_TASK
 from humanoid.posture import Posture
-from support import read_mcap_episode
+from support import join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
 from teleop.record import cli
@@ -126,11 +126,12 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
 def test_the_body_follows_the_commands(teleoperated: tuple[Path, str]) -> None:
     """The torso is lower after the crouch, tilts forward after the lean, and the body stays up."""
     root, _ = teleoperated
-    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_COMMAND, keys.TERMINATED])
-    state, command = frames[keys.OBS_STATE], frames[keys.OBS_COMMAND]
+    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.TERMINATED])
+    observation = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    command = frames[keys.OBS_COMMAND]
     starts = phases(command)
-    height = state[:, 0]  # root z
-    w, x, y, z = state[:, 1:5].T
+    height = observation[:, 0]  # root z
+    w, x, y, z = observation[:, 1:5].T
     forward_tilt = 2 * (x * z + w * y)  # world x of the torso's up axis
     before_crouch = slice(starts[1] - 30, starts[1])
     before_lean = slice(starts[2] - 30, starts[2])

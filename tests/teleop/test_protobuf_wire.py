@@ -45,10 +45,11 @@ def test_frame_transforms_decode_to_the_api_built_message() -> None:
 
 
 def test_steps_decode_to_their_fields() -> None:
-    """Encoded Steps carry the scalars and the three arrays exactly, float32 arrays and zeros included."""
+    """Encoded Steps carry the scalars and the four arrays exactly, float32 arrays and zeros included."""
     rng = np.random.default_rng(1)
     times = np.array([0, 15_000_000, 3_000_000_000])
     observation, action = rng.normal(size=(3, 348)), rng.normal(size=(3, 17)).astype(np.float32)
+    state = rng.normal(size=(3, 42))
     executed = np.zeros((3, 17), np.float32)
     reward, terminated, truncated = (
         np.array([4.5, 0.0, -1.25]),
@@ -56,7 +57,7 @@ def test_steps_decode_to_their_fields() -> None:
         np.array([False, True, False]),
     )
     tasks = np.array(["stand", "crouch", "stand"], dtype=object)
-    encoded = StepEncoder().encode(times, 2, observation, action, executed, reward, terminated, truncated, tasks)
+    encoded = StepEncoder().encode(times, 2, observation, state, action, executed, reward, terminated, truncated, tasks)
     for t, data in enumerate(encoded):
         step = Step.FromString(data)
         assert (step.episode_index, step.frame_index, step.reward, step.terminated, step.truncated, step.task) == (
@@ -69,6 +70,7 @@ def test_steps_decode_to_their_fields() -> None:
         )
         assert step.timestamp.ToNanoseconds() == times[t]
         np.testing.assert_array_equal(np.array(step.observation), observation[t])
+        np.testing.assert_array_equal(np.array(step.state), state[t])
         np.testing.assert_array_equal(np.array(step.action, np.float32), action[t])
         np.testing.assert_array_equal(np.array(step.executed_action, np.float32), executed[t])
 

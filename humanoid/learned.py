@@ -1,0 +1,66 @@
+"""A saved policy as a `humanoid.controllers.Controller`, so the recorder and the evaluator run it.
+
+The policy's checkpoint says what it reads (`MLPSpec.inputs`, see `humanoid.sensors`): the
+controller computes that from each gymnasium observation, so a policy on the sensed features runs
+wherever one on the full observation does, perturbations and sensor noise included.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from humanoid.env import make_env
+from humanoid.sensors import INPUT_COLUMNS, input_features, input_names
+from policies.checkpoint import CheckpointError, load
+from policies.mlp import MLPPolicy
+
+
+class PolicyController:
+    """Deterministic actions of an `MLPPolicy` for one observation at a time."""
+
+    def __init__(self, policy: MLPPolicy, name: str, env: gym.Env | None = None) -> None:
+        """`policy` run in `env` (any Humanoid-v5 if None: the observation layout is the environment's, not
+        the model instance's), whose gymnasium observations it turns into the inputs it was trained on."""
+        own = env is None
+        env = make_env() if env is None else env
+        try:
+            check_fits(policy, env, name)
+            self.features = input_features(policy.spec.inputs, env.unwrapped.model)
+        finally:
+            if own:
+                env.close()
+        self.policy = policy.eval()
+        self.name = name
+
+    @classmethod
+    def load(cls, path: Path, env: gym.Env) -> PolicyController:
+        """The checkpoint at `path`, checked to fit `env`'s observation and action sizes."""
+        return cls(load(path), str(path), env)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: the policy is deterministic and has no memory."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return self.policy(torch.from_numpy(self.features(obs)).float()).numpy()
+
+
+def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
+    """CheckpointError in one line unless `env` can give `policy` its inputs and take its actions."""
+    spec = policy.spec
+    if spec.inputs not in INPUT_COLUMNS or spec.input_keys != INPUT_COLUMNS[spec.inputs]:
+        # e.g. a policy conditioned on a command needs a command source besides the observation.
+        raise CheckpointError(
+            f"{name} reads {spec.inputs!r} from {list(spec.input_keys)}; a controller computes only "
+            + ", ".join(f"{kind!r} from {list(columns)}" for kind, columns in INPUT_COLUMNS.items())
+        )
+    inputs, action_dim = len(input_names(spec.inputs, env.unwrapped.model)), env.action_space.shape[0]
+    if (spec.input_dim, spec.action_dim) != (inputs, action_dim):
+        raise CheckpointError(
+            f"{name} maps {spec.input_dim} {spec.inputs} inputs to {spec.action_dim} actions; "
+            f"{env.spec.id} gives {inputs} and takes {action_dim}"
+        )

@@ -1,0 +1,130 @@
+"""What a real humanoid senses, and the split of the gymnasium observation into sensed and privileged parts.
+
+The 348-dim gymnasium observation holds quantities no robot measures (docs/robustness.md, "The
+deployable observation"). A dataset stores it in two features that LeRobot's policies read:
+
+    gymnasium observation (348) ──split──> observation.state (42): what the robot senses
+                                 └───────> observation.environment_state (311): the rest, privileged
+    both, joined by name ──────────────────> the gymnasium observation again, bit for bit
+
+`observation.state` (PROPRIOCEPTION, in this order):
+- the 17 hinge joints' positions and velocities (encoders), names `<joint>.pos` / `<joint>.vel`;
+- the torso IMU's angular velocity in the torso frame (gyroscope), `root.wx` .. `root.wz`;
+- the gravity direction in the torso frame (a unit vector, what an IMU's attitude filter gives
+  without the heading, which no IMU observes for long), `imu.gravity_x` .. `imu.gravity_z`;
+- foot contact, 1.0 or 0.0 per foot (contact switches or force sensors), `contact.<foot>`.
+Entries that copy the gymnasium observation keep its names; the gravity and the contacts are
+computed from it (the root quaternion and the feet's contact wrenches), so any policy that acts on
+the gymnasium observation can compute them the same way at run time (`Proprioception`).
+The previous action is not repeated: it is the previous frame's `action` / `executed_action`.
+
+`observation.environment_state` is every other entry of the gymnasium observation, in its order:
+the torso's height, orientation quaternion and linear velocity, then cinert, cvel, qfrc_actuator
+and cfrc_ext. Datasets recorded before this split stored qpos[2:] and qvel (45) as
+`observation.state`; `observation_index` joins either layout by the recorded names.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import mujoco
+import numpy as np
+
+from common.keys import OBS_ENV_STATE, OBS_STATE
+from humanoid.env import observation_names
+
+GRAVITY_NAMES = ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")
+GYRO_NAMES = ("root.wx", "root.wy", "root.wz")  # qvel[3:6]: the free joint's angular velocity, torso frame
+QUATERNION_NAMES = ("root.qw", "root.qx", "root.qy", "root.qz")
+FEET = ("right_foot", "left_foot")  # the bodies whose contact wrench says whether a foot touches something
+
+
+def contact_names() -> tuple[str, ...]:
+    return tuple(f"contact.{foot}" for foot in FEET)
+
+
+def _joints(names: list[str], suffix: str) -> list[str]:
+    return [name for name in names if name.endswith(suffix) and not name.startswith("root.")]
+
+
+def proprioception_names(model: mujoco.MjModel) -> list[str]:
+    """The names of `observation.state`, one per entry, in order."""
+    names = observation_names(model)
+    return [*_joints(names, ".pos"), *_joints(names, ".vel"), *GYRO_NAMES, *GRAVITY_NAMES, *contact_names()]
+
+
+def privileged_names(model: mujoco.MjModel) -> list[str]:
+    """The names of `observation.environment_state`: the gymnasium observation's other entries, in its order."""
+    sensed = set(proprioception_names(model))
+    return [name for name in observation_names(model) if name not in sensed]
+
+
+def gravity_direction(quaternion: np.ndarray) -> np.ndarray:
+    """The world's down direction in the body frame, (..., 3), from body orientations (..., 4) w-x-y-z.
+
+    R (body to world) maps the body's axes; R^T (0, 0, -1) is minus the third row of R. The state's
+    quaternion drifts from unit length between MuJoCo's normalisations: normalised first, as MuJoCo does.
+    """
+    w, x, y, z = np.moveaxis(quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True), -1, 0)
+    return -np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+
+
+class Proprioception:
+    """The sensed features (`observation.state`) computed from gymnasium observations of one model."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        names = observation_names(model)
+        position = {name: i for i, name in enumerate(names)}
+        self.names = proprioception_names(model)
+        copied = [name for name in self.names if name in position]
+        self._copied = np.array([position[name] for name in copied])
+        self._quaternion = np.array([position[name] for name in QUATERNION_NAMES])
+        self._feet = [np.array([position[f"{foot}.cfrc_ext{i}"] for i in range(6)]) for foot in FEET]
+        self.size = len(self.names)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """(..., 42) float64 features of (..., 348) observations."""
+        contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self._feet]
+        return np.concatenate(
+            [obs[..., self._copied], gravity_direction(obs[..., self._quaternion]), *contacts], axis=-1
+        ).astype(np.float64)
+
+
+class ObservationSplit:
+    """(observation.state, observation.environment_state) of gymnasium observations of one model."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        sensed = set(proprioception_names(model))
+        self.proprioception = Proprioception(model)
+        self._privileged = np.array([i for i, name in enumerate(observation_names(model)) if name not in sensed])
+
+    def __call__(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.proprioception(obs), obs[..., self._privileged]
+
+
+def observation_index(model: mujoco.MjModel, recorded: Sequence[str]) -> np.ndarray | None:
+    """Where each gymnasium observation entry sits among the `recorded` names (state's, then environment
+    state's, side by side), so that `np.concatenate([state, environment_state], -1)[..., index]` is the
+    gymnasium observation; None if a name is missing (the dataset cannot give the observation)."""
+    position = {name: i for i, name in enumerate(recorded)}
+    try:
+        return np.array([position[name] for name in observation_names(model)])
+    except KeyError:
+        return None
+
+
+# What a policy reads (`make train-bc INPUTS=...`, recorded in its checkpoint's MLPSpec.inputs):
+# the gymnasium observation, or the sensed part of it. The dataset columns each is built from:
+INPUT_COLUMNS: dict[str, tuple[str, ...]] = {"full": (OBS_STATE, OBS_ENV_STATE), "proprio": (OBS_STATE,)}
+INPUTS = tuple(INPUT_COLUMNS)
+
+
+def input_names(inputs: str, model: mujoco.MjModel) -> list[str]:
+    """The names of a policy's input entries, in order."""
+    return observation_names(model) if inputs == "full" else proprioception_names(model)
+
+
+def input_features(inputs: str, model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
+    """The function from gymnasium observations to a policy's input, for `model`'s environment."""
+    return (lambda obs: obs) if inputs == "full" else Proprioception(model)
