@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_
 from support import McapEpisode, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.store import STATE_NAMES_METADATA
 
 STEP_NS = 15_000_000  # Humanoid-v5: timestep 0.003 s x frame_skip 5
 
@@ -25,7 +27,7 @@ def episodes(recorded: Path) -> list[McapEpisode]:
 
 
 def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: list[McapEpisode]) -> None:
-    """Observation, actions, reward and end flags in /step equal the parquet frames exactly."""
+    """Observation, sensed state, actions, reward and end flags in /step equal the parquet frames exactly."""
     frames = read_frames(recorded)
     for index, episode in enumerate(episodes):
         rows = frames["episode_index"] == index
@@ -35,6 +37,7 @@ def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: lis
             join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows]),
         )
         for step_field, key in [
+            ("state", keys.OBS_STATE),
             ("action", keys.ACTION),
             ("executed_action", keys.EXECUTED_ACTION),
             ("reward", keys.REWARD),
@@ -42,6 +45,13 @@ def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: lis
             ("truncated", keys.TRUNCATED),
         ]:
             np.testing.assert_array_equal(episode.steps[step_field], frames[key][rows], err_msg=step_field)
+
+
+def test_metadata_names_the_state_as_the_dataset_does(recorded: Path, episodes: list[McapEpisode]) -> None:
+    """The `state_names` metadata entry is observation.state's `names` in meta/info.json: Foxglove plots by index."""
+    names = json.loads((recorded / "meta/info.json").read_text())["features"][keys.OBS_STATE]["names"]
+    assert all(json.loads(episode.metadata[STATE_NAMES_METADATA]) == names for episode in episodes)
+    assert len(names) == episodes[0].steps["state"].shape[1] == 42
 
 
 def test_command_channel_equals_the_command_feature_and_tasks(recorded: Path, episodes: list[McapEpisode]) -> None:
