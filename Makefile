@@ -27,6 +27,7 @@ export PYTHONUNBUFFERED := 1
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
 VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS
 VARS.inspect := DATASET PLOT
+VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS OVERWRITE
 VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO
 VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
@@ -38,7 +39,7 @@ VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BC_POL
 # --name='value' for each variable of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record inspect train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record inspect export train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
 
 # The variables come from the stages' configs (bc/targets.py), so they need .venv.
 help:  ## list the targets and their variables
@@ -64,6 +65,9 @@ record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to th
 
 inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 also draws DATASET/inspect.png
 	$(PY) -m teleop.inspect_dataset $(flags)
+
+export: $(STAMP)  ## write a dataset in another format (FORMAT=minari: a new Minari datasets root at OUT)
+	$(PY) -m teleop.export $(flags)
 
 train-bc: $(STAMP)  ## behaviour cloning, then evaluation
 	$(PY) -m bc.train $(flags)

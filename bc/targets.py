@@ -30,6 +30,7 @@ from bc.pipeline import PipelineConfig
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common.cli import flag
+from teleop.export import ExportConfig
 from teleop.inspect_dataset import InspectConfig
 from teleop.record import RecordConfig
 
@@ -64,6 +65,7 @@ TARGETS: dict[str, Target] = {
         ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers"),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
+    "export": Target("teleop.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),
     "eval": Target("bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video")),
     "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),

@@ -41,6 +41,11 @@ EPISODE_RETURN = "return"
 EPISODE_TERMINATED = "terminated"
 EPISODE_TRUNCATED = "truncated"
 EPISODE_MCAP = "mcap_path"
+# The observation the last action led to (o_T: a frame holds the observation before its action, so
+# an episode of T frames stores o_0..o_T-1 there), split as the frames' features are. With them every
+# transition (o_t, a_t, r_t, o_t+1) of the episode is in the dataset, the fallen state included.
+EPISODE_FINAL_STATE = "final.observation.state"
+EPISODE_FINAL_ENV_STATE = "final.observation.environment_state"
 
 # Columns of meta/episodes/*.parquet holding the physical parameters drawn for the episode
 # (`make record RANDOMIZE=...`, humanoid.conditions.DomainRandomization): scale factors of the nominal

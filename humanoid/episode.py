@@ -27,7 +27,9 @@ class Episode:
 
     Row t holds the observation o_t, the label action a_t chosen from it, the executed action
     (a_t plus injected noise, clipped), and the outcome of that step (r_t, terminated, truncated).
-    Body poses are those of o_t; they feed the MCAP 3D view only.
+    Body poses are those of o_t; they feed the MCAP 3D view only. `final_observation` is o_T, the
+    observation the last action led to (the fallen state of a terminated episode), so that every
+    transition (o_t, a_t, r_t, o_t+1) is complete.
     """
 
     seed: int
@@ -44,6 +46,7 @@ class Episode:
     body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
     command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the command in force (keys.OBS_COMMAND)
     tasks: np.ndarray  # (T,) str: the task string in force, which names the command
+    final_observation: np.ndarray  # (348,) float64: o_T, after the last step
     dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger
     # The physical parameters drawn for the episode (humanoid.conditions.DomainRandomization, e.g.
     # {"friction_scale": 1.2}: JSON-ready scale factors); empty when nothing is randomised.
@@ -119,11 +122,15 @@ class EpisodeBuffer:
         self.terminated[t] = terminated
         self.truncated[t] = truncated
 
-    def episode(self, steps: int, **facts: object) -> Episode:
-        """Copies of the first `steps` rows, so the buffer can be reused while they are written."""
+    def episode(self, steps: int, final_observation: np.ndarray, **facts: object) -> Episode:
+        """Copies of the first `steps` rows, so the buffer can be reused while they are written, and of
+        the observation the last step returned."""
         arrays = {name: getattr(self, name)[:steps].copy() for name in ARRAY_FIELDS}
-        return Episode(**facts, **arrays)
+        return Episode(**facts, **arrays, final_observation=np.array(final_observation, np.float64))
 
+
+# The array fields of `Episode` besides the per-step ones (what the spool stores as arrays too).
+FINAL_FIELDS = ("final_observation",)
 
 # The per-step fields of `Episode`, the ones `EpisodeBuffer` preallocates.
 ARRAY_FIELDS = (
@@ -183,6 +190,7 @@ def run_episode(
             break
     return buffer.episode(
         t,
+        obs,
         seed=seed,
         controller=controller.name,
         noise_std=noise_std,

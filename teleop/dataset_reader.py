@@ -12,6 +12,7 @@ import json
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from common import keys
+from common.cli import DatasetError
+from humanoid.env import make_env
+from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
-from teleop.mcap_io.writer import METADATA_NAME, STEP_TOPIC
+from teleop.mcap_io.writer import FINAL_TOPIC, METADATA_NAME, STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
@@ -195,3 +199,67 @@ def read_steps(path: Path) -> dict[str, np.ndarray]:
                 column.append(getattr(decoded, name))
     # np.array over the repeated containers converts them in C: a list() of each costs 4 times more.
     return {name: np.array(column, _STEP_DTYPES.get(name, object)) for name, column in values.items()}
+
+
+@dataclass
+class Transitions:
+    """One episode as offline RL reads it: T+1 observations for T actions, so (o_t, a_t, r_t, o_t+1) for every t."""
+
+    observations: np.ndarray  # (T+1, 348) float64, the gymnasium observation's order: o_0 .. o_T
+    actions: np.ndarray  # (T, 17) float32, the label actions
+    rewards: np.ndarray  # (T,) float64
+    terminated: np.ndarray  # (T,) bool
+    truncated: np.ndarray  # (T,) bool
+
+
+def read_transitions(root: Path) -> list[Transitions]:
+    """Every committed episode's transitions, in episode order: the frames' observations joined by name into the
+    gymnasium one, then the final observation the episode columns keep (`keys.EPISODE_FINAL_STATE`)."""
+    final_columns = [keys.EPISODE_FINAL_STATE, keys.EPISODE_FINAL_ENV_STATE]
+    episodes = read_episodes(root)
+    if not set(final_columns) <= set(episodes.column_names):
+        raise DatasetError(f"{root} has no final observations (recorded before they were kept); record it again")
+    names = [read_info(root)["features"][key]["names"] for key in (keys.OBS_STATE, keys.OBS_ENV_STATE)]
+    index = _observation_order(names[0] + names[1])
+    columns = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.TERMINATED, keys.TRUNCATED]
+    frames = read_frames(root, [*columns, "episode_index"])
+    observations = np.concatenate([frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE]], axis=1)[:, index]
+    finals = episodes.select(final_columns).to_pylist()
+    result = []
+    for episode, final in enumerate(finals):
+        rows = frames["episode_index"] == episode
+        last = np.concatenate([final[keys.EPISODE_FINAL_STATE], final[keys.EPISODE_FINAL_ENV_STATE]])[index]
+        result.append(
+            Transitions(
+                observations=np.vstack([observations[rows], last]),
+                actions=frames[keys.ACTION][rows],
+                rewards=frames[keys.REWARD][rows].reshape(-1),
+                terminated=frames[keys.TERMINATED][rows].reshape(-1),
+                truncated=frames[keys.TRUNCATED][rows].reshape(-1),
+            )
+        )
+    return result
+
+
+def _observation_order(names: list[str]) -> np.ndarray:
+    env = make_env()
+    try:
+        index = observation_index(env.unwrapped.model, names)
+    finally:
+        env.close()
+    if index is None:
+        raise DatasetError("the dataset's observation features do not name every gymnasium observation entry")
+    return index
+
+
+def read_mcap_final(path: Path) -> dict[str, np.ndarray]:
+    """The `/final_observation` message of one MCAP file: {"observation": (348,), "state": (42,), "frame_index": T}."""
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, _, decoded in reader.iter_decoded_messages(topics=[FINAL_TOPIC]):
+            return {
+                "observation": np.array(decoded.observation, np.float64),
+                "state": np.array(decoded.state, np.float64),
+                "frame_index": np.int64(decoded.frame_index),
+            }
+    raise DatasetError(f"{path} has no {FINAL_TOPIC} message")

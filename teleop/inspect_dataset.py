@@ -42,9 +42,9 @@ from common.cli import DatasetError, run_cli, setting
 from humanoid.env import make_env
 from humanoid.sensors import observation_index
 from teleop import recordings
-from teleop.dataset_reader import read_episodes, read_frames, read_info, read_steps
+from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
-from teleop.mcap_io.writer import SCENE_TOPIC, STEP_TOPIC
+from teleop.mcap_io.writer import FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOL_DIR
 from teleop.store import MCAP_DIR, mcap_name
 
@@ -68,6 +68,7 @@ TORSO_HEIGHT = "root.z"  # the name of the torso height in the observation featu
 PLOTTED_EPISODES = 5
 TIMESTAMP_TOLERANCE_S = 1e-4
 MCAP_MAGIC = b"\x89MCAP0\r\n"  # opens and closes every finished MCAP file
+ONCE_TOPICS = (SCENE_TOPIC, FINAL_TOPIC)  # one message per file; every other topic has one per frame
 
 # The /step fields and the parquet columns they were written from (the observation: joined by name).
 OBSERVATION_COLUMNS = (keys.OBS_STATE, keys.OBS_ENV_STATE)
@@ -228,7 +229,7 @@ class Report:
             _row(
                 "",
                 f"{self.mcap_counts_match}/{self.episodes} episodes have one message per frame on "
-                f"every per-step topic (all but {SCENE_TOPIC})",
+                f"every per-step topic (all but {', '.join(ONCE_TOPICS)}, one each)",
             )
         )
         lines += [_row("note", leftover) for leftover in self.leftovers]
@@ -776,8 +777,10 @@ def _count_problem(mcap: McapFile, length: int) -> str | None:
     if STEP_TOPIC not in mcap.counts:
         return f"has no {STEP_TOPIC} topic"
     for topic, count in sorted(mcap.counts.items()):
-        if topic != SCENE_TOPIC and count != length:
+        if topic not in ONCE_TOPICS and count != length:
             return f"has {count} {topic} messages for {length} frames"
+        if topic in ONCE_TOPICS and count != 1:
+            return f"has {count} {topic} messages, not one"
     return None
 
 
@@ -824,6 +827,14 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
         differs = np.flatnonzero((got != values).any(axis=1))
         if len(differs):
             return f"{what} at frame {differs[0]}"
+    final_state = dataset.episodes.get(keys.EPISODE_FINAL_STATE)
+    if final_state is not None:  # recorded with the final observation: /final_observation holds the same
+        try:
+            final = read_mcap_final(path)
+        except Exception as error:
+            return f"has no readable {FINAL_TOPIC} message ({_one_line(error)})"
+        if final["frame_index"] != length or not np.array_equal(final["state"], final_state[episode]):
+            return f"{FINAL_TOPIC} differs from the episode's {keys.EPISODE_FINAL_STATE}"
     task_names = [dataset.tasks[i] for i in frames["task_index"][rows].tolist()]
     differs = [t for t, (got, want) in enumerate(zip(steps["task"], task_names, strict=True)) if got != want]
     if differs:

@@ -202,7 +202,12 @@ class TeleopSession:
         self.next_seed += 1  # a discarded seed is not reused: the next episode starts fresh
         if save and self.t > 0:
             episode = self.buffer.episode(
-                self.t, seed=seed, controller=CONTROLLER_NAME, labeller=CONTROLLER_NAME, noise_std=self.noise_std
+                self.t,
+                self.obs,
+                seed=seed,
+                controller=CONTROLLER_NAME,
+                labeller=CONTROLLER_NAME,
+                noise_std=self.noise_std,
             )
             self.report(self.sink.submit(episode))
             self.saved += 1
@@ -363,6 +368,10 @@ def run_viewer(session: TeleopSession, out: TextIO) -> None:
     status_line = StatusLine(out)
     try:
         with mujoco.viewer.launch_passive(session.model, session.data, key_callback=on_key) as viewer:
+            with viewer.lock():  # follow the torso from 4 m, slightly above: the whole body in view
+                viewer.cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+                viewer.cam.trackbodyid = session.model.body("torso").id
+                viewer.cam.distance, viewer.cam.elevation, viewer.cam.azimuth = 4.0, -10.0, 135.0
             next_step = time.monotonic()
             while viewer.is_running() and not session.finished:
                 while pressed:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from humanoid.episode import ARRAY_FIELDS, Episode
+from humanoid.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
 
 SPOOL_DIR = ".spool"
 _READY = ".npz"
@@ -40,7 +40,7 @@ class Spool:
         self.folder.mkdir(exist_ok=True)
         path = self.folder / f"{episode.seed:012d}{_READY}"
         # Object arrays (the task strings) would need pickle: stored as fixed-width strings instead.
-        arrays = {name: np.asarray(getattr(episode, name)) for name in ARRAY_FIELDS}
+        arrays = {name: np.asarray(getattr(episode, name)) for name in (*ARRAY_FIELDS, *FINAL_FIELDS)}
         arrays = {name: values.astype(str) if values.dtype == object else values for name, values in arrays.items()}
         facts = {f.name: getattr(episode, f.name) for f in dataclasses.fields(Episode) if f.name not in arrays}
         partial = path.with_name(path.name + ".partial")
@@ -60,7 +60,7 @@ class Spool:
     def load(path: Path) -> Episode:
         with np.load(path, allow_pickle=False) as stored:
             facts = json.loads(str(stored[_FACTS]))
-            return Episode(**facts, **{name: stored[name] for name in ARRAY_FIELDS})
+            return Episode(**facts, **{name: stored[name] for name in (*ARRAY_FIELDS, *FINAL_FIELDS)})
 
     def begin_commit(self, path: Path, episode_index: int) -> Path:
         """Mark `path` as being committed as episode `episode_index` (call before info.json counts it)."""

@@ -153,6 +153,12 @@ class EpisodeStore:
             raise
         self.root = root
         self.spec = spec
+        if len(self.lerobot.episode_column(keys.EPISODE_FINAL_STATE)) != self.num_episodes:
+            self.close()
+            # Its episode rows lack the final observation's columns; LeRobot loads rows of one set of columns only.
+            raise DatasetError(
+                f"{root} was recorded before episodes kept their final observation; record into a new dataset"
+            )
         self._remove_uncommitted_mcap()
         # The parameters the dataset's episodes draw; None while it has none (the first episode decides).
         self._parameters: frozenset[str] | None = self._drawn_parameters() if self.num_episodes else None
@@ -188,6 +194,7 @@ class EpisodeStore:
     def append(self, episode: Episode, spooled: Path | None = None) -> CommittedEpisode:
         """Write `episode` to both formats and commit it; `spooled` is its spool file, removed exactly once."""
         state, environment_state = self.spec.split(episode.observation)
+        final_state, final_environment_state = self.spec.split(episode.final_observation)
         columns = {
             keys.OBS_STATE: state,
             keys.OBS_ENV_STATE: environment_state,
@@ -214,6 +221,10 @@ class EpisodeStore:
             keys.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
             keys.EPISODE_MCAP: str(mcap_path),
         }
+        final = {
+            keys.EPISODE_FINAL_STATE: final_state.tolist(),
+            keys.EPISODE_FINAL_ENV_STATE: final_environment_state.tolist(),
+        }
         metadata = {
             "episode_index": str(index),
             "env_id": ENV_ID,
@@ -223,11 +234,12 @@ class EpisodeStore:
             **{key: json.dumps(value) for key, value in drawn.items()},
         }
         try:
-            staged = self.lerobot.stage(columns, episode.tasks, {**facts, **drawn})
+            staged = self.lerobot.stage(columns, episode.tasks, {**facts, **final, **drawn})
             write_episode_mcap(
                 self.root / mcap_path,
                 episode,
                 state,
+                final_state,
                 index,
                 self.spec.scene,
                 self.spec.body_frames,

@@ -4,6 +4,8 @@ The file is written by `teleop.mcap_io.bulk`, which takes the whole episode's me
 
 Topics (log and publish times are integer nanoseconds of simulated time, frame_index x step):
 - `/step`  humanoid_bc.Step: observation, sensed state, label and executed action, reward, terminated, truncated.
+- `/final_observation`  humanoid_bc.Step, once, at time T: the observation and state the last action led
+  to (o_T; frame index T, no action or reward), with the episode's terminated / truncated flags.
 - `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
 - `/command` humanoid_bc.Command: the command in force (posture held, push) and the task naming it.
 - `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
@@ -37,6 +39,7 @@ from teleop.mcap_io.schema import Command, Step
 from teleop.mcap_io.wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
 
 STEP_TOPIC = "/step"
+FINAL_TOPIC = "/final_observation"
 TF_TOPIC = "/tf"
 COMMAND_TOPIC = "/command"
 SCENE_TOPIC = "/scene"
@@ -106,6 +109,7 @@ def write_episode_mcap(
     path: Path,
     episode: Episode,
     state: np.ndarray,
+    final_state: np.ndarray,
     episode_index: int,
     scene: SceneUpdate,
     body_frames: list[str],
@@ -131,17 +135,29 @@ def write_episode_mcap(
         episode.truncated,
         episode.tasks,
     )
+    final = Step(
+        episode_index=episode_index,
+        frame_index=episode.length,
+        observation=episode.final_observation.tolist(),
+        state=final_state.tolist(),
+        terminated=bool(episode.terminated[-1]),
+        truncated=bool(episode.truncated[-1]),
+        task=str(episode.tasks[-1]),
+    )
+    final.timestamp.FromNanoseconds(episode.length * step_ns)
     partial = path.with_name(path.name + ".partial")
     with partial.open("wb") as stream:
         writer = BulkMcapWriter(stream)
         writer.start(profile="", library="humanoid-bc")
+        schemas = {kind: register_schema(writer, kind) for kind in (SceneUpdate, Step, FrameTransforms, Command)}
         channels = {
-            topic: writer.register_channel(topic, MessageEncoding.Protobuf, register_schema(writer, message_type))
+            topic: writer.register_channel(topic, MessageEncoding.Protobuf, schemas[message_type])
             for topic, message_type in (
                 (SCENE_TOPIC, SceneUpdate),
                 (STEP_TOPIC, Step),
                 (TF_TOPIC, FrameTransforms),
                 (COMMAND_TOPIC, Command),
+                (FINAL_TOPIC, Step),
             )
         }
         writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
@@ -160,5 +176,8 @@ def write_episode_mcap(
             np.repeat(np.arange(episode.length), len(per_step)),
             data,
         )
+        end = np.array([episode.length * step_ns], np.int64)
+        length = np.array([episode.length])
+        writer.add_messages(np.array([channels[FINAL_TOPIC]]), end, end, length, [final.SerializeToString()])
         writer.finish()
     os.replace(partial, path)

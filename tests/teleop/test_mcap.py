@@ -14,7 +14,7 @@ from common import keys
 from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
 from support import McapEpisode, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.mcap_io.writer import COMMAND_TOPIC, FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 from teleop.store import STATE_NAMES_METADATA
 
 STEP_NS = 15_000_000  # Humanoid-v5: timestep 0.003 s x frame_skip 5
@@ -114,6 +114,7 @@ def test_file_has_metadata_model_and_zstd_protobuf_channels(recorded: Path, epis
         STEP_TOPIC: "protobuf",
         TF_TOPIC: "protobuf",
         COMMAND_TOPIC: "protobuf",
+        FINAL_TOPIC: "protobuf",
     }
     assert {s.name for s in summary.schemas.values()} == {
         "foxglove.SceneUpdate",

@@ -1,0 +1,89 @@
+"""`make export FORMAT=minari`: Minari's own loader reads the dataset, every transition equal to the LeRobot frames."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import minari
+import numpy as np
+import pytest
+
+from common import keys
+from support import snapshot
+from teleop.dataset_reader import read_frames
+from teleop.export import ExportConfig, dataset_id, main
+
+pytestmark = pytest.mark.slow  # reference episodes of the expert: seconds
+
+
+@pytest.fixture(scope="module")
+def exported(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[minari.MinariDataset]:
+    """The 3-episode recording exported to a new Minari root, loaded back by Minari with its root set."""
+    out = tmp_path_factory.mktemp("minari") / "root"
+    name = main(ExportConfig(dataset=recorded, out=out, reference_episodes=2))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(out))
+        yield minari.load_dataset(name)
+
+
+def test_each_episode_has_t_plus_one_observations_for_t_actions(exported: minari.MinariDataset, recorded: Path) -> None:
+    """Minari serves T+1 observations and all T actions (given T observations it would silently drop an action)."""
+    frames = read_frames(recorded, ["episode_index"])
+    lengths = np.bincount(frames["episode_index"])
+    episodes = list(exported.iterate_episodes())
+    assert [len(e.actions) for e in episodes] == lengths.tolist()
+    assert all(e.observations.shape == (len(e.actions) + 1, 348) for e in episodes)
+    assert exported.total_steps == lengths.sum()
+
+
+def test_steps_equal_the_lerobot_frames(exported: minari.MinariDataset, recorded: Path) -> None:
+    """Actions, rewards, terminations and truncations are the frames' own, in order."""
+    columns = [keys.ACTION, keys.REWARD, keys.TERMINATED, keys.TRUNCATED, "episode_index"]
+    frames = read_frames(recorded, columns)
+    for episode in exported.iterate_episodes():
+        rows = frames["episode_index"] == episode.id
+        np.testing.assert_array_equal(episode.actions, frames[keys.ACTION][rows])
+        np.testing.assert_array_equal(episode.rewards, frames[keys.REWARD][rows].reshape(-1))
+        np.testing.assert_array_equal(episode.terminations, frames[keys.TERMINATED][rows].reshape(-1))
+        np.testing.assert_array_equal(episode.truncations, frames[keys.TRUNCATED][rows].reshape(-1))
+
+
+def test_environment_and_reference_scores(exported: minari.MinariDataset) -> None:
+    """The environment is Humanoid-v5; the random controller falls (low score), the expert stands (high)."""
+    assert exported.recover_environment().spec.id == "Humanoid-v5"
+    low, high = minari.get_normalized_score(exported, np.array([0.0, 4_944.0]))
+    assert low < 0.0 < 0.98 < high < 1.02
+
+
+def export_cli(*args: str) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "teleop.export", "--reference-episodes", "1", *args]
+    return subprocess.run(command, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+
+
+def test_folder_that_is_not_a_dataset_is_refused(tmp_path: Path) -> None:
+    run = export_cli("--dataset", str(tmp_path), "--out", str(tmp_path / "out"))
+    assert run.returncode == 1 and len(run.stderr.splitlines()) == 1 and "no recorded dataset" in run.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_existing_out_is_refused_and_left_alone(recorded: Path, tmp_path: Path) -> None:
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "mine.txt").write_text("keep")
+    before = snapshot(tmp_path / "out")
+    run = export_cli("--dataset", str(recorded), "--out", str(tmp_path / "out"))
+    assert run.returncode == 1 and len(run.stderr.splitlines()) == 1 and "exists" in run.stderr
+    assert snapshot(tmp_path / "out") == before
+
+
+def test_unknown_format_is_refused(recorded: Path, tmp_path: Path) -> None:
+    run = export_cli("--dataset", str(recorded), "--out", str(tmp_path / "out"), "--format", "d4rl")
+    assert run.returncode == 2 and len(run.stderr.splitlines()) == 1 and "'d4rl'" in run.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_id_names_the_dataset_folder(recorded: Path) -> None:
+    assert dataset_id(recorded) == f"humanoid-bc/{recorded.resolve().name}-v0"

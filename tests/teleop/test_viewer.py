@@ -1,0 +1,134 @@
+"""The keyboard's viewer front end in a real X display (Xvfb, Mesa on the CPU): keys typed into MuJoCo's window.
+
+xdotool types into the viewer window through the X server (XTEST), so every key goes through GLFW
+and MuJoCo's viewer to the front end's key callback, as a person's would. `.ci/run` installs Xvfb
+and xdotool when they are missing; without them these tests say why they skip.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image, ImageGrab
+
+from common import keys
+from support import join_observation
+from teleop.dataset_reader import read_frames
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        shutil.which("Xvfb") is None or shutil.which("xdotool") is None,
+        reason="the viewer test needs Xvfb and xdotool (Debian: apt-get install xvfb xdotool; .ci/run installs them)",
+    ),
+]
+
+SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
+HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
+POSTURE = slice(0, keys.COMMAND_NAMES.index("arms") + 1)  # the command's posture fields, without the push
+
+
+@pytest.fixture(scope="module")
+def display() -> Iterator[str]:
+    """A private X display (Xvfb) for the module, stopped after."""
+    number = next(n for n in range(90, 200) if not Path(f"/tmp/.X{n}-lock").exists())
+    server = subprocess.Popen(
+        ["Xvfb", f":{number}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    socket = Path(f"/tmp/.X11-unix/X{number}")
+    deadline = time.monotonic() + 20
+    while not socket.exists():
+        assert server.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
+        time.sleep(0.05)
+    yield f":{number}"
+    server.terminate()
+    server.wait(timeout=10)
+
+
+def xdotool(display: str, *args: str) -> str:
+    run = subprocess.run(["xdotool", *args], env={**os.environ, "DISPLAY": display}, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    return run.stdout.strip()
+
+
+@pytest.fixture(scope="module")
+def teleoperated(display: str, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """One episode driven by keys typed into the viewer window (crouch, then lean forward); a screenshot mid-way."""
+    folder = tmp_path_factory.mktemp("viewer")
+    root, shot, log = folder / "dataset", folder / "viewer.png", folder / "recorder.log"
+    command = [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "viewer"]
+    command += ["--dataset", str(root), "--noise", "0", "--max-steps", "5000"]
+    with log.open("w") as out:
+        recorder = subprocess.Popen(
+            command, env={**os.environ, "DISPLAY": display, "MUJOCO_GL": "glfw"}, stdout=out, stderr=out
+        )
+        try:
+            window = xdotool(display, "search", "--sync", "--onlyvisible", "--name", "MuJoCo").splitlines()[0]
+            xdotool(display, "windowfocus", "--sync", window)
+
+            def press(key: str, then_wait: float) -> None:
+                xdotool(display, "key", "--window", window, "--clearmodifiers", key)
+                time.sleep(then_wait)
+
+            press("Return", SETTLE)  # start
+            press("f", 0.2)
+            press("f", HOLD)  # crouch 4 cm
+            press("w", 0.2)
+            press("w", HOLD)  # lean forward 0.1 rad
+            shell = xdotool(display, "getwindowgeometry", "--shell", window)  # X=.. Y=.. WIDTH=.. HEIGHT=..
+            geometry = dict(line.split("=") for line in shell.split())
+            left, top = int(geometry["X"]), int(geometry["Y"])
+            box = (left, top, left + int(geometry["WIDTH"]), top + int(geometry["HEIGHT"]))
+            ImageGrab.grab(bbox=box, xdisplay=display).save(shot)  # the viewer window, as the X server shows it
+            press("Return", 0.5)  # end and save
+            press("Escape", 0)  # quit
+            assert recorder.wait(timeout=60) == 0, log.read_text()[-2000:]
+        finally:
+            if recorder.poll() is None:
+                recorder.kill()
+    return root, shot
+
+
+def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, Path]) -> None:
+    """observation.command goes from neutral to the crouch, then to the crouch leaning forward."""
+    root, _ = teleoperated
+    command = read_frames(root, [keys.OBS_COMMAND])[keys.OBS_COMMAND][:, POSTURE]
+    changes = [0, *(np.flatnonzero(np.any(np.diff(command, axis=0) != 0, axis=1)) + 1)]
+    held = [tuple(np.round(row, 6)) for row in command[changes]]
+    assert held[0] == (0, 0, 0, 0, 0) and held[-1] == (0.1, 0, -0.04, 0, 0)
+    assert (0, 0, -0.04, 0, 0) in held  # the crouch was complete before the lean began
+
+
+def test_the_body_follows_the_commands(teleoperated: tuple[Path, Path]) -> None:
+    """The torso is lower after the crouch, tilts forward after the lean, and the body stays up."""
+    root, _ = teleoperated
+    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.TERMINATED])
+    observation = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    height_command = frames[keys.OBS_COMMAND][:, keys.COMMAND_NAMES.index("height")]
+    lean_command = frames[keys.OBS_COMMAND][:, keys.COMMAND_NAMES.index("lean_forward")]
+    crouch, lean = int(np.argmax(height_command < 0)), int(np.argmax(lean_command > 0))
+    w, x, y, z = observation[:, 1:5].T
+    forward_tilt = 2 * (x * z + w * y)  # world x of the torso's up axis
+    assert observation[lean - 30 : lean, 0].mean() < observation[crouch - 30 : crouch, 0].mean() - 0.02
+    assert forward_tilt[-30:].mean() > forward_tilt[lean - 30 : lean].mean() + 0.05
+    assert not frames[keys.TERMINATED].any()
+
+
+def test_the_screenshot_shows_the_humanoid(teleoperated: tuple[Path, Path]) -> None:
+    """The window shows the body: many pixels of the MJCF's orange (0.8, 0.6, 0.4), lit and shaded, in the scene
+    between the viewer's panels; a blank or black frame has none (the floor is white and black, the panels grey)."""
+    _, shot = teleoperated
+    pixels = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    orange = (r > g + 15) & (g > b + 15) & (r > 60)
+    assert orange.mean() > 0.01, f"{orange.mean():.4f} of the window's pixels are the body's colour"
