@@ -25,11 +25,11 @@ export PYTHONUNBUFFERED := 1
 # here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
-VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS
+VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS OVERWRITE
-VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO
+VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
@@ -110,6 +110,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
 	$(PY) -m bench.data_efficiency
+	$(PY) -m bench.live_cost
 	$(PY) -m bench.ppo_throughput
 
 clean-venv:  ## remove .venv

@@ -35,6 +35,7 @@ from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from humanoid.perturbations import TorsoPushes
 from humanoid.video import CAMERA, VideoRecorder
+from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 EVAL_SEED = 1000  # first evaluation seed: recordings use 0, 1, 2, ... and stay far below it
 
@@ -51,12 +52,16 @@ class EvalConfig:
     condition: str = setting("clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/robustness.md)")
     video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
     progress: bool = setting(True, "show a progress bar")
+    live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")
+    live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
+    live_host: str = setting(DEFAULT_HOST, "address the live view's server binds to (0.0.0.0: every interface)")
 
 
 def validate(cfg: EvalConfig) -> None:
     """Reject bad settings before anything runs."""
     if cfg.episodes <= 0:
         raise UserError(f"--episodes must be positive, got {cfg.episodes}")
+    check_port(cfg.live_port)
     if cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if not (math.isfinite(cfg.push) and cfg.push >= 0):
@@ -80,10 +85,12 @@ def evaluate(
     video: Path | None = None,
     progress: bool = False,
     condition: str = "clean",
+    live: tuple[str, int] | None = None,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
-    `push` and `noise` add to what the robustness `condition` (by name) brings.
+    `push` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
+    publishes every step to a Foxglove WebSocket server there (`teleop.live`).
     """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
     suite_condition = SUITE[condition]
@@ -93,7 +100,9 @@ def evaluate(
         env = TorsoPushes(env, push)
     if video is not None:
         env = VideoRecorder(env, video)
+    publisher = None
     try:
+        publisher = None if live is None else start_live(env, *live)
         if isinstance(controller, str):
             try:
                 controller = make_controller(controller, env)
@@ -102,10 +111,12 @@ def evaluate(
         seeds = list(range(seed, seed + episodes))
         buffer = EpisodeBuffer(env, EPISODE_STEPS)
         results = [
-            run_episode(env, controller, s, noise, buffer)
+            run_episode(env, controller, s, noise, buffer, observer=publisher)
             for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
         ]
     finally:
+        if publisher is not None:
+            publisher.close()
         env.close()
     returns = np.array([episode.episode_return for episode in results])
     lengths = np.array([episode.length for episode in results])
@@ -133,7 +144,15 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
     """Evaluate `cfg.policy` as configured; returns the summary `cli` prints, `cfg` under "config"."""
     validate(cfg)
     result = evaluate(
-        cfg.policy, cfg.episodes, cfg.seed, cfg.push, cfg.noise, cfg.video, cfg.progress, condition=cfg.condition
+        cfg.policy,
+        cfg.episodes,
+        cfg.seed,
+        cfg.push,
+        cfg.noise,
+        cfg.video,
+        cfg.progress,
+        condition=cfg.condition,
+        live=(cfg.live_host, cfg.live_port) if cfg.live else None,
     )
     return {**result, "config": config_dict(cfg)}
 

@@ -56,18 +56,21 @@ class Target:
         return next(f for f in dataclasses.fields(self.config) if f.name == name)
 
 
+_LIVE = ("live", "live_port", "live_host")
 _PPO = ("bc_policy", "policy", "timesteps", "workers", "envs", "push", "overwrite")
 
 TARGETS: dict[str, Target] = {
     "record": Target(
         "teleop.record",
         RecordConfig,
-        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers"),
+        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers", *_LIVE),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("teleop.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),
-    "eval": Target("bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video")),
+    "eval": Target(
+        "bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video", *_LIVE)
+    ),
     "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),
     "dagger": Target(
         "bc.dagger", DaggerConfig, ("dataset", "output", "policy", "inputs", "rounds", "episodes", "overwrite")

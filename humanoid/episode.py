@@ -7,7 +7,7 @@ The rollout is shared by the recorder, the benchmarks and evaluation, so that "r
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -64,6 +64,16 @@ class Episode:
     def fell(self) -> bool:
         """The episode ended because the torso left the healthy height range."""
         return bool(self.terminated[-1])
+
+
+class StepObserver(Protocol):
+    """Sees each step as it happens (a live view, `teleop.live`): the rollout calls it, it never changes the rollout."""
+
+    def episode_started(self, seed: int) -> None:
+        """An episode was reset with `seed`."""
+
+    def step(self, buffer: EpisodeBuffer, t: int) -> None:
+        """Row t of `buffer` is complete: observation, poses, actions, command and outcome."""
 
 
 class NonFiniteActionError(UserError):
@@ -160,6 +170,7 @@ def run_episode(
     buffer: EpisodeBuffer | None = None,
     task: str = DEFAULT_TASK,
     labeller: Controller | None = None,
+    observer: StepObserver | None = None,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
@@ -167,6 +178,7 @@ def run_episode(
     labeller's action in the state the controller led to. Perturbations, domain randomisation and
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
+    An `observer` sees every step as it completes.
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
@@ -177,6 +189,8 @@ def run_episode(
     controller.reset(seed)
     if labeller is not None:
         labeller.reset(seed)
+    if observer is not None:
+        observer.episode_started(seed)
     t = 0
     while True:
         action = controller.act(obs)
@@ -185,6 +199,8 @@ def run_episode(
         buffer.record(t, obs, data, action if labeller is None else labeller.act(obs), executed, None, task)
         obs, reward, terminated, truncated, _ = env.step(executed)
         buffer.outcome(t, reward, terminated, truncated)
+        if observer is not None:
+            observer.step(buffer, t)
         t += 1
         if terminated or truncated:
             break

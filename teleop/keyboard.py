@@ -29,7 +29,14 @@ import numpy as np
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
 from humanoid.env import model_and_data
-from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, check_action, executed_action, injected_noise
+from humanoid.episode import (
+    DEFAULT_TASK,
+    EpisodeBuffer,
+    StepObserver,
+    check_action,
+    executed_action,
+    injected_noise,
+)
 from humanoid.physics import TORSO_BODY, torso_height
 from humanoid.posture import NEUTRAL, Posture
 
@@ -124,8 +131,10 @@ class TeleopSession:
         episodes: int,
         noise_std: float,
         report: Callable[[list[CommittedEpisode]], None],
+        observer: StepObserver | None = None,
     ) -> None:
         self.env = env
+        self.observer = observer
         self.expert = expert
         self.sink = sink
         self.next_seed = first_seed
@@ -194,6 +203,8 @@ class TeleopSession:
             self.noise = injected_noise(seed, self.max_steps, self.noise_std, self.env.action_space.shape[0])
         self.recording = True
         self.message = f"recording episode with seed {seed}"
+        if self.observer is not None:
+            self.observer.episode_started(seed)
 
     def _end(self, save: bool, why: str) -> None:
         self.recording = False
@@ -236,6 +247,8 @@ class TeleopSession:
         self.obs, reward, terminated, truncated, _ = self.env.step(executed)
         self.pushing_left = max(0, self.pushing_left - 1)
         self.buffer.outcome(t, reward, terminated, truncated)
+        if self.observer is not None:
+            self.observer.step(self.buffer, t)
         self.t += 1
         self.episode_return += reward
         if terminated or truncated:
@@ -400,8 +413,9 @@ def run_session(
     noise_std: float,
     front_end: str,
     report: Callable[[list[CommittedEpisode]], None],
+    observer: StepObserver | None = None,
 ) -> None:
-    """Teleoperate until the user quits or `episodes` episodes are saved."""
+    """Teleoperate until the user quits or `episodes` episodes are saved; `observer` (a live view) sees every step."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
     from humanoid.expert import LQRExpert  # noqa: PLC0415
@@ -410,7 +424,8 @@ def run_session(
         front_end = "viewer" if has_display() else "terminal"
     if front_end == "viewer" and not has_display():
         raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
-    session = TeleopSession(env, LQRExpert(model_and_data(env)[0]), sink, first_seed, episodes, noise_std, report)
+    expert = LQRExpert(model_and_data(env)[0])
+    session = TeleopSession(env, expert, sink, first_seed, episodes, noise_std, report, observer)
     if front_end == "viewer":
         run_viewer(session, sys.stderr)
     else:

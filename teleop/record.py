@@ -40,6 +40,7 @@ from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, mak
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 from teleop import recordings
+from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
@@ -95,6 +96,9 @@ class RecordConfig:
         choices=("auto", "viewer", "terminal"),
     )
     progress: bool = setting(True, "show a progress bar (not with the keyboard: the status line shows progress)")
+    live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens (one worker)")
+    live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
+    live_host: str = setting(DEFAULT_HOST, "address the live view's server binds to (0.0.0.0: every interface)")
 
 
 @dataclass
@@ -137,6 +141,9 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
+    if cfg.live and cfg.workers != 1:
+        raise UserError(f"--live shows one simulation: --workers must be 1, got {cfg.workers}")
+    check_port(cfg.live_port)
     if cfg.controller in INTERACTIVE and cfg.workers != 1:
         raise UserError(f"--controller {cfg.controller} records in one process: --workers must be 1, got {cfg.workers}")
     try:
@@ -196,6 +203,7 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: Recor
         from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
         sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, randomization.parameters))
+    live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
     bar = tqdm(
@@ -221,11 +229,12 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: Recor
         if interactive:
             from teleop.keyboard import run_session  # noqa: PLC0415
 
-            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report)
+            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live)
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
-                report(sink.submit(run_episode(env, controller, seed, cfg.noise, buffer, cfg.task)))
+                episode = run_episode(env, controller, seed, cfg.noise, buffer, cfg.task, observer=live)
+                report(sink.submit(episode))
         else:
             _record_in_parallel(rollouts, seeds, sink, report)
     finally:
@@ -234,6 +243,8 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: Recor
         bar.close()
         summary.total_episodes = sink.num_episodes
         summary.seconds = time.perf_counter() - start
+        if live is not None:
+            live.close()
         env.close()
     return summary
 

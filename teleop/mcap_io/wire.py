@@ -16,6 +16,7 @@ they came from.
 from __future__ import annotations
 
 import functools
+import struct
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -91,6 +92,11 @@ def timestamp_fields(key: bytes, times_ns: np.ndarray) -> list[bytes]:
 @functools.cache
 def _timestamp_field(key: bytes, time_ns: int) -> bytes:
     # Cached: every episode has the same time grid, and a timestamp's varints cost more than a lookup.
+    return timestamp_field(key, time_ns)
+
+
+def timestamp_field(key: bytes, time_ns: int) -> bytes:
+    """The field `key` = google.protobuf.Timestamp(time_ns), uncached (a live stream's times never repeat)."""
     seconds, nanos = divmod(time_ns, _NANOS_PER_SECOND)
     stamp = (_SECONDS_KEY + varint(seconds) if seconds else b"") + (_NANOS_KEY + varint(nanos) if nanos else b"")
     return length_delimited(key, stamp)
@@ -119,6 +125,27 @@ class FrameTransformsEncoder:
         ]
         self._timestamp_key = tag(FrameTransform, "timestamp", _LENGTH_DELIMITED)
         self._transform_key = tag(FrameTransforms, "transforms", _LENGTH_DELIMITED)
+        # One body's pose as `encode` writes it, for `encode_one`: translation (x, y, z), rotation (x, y, z, w),
+        # each a length-delimited sub-message of tagged doubles; every tag and length is one byte.
+        layout = [tag(FrameTransform, "translation", _LENGTH_DELIMITED), varint(3 * (1 + _DOUBLE_SIZE))]
+        layout += [tag(Vector3, axis, _FIXED64) for axis in "xyz"]
+        layout += [tag(FrameTransform, "rotation", _LENGTH_DELIMITED), varint(4 * (1 + _DOUBLE_SIZE))]
+        layout += [tag(Quaternion, axis, _FIXED64) for axis in "xyzw"]
+        assert all(len(part) == 1 for part in layout)
+        self._pose = struct.Struct("<BB" + "Bd" * 3 + "BB" + "Bd" * 4)
+        self._pose_tags = [part[0] for part in layout]
+
+    def encode_one(self, time_ns: int, positions: np.ndarray, orientations_wxyz: np.ndarray) -> bytes:
+        """The message `encode` gives for one step, built without NumPy's per-call overhead (a live stream)."""
+        stamp = timestamp_field(self._timestamp_key, time_ns)
+        tr, tr_len, tx, ty, tz, ro, ro_len, qx, qy, qz, qw = self._pose_tags
+        parts = []
+        for frame, (x, y, z), (w, i, j, k) in zip(
+            self._frame_fields, positions.tolist(), orientations_wxyz.tolist(), strict=True
+        ):
+            pose = self._pose.pack(tr, tr_len, tx, x, ty, y, tz, z, ro, ro_len, qx, i, qy, j, qz, k, qw, w)
+            parts += [self._transform_key, varint(len(stamp) + len(frame) + len(pose)), stamp, frame, pose]
+        return b"".join(parts)
 
     def encode(self, times_ns: np.ndarray, positions: np.ndarray, orientations_wxyz: np.ndarray) -> list[bytes]:
         """Messages for (T,) times, (T, bodies, 3) positions and (T, bodies, 4) w-x-y-z quaternions."""
@@ -173,8 +200,10 @@ class StepEncoder:
         terminated: np.ndarray,
         truncated: np.ndarray,
         tasks: np.ndarray,
+        first_frame: int = 0,
     ) -> list[bytes]:
-        """Messages for T steps: (T,) times, (T, n) observation, state and actions, (T,) reward, flags and tasks."""
+        """Messages for T steps: (T,) times, (T, n) observation, state and actions, (T,) reward, flags and tasks;
+        frame indices from `first_frame` (a live stream sends one step at a time)."""
         steps = len(times_ns)
         parts: list[bytes | np.ndarray] = []
         for name, values, dtype in (
@@ -192,7 +221,7 @@ class StepEncoder:
         head = self._episode_key + varint(episode_index)
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
-            stamp + head + self._frame_key + varint(t) + row.tobytes() + task_fields[task]
+            stamp + head + self._frame_key + varint(first_frame + t) + row.tobytes() + task_fields[task]
             for t, (stamp, row, task) in enumerate(
                 zip(timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(), strict=True)
             )

@@ -89,3 +89,13 @@ def test_negative_time_is_refused() -> None:
     """A time before the episode's start has no place in the file: ValueError."""
     with pytest.raises(ValueError, match="times must be >= 0"):
         timestamp_fields(b"\x0a", np.array([0, -1]))
+
+
+def test_one_step_transforms_equal_the_batch_encoders() -> None:
+    """The live stream's one-step /tf encoding gives the bytes the episode encoder gives, for any time."""
+    encoder = FrameTransformsEncoder("world", [f"body{i}" for i in range(13)])
+    rng = np.random.default_rng(2)
+    for time_ns in (0, 15_000_000, 1_000_000_000, 1_763_900_000_123_456_789):
+        positions, orientations = rng.normal(size=(13, 3)), rng.normal(size=(13, 4))
+        batch = encoder.encode(np.array([time_ns]), positions[None], orientations[None])[0]
+        assert encoder.encode_one(time_ns, positions, orientations) == batch
