@@ -19,9 +19,14 @@ from websockets.sync.client import connect
 
 from bc.evaluate import cli as evaluate_cli
 from common import keys
+from humanoid.env import make_env
+from humanoid.episode import EpisodeBuffer
+from humanoid.expert import LQRExpert
 from support import read_mcap_episode
-from teleop.dataset_reader import read_episodes
+from teleop.dataset_reader import read_episodes, read_frames
+from teleop.keyboard import TeleopSession
 from teleop.mcap_io.schema import Step
+from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # a recorder process and a client: seconds
 
@@ -121,3 +126,32 @@ def test_a_port_in_use_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
         code = evaluate_cli(["--policy", "expert", "--episodes", "1", "--live", "true", "--live-port", str(port)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and f"cannot serve the live view on 127.0.0.1:{port}" in err[0]
+
+
+class Seen:
+    """A StepObserver that keeps what it was shown (rows of the rollout's buffer)."""
+
+    def __init__(self) -> None:
+        self.seeds: list[int] = []
+        self.heights: list[float] = []
+
+    def episode_started(self, seed: int) -> None:
+        self.seeds.append(seed)
+
+    def step(self, buffer: EpisodeBuffer, t: int) -> None:
+        self.heights.append(float(buffer.observation[t, 0]))
+
+
+def test_keyboard_sessions_show_every_step_they_record(tmp_path: Path) -> None:
+    """The keyboard's session passes each recorded step to its observer, the one LIVE=1 gives it."""
+    env = make_env(40)
+    store = EpisodeStore(tmp_path / "dataset", DatasetSpec.from_env(env))
+    seen = Seen()
+    session = TeleopSession(env, LQRExpert(env.unwrapped.model), store, 7, 1, 0.0, lambda committed: None, seen)
+    session.press("enter")
+    while session.recording:
+        session.tick()
+    store.close()
+    frames = read_frames(tmp_path / "dataset", [keys.OBS_ENV_STATE])
+    assert seen.seeds == [7] and len(seen.heights) == 40
+    assert seen.heights == frames[keys.OBS_ENV_STATE][:, 0].tolist()  # root z, the first privileged entry
