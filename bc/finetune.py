@@ -39,6 +39,7 @@ from tqdm import tqdm
 
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
+from bc.ppo import resume
 from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves
 from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
@@ -49,7 +50,7 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.folder import DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
+from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -229,23 +230,46 @@ def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
     return DemonstrationTerm(demos.inputs, demos.actions, cfg.bc_weight, cfg.bc_decay, cfg.batch_size, cfg.seed)
 
 
+def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, Any] | None:
+    """The final evaluation of a run already finished at POLICY with these settings (not re-run); else None."""
+    config, evaluation = cfg.policy / CONFIG_FILE, cfg.policy / EVAL_FILE
+    if cfg.overwrite or not (config.is_file() and evaluation.is_file()):
+        return None
+    training = json.loads(config.read_text()).get("training", {})
+    if resume.comparable({name: training.get(name) for name in settings}) != resume.comparable(settings):
+        return None
+    print(f"{cfg.policy} already holds this run, finished: not run again", file=sys.stderr)
+    return json.loads(evaluation.read_text())
+
+
 def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """Train as configured; returns the final evaluation written to POLICY/eval.json.
 
     `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
     """
     validate(cfg)
-    checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     inputs = PolicyController.load(cfg.bc_policy, make_env()).policy.spec.inputs
     if inputs != "full":
         raise UserError(f"{cfg.bc_policy} reads {inputs!r} inputs; the PPO actor reads the full observation")
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
+    finished = finished_result(cfg, settings)
+    if finished is not None:
+        return finished
+    checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
+    saved = resume.load(checkpoint.running_folder(cfg.policy))
+    if saved is not None and saved["settings"] != resume.comparable(settings):
+        first = next(name for name in saved["settings"] if saved["settings"][name] != settings.get(name))
+        raise UserError(
+            f"{checkpoint.running_folder(cfg.policy)} holds an interrupted run with other settings "
+            f"({first}: {saved['settings'][first]!r} there, {settings.get(first)!r} now): run it with its "
+            f"settings to resume it, or remove that folder"
+        )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     term = demonstration_term(cfg)
     env = vec_env(cfg)
     try:
-        with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
+        with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
             model = learner(cfg, env, term, folder / "tensorboard")
             # SB3 stops after the first whole rollout that reaches TIMESTEPS.
             steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
@@ -259,9 +283,17 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 folder=folder,
                 bar=bar,
             )
+            guards = Guards(cfg.critic_warmup, term)
+            if saved is not None:
+                resume.restore(saved, model, env, evaluator, guards)
+                bar.update(model.num_timesteps)
+                print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
+            snapshots = resume.Snapshots(folder, evaluator, guards, settings, saved)
             start = time.perf_counter()
             model.learn(
-                total_timesteps=cfg.timesteps, callback=CallbackList([Guards(cfg.critic_warmup, term), evaluator])
+                total_timesteps=cfg.timesteps - model.num_timesteps,
+                callback=CallbackList([guards, evaluator, snapshots]),
+                reset_num_timesteps=saved is None,
             )
             seconds = time.perf_counter() - start
             bar.close()
@@ -271,6 +303,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 actor.load_state_dict(evaluator.best_state)
             checkpoint.save(actor, folder, {**settings, "seconds": seconds, "kept": kept}, bc_dataset(cfg.bc_policy))
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
+            (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
     finally:
         env.close()
 

@@ -39,6 +39,13 @@ class TorsoPushes(gym.Wrapper):
         self._steps = 0
         self._push = np.zeros(3)
 
+    def random_state(self) -> dict:
+        """The push directions' random stream, to resume it exactly (`bc.ppo.vec_env` saves it at episode starts)."""
+        return self._rng.bit_generator.state
+
+    def set_random_state(self, state: dict) -> None:
+        self._rng.bit_generator.state = state
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         if seed is not None:
             self._rng = np.random.default_rng((seed, PUSH_STREAM))

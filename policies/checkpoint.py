@@ -98,6 +98,37 @@ def check_replaceable(path: Path, overwrite: bool) -> None:
         raise CheckpointError(f"{path} already holds a checkpoint; pass --overwrite true to replace it")
 
 
+def running_folder(path: Path) -> Path:
+    """Where a resumable run that will become `path` keeps its work until it finishes (`running`)."""
+    return path.parent / f".{path.name}.running"
+
+
+@contextmanager
+def running(path: Path, overwrite: bool) -> Iterator[Path]:
+    """Like `staged`, but the folder is always the same one and survives a failure or a kill, so that the run
+    can resume from what it holds (`bc.ppo.resume`); it becomes `path` when the block succeeds."""
+    check_replaceable(path, overwrite)
+    folder = running_folder(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None
+    yield folder
+    _publish(folder, path, overwrite)
+
+
+def _publish(folder: Path, path: Path, overwrite: bool) -> None:
+    """Rename the finished `folder` to `path`, replacing what is there only if that may be replaced."""
+    check_replaceable(path, overwrite)  # something may have appeared there in the meantime
+    if path.exists():
+        old = folder.with_suffix(".old")
+        path.rename(old)
+        folder.rename(path)
+        shutil.rmtree(old)
+    else:
+        folder.rename(path)
+
+
 @contextmanager
 def staged(path: Path, overwrite: bool) -> Iterator[Path]:
     """A fresh hidden folder beside `path` to write into; it becomes `path` when the block succeeds."""
@@ -111,13 +142,6 @@ def staged(path: Path, overwrite: bool) -> Iterator[Path]:
         raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None
     try:
         yield staging
-        check_replaceable(path, overwrite)  # something may have appeared there in the meantime
-        if path.exists():
-            old = staging.with_suffix(".old")
-            path.rename(old)
-            staging.rename(path)
-            shutil.rmtree(old)
-        else:
-            staging.rename(path)
+        _publish(staging, path, overwrite)
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # still there only if the block failed

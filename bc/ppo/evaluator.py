@@ -69,7 +69,8 @@ class Evaluator(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.logger.record(CONFIG_TAG, config_text(self.settings), exclude=("stdout", "log", "json", "csv"))
-        self.evaluate_now()
+        if not self.curve:  # a resumed run (bc.ppo.resume) has its curve, step 0 included
+            self.evaluate_now()
 
     def _on_rollout_start(self) -> None:
         # The actor changes only in PPO's updates, between rollouts: an evaluation here sees each version once.

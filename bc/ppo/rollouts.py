@@ -88,6 +88,14 @@ class Sampler:
             for i in env_indices
         ]
 
+    def random_state(self) -> list[torch.Tensor]:
+        """The exploration noise streams, to resume them exactly."""
+        return [generator.get_state() for generator in self.generators]
+
+    def set_random_state(self, states: list[torch.Tensor]) -> None:
+        for generator, state in zip(self.generators, states, strict=True):
+            generator.set_state(state)
+
     def value(self, observations: np.ndarray) -> np.ndarray:
         return self.policy.predict_values(self.policy.obs_to_tensor(observations)[0]).flatten().numpy()
 
@@ -166,15 +174,19 @@ class WorkerRolloutPPO(PPO):
         finally:
             torch.set_num_threads(rollout_threads)
 
-    def collect_rollouts(
-        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
-    ) -> bool:
+    def ensure_samplers(self, env: VecEnv) -> None:
+        """Give `env`'s workers their samplers, once (a resumed run then sets their noise streams)."""
         if not isinstance(env, WorkerGroupVecEnv):
             raise TypeError(f"WorkerRolloutPPO samples in a WorkerGroupVecEnv's workers, got {type(env).__name__}")
         if self._samplers_of is not env:
             acting = without_optimiser(self.policy)
             env.install_samplers(lambda group: Sampler(acting, group, self.seed or 0, self.gamma, self.reward_scale))
             self._samplers_of = env
+
+    def collect_rollouts(
+        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
+    ) -> bool:
+        self.ensure_samplers(env)
         self.policy.set_training_mode(False)
         rollout_buffer.reset()
         callback.on_rollout_start()

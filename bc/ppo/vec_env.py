@@ -31,11 +31,30 @@ from common.workers import Channel, Worker, close_all
 SB3_INFO_KEYS = ("terminal_observation", "TimeLimit.truncated", "episode", "is_success")
 
 
+def _random_wrappers(env: gym.Env) -> list[Any]:
+    """The wrappers around `env` whose random streams an episode uses besides the environment's own
+    (those with `random_state` / `set_random_state`, e.g. `humanoid.perturbations.TorsoPushes`)."""
+    found = []
+    while isinstance(env, gym.Wrapper):
+        if hasattr(env, "random_state") and hasattr(env, "set_random_state"):
+            found.append(env)
+        env = env.env
+    return found
+
+
 class _Share:
-    """A worker's environments, stepped as SB3's `DummyVecEnv` steps them (auto-reset, terminal observation)."""
+    """A worker's environments, stepped as SB3's `DummyVecEnv` steps them (auto-reset, terminal observation).
+
+    For a run to resume exactly (`bc.ppo.resume`), each environment's episode in progress is kept as how it
+    started (the reset's seed, or the random streams' states before an auto-reset) and the actions since:
+    replaying them rebuilds the simulation, its time limit and every wrapper's counters bit for bit, through
+    the environments' public API only. That is at most one episode of actions (68 KB) per environment.
+    """
 
     def __init__(self, envs: list[gym.Env]) -> None:
         self.envs = envs
+        self.starts: list[dict[str, Any]] = [{} for _ in envs]
+        self.actions: list[list[np.ndarray]] = [[] for _ in envs]
         # Where the environments are, for a sampler to act from (`bc.ppo.rollouts`): the last observations and
         # whether each is the first of its episode.
         self.observations: np.ndarray | None = None
@@ -45,11 +64,13 @@ class _Share:
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict], dict[int, dict]]:
         observations, rewards, dones, infos, reset_infos = [], [], [], [], {}
         for i, (env, action) in enumerate(zip(self.envs, actions, strict=True)):
+            self.actions[i].append(np.array(action))
             obs, reward, terminated, truncated, full_info = env.step(action)
             info = {key: full_info[key] for key in SB3_INFO_KEYS if key in full_info}
             info["TimeLimit.truncated"] = truncated and not terminated
             if terminated or truncated:
                 info["terminal_observation"] = obs
+                self.starts[i], self.actions[i] = self._streams(env), []
                 obs, reset_infos[i] = env.reset()
             observations.append(obs)
             rewards.append(reward)
@@ -59,12 +80,59 @@ class _Share:
         return self.observations, np.array(rewards, np.float32), self.episode_starts, infos, reset_infos
 
     def reset(self, seeds: list[int | None], options: list[dict]) -> tuple[np.ndarray, list[dict]]:
+        self.starts = [
+            {"seed": seed, "options": opts, **self._streams(env)}
+            for env, seed, opts in zip(self.envs, seeds, options, strict=True)
+        ]
+        self.actions = [[] for _ in self.envs]
         results = [
             env.reset(seed=seed, **({"options": opts} if opts else {}))
             for env, seed, opts in zip(self.envs, seeds, options, strict=True)
         ]
         self.observations, self.episode_starts = np.stack([obs for obs, _ in results]), np.ones(len(self.envs), bool)
         return self.observations, [info for _, info in results]
+
+    @staticmethod
+    def _streams(env: gym.Env) -> dict[str, Any]:
+        """The random streams an unseeded reset and its episode draw from, as they are now."""
+        return {
+            "np_random": env.unwrapped.np_random.bit_generator.state,
+            "wrappers": [wrapper.random_state() for wrapper in _random_wrappers(env)],
+        }
+
+    def get_state(self) -> dict[str, Any]:
+        """What `set_state` needs to put fresh copies of these environments (and the sampler) where these are."""
+        return {
+            "starts": self.starts,
+            "actions": [
+                np.array(actions, np.float32).reshape(len(actions), *self.envs[0].action_space.shape)
+                for actions in self.actions
+            ],
+            "observations": self.observations,
+            "episode_starts": self.episode_starts,
+            "sampler": None if self.sampler is None else self.sampler.random_state(),
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Replay each environment's episode in progress from its start; the result must equal the saved one."""
+        observations = []
+        for i, (env, start, actions) in enumerate(zip(self.envs, state["starts"], state["actions"], strict=True)):
+            env.unwrapped.np_random.bit_generator.state = start["np_random"]
+            for wrapper, wrapper_state in zip(_random_wrappers(env), start["wrappers"], strict=True):
+                wrapper.set_random_state(wrapper_state)
+            options = start.get("options")
+            obs, _ = env.reset(seed=start.get("seed"), **({"options": options} if options else {}))
+            for action in actions:
+                obs, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    raise RuntimeError(f"environment {i} ended while replaying its episode in progress")
+            observations.append(obs)
+            self.starts[i], self.actions[i] = start, list(actions)
+        self.observations, self.episode_starts = np.stack(observations), state["episode_starts"]
+        if not np.array_equal(self.observations, state["observations"]):
+            raise RuntimeError("the replayed environments are not where the saved ones were")
+        if state["sampler"] is not None:
+            self.sampler.set_random_state(state["sampler"])
 
     def install_sampler(self, sampler: Any) -> None:
         self.sampler = sampler
@@ -213,6 +281,16 @@ class WorkerGroupVecEnv(VecEnv):
     def install_samplers(self, make_sampler: Callable[[range], Any]) -> None:
         """Gives each worker `make_sampler(the global indices of its environments)` (a `bc.ppo.rollouts.Sampler`)."""
         self._all("install_sampler", lambda group: (make_sampler(group),))
+
+    def get_state(self) -> list[dict[str, Any]]:
+        """Each worker's `_Share.get_state`: where every environment is and how it got there (for resuming)."""
+        return self._all("get_state", lambda _: ())
+
+    def set_state(self, states: list[dict[str, Any]]) -> None:
+        """Put the environments (and samplers) where `get_state` found them; the worker split must be the same."""
+        if len(states) != len(self.groups):
+            raise ValueError(f"saved for {len(states)} workers, not {len(self.groups)}")
+        self._all("set_state", lambda group: (states[self.groups.index(group)],))
 
     def sample(self, state: dict, n_steps: int) -> list[Any]:
         """Each worker's rollout of its environments (`n_steps` steps, policy weights `state`), in order."""

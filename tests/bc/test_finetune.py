@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +15,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import CONFIG_TAG
+from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE
 from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -367,3 +371,68 @@ def test_existing_checkpoint_is_not_overwritten(
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(target)], capsys)
     assert code == 1 and len(err) == 1 and "--overwrite" in err[0]
     assert snapshot(target) == existing and snapshot(bc_policy) == before
+
+
+RESUMABLE = {**TINY_PPO, "timesteps": 256 * 8, "envs": 8, "eval_freq": 1024}
+
+
+def resumable_command(bc_policy: Path, policy: Path, **changes: object) -> list[str]:
+    settings = {**RESUMABLE, **changes}
+    args = [f"--{name.replace('_', '-')}={value}" for name, value in settings.items()]
+    return [sys.executable, "-m", "bc.finetune", f"--bc-policy={bc_policy}", f"--policy={policy}", *args]
+
+
+def kill_after_snapshots(command: list[str], policy: Path, snapshots: int, delay: float) -> str:
+    """Run `command`, kill -9 it `delay` s after it has written `snapshots` more resume snapshots; its stderr."""
+    state = checkpoint.running_folder(policy) / "resume.pt"
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    seen, last = 0, state.stat().st_mtime_ns if state.exists() else None
+    deadline = time.monotonic() + 120
+    while seen < snapshots and process.poll() is None and time.monotonic() < deadline:
+        now = state.stat().st_mtime_ns if state.exists() else None
+        if now is not None and now != last:
+            seen, last = seen + 1, now
+        time.sleep(0.005)
+    time.sleep(delay)
+    process.kill()
+    _, err = process.communicate(timeout=60)
+    assert seen == snapshots, f"the run ended after {seen} snapshots: {err[-2000:]}"
+    return err
+
+
+def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(bc_policy: Path, tmp_path: Path) -> None:
+    """kill -9 mid-rollout or mid-update (twice, at different moments), then the same command: the final actor,
+    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit."""
+    reference = tmp_path / "reference"
+    main(FinetuneConfig(bc_policy=bc_policy, policy=reference, **RESUMABLE))
+    broken = tmp_path / "broken"
+    command = resumable_command(bc_policy, broken)
+    kill_after_snapshots(command, broken, snapshots=2, delay=0.02)
+    err = kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
+    assert "resuming" in err
+    finished = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    assert "resuming" in finished.stderr
+    for name in (policy_files.WEIGHTS_FILE, CURVE_FILE):
+        assert (broken / name).read_bytes() == (reference / name).read_bytes(), name
+    assert not checkpoint.running_folder(broken).exists() and not (broken / "resume.pt").exists()
+
+
+def test_resuming_with_other_settings_is_refused_and_the_saved_run_kept(
+    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    policy = tmp_path / "run"
+    kill_after_snapshots(resumable_command(bc_policy, policy), policy, snapshots=1, delay=0.0)
+    saved = snapshot(checkpoint.running_folder(policy))
+    args = resumable_command(bc_policy, policy, learning_rate=1e-3)[3:]
+    code, err = ppo_cli(args, capsys)
+    assert code == 1 and len(err) == 1 and "interrupted run with other settings" in err[0] and "learning_rate" in err[0]
+    assert snapshot(checkpoint.running_folder(policy)) == saved and not policy.exists()
+
+
+def test_a_finished_run_is_not_run_again(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "done", **RESUMABLE)
+    first = main(config)
+    before = snapshot(config.policy)
+    assert main(config) == first and snapshot(config.policy) == before
+    assert "not run again" in capsys.readouterr().err

@@ -38,6 +38,10 @@ FOLLOWED = {
     VecEnv._reset_options: "043de0d3106453c3",
     VecEnv._get_indices: "7a04444b1c9a25a0",
     VecEnv.seed: "6b050dc4ebaa103d",
+    # what a resumed run relies on (bc.ppo.resume): learn(reset_num_timesteps=False) keeps the step counter
+    # and the last observations it is given, and only then makes fresh episode-statistics buffers
+    BaseAlgorithm._setup_learn: "3a571e660e230d68",
+    OnPolicyAlgorithm.learn: "8fc8d0b1fa9d316a",
 }
 
 
