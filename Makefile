@@ -35,7 +35,7 @@ VARS.dagger := DATASET OUTPUT POLICY INPUTS ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS ENVS PUSH OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BC_POLICY EPOCHS SCRATCH_POLICY \
-	PPO_POLICY TIMESTEPS ENVS PUSH ARGS OVERWRITE
+	PPO_POLICY TIMESTEPS ENVS PUSH ARGS OVERWRITE ROBUSTNESS_EPISODES
 # --name='value' for each variable of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 

@@ -1,4 +1,5 @@
-"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl, then the table of `bc.report`.
+"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl, then the tables of `bc.report`: the clean
+evaluations, and the robustness suite (`bc.robustness`) on the expert and every policy.
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -43,16 +44,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bc import report
+from bc import report, robustness
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
+from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
-from humanoid.conditions import NO_RANDOMIZATION
-from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, checkpoint_problem, is_checkpoint
+from humanoid.conditions import NO_RANDOMIZATION, SUITE
+from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_info
 from teleop.lerobot_io.format import INFO_PATH
@@ -102,6 +104,11 @@ class PipelineConfig:
     args: str = setting("", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --keep last'; default: none")
     overwrite: bool = setting(
         False, "also replace checkpoints the pipeline did not make when they differ (never a dataset it did not record)"
+    )
+    robustness_episodes: int = setting(
+        20,
+        "episodes per condition of the robustness suite run at the end on the expert and every policy "
+        "(seeds 1000.., docs/robustness.md); 0 = skip",
     )
 
 
@@ -339,8 +346,9 @@ def foresee(run: Stages, overwrite: bool) -> None:
     ppo_decision(run.finetune, "--ppo-policy", overwrite, bc_remade)
 
 
-def run(stages: Stages, overwrite: bool = False) -> str:
-    """Run what has to run, say why in one line each, and print and return the table."""
+def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -> str:
+    """Run what has to run, say why in one line each, and print and return the table(s): with
+    `robustness_episodes`, the suite's table of the expert and every policy too."""
     validate(stages)
     foresee(stages, overwrite)
 
@@ -362,14 +370,34 @@ def run(stages: Stages, overwrite: bool = False) -> str:
         if decision.action != REUSE:
             print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
 
-    table = report.table([stages.train.policy, stages.finetune.policy, stages.baseline.policy])
+    policies = [stages.train.policy, stages.finetune.policy, stages.baseline.policy]
+    table = report.table(policies)
     print(table)
+    if robustness_episodes:
+        results = {name: suite(name, robustness_episodes) for name in ["expert", *map(str, policies)]}
+        table += "\n\n" + report.suite_table(results)
+        print("\n" + report.suite_table(results))
     return table
 
 
+def suite(policy: str, episodes: int) -> dict[str, Any]:
+    """The robustness suite's results for `policy`: its robustness.json if made after the policy with the same
+    episodes and conditions (the expert's always), else a new run (about 30 s for 20 episodes)."""
+    cfg = RobustnessConfig(policy=policy, episodes=episodes, progress=False)
+    saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
+    weights = Path(policy) / WEIGHTS_FILE
+    if saved.is_file() and (policy == "expert" or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
+        result = json.loads(saved.read_text())
+        if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == list(SUITE):
+            print(f"pipeline: robustness of {policy}: reusing {saved}", flush=True)
+            return result
+    print(f"pipeline: robustness of {policy}: {episodes} episodes x {len(SUITE)} conditions", flush=True)
+    return robustness.main(cfg)
+
+
 def main(cfg: PipelineConfig) -> str:
-    """The whole pipeline as configured; returns the table it printed."""
-    return run(stages(cfg), cfg.overwrite)
+    """The whole pipeline as configured; returns the table(s) it printed."""
+    return run(stages(cfg), cfg.overwrite, cfg.robustness_episodes)
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

@@ -9,6 +9,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from policies.folder import EVAL_FILE
 
@@ -30,6 +31,20 @@ def table(policy_dirs: Sequence[Path]) -> str:
             f"| expert (LQR) | {reference['seeds'][0]}..{reference['seeds'][-1]} | "
             f"{reference['expert_survival_rate']:.0%} | {expert:,.1f} | 100.0% |"
         )
+    return "\n".join(rows)
+
+
+def suite_table(results: dict[str, dict[str, Any]]) -> str:
+    """A Markdown table of robustness results (`bc.robustness` JSON) per policy: survivors per condition,
+    and the clean mean return."""
+    names = list(next(iter(results.values()))["conditions"])
+    rows = ["| policy | clean return | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+    for policy, result in results.items():
+        conditions = result["conditions"]
+        cells = [f"{round(c['survival_rate'] * c['episodes'])}/{c['episodes']}" for c in conditions.values()]
+        rows.append(f"| {policy} | {conditions['clean']['mean_return']:,.1f} | " + " | ".join(cells) + " |")
+    seeds = next(iter(results.values()))["seeds"]
+    rows.append(f"\n(survivors per condition, seeds {seeds[0]}..{seeds[-1]}; docs/robustness.md says what each is)")
     return "\n".join(rows)
 
 

@@ -33,9 +33,11 @@ from bc.pipeline import (
     ppo_decision,
     run,
     stages,
+    suite,
 )
 from bc.train import TrainConfig
 from common.cli import UserError
+from humanoid.conditions import SUITE
 from policies.folder import CONFIG_FILE, EVAL_FILE
 from support import snapshot
 from teleop import recordings
@@ -331,3 +333,14 @@ def test_args_may_not_repeat_a_pipeline_setting() -> None:
     """--timesteps in ARGS would silently lose to TIMESTEPS: refused, naming the flag."""
     with pytest.raises(UserError, match="--args sets --timesteps, a setting of the pipeline's own"):
         stages(PipelineConfig(args="--timesteps 5"))
+
+
+def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The closing suite table: a row per policy with its clean return and survivors under every condition;
+    a second pipeline run reuses the results made after the policy."""
+    first = suite("bc", 1)
+    assert suite("bc", 1) == first and "reusing" in capsys.readouterr().out
+    table = report.suite_table({"bc": first}).splitlines()
+    assert table[0] == "| policy | clean return | " + " | ".join(SUITE) + " |"
+    survivors = [f"{round(c['survival_rate'])}/1" for c in first["conditions"].values()]
+    assert table[2] == f"| bc | {first['conditions']['clean']['mean_return']:,.1f} | " + " | ".join(survivors) + " |"
