@@ -47,6 +47,7 @@ from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from humanoid.conditions import SUITE
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
@@ -113,6 +114,11 @@ class FinetuneConfig:
         "steps between evaluations (and checkpoints) during training; each runs after the first update past its mark",
     )
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
+    eval_conditions: str = setting(
+        "push20,mass",
+        "robustness conditions (docs/robustness.md) evaluated beside the validation one at every evaluation "
+        "during training, for the learning curve's survival panel and TensorBoard; comma-separated, '' = none",
+    )
     validation_seed: int = setting(
         VALIDATION_SEED,
         "first seed of the evaluations during training: apart from "
@@ -180,6 +186,13 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"--keep must be 'best' or 'last', got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
+    unknown = [name for name in eval_conditions(cfg) if name not in SUITE or name == "clean"]
+    if unknown:
+        raise UserError(f"unknown --eval-conditions {', '.join(unknown)}; known: {', '.join(list(SUITE)[1:])}")
+
+
+def eval_conditions(cfg: FinetuneConfig) -> list[str]:
+    return [name.strip() for name in cfg.eval_conditions.split(",") if name.strip()]
 
 
 def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
@@ -279,6 +292,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 seed=cfg.validation_seed,
                 push=cfg.push,
                 freq=cfg.eval_freq,
+                conditions=eval_conditions(cfg),
                 settings=settings,
                 folder=folder,
                 bar=bar,

@@ -66,7 +66,7 @@ MADE_BY = "bc.pipeline"
 NOT_COMPARED = frozenset({"progress", "overwrite", "cache", "writer", "front_end", "workers", "update_threads"})
 """Settings that change only speed, display or permissions: never a reason to make an output again."""
 
-ADDED_SINCE = {"randomize": NO_RANDOMIZATION}
+ADDED_SINCE = {"randomize": NO_RANDOMIZATION, "eval_conditions": ""}
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before
 --randomize existed is one recorded with --randomize none, byte for byte)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,11 +39,13 @@ class Evaluator(BaseCallback):
         push: float,
         freq: int,
         settings: dict[str, Any],
+        conditions: Sequence[str] = (),
         folder: Path,
         bar: tqdm,
     ) -> None:
         super().__init__()
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
+        self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
         self.settings, self.folder, self.bar = settings, folder, bar
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
@@ -58,6 +61,12 @@ class Evaluator(BaseCallback):
             "mean_return": result["mean_return"],
             "survival_rate": result["survival_rate"],
         }
+        for name in self.conditions:  # after the validation one: the actor kept is chosen on that alone
+            under = evaluate(PolicyController(actor, "ppo"), episodes=self.episodes, seed=self.seed, condition=name)
+            actor.train()
+            point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
+            self.logger.record(f"eval/{name}/survival_rate", under["survival_rate"])
+            self.logger.record(f"eval/{name}/mean_return", under["mean_return"])
         self.curve.append(point)
         if self.best is None or point["mean_return"] > self.best["mean_return"]:
             self.best, self.best_state = point, {k: v.detach().clone() for k, v in actor.state_dict().items()}
@@ -87,16 +96,28 @@ class Evaluator(BaseCallback):
 
 
 def plot_curves(curves: dict[str, list[dict[str, float]]], bc_return: float | None, title: str, path: Path) -> None:
-    """Evaluation return against training steps, one line per run, BC's level dashed."""
-    figure = Figure(figsize=(7, 4))
-    axes = figure.subplots()
-    for label, curve in curves.items():
-        axes.plot([p["timesteps"] for p in curve], [p["mean_return"] for p in curve], marker="o", label=label)
+    """Left: validation return against training steps, one line per run, BC's level dashed. Right: survival,
+    in the validation episodes (solid) and under each robustness condition evaluated (one line style each)."""
+    figure = Figure(figsize=(12, 4.5))
+    returns, survival = figure.subplots(1, 2)
+    styles = ["--", ":", "-.", (0, (1, 4))]
+    for index, (label, curve) in enumerate(curves.items()):
+        steps = [p["timesteps"] for p in curve]
+        color = f"C{index}"
+        returns.plot(steps, [p["mean_return"] for p in curve], marker="o", color=color, label=label)
+        survival.plot(steps, [100 * p["survival_rate"] for p in curve], marker="o", color=color, label=label)
+        conditions = [key.removesuffix("_survival_rate") for key in curve[0] if key.endswith("_survival_rate")]
+        for name, style in zip(conditions, styles, strict=False):
+            values = [100 * p.get(f"{name}_survival_rate", float("nan")) for p in curve]
+            survival.plot(steps, values, linestyle=style, marker=".", color=color, label=f"{label}, {name}")
     if bc_return is not None:
-        axes.axhline(bc_return, color="grey", linestyle="--", label="BC policy")
-    axes.set_xlabel("environment steps")
-    axes.set_ylabel("evaluation mean return")
-    axes.set_title(title)
-    axes.legend()
+        returns.axhline(bc_return, color="grey", linestyle="--", label="BC policy")
+    returns.set_ylabel("validation mean return")
+    survival.set_ylabel("survival (%)")
+    survival.set_ylim(-5, 105)
+    for axes in (returns, survival):
+        axes.set_xlabel("environment steps")
+        axes.legend(fontsize="small")
+    figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=100)

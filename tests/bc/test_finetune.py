@@ -218,6 +218,15 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tiny_run: tuple[
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
+def test_every_evaluation_includes_the_robustness_conditions(tiny_run: tuple[FinetuneConfig, dict]) -> None:
+    """Each point of the learning curve has the survival and return under each of --eval-conditions (push20,
+    mass by default), beside the validation ones, for the figure's survival panel."""
+    _, result = tiny_run
+    for point in result["training_curve"]:
+        for name in ("push20", "mass"):
+            assert 0.0 <= point[f"{name}_survival_rate"] <= 1.0 and point[f"{name}_mean_return"] > 0
+
+
 def test_config_json_holds_every_setting_and_the_bc_policy(tiny_run: tuple[FinetuneConfig, dict]) -> None:
     """config.json's training record: every FinetuneConfig field as run, who ran it, the BC weights' digest."""
     config, _ = tiny_run
@@ -342,6 +351,7 @@ def test_proprio_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
         (["--envs", "4", "--workers", "5"], "--workers (5) must not exceed --envs (4)"),
         (["--critic-learning-rate", "0"], "--critic-learning-rate must be positive"),
         (["--reward-scale", "-1"], "--reward-scale must be positive"),
+        (["--eval-conditions", "push20,gravity"], "unknown --eval-conditions gravity"),
     ],
 )
 def test_bad_settings_are_refused(
