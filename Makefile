@@ -67,7 +67,7 @@ inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 al
 	$(PY) -m teleop.inspect_dataset $(flags)
 
 export: $(STAMP)  ## write a dataset in another format (FORMAT=minari: a new Minari datasets root at OUT)
-	$(PY) -m teleop.export $(flags)
+	$(PY) -m bc.export $(flags)
 
 train-bc: $(STAMP)  ## behaviour cloning, then evaluation
 	$(PY) -m bc.train $(flags)

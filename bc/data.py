@@ -105,10 +105,11 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
             f"{root} records {recorded_action_dim} action dimensions; {ENV_ID} has {env.action_space.shape[0]}"
         )
     recorded = [name for key in columns for name in features[key].get("names") or []]
-    wanted = input_names(inputs, env.unwrapped.model)
-    index = observation_index(env.unwrapped.model, recorded) if inputs == "full" else None
-    if inputs == "proprio" and recorded == wanted:
-        index = np.arange(len(wanted))
+    if inputs == "full":
+        index = observation_index(recorded, env.unwrapped.model)
+    else:  # the sensed features are read as recorded, when they are the ones the policy reads
+        wanted = input_names(inputs, env.unwrapped.model)
+        index = np.arange(len(wanted)) if recorded == wanted else None
     if index is None:
         if inputs == "proprio":
             raise DatasetError(

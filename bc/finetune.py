@@ -271,11 +271,12 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         return finished
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     saved = resume.load(checkpoint.running_folder(cfg.policy))
-    if saved is not None and saved["settings"] != resume.comparable(settings):
-        first = next(name for name in saved["settings"] if saved["settings"][name] != settings.get(name))
+    now = resume.comparable(settings)
+    if saved is not None and saved["settings"] != now:
+        first = next(name for name in {**saved["settings"], **now} if saved["settings"].get(name) != now.get(name))
         raise UserError(
             f"{checkpoint.running_folder(cfg.policy)} holds an interrupted run with other settings "
-            f"({first}: {saved['settings'][first]!r} there, {settings.get(first)!r} now): run it with its "
+            f"({first}: {saved['settings'].get(first)!r} there, {now.get(first)!r} now): run it with its "
             f"settings to resume it, or remove that folder"
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates

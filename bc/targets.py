@@ -25,12 +25,12 @@ from typing import Any
 from bc.baseline import BaselineConfig
 from bc.dagger import DaggerConfig
 from bc.evaluate import EvalConfig
+from bc.export import ExportConfig
 from bc.finetune import FinetuneConfig
 from bc.pipeline import PipelineConfig
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common.cli import flag
-from teleop.export import ExportConfig
 from teleop.inspect_dataset import InspectConfig
 from teleop.record import RecordConfig
 
@@ -66,7 +66,7 @@ TARGETS: dict[str, Target] = {
         ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers", *_LIVE),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
-    "export": Target("teleop.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
+    "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),
     "eval": Target(
         "bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video", *_LIVE)

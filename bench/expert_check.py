@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from humanoid.env import make_env
+from humanoid.env import humanoid_model, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from humanoid.expert import LQRExpert
-from humanoid.lqr import design_lqr, humanoid_model, load_or_design
+from humanoid.lqr import design_lqr, load_or_design
 
 
 def time_setup() -> tuple[float, float]:

@@ -12,6 +12,7 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 import numpy as np
+from gymnasium.envs import mujoco as mujoco_envs  # its assets folder holds Humanoid-v5's XML
 
 ENV_ID = "Humanoid-v5"
 EPISODE_STEPS = 1000
@@ -29,6 +30,12 @@ def make_env(max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = N
     if max_episode_steps <= 0:
         raise ValueError(f"max_episode_steps must be positive, got {max_episode_steps}")
     return gym.make(ENV_ID, max_episode_steps=max_episode_steps, render_mode=render_mode, **options)
+
+
+def humanoid_model() -> mujoco.MjModel:
+    """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
+    xml = Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"
+    return mujoco.MjModel.from_xml_path(str(xml))
 
 
 def model_and_data(env: gym.Env) -> tuple[mujoco.MjModel, mujoco.MjData]:

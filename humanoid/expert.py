@@ -12,6 +12,7 @@ from collections import deque
 import mujoco
 import numpy as np
 
+from humanoid.env import humanoid_model
 from humanoid.lqr import (
     CTRL_LIMIT,
     HEIGHT,
@@ -20,7 +21,6 @@ from humanoid.lqr import (
     ROOT_XY,
     VERTICAL_VEL,
     LQRDesign,
-    humanoid_model,
     load_or_design,
     state_error,
 )

@@ -26,7 +26,6 @@ import os
 import tempfile
 import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -89,14 +88,6 @@ class LQRGains:
     """(nu,) feed-forward control that holds the balanced pose."""
     gain: np.ndarray
     """(nu, nx) feedback matrix K: ctrl = ctrl_ff - K @ state."""
-
-
-def humanoid_model() -> mujoco.MjModel:
-    """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
-    import gymnasium.envs.mujoco  # noqa: PLC0415 - deferred: only needed when no model is given
-
-    xml = Path(gymnasium.envs.mujoco.__file__).parent / "assets" / "humanoid.xml"
-    return mujoco.MjModel.from_xml_path(str(xml))
 
 
 def state_error(model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:

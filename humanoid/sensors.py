@@ -26,13 +26,14 @@ and cfrc_ext. Datasets recorded before this split stored qpos[2:] and qvel (45) 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
 
 from common.keys import OBS_ENV_STATE, OBS_STATE
-from humanoid.env import observation_names
+from humanoid.env import humanoid_model, observation_names
 
 GRAVITY_NAMES = ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")
 GYRO_NAMES = ("root.wx", "root.wy", "root.wz")  # qvel[3:6]: the free joint's angular velocity, torso frame
@@ -92,24 +93,36 @@ class Proprioception:
 
 
 class ObservationSplit:
-    """(observation.state, observation.environment_state) of gymnasium observations of one model."""
+    """(observation.state, observation.environment_state) of gymnasium observations of one model, and back."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         sensed = set(proprioception_names(model))
         self.proprioception = Proprioception(model)
         self._privileged = np.array([i for i, name in enumerate(observation_names(model)) if name not in sensed])
+        self._joined = observation_index(proprioception_names(model) + privileged_names(model), model)
 
     def __call__(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.proprioception(obs), obs[..., self._privileged]
 
+    def join(self, state: np.ndarray, environment_state: np.ndarray) -> np.ndarray:
+        """The gymnasium observations (..., 348) that `__call__` split, bit for bit."""
+        return np.concatenate([state, environment_state], axis=-1)[..., self._joined]
 
-def observation_index(model: mujoco.MjModel, recorded: Sequence[str]) -> np.ndarray | None:
+
+@functools.cache
+def _layout_model() -> mujoco.MjModel:
+    # Every Humanoid-v5 has this observation layout (drawn masses or gears do not change names): load it once.
+    return humanoid_model()
+
+
+def observation_index(recorded: Sequence[str], model: mujoco.MjModel | None = None) -> np.ndarray | None:
     """Where each gymnasium observation entry sits among the `recorded` names (state's, then environment
     state's, side by side), so that `np.concatenate([state, environment_state], -1)[..., index]` is the
-    gymnasium observation; None if a name is missing (the dataset cannot give the observation)."""
+    gymnasium observation of `model` (Humanoid-v5's by default); None if a name is missing (the dataset
+    cannot give the observation)."""
     position = {name: i for i, name in enumerate(recorded)}
     try:
-        return np.array([position[name] for name in observation_names(model)])
+        return np.array([position[name] for name in observation_names(model or _layout_model())])
     except KeyError:
         return None
 

@@ -25,7 +25,6 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import keys
 from common.cli import DatasetError
-from humanoid.env import make_env
 from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
 from teleop.mcap_io.writer import FINAL_TOPIC, METADATA_NAME, STEP_TOPIC
@@ -220,7 +219,9 @@ def read_transitions(root: Path) -> list[Transitions]:
     if not set(final_columns) <= set(episodes.column_names):
         raise DatasetError(f"{root} has no final observations (recorded before they were kept); record it again")
     names = [read_info(root)["features"][key]["names"] for key in (keys.OBS_STATE, keys.OBS_ENV_STATE)]
-    index = _observation_order(names[0] + names[1])
+    index = observation_index(names[0] + names[1])
+    if index is None:
+        raise DatasetError(f"{root}'s observation features do not name every gymnasium observation entry")
     columns = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.TERMINATED, keys.TRUNCATED]
     frames = read_frames(root, [*columns, "episode_index"])
     observations = np.concatenate([frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE]], axis=1)[:, index]
@@ -239,17 +240,6 @@ def read_transitions(root: Path) -> list[Transitions]:
             )
         )
     return result
-
-
-def _observation_order(names: list[str]) -> np.ndarray:
-    env = make_env()
-    try:
-        index = observation_index(env.unwrapped.model, names)
-    finally:
-        env.close()
-    if index is None:
-        raise DatasetError("the dataset's observation features do not name every gymnasium observation entry")
-    return index
 
 
 def read_mcap_final(path: Path) -> dict[str, np.ndarray]:

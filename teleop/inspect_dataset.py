@@ -39,7 +39,6 @@ from mcap.reader import make_reader
 
 from common import keys, paths
 from common.cli import DatasetError, run_cli, setting
-from humanoid.env import make_env
 from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
@@ -130,11 +129,7 @@ class Dataset:
         """Where each gymnasium observation entry sits in observation.state + environment_state (by name)."""
         features = self.info["features"]
         names = [name for key in OBSERVATION_COLUMNS for name in features.get(key, {}).get("names") or []]
-        env = make_env()
-        try:
-            return observation_index(env.unwrapped.model, names)
-        finally:
-            env.close()
+        return observation_index(names)
 
     def rows(self, episode: int) -> slice:
         return slice(self.episodes["dataset_from_index"][episode], self.episodes["dataset_to_index"][episode])

@@ -29,7 +29,7 @@ from common.cli import UserError
 from common.keys import COMMAND_NAMES
 from humanoid.env import body_names, model_and_data, step_duration_ns
 from humanoid.episode import EpisodeBuffer
-from humanoid.sensors import ObservationSplit
+from humanoid.sensors import Proprioception
 from teleop.mcap_io.schema import Command, Step
 from teleop.mcap_io.wire import FrameTransformsEncoder
 from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, WORLD_FRAME, scene_update
@@ -66,7 +66,7 @@ class LivePublisher:
         }
         frames = body_names(model)
         self._scene = scene_update(model, frames).SerializeToString()
-        self._split = ObservationSplit(model)
+        self._proprioception = Proprioception(model)
         self._step_ns = step_duration_ns(env)
         self._transforms = FrameTransformsEncoder(WORLD_FRAME, frames)
         self.episode = -1
@@ -94,7 +94,7 @@ class LivePublisher:
                 episode_index=self.episode,
                 frame_index=t,
                 observation=buffer.observation[t].tolist(),
-                state=self._split.proprioception(buffer.observation[t]).tolist(),
+                state=self._proprioception(buffer.observation[t]).tolist(),
                 action=buffer.action[t].tolist(),
                 executed_action=buffer.executed_action[t].tolist(),
                 reward=float(buffer.reward[t]),

@@ -20,8 +20,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from common import keys
 from common.keys import COMMAND_NAMES
-from humanoid.env import make_env
-from humanoid.sensors import observation_index, privileged_names, proprioception_names
+from humanoid.env import humanoid_model
+from humanoid.sensors import ObservationSplit
 from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 
@@ -37,11 +37,7 @@ def snapshot(root: Path) -> dict[str, bytes]:
 
 def join_observation(state: np.ndarray, environment_state: np.ndarray) -> np.ndarray:
     """The gymnasium observation from its two stored parts: the entries placed by their recorded names."""
-    env = make_env()
-    model = env.unwrapped.model
-    env.close()
-    index = observation_index(model, proprioception_names(model) + privileged_names(model))
-    return np.concatenate([state, environment_state], axis=-1)[..., index]
+    return ObservationSplit(humanoid_model()).join(state, environment_state)
 
 
 @dataclass

@@ -15,9 +15,10 @@ import pytest
 from humanoid import physics
 from humanoid.conditions import ActionLatency, action_delay
 from humanoid.controllers import make_controller
+from humanoid.env import humanoid_model
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert, Predictor
-from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, humanoid_model, load_or_design
+from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, load_or_design
 
 STANDING_RETURN = 4_900.0
 

@@ -104,7 +104,7 @@ def test_split_parts_join_back_to_the_observation_bit_for_bit() -> None:
     observations, _ = rollout(steps=50, fall_after=50)
     state, environment_state = ObservationSplit(model)(np.array(observations))
     names = proprioception_names(model) + privileged_names(model)
-    index = observation_index(model, names)
+    index = observation_index(names, model)
     env.close()
     assert state.shape[1] == len(proprioception_names(model)) == 42
     assert len(set(names)) == len(names)
@@ -129,4 +129,4 @@ def test_a_missing_name_cannot_give_the_observation() -> None:
     env = make_env()
     model = env.unwrapped.model
     env.close()
-    assert observation_index(model, proprioception_names(model)) is None
+    assert observation_index(proprioception_names(model)) is None

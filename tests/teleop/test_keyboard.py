@@ -25,6 +25,7 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (second
 
 SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
 HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
+KEYBOARD_RECORDER = [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "terminal"]
 
 
 class Terminal:
@@ -34,13 +35,7 @@ class Terminal:
         self.master, slave = pty.openpty()
         self.process = subprocess.Popen(
             [
-                sys.executable,
-                "-m",
-                "teleop.record",
-                "--controller",
-                "keyboard",
-                "--front-end",
-                "terminal",
+                *KEYBOARD_RECORDER,
                 "--dataset",
                 str(root),
                 "--noise",
@@ -189,17 +184,7 @@ def test_task_for_neutral_is_the_default_task() -> None:
 def test_keyboard_without_a_terminal_is_a_one_line_error(tmp_path: Path) -> None:
     """With stdin not a TTY the recorder exits non-zero with one line and writes no episode."""
     result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "teleop.record",
-            "--controller",
-            "keyboard",
-            "--front-end",
-            "terminal",
-            "--dataset",
-            str(tmp_path / "d"),
-        ],
+        [*KEYBOARD_RECORDER, "--dataset", str(tmp_path / "d")],
         stdin=subprocess.DEVNULL,
         capture_output=True,
         text=True,

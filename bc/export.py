@@ -22,19 +22,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
+from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import DatasetError, UserError, run_cli, setting
-from humanoid.controllers import make_controller
-from humanoid.env import ENV_ID, EPISODE_STEPS, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.env import ENV_ID
 from teleop.dataset_reader import Transitions, read_transitions
 from teleop.lerobot_io.format import INFO_PATH
 
 FORMATS = ("minari",)
 NAMESPACE = "humanoid-bc"
-REFERENCE_SEED = 1000  # the evaluation seeds no recording uses
 
 
 @dataclass
@@ -45,24 +41,11 @@ class ExportConfig:
     out: Path = setting(Path("exports/minari"), "new folder to write: a Minari datasets root (must not exist)")
     format: str = setting("minari", "the format to write", choices=FORMATS)
     reference_episodes: int = setting(10, "episodes of the random and expert controllers for the reference scores")
-    seed: int = setting(REFERENCE_SEED, "first seed of the reference episodes")
+    seed: int = setting(EVAL_SEED, "first seed of the reference episodes")
 
 
 def dataset_id(dataset: Path) -> str:
     return f"{NAMESPACE}/{dataset.resolve().name}-v0"
-
-
-def reference_score(controller: str, episodes: int, seed: int) -> float:
-    """Mean return of `controller` on seeds seed..seed+episodes-1, clean, full-length episodes."""
-    env = make_env()
-    try:
-        buffer = EpisodeBuffer(env, EPISODE_STEPS)
-        runner = make_controller(controller, env)
-        return float(
-            np.mean([run_episode(env, runner, s, buffer=buffer).episode_return for s in range(seed, seed + episodes)])
-        )
-    finally:
-        env.close()
 
 
 def to_minari(transitions: list[Transitions]) -> list:
@@ -99,8 +82,8 @@ def main(cfg: ExportConfig) -> str:
         raise DatasetError(f"{cfg.dataset} holds no episodes")
     buffers = to_minari(transitions)
     scores = {
-        "ref_min_score": reference_score("random", cfg.reference_episodes, cfg.seed),
-        "ref_max_score": reference_score("expert", cfg.reference_episodes, cfg.seed),
+        "ref_min_score": evaluate("random", cfg.reference_episodes, cfg.seed)["mean_return"],
+        "ref_max_score": evaluate("expert", cfg.reference_episodes, cfg.seed)["mean_return"],
     }
     import minari  # noqa: PLC0415 - minari loads h5py/arrow; only export needs it
 
@@ -138,7 +121,7 @@ def _main_and_print(cfg: ExportConfig) -> None:
 
 
 def cli(argv: Sequence[str] | None = None) -> int:
-    return run_cli(_main_and_print, ExportConfig, argv, description=__doc__, prog="python -m teleop.export")
+    return run_cli(_main_and_print, ExportConfig, argv, description=__doc__, prog="python -m bc.export")
 
 
 if __name__ == "__main__":

@@ -12,10 +12,10 @@ import minari
 import numpy as np
 import pytest
 
+from bc.export import ExportConfig, dataset_id, main
 from common import keys
 from support import snapshot
 from teleop.dataset_reader import read_frames
-from teleop.export import ExportConfig, dataset_id, main
 
 pytestmark = pytest.mark.slow  # reference episodes of the expert: seconds
 
@@ -60,7 +60,7 @@ def test_environment_and_reference_scores(exported: minari.MinariDataset) -> Non
 
 
 def export_cli(*args: str) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "teleop.export", "--reference-episodes", "1", *args]
+    command = [sys.executable, "-m", "bc.export", "--reference-episodes", "1", *args]
     return subprocess.run(command, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
 
 
