@@ -47,6 +47,7 @@ from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import SUITE
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
@@ -77,6 +78,15 @@ class FinetuneConfig:
         2,
         "processes the environments are spread over (1: in the learner's own process); "
         "changes the speed, not the result, while each holds 4 or more environments",
+    )
+    backend: str = setting(
+        "local",
+        "where the workers run: 'local' (processes here) or 'ray' (Ray actors in the cluster at "
+        "--ray-address, one CPU each: docs/scaling.md); the same weights either way",
+        choices=BACKENDS,
+    )
+    ray_address: str | None = setting(
+        None, "HOST:PORT of a running Ray cluster's head (--backend ray); default: a local Ray for this run"
     )
     push: float = setting(0.0, "train with horizontal pushes of this many newtons on the torso (0.1 s every 2 s)")
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
@@ -176,6 +186,7 @@ def validate(cfg: FinetuneConfig) -> None:
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
     if not 0 < cfg.bc_decay <= 1:
         raise UserError(f"--bc-decay must be in (0, 1], got {cfg.bc_decay}")
+    check_backend(cfg.backend, cfg.ray_address)
     if cfg.workers > cfg.envs:
         raise UserError(f"--workers ({cfg.workers}) must not exceed --envs ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
@@ -196,7 +207,7 @@ def eval_conditions(cfg: FinetuneConfig) -> list[str]:
 
 
 def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
-    return make_vec_env(cfg.envs, cfg.workers, cfg.push, cfg.seed)
+    return make_vec_env(cfg.envs, cfg.workers, cfg.push, cfg.seed, cfg.backend, cfg.ray_address)
 
 
 def learner(

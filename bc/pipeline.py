@@ -63,7 +63,9 @@ from teleop.record import validate as validate_record
 
 MADE_BY = "bc.pipeline"
 
-NOT_COMPARED = frozenset({"progress", "overwrite", "cache", "writer", "front_end", "workers", "update_threads"})
+NOT_COMPARED = frozenset(
+    {"progress", "overwrite", "cache", "writer", "front_end", "workers", "backend", "ray_address", "update_threads"}
+)
 """Settings that change only speed, display or permissions: never a reason to make an output again."""
 
 ADDED_SINCE = {"randomize": NO_RANDOMIZATION, "eval_conditions": ""}
@@ -94,6 +96,8 @@ class PipelineConfig:
     workers: int | None = setting(
         None, "simulation processes of the recording and of both PPO stages; default: each stage's (record 1, PPO 2)"
     )
+    backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
+    ray_address: str | None = _like(FinetuneConfig, "ray_address")
     bc_policy: Path = _like(TrainConfig, "policy", "checkpoint folder of the behaviour-cloned policy (train-bc)")
     epochs: int = _like(TrainConfig, "epochs")
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
@@ -124,7 +128,9 @@ class Stages:
 
 def stages(cfg: PipelineConfig) -> Stages:
     """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
-    workers = {} if cfg.workers is None else {"workers": cfg.workers}
+    workers = {"backend": cfg.backend, "ray_address": cfg.ray_address}
+    if cfg.workers is not None:
+        workers["workers"] = cfg.workers
     ppo = {
         "bc_policy": cfg.bc_policy,
         "timesteps": cfg.timesteps,

@@ -57,13 +57,14 @@ class Target:
 
 
 _LIVE = ("live", "live_port", "live_host")
-_PPO = ("bc_policy", "policy", "timesteps", "workers", "envs", "push", "overwrite")
+_BACKEND = ("workers", "backend", "ray_address")
+_PPO = ("bc_policy", "policy", "timesteps", *_BACKEND, "envs", "push", "overwrite")
 
 TARGETS: dict[str, Target] = {
     "record": Target(
         "teleop.record",
         RecordConfig,
-        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", "workers", *_LIVE),
+        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", *_BACKEND, *_LIVE),
     ),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),

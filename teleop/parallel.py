@@ -21,6 +21,7 @@ from pathlib import Path
 
 from common.workers import Channel, Worker, close_all
 from humanoid.conditions import Randomization
+from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from teleop.spool import Spool
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
@@ -39,21 +40,31 @@ class RolloutSettings:
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
 
 
+class Simulator:
+    """One worker's environment and controller: `run(seed)` is the episode the recorder records for that seed."""
+
+    def __init__(self, settings: RolloutSettings) -> None:
+        from humanoid.conditions import DomainRandomization  # noqa: PLC0415 - heavy imports in the worker only
+        from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
+        from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
+
+        self.settings = settings
+        self.env = make_env(settings.max_steps)
+        if settings.randomization.active:
+            self.env = DomainRandomization(self.env, settings.randomization)
+        self.controller = make_controller(settings.controller, self.env)
+        self.buffer = EpisodeBuffer(self.env, settings.max_steps)
+
+    def run(self, seed: int) -> Episode:
+        return run_episode(self.env, self.controller, seed, self.settings.noise, self.buffer, self.settings.task)
+
+
 def _work(channel: Channel, settings: RolloutSettings, dataset: Path) -> None:
     """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed."""
-    from humanoid.conditions import DomainRandomization  # noqa: PLC0415 - heavy imports in the worker only
-    from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
-    from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
-    from humanoid.episode import EpisodeBuffer, run_episode  # noqa: PLC0415 - heavy imports in the worker only
-
-    env = make_env(settings.max_steps)
-    if settings.randomization.active:
-        env = DomainRandomization(env, settings.randomization)
-    controller = make_controller(settings.controller, env)
-    buffer = EpisodeBuffer(env, settings.max_steps)
+    simulator = Simulator(settings)
     spool = Spool(dataset)
     for seed in channel:
-        spool.put(run_episode(env, controller, seed, settings.noise, buffer, settings.task))
+        spool.put(simulator.run(seed))
         channel.send(seed)
 
 

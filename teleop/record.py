@@ -35,6 +35,7 @@ from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import NO_RANDOMIZATION, PRESETS, RANDOMIZE_EXAMPLE, DomainRandomization, parse_randomization
 from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
@@ -44,6 +45,7 @@ from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
+    from teleop.ray_recording import RayRollouts
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
 log = logging.getLogger(__name__)
@@ -80,8 +82,17 @@ class RecordConfig:
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
     workers: int = setting(
         1,
-        "simulation processes; with 2 or more the recorder's own process writes, "
+        "simulation processes; with 2 or more (or --backend ray) the recorder's own process writes, "
         "committing episodes in seed order (the dataset is the one a single process records)",
+    )
+    backend: str = setting(
+        "local",
+        "where the simulation workers run: 'local' (processes here) or 'ray' (Ray actors, anywhere "
+        "in the cluster at --ray-address; the writer stays here: docs/scaling.md)",
+        choices=BACKENDS,
+    )
+    ray_address: str | None = setting(
+        None, "HOST:PORT of a running Ray cluster's head (--backend ray); default: a local Ray for this command"
     )
     writer: str = setting(
         "process",
@@ -141,11 +152,17 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
-    if cfg.live and cfg.workers != 1:
-        raise UserError(f"--live shows one simulation: --workers must be 1, got {cfg.workers}")
+    check_backend(cfg.backend, cfg.ray_address)
+    if cfg.live and (cfg.workers != 1 or cfg.backend != "local"):
+        raise UserError(
+            f"--live shows one simulation here: --workers must be 1 and --backend local, "
+            f"got {cfg.workers} and {cfg.backend}"
+        )
     check_port(cfg.live_port)
-    if cfg.controller in INTERACTIVE and cfg.workers != 1:
-        raise UserError(f"--controller {cfg.controller} records in one process: --workers must be 1, got {cfg.workers}")
+    if cfg.controller in INTERACTIVE and (cfg.workers != 1 or cfg.backend != "local"):
+        raise UserError(
+            f"--controller {cfg.controller} records in one process here: --workers must be 1 and --backend local"
+        )
     try:
         randomization = parse_randomization(cfg.randomize)
     except ValueError as error:
@@ -159,7 +176,7 @@ def main(cfg: RecordConfig, summary: RecordSummary | None = None) -> RecordSumma
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given)."""
     validate(cfg)
     summary = RecordSummary(cfg.dataset) if summary is None else summary
-    if cfg.workers == 1:
+    if cfg.workers == 1 and cfg.backend == "local":
         return _record(cfg, None, summary)
     # Workers start first: their start-up overlaps with opening the dataset.
     with _start_workers(cfg) as rollouts:
@@ -187,7 +204,9 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
     return {"randomization": ranges} if ranges else {}
 
 
-def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: RecordSummary) -> RecordSummary:
+def _record(
+    cfg: RecordConfig, rollouts: ParallelRollouts | RayRollouts | None, summary: RecordSummary
+) -> RecordSummary:
     env = make_env(cfg.max_steps)
     randomization = parse_randomization(cfg.randomize)
     if randomization.active:
@@ -249,15 +268,23 @@ def _record(cfg: RecordConfig, rollouts: ParallelRollouts | None, summary: Recor
     return summary
 
 
-def _start_workers(cfg: RecordConfig) -> ParallelRollouts:
+def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
     settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize))
-    return ParallelRollouts(settings, cfg.dataset, min(cfg.workers, cfg.episodes))
+    workers = min(cfg.workers, cfg.episodes)
+    if cfg.backend == "ray":
+        from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend
+
+        return RayRollouts(settings, cfg.dataset, workers, cfg.ray_address)
+    return ParallelRollouts(settings, cfg.dataset, workers)
 
 
 def _record_in_parallel(
-    rollouts: ParallelRollouts, seeds: range, store: EpisodeStore, report: Callable[[list[CommittedEpisode]], None]
+    rollouts: ParallelRollouts | RayRollouts,
+    seeds: range,
+    store: EpisodeStore,
+    report: Callable[[list[CommittedEpisode]], None],
 ) -> None:
     interrupted = True
     try:

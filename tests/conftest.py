@@ -3,17 +3,27 @@
 from __future__ import annotations
 
 import os
+import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from support import SHORT_EPISODE
+from support import SHORT_EPISODE, RayCluster
 from teleop.record import RecordConfig, main
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Ray resolves 127.0.0.1 to the machine's outward address (in `ray.init(address=...)` too) unless it thinks
+# it cannot form clusters; read when ray is imported, by this process and the commands tests start.
+# Every Ray address in the tests is then a loopback one.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+# Ray 2.60's token authentication, as a local Ray has it by default, with a token of this session's: in the
+# environment, so every cluster and driver the tests start shares it and none is written to ~/.ray.
+os.environ.setdefault("RAY_AUTH_MODE", "token")
+os.environ.setdefault("RAY_AUTH_TOKEN", uuid.uuid4().hex)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -31,3 +41,13 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("recorded") / "dataset"
     main(RecordConfig(dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False))
     return root
+
+
+@pytest.fixture(scope="session")
+def ray_cluster() -> Iterator[RayCluster]:
+    """A Ray cluster of two 1-CPU nodes on loopback: a head and one worker node (Ray's own cluster utility)."""
+    cluster = RayCluster()
+    try:
+        yield cluster
+    finally:
+        cluster.shutdown()

@@ -172,3 +172,34 @@ def wait_for_episodes(root: Path, count: int, process: subprocess.Popen, timeout
         assert process.poll() is None, process.stderr.read().decode()
         time.sleep(0.01)
     raise TimeoutError(f"fewer than {count} episodes after {timeout} s")
+
+
+class RayCluster:
+    """A Ray cluster on 127.0.0.1 of a 1-CPU head and `worker_nodes` 1-CPU worker nodes (`tests/ray_cluster.py`).
+
+    With one CPU per node and none held by the driver, each of N workers lands on a node of its own.
+    """
+
+    def __init__(self, worker_nodes: int = 1) -> None:
+        script = Path(__file__).with_name("ray_cluster.py")
+        self.process = subprocess.Popen(
+            [sys.executable, str(script), str(worker_nodes)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        self.address = self._answer("address ")
+
+    def _answer(self, prefix: str) -> str:
+        """The rest of the script's next line that starts with `prefix` (Ray may print lines of its own)."""
+        for line in self.process.stdout:
+            if line.startswith(prefix):
+                return line.removeprefix(prefix).strip()
+        raise RuntimeError(f"the Ray cluster process ended (exit code {self.process.wait()})")
+
+    def remove_worker_node(self) -> None:
+        """Kill every process of the last worker node at once, as a lost machine."""
+        self.process.stdin.write("remove\n")
+        self.process.stdin.flush()
+        self._answer("removed")
+
+    def shutdown(self) -> None:
+        self.process.stdin.close()
+        self.process.wait(timeout=60)

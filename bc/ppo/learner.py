@@ -35,9 +35,13 @@ def training_env(push: float) -> gym.Env:
     return Monitor(TorsoPushes(env, push) if push > 0 else env)
 
 
-def make_vec_env(envs: int, workers: int, push: float, seed: int) -> WorkerGroupVecEnv:
-    """`envs` training environments over `workers` processes, seeded from `seed`."""
-    env = WorkerGroupVecEnv([functools.partial(training_env, push)] * envs, workers)
+def make_vec_env(
+    envs: int, workers: int, push: float, seed: int, backend: str = "local", ray_address: str | None = None
+) -> WorkerGroupVecEnv:
+    """`envs` training environments over `workers` processes (or Ray actors), seeded from `seed`."""
+    env = WorkerGroupVecEnv(
+        [functools.partial(training_env, push)] * envs, workers, backend=backend, ray_address=ray_address
+    )
     env.seed(seed)
     return env
 

@@ -34,8 +34,9 @@ from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 
 RESUME_FILE = "resume.pt"
-# Settings that change how a run is shown, not what it computes: a resume may differ in them.
-PRESENTATION = ("progress", "overwrite")
+# Settings that change how a run is shown or where its workers run, not what it computes: a resume may differ in
+# them (a run stopped by a lost Ray worker can go on in local processes: the same worker split gives the same result).
+PRESENTATION = ("progress", "overwrite", "backend", "ray_address")
 
 
 def comparable(settings: dict[str, Any]) -> dict[str, Any]:

@@ -13,6 +13,7 @@ so that PPO's learner does not take part in every step.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -23,6 +24,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from common.ray_backend import RaySession, RayWorker
 from common.workers import Channel, Worker, close_all
 
 # The info keys SB3's PPO reads (bootstrapping at time limits, episode statistics). Humanoid's
@@ -134,6 +136,12 @@ class _Share:
         if state["sampler"] is not None:
             self.sampler.set_random_state(state["sampler"])
 
+    def handle(self, command: str, *data: Any) -> Any:
+        """A worker's request: `spaces`, or the method `command` called with `data`."""
+        if command == "spaces":
+            return self.envs[0].observation_space, self.envs[0].action_space
+        return getattr(self, command)(*data)
+
     def install_sampler(self, sampler: Any) -> None:
         self.sampler = sampler
 
@@ -165,10 +173,9 @@ class _Share:
             env.close()
 
 
-def _handle(share: _Share, command: str, data: tuple) -> Any:
-    if command == "spaces":
-        return share.envs[0].observation_space, share.envs[0].action_space
-    return getattr(share, command)(*data)
+def _share_of(factories: list[Callable[[], gym.Env]]) -> _Share:
+    """A Ray worker's environments (`common.ray_backend`: the actor holds what this returns)."""
+    return _Share([factory() for factory in factories])
 
 
 def _serve(channel: Channel, factories: CloudpickleWrapper) -> None:
@@ -178,7 +185,7 @@ def _serve(channel: Channel, factories: CloudpickleWrapper) -> None:
     """
     share = _Share([factory() for factory in factories.var])
     try:
-        channel.serve(lambda message: _handle(share, *message))
+        channel.serve(lambda message: share.handle(message[0], *message[1]))
     finally:
         share.close()
 
@@ -195,8 +202,8 @@ class _InProcess:
 
     def recv(self) -> Any:
         assert self.pending is not None, "recv without send"
-        message, self.pending = self.pending, None
-        return _handle(self.share, *message)
+        (command, data), self.pending = self.pending, None
+        return self.share.handle(command, *data)
 
     def close(self) -> None:
         self.share.close()
@@ -211,6 +218,9 @@ def split(count: int, parts: int) -> list[range]:
 class WorkerGroupVecEnv(VecEnv):
     """`len(factories)` environments over `workers` processes, in contiguous groups, in order.
 
+    `backend` "ray": the workers are Ray actors anywhere in the cluster at `ray_address` (or in a local
+    Ray), one CPU and one core each (`common.ray_backend`); the groups, and so the results, are the same.
+
     One worker is the learner's own process (SB3's `DummyVecEnv`, minus its copies of the infos);
     more are that many processes, each pinned to a core of its own (unpinned, Linux woke a worker
     on the core of the learner that woke it, and two workers queued on one core gave 1.37x instead
@@ -223,14 +233,28 @@ class WorkerGroupVecEnv(VecEnv):
         factories: Sequence[Callable[[], gym.Env]],
         workers: int,
         pin: bool = True,
+        backend: str = "local",
+        ray_address: str | None = None,
     ):
         if not 1 <= workers <= len(factories):
             raise ValueError(f"need 1 <= workers <= environments, got {workers} workers for {len(factories)}")
         self.groups = split(len(factories), workers)
         cpus = sorted(os.sched_getaffinity(0)) if pin else []
-        self.workers: list[Worker | _InProcess] = []
+        self.workers: list[Worker | _InProcess | RayWorker] = []
         self.closed = False
-        if workers == 1:
+        self._ray: RaySession | None = None
+        if backend == "ray":
+            self._ray = RaySession(ray_address, workers)
+            try:
+                self.workers += self._ray.spawn(
+                    [functools.partial(_share_of, [factories[i] for i in group]) for group in self.groups],
+                    name="environment worker",
+                    pin=pin,
+                )
+            except BaseException:
+                self.close()
+                raise
+        elif workers == 1:
             self.workers.append(_InProcess(list(factories)))
         else:
             try:
@@ -294,7 +318,8 @@ class WorkerGroupVecEnv(VecEnv):
 
     def sample(self, state: dict, n_steps: int) -> list[Any]:
         """Each worker's rollout of its environments (`n_steps` steps, policy weights `state`), in order."""
-        return self._all("sample", lambda group: (state, n_steps))
+        shared = state if self._ray is None else self._ray.put(state)  # sent once, not once per worker
+        return self._all("sample", lambda group: (shared, n_steps))
 
     def close(self) -> None:
         if not self.closed:
@@ -303,6 +328,8 @@ class WorkerGroupVecEnv(VecEnv):
             for worker in self.workers:
                 if isinstance(worker, _InProcess):
                     worker.close()
+            if self._ray is not None:
+                self._ray.close()
 
     def _call(self, method: str, indices: VecEnvIndices, *args: Any) -> list[Any]:
         """`_Share.<method>(local indices, *args)` in each worker holding some of `indices`; results in their order."""

@@ -27,7 +27,7 @@ from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.mlp import MLPPolicy, MLPSpec
-from support import snapshot, tensorboard_text
+from support import RayCluster, snapshot, tensorboard_text
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -352,6 +352,7 @@ def test_proprio_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
         (["--critic-learning-rate", "0"], "--critic-learning-rate must be positive"),
         (["--reward-scale", "-1"], "--reward-scale must be positive"),
         (["--eval-conditions", "push20,gravity"], "unknown --eval-conditions gravity"),
+        (["--backend", "ray", "--ray-address", "6379"], "--ray-address must be HOST:PORT"),
     ],
 )
 def test_bad_settings_are_refused(
@@ -446,3 +447,37 @@ def test_a_finished_run_is_not_run_again(bc_policy: Path, tmp_path: Path, capsys
     before = snapshot(config.policy)
     assert main(config) == first and snapshot(config.policy) == before
     assert "not run again" in capsys.readouterr().err
+
+
+def test_ray_workers_give_the_local_weights(bc_policy: Path, tmp_path: Path, ray_cluster: RayCluster) -> None:
+    """BACKEND=ray: 2 actors on 2 nodes of 4 environments each end the run with the local workers' weights."""
+    local = {"envs": 8, "workers": 2, "critic_warmup": 256}
+    settings = [local, {**local, "backend": "ray", "ray_address": ray_cluster.address}]
+    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
+
+
+def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(bc_policy: Path, tmp_path: Path) -> None:
+    """The worker node dies after the first snapshot: one line, exit 1; the same settings on local workers resume
+    from the snapshot and end with an uninterrupted run's weights."""
+    reference = tmp_path / "reference"
+    main(FinetuneConfig(bc_policy=bc_policy, policy=reference, **RESUMABLE))
+    broken = tmp_path / "broken"
+    cluster = RayCluster()
+    try:
+        command = resumable_command(bc_policy, broken, backend="ray", ray_address=cluster.address)
+        process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+        state = checkpoint.running_folder(broken) / "resume.pt"
+        deadline = time.monotonic() + 120
+        while not state.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        cluster.remove_worker_node()
+        _, err = process.communicate(timeout=120)
+    finally:
+        cluster.shutdown()
+    lines = err.strip().splitlines()
+    assert process.returncode == 1 and lines[-1].startswith("error: environment worker "), err[-2000:]
+    assert "was lost" in lines[-1]
+    finished = subprocess.run(resumable_command(bc_policy, broken), capture_output=True, text=True)
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    assert "resuming" in finished.stderr
+    assert (broken / policy_files.WEIGHTS_FILE).read_bytes() == (reference / policy_files.WEIGHTS_FILE).read_bytes()
