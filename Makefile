@@ -112,6 +112,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.data_efficiency
 	$(PY) -m bench.live_cost
 	$(PY) -m bench.ppo_throughput
+	$(PY) -m bench.ray_backend
 
 clean-venv:  ## remove .venv
 	rm -rf $(VENV)

@@ -190,12 +190,18 @@ class RaySession:
         ready, _ = ray.wait(refs, num_returns=1)
         return ready
 
-    def close(self) -> None:
-        """Kill the actors and disconnect (a local Ray stops). Idempotent."""
+    def kill_actors(self) -> None:
+        """Stop every worker spawned, whatever it was doing."""
         import ray  # noqa: PLC0415 - imported only with the Ray backend
 
         for actor in self._actors:
             ray.kill(actor, no_restart=True)
         self._actors = []
+
+    def close(self) -> None:
+        """Kill the actors and disconnect (a local Ray stops). Idempotent."""
+        import ray  # noqa: PLC0415 - imported only with the Ray backend
+
         if ray.is_initialized():
+            self.kill_actors()
             ray.shutdown()

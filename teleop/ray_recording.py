@@ -43,7 +43,7 @@ class RayRollouts:
                 [functools.partial(Simulator, settings)] * workers, name="recording worker"
             )
         except BaseException:
-            self.close(interrupted=True)
+            self._session.close()
             raise
 
     def in_seed_order(self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None) -> Iterator[Path]:
@@ -94,18 +94,18 @@ class RayRollouts:
             yield self._spool.path_of(seed)
 
     def close(self, interrupted: bool = False) -> None:
-        """Stop the workers and let go of Ray (a local Ray stops). Idempotent: the first call decides.
+        """Stop the workers. Idempotent.
 
-        Unlike processes, actors have nothing of value when the recording ends: every finished episode
-        reached the spool; `interrupted` changes nothing.
+        Unlike processes, actors hold nothing of value once the recording stops: every finished episode
+        reached the spool, so `interrupted` changes nothing. Ray itself is let go of on leaving the context.
         """
-        if self._closed:
-            return
-        self._closed = True
-        self._session.close()
+        if not self._closed:
+            self._closed = True
+            self._session.kill_actors()
 
     def __enter__(self) -> RayRollouts:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
         self.close(interrupted=exc_type is not None)
+        self._session.close()
