@@ -113,6 +113,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.live_cost
 	$(PY) -m bench.ppo_throughput
 	$(PY) -m bench.ray_backend
+	$(PY) -m bench.shard_merge
 
 clean-venv:  ## remove .venv
 	rm -rf $(VENV)

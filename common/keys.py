@@ -3,11 +3,13 @@
 The gymnasium observation (348 floats) is stored split in two so that LeRobot's own policies
 (ACT, Diffusion) accept the dataset, which they refuse with `observation.state` alone:
 
-- `observation.state`: qpos[2:] and qvel, the proprioceptive state (45): what encoders and an IMU give.
-- `observation.environment_state`: cinert, cvel, qfrc_actuator, cfrc_ext (303): quantities MuJoCo
-  derives from that state (body inertias and velocities, actuator and contact forces).
+- `observation.state`: what a real humanoid senses (42 named floats: joint encoders, the torso IMU's
+  gyro and gravity direction, foot contact; `humanoid.sensors`).
+- `observation.environment_state`: the rest of the gymnasium observation, which only a simulator
+  gives (root height, orientation and velocity, cinert, cvel, qfrc_actuator, cfrc_ext: 311).
 
-Concatenated in that order they are the gymnasium observation, bit for bit (both float64).
+Joined by their recorded names they are the gymnasium observation, bit for bit (both float64):
+`humanoid.sensors.ObservationSplit.join`.
 """
 
 # LeRobot's own names (lerobot.utils.constants; a test checks they agree). Spelled out here because
