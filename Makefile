@@ -27,6 +27,7 @@ export PYTHONUNBUFFERED := 1
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
 VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
+VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS OVERWRITE
 VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO LIVE LIVE_PORT LIVE_HOST
@@ -39,7 +40,7 @@ VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BACKEN
 # --name='value' for each variable of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record inspect export train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
 
 # The variables come from the stages' configs (bc/targets.py), so they need .venv.
 help:  ## list the targets and their variables
@@ -62,6 +63,9 @@ venv: $(STAMP)  ## build .venv and install the project
 
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
+
+merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
+	$(PY) -m teleop.merge $(flags)
 
 inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 also draws DATASET/inspect.png
 	$(PY) -m teleop.inspect_dataset $(flags)

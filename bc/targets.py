@@ -32,6 +32,7 @@ from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common.cli import flag
 from teleop.inspect_dataset import InspectConfig
+from teleop.merge import MergeConfig
 from teleop.record import RecordConfig
 
 ARGS = "ARGS"
@@ -66,6 +67,7 @@ TARGETS: dict[str, Target] = {
         RecordConfig,
         ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", *_BACKEND, *_LIVE),
     ),
+    "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),

@@ -1,4 +1,4 @@
-"""Merging per-node dataset shards with LeRobot's own `aggregate_datasets`: its speed, and what survives.
+"""Merging per-node dataset shards: `make merge` against LeRobot's own `aggregate_datasets`, speed and what survives.
 
     .venv/bin/python -m bench.shard_merge [--episodes 10]
 
@@ -7,7 +7,8 @@ the shards are merged afterwards. This records two shards (seeds 0.. and EPISODE
 seeds in one go, merges the shards with `lerobot.datasets.aggregate.aggregate_datasets`, times it
 against copying the shards (a floor: the bytes have to move anyway), and checks the merge against
 the one-go recording: LeRobot loads it, the frames are equal, which of our episode columns and
-files are kept.
+files are kept. `make merge` (`teleop.merge`) is timed on the same shards, and its result compared
+with the one-go recording file by file.
 """
 
 from __future__ import annotations
@@ -24,7 +25,13 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from common import keys
 from teleop.dataset_reader import read_episodes, read_frames
+from teleop.merge import MergeConfig
+from teleop.merge import main as merge
 from teleop.record import RecordConfig, main
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def record(root: Path, episodes: int, seed: int) -> None:
@@ -76,11 +83,18 @@ def main_() -> None:
         aggregate_datasets(["local/shard_0", "local/shard_1"], "local/merged", roots=shards, aggr_root=root / "merged")
         merge_s = time.perf_counter() - start
         results = checks(root / "merged", root / "whole")
+        start = time.perf_counter()
+        merge(MergeConfig(shards=" ".join(map(str, shards)), dataset=root / "ours", progress=False))
+        ours_s = time.perf_counter() - start
+        identical = snapshot(root / "ours") == snapshot(root / "whole")
     episodes = 2 * args.episodes
     print(f"\nTwo shards of {args.episodes} expert episodes (1000 frames each), merged:\n")
     print("| | seconds | ms per episode |\n|---|---|---|")
+    print(f"| `make merge` (`teleop.merge`) | {ours_s:.2f} | {ours_s / episodes * 1000:.0f} |")
     print(f"| `aggregate_datasets` | {merge_s:.2f} | {merge_s / episodes * 1000:.0f} |")
     print(f"| copying the shards (floor) | {copy_s:.2f} | {copy_s / episodes * 1000:.0f} |\n")
+    print(f"`make merge`: every file identical to the one-go recording: {'yes' if identical else 'NO'}\n")
+    print("`aggregate_datasets`:")
     for check, kept in results.items():
         print(f"- {check}: {'kept' if kept else 'NOT kept'}")
 

@@ -1,0 +1,149 @@
+"""`make merge SHARDS="a b" DATASET=out`: datasets recorded apart (one per node) as one, in seed order.
+
+    each shard's episodes (parquet frames and episode columns, MCAP /step, /tf, /final_observation)
+      -> the Episode the recorder had in memory (read_episode)
+      -> teleop.store.EpisodeStore.append, in seed order, as the recorder commits them
+
+Past one writer's throughput each node records its own dataset on its own seed range
+(docs/scaling.md). Merging re-commits every episode through the recorder's own store, so the
+result is the dataset one recorder would have written for the same seeds, file for file (a test),
+with its guarantees: one data and MCAP file per episode, an episode committed whole or not at all.
+Killed, the same command continues: the seeds already in DATASET are skipped. LeRobot's
+`aggregate_datasets` merges the LeRobot part only (no MCAP); the measurements are in
+docs/scaling.md.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from tqdm import tqdm
+
+from common import keys, paths
+from common.cli import UserError, run_cli, setting
+from humanoid.env import make_env
+from humanoid.episode import Episode
+from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
+from teleop.mcap_io.writer import TF_TOPIC
+from teleop.store import DatasetSpec, EpisodeStore
+
+
+@dataclass
+class MergeConfig:
+    """Settings of one merge."""
+
+    shards: str = setting("", "the datasets to merge, separated by spaces or commas; their seeds must not overlap")
+    dataset: Path = setting(paths.DATASET, "the merged dataset: created if missing, else continued (same seeds)")
+    progress: bool = setting(True, "show a progress bar")
+
+
+def read_body_poses(path: Path, body_frames: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Every step's body positions (T, B, 3) and orientations (T, B, 4, w-x-y-z) from an MCAP file's /tf."""
+    positions, orientations = [], []
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, _, decoded in reader.iter_decoded_messages(topics=[TF_TOPIC]):
+            poses = {t.child_frame_id: t for t in decoded.transforms}
+            frames = [poses[name] for name in body_frames]
+            positions.append([(f.translation.x, f.translation.y, f.translation.z) for f in frames])
+            orientations.append([(f.rotation.w, f.rotation.x, f.rotation.y, f.rotation.z) for f in frames])
+    return np.array(positions, np.float64), np.array(orientations, np.float64)
+
+
+def read_episode(root: Path, row: dict, command: np.ndarray, body_frames: list[str]) -> Episode:
+    """The episode of `row` (its episode columns) as the recorder had it; `command` holds its frames' commands."""
+    path = root / row[keys.EPISODE_MCAP]
+    steps = read_steps(path)
+    body_position, body_orientation = read_body_poses(path, body_frames)
+    prefix = keys.RANDOMIZATION_PREFIX
+    return Episode(
+        seed=row[keys.EPISODE_SEED],
+        controller=row[keys.EPISODE_CONTROLLER],
+        labeller=row[keys.EPISODE_LABELLER],
+        noise_std=row[keys.EPISODE_NOISE_STD],
+        observation=steps["observation"],
+        action=steps["action"],
+        executed_action=steps["executed_action"],
+        reward=steps["reward"],
+        terminated=steps["terminated"],
+        truncated=steps["truncated"],
+        body_position=body_position,
+        body_orientation=body_orientation,
+        command=command,
+        tasks=steps["task"],
+        final_observation=read_mcap_final(path)["observation"],
+        dagger_round=row[keys.EPISODE_DAGGER_ROUND],
+        parameters={name.removeprefix(prefix): value for name, value in row.items() if name.startswith(prefix)},
+    )
+
+
+def shard_list(text: str) -> list[Path]:
+    return [Path(name) for name in text.replace(",", " ").split()]
+
+
+def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, ...], dict]:
+    """Every shard episode as (seed, shard, episode columns) in seed order; the drawn parameters; the features."""
+    if not shards:
+        raise UserError("--shards names no dataset")
+    episodes, features, parameters = [], None, None
+    for shard in shards:
+        if not (shard / "meta/info.json").is_file():
+            raise UserError(f"{shard} is not a dataset (no meta/info.json)")
+        info = read_info(shard)
+        if features is not None and info["features"] != features:
+            raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")
+        features = info["features"]
+        rows = read_episodes(shard).to_pylist()
+        prefix = keys.RANDOMIZATION_PREFIX
+        drawn = tuple(name.removeprefix(prefix) for name in rows[0] if name.startswith(prefix)) if rows else None
+        if drawn is not None and parameters is not None and set(drawn) != set(parameters):
+            raise UserError(f"{shard} draws other physical parameters than {shards[0]}")
+        parameters = parameters if drawn is None else drawn
+        episodes += [(row[keys.EPISODE_SEED], shard, row) for row in rows]
+    episodes.sort(key=lambda episode: episode[0])
+    seeds = [seed for seed, _, _ in episodes]
+    repeated = sorted({seed for seed in seeds if seeds.count(seed) > 1})
+    if repeated:
+        raise UserError(f"seeds {repeated[:5]} are in more than one shard (or twice in one): record disjoint seeds")
+    return episodes, parameters or (), features or {}
+
+
+def main(cfg: MergeConfig) -> int:
+    """Commit every shard episode not yet in DATASET, in seed order; returns how many were added."""
+    episodes, parameters, _ = _plan(shard_list(cfg.shards))
+    store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))
+    added = 0
+    try:
+        have = read_episodes(cfg.dataset)[keys.EPISODE_SEED].to_pylist() if store.num_episodes else []
+        if have != [seed for seed, _, _ in episodes[: len(have)]]:
+            raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
+        commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's frames' commands, read once
+        for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
+            if shard not in commands:
+                commands[shard] = read_frames(shard, [keys.OBS_COMMAND, "episode_index"])
+            frames = commands[shard]
+            command = frames[keys.OBS_COMMAND][frames["episode_index"] == row["episode_index"]]
+            store.append(read_episode(shard, row, command, store.spec.body_frames))
+            added += 1
+    finally:
+        store.close()
+    return added
+
+
+def _main_and_print(cfg: MergeConfig) -> None:
+    added = main(cfg)
+    print(f"{cfg.dataset}: added {added} episodes from {len(shard_list(cfg.shards))} shards")
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, MergeConfig, argv, description=__doc__, prog="python -m teleop.merge")
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,78 @@
+"""`make merge`: shards recorded apart become the dataset one recorder writes for the same seeds, file for file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from support import SHORT_EPISODE, snapshot
+from teleop.merge import MergeConfig, cli, main
+from teleop.record import RecordConfig
+from teleop.record import main as record
+
+pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (several recordings)
+
+
+def record_seeds(root: Path, episodes: int, seed: int, randomize: str = "none") -> Path:
+    settings = {"max_steps": SHORT_EPISODE, "writer": "inline", "progress": False, "randomize": randomize}
+    record(RecordConfig(dataset=root, episodes=episodes, seed=seed, **settings))
+    return root
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """Seeds 0..2 and 3..5 recorded apart (randomised bodies, so the drawn parameters travel too), and 0..5 at once."""
+    root = tmp_path_factory.mktemp("shards")
+    return (
+        record_seeds(root / "shard_0", 3, 0, "suite"),
+        record_seeds(root / "shard_1", 3, 3, "suite"),
+        record_seeds(root / "whole", 6, 0, "suite"),
+    )
+
+
+def merge(shards: list[Path], dataset: Path) -> int:
+    return main(MergeConfig(shards=" ".join(map(str, shards)), dataset=dataset, progress=False))
+
+
+def test_merged_shards_are_the_one_recorders_files(shards: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    """Given in any order, the shards merge into every file of the one-go recording, byte for byte."""
+    first, second, whole = shards
+    assert merge([second, first], tmp_path / "merged") == 6
+    assert snapshot(tmp_path / "merged") == snapshot(whole)
+
+
+def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    """A merged dataset holding the first seeds only (a merge killed there) gets the rest, and nothing twice."""
+    first, second, whole = shards
+    merge([first], tmp_path / "merged")
+    assert merge([first, second], tmp_path / "merged") == 3
+    assert merge([first, second], tmp_path / "merged") == 0
+    assert snapshot(tmp_path / "merged") == snapshot(whole)
+
+
+@pytest.mark.parametrize(
+    ("which", "message"),
+    [
+        ("overlapping", "are in more than one shard"),
+        ("not a dataset", "is not a dataset"),
+        ("other episodes", "holds other episodes than the first"),
+    ],
+)
+def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
+    shards: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], which: str, message: str
+) -> None:
+    first, second, whole = shards
+    target = tmp_path / "merged"
+    given = {
+        "overlapping": [first, whole],
+        "not a dataset": [first, tmp_path / "nothing"],
+        "other episodes": [second],
+    }[which]
+    if which == "other episodes":
+        merge([first], target)  # seeds 0..2, which shard_1 (3..5) does not start with
+    before = snapshot(target) if target.exists() else None
+    code = cli(["--shards", " ".join(map(str, given)), "--dataset", str(target), "--progress", "false"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and message in err[0]
+    assert (snapshot(target) if target.exists() else None) == before
