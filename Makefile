@@ -33,14 +33,15 @@ VARS.train-bc := DATASET POLICY INPUTS EPOCHS OVERWRITE
 VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS ROUNDS EPISODES OVERWRITE
-VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH OVERWRITE
+VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
+VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY EPOCHS SCRATCH_POLICY \
-	PPO_POLICY TIMESTEPS ENVS PUSH ARGS OVERWRITE ROBUSTNESS_EPISODES
+	PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES TUTORIAL
 # --name='value' for each variable of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 
 # The variables come from the stages' configs (bc/targets.py), so they need .venv.
 help:  ## list the targets and their variables
@@ -91,8 +92,11 @@ finetune-rl: $(STAMP)  ## PPO refinement of the BC policy
 baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget
 	$(PY) -m bc.baseline $(flags) $(ARGS)
 
+tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PPO), same budget
+	$(PY) -m bc.tutorial $(flags)
+
 # Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
-pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl, then the table
+pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables
 	$(PY) -m bc.pipeline $(flags)
 
 test: $(STAMP)  ## run the whole test suite (a few minutes)

@@ -40,6 +40,7 @@ from tqdm import tqdm
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
+from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
 from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves
 from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
@@ -48,7 +49,7 @@ from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
-from humanoid.conditions import SUITE
+from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
@@ -89,6 +90,24 @@ class FinetuneConfig:
         None, "HOST:PORT of a running Ray cluster's head (--backend ray); default: a local Ray for this run"
     )
     push: float = setting(0.0, "train with horizontal pushes of this many newtons on the torso (0.1 s every 2 s)")
+    curriculum: str = setting(
+        "0,2.5,5,7.5,10,15,20,30,40",
+        "train with pushes whose force grows through these stages, in newtons (e.g. '0,10,20,40'; instead of "
+        "--push), the --randomize ranges widening with them from nominal to whole: the next stage after a "
+        "rollout whose ended episodes survived at --curriculum-advance (bc.ppo.curriculum; the stages and "
+        "what they gave: docs/learning.md, 'Training for robustness'); 'none' = no curriculum",
+    )
+    curriculum_advance: float = setting(
+        0.8, "share of a rollout's ended training episodes that must reach the time limit to move to the next stage"
+    )
+    curriculum_episodes: int = setting(
+        16, "training episodes a rollout must end for its survival to count towards the next stage"
+    )
+    randomize: str = setting(
+        "suite",
+        "the training environments' physical parameters, drawn at every episode: a preset (none, mild, suite) "
+        "or ranges like mass=0.8:1.2,friction=0.5:1.5,strength=0.8:1.2 (humanoid.conditions)",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
     critic_learning_rate: float = setting(
@@ -125,9 +144,10 @@ class FinetuneConfig:
     )
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
     eval_conditions: str = setting(
-        "push20,mass",
-        "robustness conditions (docs/robustness.md) evaluated beside the validation one at every evaluation "
-        "during training, for the learning curve's survival panel and TensorBoard; comma-separated, '' = none",
+        "clean,push20,mass",
+        "robustness conditions (docs/robustness.md) evaluated beside the validation one (under the largest push "
+        "trained with) at every evaluation during training, for the learning curve's survival panel and "
+        "TensorBoard; comma-separated, '' = none",
     )
     validation_seed: int = setting(
         VALIDATION_SEED,
@@ -180,6 +200,7 @@ def validate(cfg: FinetuneConfig) -> None:
         "critic_warmup",
         "final_eval_episodes",
         "update_threads",
+        "curriculum_episodes",
     ):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
@@ -197,9 +218,41 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"--keep must be 'best' or 'last', got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
-    unknown = [name for name in eval_conditions(cfg) if name not in SUITE or name == "clean"]
+    unknown = [name for name in eval_conditions(cfg) if name not in SUITE]
     if unknown:
-        raise UserError(f"unknown --eval-conditions {', '.join(unknown)}; known: {', '.join(list(SUITE)[1:])}")
+        raise UserError(f"unknown --eval-conditions {', '.join(unknown)}; known: {', '.join(SUITE)}")
+    if not 0 <= cfg.curriculum_advance <= 1:
+        raise UserError(f"--curriculum-advance must be in [0, 1], got {cfg.curriculum_advance}")
+    if stages(cfg) and cfg.push:
+        raise UserError("give --push or --curriculum, not both")
+    randomization(cfg)
+
+
+def stages(cfg: FinetuneConfig) -> list[float]:
+    """The curriculum's push forces ([] for none); UserError in one line if malformed."""
+    try:
+        return parse_stages(cfg.curriculum)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+
+
+def randomization(cfg: FinetuneConfig) -> Randomization:
+    try:
+        return parse_randomization(cfg.randomize, "--randomize")
+    except ValueError as error:
+        raise UserError(str(error)) from None
+
+
+def training_push(cfg: FinetuneConfig) -> float | None:
+    """The training environments' first push force; None: they are not pushed."""
+    if stages(cfg):
+        return stages(cfg)[0]
+    return cfg.push or None
+
+
+def validation_push(cfg: FinetuneConfig) -> float:
+    """The push of the evaluations during training, which choose the actor kept: the largest trained with."""
+    return max(stages(cfg), default=cfg.push)
 
 
 def eval_conditions(cfg: FinetuneConfig) -> list[str]:
@@ -207,7 +260,10 @@ def eval_conditions(cfg: FinetuneConfig) -> list[str]:
 
 
 def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
-    return make_vec_env(cfg.envs, cfg.workers, cfg.push, cfg.seed, cfg.backend, cfg.ray_address)
+    width = stage_width(0, len(stages(cfg)))  # a curriculum's first stage (1: no curriculum, the whole ranges)
+    return make_vec_env(
+        cfg.envs, cfg.workers, training_push(cfg), cfg.seed, cfg.backend, cfg.ray_address, randomization(cfg), width
+    )
 
 
 def learner(
@@ -302,7 +358,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             evaluator = Evaluator(
                 episodes=cfg.eval_episodes,
                 seed=cfg.validation_seed,
-                push=cfg.push,
+                push=validation_push(cfg),
                 freq=cfg.eval_freq,
                 conditions=eval_conditions(cfg),
                 settings=settings,
@@ -310,15 +366,21 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 bar=bar,
             )
             guards = Guards(cfg.critic_warmup, term)
+            curriculum = (
+                PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, randomization(cfg).active)
+                if stages(cfg)
+                else None
+            )
             if saved is not None:
-                resume.restore(saved, model, env, evaluator, guards)
+                resume.restore(saved, model, env, evaluator, guards, curriculum)
                 bar.update(model.num_timesteps)
                 print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
-            snapshots = resume.Snapshots(folder, evaluator, guards, settings, saved)
+            snapshots = resume.Snapshots(folder, evaluator, guards, settings, saved, curriculum)
             start = time.perf_counter()
             model.learn(
                 total_timesteps=cfg.timesteps - model.num_timesteps,
-                callback=CallbackList([guards, evaluator, snapshots]),
+                # The curriculum after the guards (both act at a rollout's end) and before the snapshots.
+                callback=CallbackList([guards, *([curriculum] if curriculum else []), evaluator, snapshots]),
                 reset_num_timesteps=saved is None,
             )
             seconds = time.perf_counter() - start
@@ -327,15 +389,20 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             kept = evaluator.best if cfg.keep == "best" else evaluator.curve[-1]
             if cfg.keep == "best":
                 actor.load_state_dict(evaluator.best_state)
-            checkpoint.save(actor, folder, {**settings, "seconds": seconds, "kept": kept}, bc_dataset(cfg.bc_policy))
+            record = {**settings, "seconds": seconds, "kept": kept}
+            if curriculum is not None:
+                record["curriculum_stages"] = curriculum.history
+            checkpoint.save(actor, folder, record, bc_dataset(cfg.bc_policy))
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
     finally:
         env.close()
 
     result = evaluate(str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
-    if cfg.push:
-        result["pushed"] = evaluate(str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, push=cfg.push)
+    if validation_push(cfg):
+        result["pushed"] = evaluate(
+            str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, push=validation_push(cfg)
+        )
     bc_eval = cfg.bc_policy / EVAL_FILE
     bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
     result.update(
@@ -358,7 +425,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         evaluator.curve[0]["mean_return"] if fine_tuning else None,
         f"{cfg.policy.name}: validation on seeds {cfg.validation_seed}.."
         f"{cfg.validation_seed + cfg.eval_episodes - 1}"
-        f"{f', {cfg.push:g} N pushes' if cfg.push else ''}",
+        f"{f', {validation_push(cfg):g} N pushes' if validation_push(cfg) else ''}",
         cfg.policy / CURVE_PNG,
     )
     return result

@@ -1,5 +1,5 @@
-"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl, then the tables of `bc.report`: the clean
-evaluations, and the robustness suite (`bc.robustness`) on the expert and every policy.
+"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables of
+`bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the expert and every policy.
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -12,7 +12,8 @@ A stage is skipped only if its output exists and was made from the same inputs:
   those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
 - a checkpoint: its config.json holds the same settings and its eval.json exists, and it was made
   from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json) or the BC
-  weights' digest (PPO: `bc_policy_sha256` in config.json).
+  weights' digest (PPO: `bc_policy_sha256` in config.json). The tutorial's learners read neither:
+  `bc.tutorial` itself reuses a finished run with the same settings.
 
 Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
 counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
@@ -44,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bc import report, robustness
+from bc import report, robustness, tutorial
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
@@ -52,9 +53,19 @@ from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
+from bc.tutorial import TutorialConfig
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
 from humanoid.conditions import NO_RANDOMIZATION, SUITE
-from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
+from policies.folder import (
+    CONFIG_FILE,
+    DATASET_FILE,
+    EVAL_FILE,
+    SB3_FILE,
+    WEIGHTS_FILE,
+    checkpoint_problem,
+    is_checkpoint,
+    is_sb3_policy,
+)
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_info
 from teleop.lerobot_io.format import INFO_PATH
@@ -68,7 +79,13 @@ NOT_COMPARED = frozenset(
 )
 """Settings that change only speed, display or permissions: never a reason to make an output again."""
 
-ADDED_SINCE = {"randomize": NO_RANDOMIZATION, "eval_conditions": ""}
+ADDED_SINCE = {
+    "randomize": NO_RANDOMIZATION,
+    "eval_conditions": "",
+    "curriculum": "",
+    "curriculum_advance": 0.8,
+    "curriculum_episodes": 16,
+}
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before
 --randomize existed is one recorded with --randomize none, byte for byte)."""
@@ -102,9 +119,16 @@ class PipelineConfig:
     epochs: int = _like(TrainConfig, "epochs")
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
+    tutorial: bool = setting(
+        True, "also train the seed tutorial's two learners at the PPO stages' budget, as baseline rows (tutorial-rl)"
+    )
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
     push: float = _like(FinetuneConfig, "push")
+    curriculum: str = _like(FinetuneConfig, "curriculum")
+    randomize: str = _like(
+        FinetuneConfig, "randomize", "the PPO stages' training bodies and floors (humanoid.conditions)"
+    )
     args: str = setting("", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --keep last'; default: none")
     overwrite: bool = setting(
         False, "also replace checkpoints the pipeline did not make when they differ (never a dataset it did not record)"
@@ -124,6 +148,7 @@ class Stages:
     train: TrainConfig
     baseline: BaselineConfig
     finetune: FinetuneConfig
+    tutorial: TutorialConfig | None
 
 
 def stages(cfg: PipelineConfig) -> Stages:
@@ -136,6 +161,8 @@ def stages(cfg: PipelineConfig) -> Stages:
         "timesteps": cfg.timesteps,
         "envs": cfg.envs,
         "push": cfg.push,
+        "curriculum": cfg.curriculum,
+        "randomize": cfg.randomize,
         "baseline": cfg.scratch_policy,
         **workers,
     }
@@ -152,6 +179,7 @@ def stages(cfg: PipelineConfig) -> Stages:
         train=TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
+        tutorial=TutorialConfig(timesteps=cfg.timesteps) if cfg.tutorial else None,
     )
 
 
@@ -342,14 +370,26 @@ def validate(run: Stages) -> None:
     bc_train.validate(run.train)
     validate_ppo(run.baseline)
     validate_ppo(run.finetune)
+    if run.tutorial is not None:
+        tutorial.validate(run.tutorial)
+
+
+def tutorial_config(config: TutorialConfig, overwrite: bool) -> TutorialConfig:
+    """The tutorial stage's config: it replaces what the pipeline made itself, as every stage does (see the module)."""
+    folders = [config.preferred_policy, config.ppo_policy]
+    ours = all(not folder.exists() or _training_record(folder).get("made_by") == MADE_BY for folder in folders)
+    return dataclasses.replace(config, overwrite=overwrite or ours)
 
 
 def foresee(run: Stages, overwrite: bool) -> None:
-    """Refuse now what the run would refuse later: a checkpoint downstream of an output made again."""
+    """Refuse now what the run would refuse later: a checkpoint downstream of an output made again, a tutorial
+    run the pipeline did not make."""
     dataset_remade = dataset_decision(run.record).action != REUSE
     bc_remade = bc_decision(run.train, overwrite, dataset_remade).action != REUSE
     ppo_decision(run.baseline, "--scratch-policy", overwrite, bc_remade)
     ppo_decision(run.finetune, "--ppo-policy", overwrite, bc_remade)
+    if run.tutorial is not None:
+        tutorial.plan(tutorial_config(run.tutorial, overwrite), MADE_BY)
 
 
 def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -> str:
@@ -377,6 +417,12 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
             print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
 
     policies = [stages.train.policy, stages.finetune.policy, stages.baseline.policy]
+    if stages.tutorial is not None:
+        config = tutorial_config(stages.tutorial, overwrite)
+        folders = [config.preferred_policy, config.ppo_policy]
+        print(f"pipeline: the tutorial's learners: {', '.join(map(str, folders))} (reused if finished)", flush=True)
+        tutorial.main(config, MADE_BY)
+        policies += folders
     table = report.table(policies)
     print(table)
     if robustness_episodes:
@@ -391,7 +437,7 @@ def suite(policy: str, episodes: int) -> dict[str, Any]:
     episodes and conditions (the expert's always), else a new run (about 30 s for 20 episodes)."""
     cfg = RobustnessConfig(policy=policy, episodes=episodes, progress=False)
     saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
-    weights = Path(policy) / WEIGHTS_FILE
+    weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
     if saved.is_file() and (policy == "expert" or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         result = json.loads(saved.read_text())
         if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == list(SUITE):

@@ -30,6 +30,7 @@ from bc.finetune import FinetuneConfig
 from bc.pipeline import PipelineConfig
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
+from bc.tutorial import TutorialConfig
 from common.cli import flag
 from teleop.inspect_dataset import InspectConfig
 from teleop.merge import MergeConfig
@@ -59,7 +60,7 @@ class Target:
 
 _LIVE = ("live", "live_port", "live_host")
 _BACKEND = ("workers", "backend", "ray_address")
-_PPO = ("bc_policy", "policy", "timesteps", *_BACKEND, "envs", "push", "overwrite")
+_PPO = ("bc_policy", "policy", "timesteps", *_BACKEND, "envs", "push", "curriculum", "randomize", "overwrite")
 
 TARGETS: dict[str, Target] = {
     "record": Target(
@@ -80,6 +81,7 @@ TARGETS: dict[str, Target] = {
     ),
     "finetune-rl": Target("bc.finetune", FinetuneConfig, _PPO, passes_args=True),
     "baseline-rl": Target("bc.baseline", BaselineConfig, _PPO, passes_args=True),
+    "tutorial-rl": Target("bc.tutorial", TutorialConfig, ("learners", "timesteps", "overwrite")),
     "pipeline": Target("bc.pipeline", PipelineConfig, tuple(f.name for f in dataclasses.fields(PipelineConfig))),
 }
 

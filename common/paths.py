@@ -17,6 +17,10 @@ PPO_POLICY = Path("policies/ppo_humanoid_stand")
 """The PPO-refined policy of `make finetune-rl`."""
 SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")
 """PPO from scratch on the same budget (`make baseline-rl`)."""
+TUTORIAL_PREFERRED_POLICY = Path("policies/tutorial_preferred")
+"""The seed tutorial's "preferred action" learner (`make tutorial-rl`)."""
+TUTORIAL_PPO_POLICY = Path("policies/tutorial_ppo")
+"""The seed tutorial's PPO, saved by stable-baselines3 (`make tutorial-rl`)."""
 DAGGER_DATASET = Path("datasets/humanoid_stand_dagger")
 """The aggregate dataset of `make dagger`."""
 DAGGER_POLICY = Path("policies/dagger_humanoid_stand")

@@ -77,6 +77,13 @@ class Randomization:
         bounds = {spec.name: getattr(self, spec.name) for spec in fields(self)}
         return {name: list(value) for name, value in bounds.items() if value is not None}
 
+    def widened(self, width: float) -> Randomization:
+        """These ranges at `width` of their size about 1 (0: nominal, 1: as they are), e.g. for a curriculum."""
+        if width == 1:
+            return self
+        ranges = {name: (1 + width * (low - 1), 1 + width * (high - 1)) for name, (low, high) in self.ranges.items()}
+        return Randomization(**ranges)
+
     @property
     def parameters(self) -> tuple[str, ...]:
         """The names of the drawn values (`DomainRandomization.parameters`), e.g. ("mass_scale",); () for none."""
@@ -100,7 +107,7 @@ class DomainRandomization(gym.Wrapper):
     under "parameters"; an unseeded reset draws from the stream the last seed left.
     """
 
-    def __init__(self, env: gym.Env, randomization: Randomization) -> None:
+    def __init__(self, env: gym.Env, randomization: Randomization, width: float = 1.0) -> None:
         super().__init__(env)
         self.randomization = randomization
         self._model, _ = model_and_data(env)
@@ -112,7 +119,23 @@ class DomainRandomization(gym.Wrapper):
             "actuator_gear": self._model.actuator_gear.copy(),
         }
         self._rng = np.random.default_rng()
+        self.set_width(width)
         self.parameters: dict[str, Any] = {}
+
+    def set_width(self, width: float) -> None:
+        """Draw from the ranges at `width` of their size about 1 from the next reset on (a curriculum's stage)."""
+        if not 0 <= width <= 1:
+            raise ValueError(f"need 0 <= width <= 1, got {width}")
+        self.width = width
+
+    def random_state(self) -> dict:
+        """What the next draw depends on: the random stream and the width, to resume a PPO run exactly
+        (`bc.ppo.vec_env` saves it at episode starts)."""
+        return {"draws": self._rng.bit_generator.state, "width": self.width}
+
+    def set_random_state(self, state: dict) -> None:
+        self._rng.bit_generator.state = state["draws"]
+        self.width = state["width"]
 
     def restore(self) -> None:
         """Put the model's nominal masses, inertias, friction and gears back."""
@@ -122,7 +145,7 @@ class DomainRandomization(gym.Wrapper):
     def draw(self) -> dict[str, Any]:
         """Restore, then apply a new draw; returns it."""
         self.restore()
-        model, r = self._model, self.randomization
+        model, r = self._model, self.randomization.widened(self.width)
         parameters: dict[str, Any] = {}
         if r.mass is not None:
             scale = self._rng.uniform(*r.mass, size=model.nbody - 1)  # the world body has no mass

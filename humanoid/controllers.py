@@ -2,7 +2,8 @@
 
 Every source of actions (the LQR expert, a random baseline, keyboard teleoperation, a learned
 policy) implements `Controller`, so the recorder and the evaluator run any of them. A name is
-either registered in `CONTROLLERS` or the path of a policy checkpoint folder (`policies/`).
+either registered in `CONTROLLERS` or the path of a policy checkpoint folder (`policies/`), or of a
+folder holding a stable-baselines3 policy saved by SB3 (`policies.folder.SB3_FILE`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from humanoid.conditions import action_delay
-from policies.folder import checkpoint_problem  # torch-free: the policies themselves are imported on use
+from policies.folder import checkpoint_problem, is_sb3_policy  # torch-free: policies are imported on use
 
 
 @runtime_checkable
@@ -74,7 +75,7 @@ def check_controller(name: str) -> None:
     if not _is_path(name):
         known = ", ".join([*CONTROLLERS, *INTERACTIVE])
         raise ValueError(f"unknown controller {name!r} (known: {known}, or a policy checkpoint folder)")
-    problem = checkpoint_problem(Path(name))
+    problem = None if is_sb3_policy(Path(name)) else checkpoint_problem(Path(name))
     if problem:
         raise ValueError(problem)
 
@@ -89,6 +90,8 @@ def make_controller(name: str, env: gym.Env) -> Controller:
     if name in INTERACTIVE:
         raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
     check_controller(name)
-    from humanoid.learned import PolicyController  # noqa: PLC0415 - imports torch: only for policies
+    from humanoid.learned import PolicyController, SB3Controller  # noqa: PLC0415 - imports torch: only for policies
 
+    if is_sb3_policy(Path(name)):
+        return SB3Controller(Path(name))
     return PolicyController.load(Path(name), env)

@@ -1,5 +1,8 @@
 """A saved policy as a `humanoid.controllers.Controller`, so the recorder and the evaluator run it.
 
+Two kinds: this project's `MLPPolicy` checkpoints (`PolicyController`), and policies stable-baselines3
+saved itself (`SB3Controller`, the tutorial's PPO baseline of `bc.tutorial`).
+
 The policy's checkpoint says what it reads (`MLPSpec.inputs`, see `humanoid.sensors`): the
 controller computes that from each gymnasium observation, so a policy on the sensed features runs
 wherever one on the full observation does, perturbations and sensor noise included.
@@ -16,6 +19,7 @@ import torch
 from humanoid.env import make_env
 from humanoid.sensors import INPUT_COLUMNS, input_features, input_names
 from policies.checkpoint import CheckpointError, load
+from policies.folder import SB3_FILE
 from policies.mlp import MLPPolicy
 
 
@@ -64,3 +68,26 @@ def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
             f"{name} maps {spec.input_dim} {spec.inputs} inputs to {spec.action_dim} actions; "
             f"{env.spec.id} gives {inputs} and takes {action_dim}"
         )
+
+
+class SB3Controller:
+    """The deterministic actions of a policy stable-baselines3 saved (`SB3_FILE` in `folder`), on the
+    gymnasium observation as it is: SB3 clips them to the action bounds, as its `predict` does."""
+
+    def __init__(self, folder: Path) -> None:
+        from stable_baselines3 import PPO  # noqa: PLC0415 - only for SB3 folders
+
+        try:
+            self.model = PPO.load(folder / SB3_FILE, device="cpu")
+        except (OSError, ValueError, KeyError) as error:
+            raise CheckpointError(
+                f"{folder / SB3_FILE} is not a readable stable-baselines3 PPO model: {error}"
+            ) from None
+        self.name = str(folder)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: deterministic, no memory."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        action, _ = self.model.predict(obs, deterministic=True)
+        return action.astype(np.float32)

@@ -23,13 +23,15 @@ class TorsoPushes(gym.Wrapper):
 
     The first push comes one period after reset, once the body has settled from its drop. Each
     push draws its direction from a stream seeded by the reset's seed, so episodes repeat exactly.
+    `set_force` changes the force from the next reset on (a curriculum, `bc.ppo.curriculum`): an
+    episode is pushed with one force throughout, so it can be replayed from its start.
     """
 
     def __init__(self, env: gym.Env, force: float, period: float = 2.0, duration: float = 0.1) -> None:
         super().__init__(env)
         if not force >= 0 or not 0 < duration <= period:
             raise ValueError(f"need force >= 0 and 0 < duration <= period, got {force}, {duration}, {period}")
-        self.force = force
+        self.force = self.next_force = force
         dt = env.unwrapped.dt
         self.period_steps = max(1, round(period / dt))
         self.duration_steps = max(1, round(duration / dt))
@@ -39,17 +41,26 @@ class TorsoPushes(gym.Wrapper):
         self._steps = 0
         self._push = np.zeros(3)
 
+    def set_force(self, force: float) -> None:
+        """Push with `force` newtons from the next reset on."""
+        if not force >= 0:
+            raise ValueError(f"need force >= 0, got {force}")
+        self.next_force = force
+
     def random_state(self) -> dict:
-        """The push directions' random stream, to resume it exactly (`bc.ppo.vec_env` saves it at episode starts)."""
-        return self._rng.bit_generator.state
+        """What the next episode's pushes depend on: the directions' random stream and the force, to resume a
+        run exactly (`bc.ppo.vec_env` saves it at episode starts)."""
+        return {"directions": self._rng.bit_generator.state, "force": self.next_force}
 
     def set_random_state(self, state: dict) -> None:
-        self._rng.bit_generator.state = state
+        self._rng.bit_generator.state = state["directions"]
+        self.next_force = state["force"]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         if seed is not None:
             self._rng = np.random.default_rng((seed, PUSH_STREAM))
         self._steps = 0
+        self.force = self.next_force
         obs, info = self.env.reset(seed=seed, options=options)
         self._data.xfrc_applied[self._torso] = 0.0
         return obs, info

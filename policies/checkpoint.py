@@ -24,7 +24,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
-from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint
+from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
 from common.cli import UserError
 
@@ -92,7 +92,7 @@ def check_replaceable(path: Path, overwrite: bool) -> None:
     """Refuse, before any work, to write a checkpoint where one may not go."""
     if not path.exists():
         return
-    if not is_checkpoint(path):
+    if not (is_checkpoint(path) or is_sb3_policy(path)):
         raise CheckpointError(f"{path} exists and is not a policy checkpoint: refusing to replace it")
     if not overwrite:
         raise CheckpointError(f"{path} already holds a checkpoint; pass --overwrite true to replace it")

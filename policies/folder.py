@@ -12,6 +12,13 @@ WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 DATASET_FILE = "dataset.json"
 EVAL_FILE = "eval.json"
+SB3_FILE = "sb3_model.zip"
+"""A stable-baselines3 policy saved by SB3 itself (`model.save`): the tutorial's PPO baseline (`bc.tutorial`)."""
+
+
+def is_sb3_policy(path: Path) -> bool:
+    """Whether `path` is a folder holding an SB3-saved policy rather than an `MLPPolicy` checkpoint."""
+    return (path / SB3_FILE).is_file()
 
 
 def checkpoint_problem(path: Path) -> str | None:

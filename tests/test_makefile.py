@@ -84,7 +84,9 @@ def typed_value(target: Target, field_name: str) -> str:
     choices = target.field(field_name).metadata.get("choices")
     if choices:  # a value the stage accepts, other than its default if there is one
         return next((choice for choice in choices if choice != target.field(field_name).default), choices[0])
-    return {int: "7", float: "0.25", bool: "true", Path: f"some dir/{field_name}", str: f"text-{field_name}"}[kind]
+    if kind is bool:
+        return "false" if target.field(field_name).default else "true"
+    return {int: "7", float: "0.25", Path: f"some dir/{field_name}", str: f"text-{field_name}"}[kind]
 
 
 def makefile_variables(target: str) -> set[str]:

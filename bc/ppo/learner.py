@@ -19,28 +19,46 @@ from stable_baselines3.common.vec_env import VecEnv
 from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
+from humanoid.conditions import DomainRandomization, Randomization
 from humanoid.env import make_env
 from humanoid.perturbations import TorsoPushes
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
 
+NOMINAL = Randomization()  # nothing drawn: the nominal body and floor
 
-def training_env(push: float) -> gym.Env:
+
+def training_env(push: float | None, randomization: Randomization = NOMINAL, width: float = 1.0) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
+    Its physical parameters are drawn from `randomization` at every reset, at `width` of its ranges
+    (`DomainRandomization.set_width`); with `push` (newtons, 0 included) it is pushed as `TorsoPushes`
+    does. A curriculum (`bc.ppo.curriculum`) changes both from an episode to the next.
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before
     any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
     env = make_env()
-    return Monitor(TorsoPushes(env, push) if push > 0 else env)
+    if randomization.active:
+        env = DomainRandomization(env, randomization, width)
+    return Monitor(env if push is None else TorsoPushes(env, push))
 
 
 def make_vec_env(
-    envs: int, workers: int, push: float, seed: int, backend: str = "local", ray_address: str | None = None
+    envs: int,
+    workers: int,
+    push: float | None,
+    seed: int,
+    backend: str = "local",
+    ray_address: str | None = None,
+    randomization: Randomization = NOMINAL,
+    width: float = 1.0,
 ) -> WorkerGroupVecEnv:
     """`envs` training environments over `workers` processes (or Ray actors), seeded from `seed`."""
     env = WorkerGroupVecEnv(
-        [functools.partial(training_env, push)] * envs, workers, backend=backend, ray_address=ray_address
+        [functools.partial(training_env, push, randomization, width)] * envs,
+        workers,
+        backend=backend,
+        ray_address=ray_address,
     )
     env.seed(seed)
     return env

@@ -9,7 +9,7 @@ atomically, with everything the rest of the run depends on:
     workers:   each environment's episode in progress, as its start and its actions since
                (`bc.ppo.vec_env`), and each sampler's noise streams
     callbacks: the evaluator's curve and best actor, the guards' update count, the BC term's
-               minibatch stream and weight
+               minibatch stream and weight, the push curriculum's stage
 
 Started again with the same settings, `bc.finetune` rebuilds the learner and the environments as
 before and `restore`s the snapshot: the workers replay their episodes (and check that they arrive
@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from bc.ppo.curriculum import PushCurriculum
 from bc.ppo.evaluator import Evaluator
 from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.rollouts import WorkerRolloutPPO
@@ -45,7 +46,12 @@ def comparable(settings: dict[str, Any]) -> dict[str, Any]:
 
 
 def snapshot(
-    model: WorkerRolloutPPO, env: WorkerGroupVecEnv, evaluator: Evaluator, guards: Guards, settings: dict[str, Any]
+    model: WorkerRolloutPPO,
+    env: WorkerGroupVecEnv,
+    evaluator: Evaluator,
+    guards: Guards,
+    settings: dict[str, Any],
+    curriculum: PushCurriculum | None = None,
 ) -> dict[str, Any]:
     """Everything the rest of the run depends on, at a rollout's start (see the module)."""
     term: DemonstrationTerm | None = guards.term
@@ -68,6 +74,7 @@ def snapshot(
             "next_at": evaluator.next_at,
         },
         "guards": {"actor_updates": guards.actor_updates},
+        "curriculum": None if curriculum is None else curriculum.get_state(),
         "term": None
         if term is None
         else {"generator": term.generator.get_state(), "updates": term.updates, "active": term.active},
@@ -94,7 +101,12 @@ def load(folder: Path) -> dict[str, Any] | None:
 
 
 def restore(
-    state: dict[str, Any], model: WorkerRolloutPPO, env: WorkerGroupVecEnv, evaluator: Evaluator, guards: Guards
+    state: dict[str, Any],
+    model: WorkerRolloutPPO,
+    env: WorkerGroupVecEnv,
+    evaluator: Evaluator,
+    guards: Guards,
+    curriculum: PushCurriculum | None = None,
 ) -> None:
     """Put a freshly built run where `state` was taken; `model.learn` then continues it (with `Snapshots`
     given the same `state`, which refills the episode statistics SB3 resets when learning starts)."""
@@ -107,6 +119,8 @@ def restore(
     evaluator.curve, evaluator.best = state["evaluator"]["curve"], state["evaluator"]["best"]
     evaluator.best_state, evaluator.next_at = state["evaluator"]["best_state"], state["evaluator"]["next_at"]
     guards.actor_updates = state["guards"]["actor_updates"]
+    if curriculum is not None:  # same settings, so the snapshot has its state
+        curriculum.set_state(state["curriculum"])
     if guards.term is not None and state["term"] is not None:
         guards.term.generator.set_state(state["term"]["generator"])
         guards.term.updates, guards.term.active = state["term"]["updates"], state["term"]["active"]
@@ -125,10 +139,11 @@ class Snapshots(BaseCallback):
         guards: Guards,
         settings: dict[str, Any],
         restored: dict[str, Any] | None = None,
+        curriculum: PushCurriculum | None = None,
     ) -> None:
         super().__init__()
         self.folder, self.evaluator, self.guards, self.settings = folder, evaluator, guards, settings
-        self.restored = restored
+        self.restored, self.curriculum = restored, curriculum
 
     def _on_training_start(self) -> None:
         if self.restored is not None:  # SB3's _setup_learn has just made fresh episode-statistics buffers
@@ -136,7 +151,10 @@ class Snapshots(BaseCallback):
             self.model.ep_success_buffer.extend(self.restored["ep_success_buffer"])
 
     def _on_rollout_start(self) -> None:
-        save(self.folder, snapshot(self.model, self.training_env, self.evaluator, self.guards, self.settings))
+        save(
+            self.folder,
+            snapshot(self.model, self.training_env, self.evaluator, self.guards, self.settings, self.curriculum),
+        )
 
     def _on_step(self) -> bool:
         return True

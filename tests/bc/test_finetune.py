@@ -31,7 +31,10 @@ from support import RayCluster, snapshot, tensorboard_text
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
+# The plumbing tests run on the nominal task, unpushed (the curriculum and the randomisation have tests of their own).
 TINY_PPO = {
+    "curriculum": "",
+    "randomize": "none",
     "envs": 4,
     "workers": 2,
     "rollout_steps": 256,
@@ -98,7 +101,7 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
     assert 0.04 < float((actions - means).std()) < 0.06  # the exploration noise: std 0.05
     assert buffer.episode_starts[0].all()
     # Environment 0's first episode replayed on its own (seed = the run's seed + its index), clipped actions.
-    replay = training_env(0.0)
+    replay = training_env(None)
     expected, _ = replay.reset(seed=config.seed)
     episode_steps = 1 + int(np.argmax(np.append(buffer.episode_starts[1:, 0], 1)))
     assert episode_steps > 5
@@ -244,6 +247,25 @@ def test_tensorboard_holds_the_config_as_text(tiny_run: tuple[FinetuneConfig, di
     assert settings == {name: training[name] for name in settings} and set(config_dict(config)) <= set(settings)
 
 
+def test_the_curriculum_moves_on_at_rollout_ends_and_the_checkpoint_says_when(bc_policy: Path, tmp_path: Path) -> None:
+    """With every episode counting (the tiny BC policy falls), the stage moves on after each rollout until the
+    last; config.json records when each stage began, and the validation runs under the last stage's push."""
+    config = FinetuneConfig(
+        bc_policy=bc_policy,
+        policy=tmp_path / "ppo",
+        timesteps=1024,
+        **{**TINY_PPO, "curriculum": "0,5,10", "curriculum_advance": 0.0, "curriculum_episodes": 1},
+    )
+    result = main(config)
+    training = json.loads((config.policy / policy_files.CONFIG_FILE).read_text())["training"]
+    assert training["curriculum_stages"] == [
+        {"timesteps": 0, "stage": 0, "push": 0.0},
+        {"timesteps": 256, "stage": 1, "push": 5.0},
+        {"timesteps": 512, "stage": 2, "push": 10.0},
+    ]
+    assert result["pushed"]["push_newtons"] == 10.0
+
+
 def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:
     """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout."""
     result = main(
@@ -353,6 +375,12 @@ def test_proprio_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
         (["--reward-scale", "-1"], "--reward-scale must be positive"),
         (["--eval-conditions", "push20,gravity"], "unknown --eval-conditions gravity"),
         (["--backend", "ray", "--ray-address", "6379"], "--ray-address must be HOST:PORT"),
+        (["--curriculum", "20,10"], "forces must not decrease"),
+        (["--curriculum", "10,x"], "give push forces in newtons"),
+        (["--curriculum", "10,20", "--push", "20"], "give --push or --curriculum, not both"),
+        (["--curriculum-advance", "1.5"], "--curriculum-advance must be in [0, 1]"),
+        (["--randomize", "wild"], "--randomize 'wild': unknown preset"),
+        (["--randomize", "mass=1.2:0.8"], "mass range has low 1.2 > high 0.8"),
     ],
 )
 def test_bad_settings_are_refused(
@@ -384,7 +412,18 @@ def test_existing_checkpoint_is_not_overwritten(
     assert snapshot(target) == existing and snapshot(bc_policy) == before
 
 
-RESUMABLE = {**TINY_PPO, "timesteps": 256 * 8, "envs": 8, "eval_freq": 1024}
+# With a push curriculum that moves on after every rollout (the tiny BC policy falls often) and randomised
+# bodies: the kills fall where episodes in progress began under an earlier stage's force.
+RESUMABLE = {
+    **TINY_PPO,
+    "timesteps": 256 * 8,
+    "envs": 8,
+    "eval_freq": 1024,
+    "curriculum": "0,10,20",
+    "curriculum_advance": 0.0,
+    "curriculum_episodes": 1,
+    "randomize": "suite",
+}
 
 
 def resumable_command(bc_policy: Path, policy: Path, **changes: object) -> list[str]:

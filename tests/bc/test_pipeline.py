@@ -36,6 +36,7 @@ from bc.pipeline import (
     suite,
 )
 from bc.train import TrainConfig
+from bc.tutorial import TutorialConfig
 from common.cli import UserError
 from humanoid.conditions import SUITE
 from policies.folder import CONFIG_FILE, EVAL_FILE
@@ -47,6 +48,7 @@ from teleop.record import RecordConfig, record
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
 FOLDERS = ("data", "bc", "scratch", "ppo")
+TUTORIAL_LINE = "pipeline: the tutorial's learners: tutorial_preferred, tutorial_ppo (reused if finished)"
 
 
 def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict | None = None) -> Stages:
@@ -91,6 +93,13 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         train=TrainConfig(**train),
         baseline=BaselineConfig(policy=Path("scratch"), **ppo),
         finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
+        tutorial=TutorialConfig(
+            preferred_policy=Path("tutorial_preferred"),
+            ppo_policy=Path("tutorial_ppo"),
+            timesteps=64,
+            final_eval_episodes=1,
+            progress=False,
+        ),
     )
 
 
@@ -112,10 +121,10 @@ def pipeline_lines(lines: list[str]) -> list[str]:
 
 
 def report_table() -> list[str]:
-    """What `python -m bc.report bc ppo scratch` prints, in the current folder."""
+    """What `python -m bc.report` prints for every policy of the pipeline, in the current folder."""
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert report.main(["bc", "ppo", "scratch"]) == 0
+        assert report.main(["bc", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"]) == 0
     return out.getvalue().splitlines()
 
 
@@ -154,6 +163,7 @@ def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str
         "pipeline: training bc: no checkpoint there yet",
         "pipeline: training from scratch scratch: no checkpoint there yet",
         "pipeline: fine-tuning ppo: no checkpoint there yet",
+        TUTORIAL_LINE,
     ]
 
 
@@ -166,6 +176,7 @@ def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path
         "pipeline: bc was made from this dataset with these settings: not training",
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
+        TUTORIAL_LINE,
     ]
     assert lines[len(pipeline_lines(lines)) :] == report_table()
     assert snapshot(outputs) == before
@@ -179,6 +190,7 @@ def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(ou
         "pipeline: training bc again: it was made from another dataset",
         "pipeline: training from scratch scratch again: it was made from another BC policy",
         "pipeline: fine-tuning ppo again: it was made from another BC policy",
+        TUTORIAL_LINE,
     ]
     assert [line["config"]["noise"] for line in recordings.read(Path("data"))] == [0.02]
     assert json.loads(Path("bc/dataset.json").read_text())["fingerprint"] == fingerprint(Path("data"))
@@ -317,7 +329,13 @@ def test_interrupted_recording_is_completed_into_the_same_dataset(outputs: Path,
 
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every pipeline setting is the stage's own default: the same configs as `make <stage>` alone."""
-    assert stages(PipelineConfig()) == Stages(RecordConfig(), TrainConfig(), BaselineConfig(), FinetuneConfig())
+    assert stages(PipelineConfig()) == Stages(
+        RecordConfig(),
+        TrainConfig(),
+        BaselineConfig(),
+        FinetuneConfig(),
+        TutorialConfig(timesteps=FinetuneConfig().timesteps),
+    )
 
 
 def test_pipeline_settings_and_args_reach_their_stages() -> None:
@@ -344,3 +362,11 @@ def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: p
     assert table[0] == "| policy | clean return | " + " | ".join(SUITE) + " |"
     survivors = [f"{round(c['survival_rate'])}/1" for c in first["conditions"].values()]
     assert table[2] == f"| bc | {first['conditions']['clean']['mean_return']:,.1f} | " + " | ".join(survivors) + " |"
+
+
+def test_tutorial_runs_made_by_someone_else_are_refused_and_left_alone(outputs: Path) -> None:
+    """The tutorial's folders hold a run `make tutorial-rl` made with other settings: one line, nothing touched."""
+    edit_json(outputs / "tutorial_ppo" / CONFIG_FILE, {"made_by": "bc.tutorial", "ent_coef": 0.01})
+    assert_refused_untouched(
+        outputs, tiny_stages(), "tutorial_ppo already holds a checkpoint; pass --overwrite true to replace it"
+    )

@@ -1,0 +1,292 @@
+"""`make tutorial-rl`: the seed tutorial's two learners, as baseline rows of `make pipeline`'s tables.
+
+What a reader of that tutorial would have got on the same task and budget:
+
+- **preferred action** (`PreferredActionLearner`): one mean action for every state; each step acts
+  with it plus Gaussian exploration noise, and moves the mean a step toward the action taken when
+  that step's reward was positive; the noise decays geometrically over the run. Saved as an
+  `MLPPolicy` checkpoint whose output is that constant action (zero weights, the mean in the last
+  bias), so `make eval`, `make robustness` and `make record CONTROLLER=` run it like any policy.
+- **PPO** (`tutorial_ppo`): stable-baselines3's `PPO("MlpPolicy", env, learning_rate=0.005,
+  ent_coef=0.005)` on one environment, every other setting SB3's default; saved by SB3
+  (`policies.folder.SB3_FILE`) and run by `humanoid.learned.SB3Controller`.
+
+Both train on the clean task for TIMESTEPS environment steps (the pipeline gives them the PPO
+stages' budget). Where the tutorial names no value (the mean's step, the noise's start and end),
+the choice and the measured result are in docs/learning.md, "The tutorial's learners".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from tqdm import tqdm
+
+from bc.evaluate import EVAL_SEED, evaluate
+from common import paths
+from common.cli import UserError, config_dict, flag, run_cli, setting
+from humanoid.env import make_env
+from humanoid.sensors import INPUT_COLUMNS
+from policies import checkpoint
+from policies.folder import CONFIG_FILE, EVAL_FILE, SB3_FILE
+from policies.mlp import MLPPolicy, MLPSpec
+
+LEARNERS = ("preferred", "ppo")
+
+
+@dataclass
+class TutorialConfig:
+    """Settings of the tutorial's learners (`make tutorial-rl`)."""
+
+    learners: str = setting("preferred,ppo", "which of the tutorial's learners to train: preferred, ppo, or both")
+    preferred_policy: Path = setting(
+        paths.TUTORIAL_PREFERRED_POLICY, "checkpoint folder of the preferred-action learner"
+    )
+    ppo_policy: Path = setting(paths.TUTORIAL_PPO_POLICY, "folder of the tutorial's SB3 PPO (saved by SB3)")
+    timesteps: int = setting(300_000, "environment steps of training, each learner (the pipeline: the PPO stages')")
+    step_size: float = setting(0.01, "preferred action: fraction of the way the mean moves toward a rewarded action")
+    noise_start: float = setting(0.2, "preferred action: exploration std at the start (half the ±0.4 action range)")
+    noise_end: float = setting(0.01, "preferred action: exploration std at the end (geometric decay in between)")
+    learning_rate: float = setting(0.005, "PPO: Adam learning rate (the tutorial's)")
+    ent_coef: float = setting(0.005, "PPO: entropy coefficient (the tutorial's)")
+    seed: int = setting(0, "seed of the learners and their training environments")
+    final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
+    overwrite: bool = setting(False, "replace existing checkpoints")
+    progress: bool = setting(True, "show a progress bar")
+
+
+def selected(cfg: TutorialConfig) -> list[str]:
+    names = [name.strip() for name in cfg.learners.split(",") if name.strip()]
+    unknown = [name for name in names if name not in LEARNERS]
+    if unknown or not names:
+        raise UserError(f"{flag('learners')} {cfg.learners!r}: choose from {', '.join(LEARNERS)}")
+    return names
+
+
+def validate(cfg: TutorialConfig) -> list[str]:
+    """The learners to run; UserError in one line for a bad setting."""
+    for name in ("timesteps", "step_size", "noise_start", "noise_end", "learning_rate", "final_eval_episodes"):
+        value = getattr(cfg, name)
+        if not (math.isfinite(value) and value > 0):
+            raise UserError(f"{flag(name)} must be positive, got {value}")
+    if cfg.step_size > 1:
+        raise UserError(f"{flag('step_size')} must be at most 1, got {cfg.step_size}")
+    if not (math.isfinite(cfg.ent_coef) and cfg.ent_coef >= 0):
+        raise UserError(f"{flag('ent_coef')} must be >= 0, got {cfg.ent_coef}")
+    return selected(cfg)
+
+
+class PreferredActionLearner:
+    """The tutorial's "preferred action" learner (see the module), trained in memory on one environment."""
+
+    def __init__(
+        self,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        step_size: float,
+        noise_start: float,
+        noise_end: float,
+        timesteps: int,
+        seed: int,
+    ) -> None:
+        self.low, self.high = action_low.astype(np.float64), action_high.astype(np.float64)
+        self.mean = (self.low + self.high) / 2  # zero torque: the tutorial starts from "do nothing"
+        self.step_size, self.noise, self.noise_end = step_size, noise_start, noise_end
+        self.decay = (noise_end / noise_start) ** (1 / timesteps)
+        self.rng = np.random.default_rng((seed, 5))
+
+    def act(self) -> np.ndarray:
+        noisy = self.mean + self.noise * self.rng.standard_normal(self.mean.shape)
+        return np.clip(noisy, self.low, self.high)
+
+    def learn(self, action: np.ndarray, reward: float) -> None:
+        """Move toward `action` if it earned a positive reward; decay the exploration noise either way."""
+        if reward > 0:
+            self.mean += self.step_size * (action - self.mean)
+        self.noise *= self.decay
+
+    def train(self, env: Any, timesteps: int, seed: int, bar: tqdm) -> dict[str, float]:
+        """`timesteps` steps of `env` (auto-reset, episode i seeded seed+i); the share of positive rewards."""
+        positive, episode = 0, 0
+        env.reset(seed=seed)
+        for _ in range(timesteps):
+            action = self.act()
+            _, reward, terminated, truncated, _ = env.step(action.astype(np.float32))
+            self.learn(action, float(reward))
+            positive += reward > 0
+            if terminated or truncated:
+                episode += 1
+                env.reset(seed=seed + episode)
+            bar.update(1)
+        return {"positive_reward_share": positive / timesteps, "episodes": episode}
+
+    def policy(self) -> MLPPolicy:
+        """The constant mean action as an `MLPPolicy` on the full observation: zero weights, the action in the
+        last bias (through the inverse of its tanh scaling), so every tool that runs a checkpoint runs it."""
+        spec = MLPSpec(INPUT_COLUMNS["full"], 348, len(self.mean), hidden=(1,), inputs="full")
+        policy = MLPPolicy(spec, self.low, self.high)
+        mid, half = (self.high + self.low) / 2, (self.high - self.low) / 2
+        unit = np.clip((self.mean - mid) / half, -1 + 1e-6, 1 - 1e-6)
+        with torch.no_grad():
+            for parameter in policy.net.parameters():
+                parameter.zero_()
+            policy.net[-1].bias.copy_(torch.as_tensor(np.arctanh(unit), dtype=torch.float32))
+        return policy
+
+
+def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
+    env = make_env()
+    learner = PreferredActionLearner(
+        env.action_space.low,
+        env.action_space.high,
+        cfg.step_size,
+        cfg.noise_start,
+        cfg.noise_end,
+        cfg.timesteps,
+        cfg.seed,
+    )
+    start = time.perf_counter()
+    with tqdm(
+        total=cfg.timesteps,
+        unit="step",
+        desc="preferred action",
+        disable=not cfg.progress,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    ) as bar:
+        stats = learner.train(env, cfg.timesteps, cfg.seed, bar)
+    env.close()
+    seconds = time.perf_counter() - start
+    with checkpoint.staged(cfg.preferred_policy, cfg.overwrite) as folder:
+        record = {**settings, "learner": "preferred", "seconds": seconds, **stats, "mean_action": learner.mean.tolist()}
+        checkpoint.save(learner.policy(), folder, record, {})
+    return {"seconds": seconds, **stats}
+
+
+def train_ppo(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
+    torch.set_num_threads(1)  # one environment in-process: SB3's own default set-up, as the tutorial runs it
+    model = PPO(
+        "MlpPolicy",
+        make_env(),
+        learning_rate=cfg.learning_rate,
+        ent_coef=cfg.ent_coef,
+        seed=cfg.seed,
+        device="cpu",
+        verbose=0,
+    )
+    start = time.perf_counter()
+    model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=ProgressBar(cfg.timesteps, cfg.progress))
+    seconds = time.perf_counter() - start
+    with checkpoint.staged(cfg.ppo_policy, cfg.overwrite) as folder:
+        model.save(folder / SB3_FILE)
+        checkpoint.write_json(
+            folder / CONFIG_FILE,
+            {"format": "stable-baselines3/PPO", "training": {**settings, "learner": "ppo", "seconds": seconds}},
+        )
+    return {"seconds": seconds}
+
+
+class ProgressBar(BaseCallback):
+    """A tqdm bar over SB3's steps (SB3's own needs the `rich` extra)."""
+
+    def __init__(self, total: int, show: bool) -> None:
+        super().__init__()
+        self.total, self.show = total, show
+
+    def _on_training_start(self) -> None:
+        self.bar = tqdm(
+            total=self.total,
+            unit="step",
+            desc="tutorial PPO",
+            disable=not self.show,
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
+
+    def _on_step(self) -> bool:
+        self.bar.update(1)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.bar.close()
+
+
+TRAINERS = {"preferred": train_preferred, "ppo": train_ppo}
+
+
+def folder_of(cfg: TutorialConfig, learner: str) -> Path:
+    return cfg.preferred_policy if learner == "preferred" else cfg.ppo_policy
+
+
+def plan(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, bool]:
+    """{learner: whether its folder holds this run, finished (reused)}; CheckpointError in one line, before any
+    work, for a folder holding another run that may not be replaced (no `overwrite`) or not a policy at all."""
+    settings = {**config_dict(cfg), "made_by": made_by}
+    reuse = {}
+    for learner in validate(cfg):
+        folder = folder_of(cfg, learner)
+        reuse[learner] = (folder / EVAL_FILE).is_file() and _same(folder, settings)
+        if not reuse[learner]:
+            checkpoint.check_replaceable(folder, cfg.overwrite)
+    return reuse
+
+
+def main(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, dict[str, Any]]:
+    """Train each selected learner (unless its folder holds this run, finished: reused), evaluate it on seeds
+    1000..; returns {learner: final evaluation}, also written to each folder's eval.json. `overwrite` lets a
+    folder holding another run be replaced."""
+    settings = {**config_dict(cfg), "made_by": made_by}
+    results = {}
+    for learner, reuse in plan(cfg, made_by).items():
+        folder = folder_of(cfg, learner)
+        if reuse:
+            print(f"{folder} already holds this run, finished: not run again", file=sys.stderr)
+            results[learner] = json.loads((folder / EVAL_FILE).read_text())
+            continue
+        stats = TRAINERS[learner](cfg, settings)
+        result = evaluate(str(folder), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
+        result.update(timesteps=cfg.timesteps, **stats)
+        checkpoint.write_json(folder / EVAL_FILE, result)
+        results[learner] = result
+    return results
+
+
+def _same(folder: Path, settings: dict[str, Any]) -> bool:
+    config = folder / CONFIG_FILE
+    if not config.is_file():
+        return False
+    saved = json.loads(config.read_text()).get("training", {})
+    ignored = {"progress", "overwrite", "learners", "preferred_policy", "ppo_policy", "made_by"}
+    return all(saved.get(name) == value for name, value in settings.items() if name not in ignored)
+
+
+def print_results(cfg: TutorialConfig, results: dict[str, dict[str, Any]]) -> None:
+    for learner, result in results.items():
+        print(
+            f"{folder_of(cfg, learner)}: {result['timesteps']} steps in {result['seconds']:.0f} s; final on seeds "
+            f"{result['seeds'][0]}..{result['seeds'][-1]}: survival {result['survival_rate']:.0%}, "
+            f"return {result['mean_return']:.1f}"
+        )
+
+
+def _main_and_print(cfg: TutorialConfig) -> None:
+    print_results(cfg, main(cfg))
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, TutorialConfig, argv, description=__doc__, prog="python -m bc.tutorial")
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
