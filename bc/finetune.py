@@ -54,6 +54,7 @@ from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
+from policies.mlp import STD_FLOOR
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -274,6 +275,7 @@ def learner(
     return build_model(
         bc if cfg.init == "bc" else fresh_actor(bc, cfg.seed),
         env,
+        critic_normalisation=critic_normalisation(cfg) if bc.spec.inputs == "proprio" else None,
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,
@@ -302,11 +304,19 @@ def weights_digest(policy: Path) -> str:
     return hashlib.sha256((policy / WEIGHTS_FILE).read_bytes()).hexdigest()
 
 
+def critic_normalisation(cfg: FinetuneConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
+    critic of a proprioceptive actor normalises its privileged input with."""
+    observations = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env()).inputs.double()
+    return observations.mean(dim=0), observations.std(dim=0, correction=0).clamp_min(STD_FLOOR)
+
+
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
-    """The BC term on the BC checkpoint's own training data, or None when off."""
+    """The BC term on the BC checkpoint's own training data (the inputs its actor reads), or None when off."""
     if cfg.bc_weight == 0:
         return None
-    demos = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env())
+    inputs = checkpoint.load(cfg.bc_policy).spec.inputs
+    demos = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env(), inputs=inputs)
     return DemonstrationTerm(demos.inputs, demos.actions, cfg.bc_weight, cfg.bc_decay, cfg.batch_size, cfg.seed)
 
 
@@ -329,9 +339,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """
     validate(cfg)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
-    inputs = PolicyController.load(cfg.bc_policy, make_env()).policy.spec.inputs
-    if inputs != "full":
-        raise UserError(f"{cfg.bc_policy} reads {inputs!r} inputs; the PPO actor reads the full observation")
+    PolicyController.load(cfg.bc_policy, make_env())
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
     finished = finished_result(cfg, settings)
     if finished is not None:

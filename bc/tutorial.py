@@ -87,6 +87,13 @@ def validate(cfg: TutorialConfig) -> list[str]:
     return selected(cfg)
 
 
+def progress_bar(total: int, label: str, show: bool) -> tqdm:
+    # mininterval 1 s: a bar over single steps redraws often enough for a person, and keeps logs short.
+    return tqdm(
+        total=total, unit="step", desc=label, disable=not show, file=sys.stderr, dynamic_ncols=True, mininterval=1
+    )
+
+
 class PreferredActionLearner:
     """The tutorial's "preferred action" learner (see the module), trained in memory on one environment."""
 
@@ -157,14 +164,7 @@ def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, 
         cfg.seed,
     )
     start = time.perf_counter()
-    with tqdm(
-        total=cfg.timesteps,
-        unit="step",
-        desc="preferred action",
-        disable=not cfg.progress,
-        file=sys.stderr,
-        dynamic_ncols=True,
-    ) as bar:
+    with progress_bar(cfg.timesteps, "preferred action", cfg.progress) as bar:
         stats = learner.train(env, cfg.timesteps, cfg.seed, bar)
     env.close()
     seconds = time.perf_counter() - start
@@ -205,14 +205,7 @@ class ProgressBar(BaseCallback):
         self.total, self.show = total, show
 
     def _on_training_start(self) -> None:
-        self.bar = tqdm(
-            total=self.total,
-            unit="step",
-            desc="tutorial PPO",
-            disable=not self.show,
-            file=sys.stderr,
-            dynamic_ncols=True,
-        )
+        self.bar = progress_bar(self.total, "tutorial PPO", self.show)
 
     def _on_step(self) -> bool:
         self.bar.update(1)

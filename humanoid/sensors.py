@@ -79,16 +79,17 @@ class Proprioception:
         position = {name: i for i, name in enumerate(names)}
         self.names = proprioception_names(model)
         copied = [name for name in self.names if name in position]
-        self._copied = np.array([position[name] for name in copied])
-        self._quaternion = np.array([position[name] for name in QUATERNION_NAMES])
-        self._feet = [np.array([position[f"{foot}.cfrc_ext{i}"] for i in range(6)]) for foot in FEET]
+        # Where the inputs sit in the observation (public: `bc.ppo.features` computes the same in torch).
+        self.copied = np.array([position[name] for name in copied])
+        self.quaternion = np.array([position[name] for name in QUATERNION_NAMES])
+        self.feet = np.array([[position[f"{foot}.cfrc_ext{i}"] for i in range(6)] for foot in FEET])
         self.size = len(self.names)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """(..., 42) float64 features of (..., 348) observations."""
-        contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self._feet]
+        contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self.feet]
         return np.concatenate(
-            [obs[..., self._copied], gravity_direction(obs[..., self._quaternion]), *contacts], axis=-1
+            [obs[..., self.copied], gravity_direction(obs[..., self.quaternion]), *contacts], axis=-1
         ).astype(np.float64)
 
 

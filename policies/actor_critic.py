@@ -23,13 +23,32 @@ from policies.mlp import ACTIVATIONS, MLPPolicy, MLPSpec
 
 
 class ActorCriticExtractor(nn.Module):
-    """SB3's `mlp_extractor` contract (`forward_actor`, `forward_critic`, latent sizes) around an `MLPPolicy`."""
+    """SB3's `mlp_extractor` contract (`forward_actor`, `forward_critic`, latent sizes) around an `MLPPolicy`.
 
-    def __init__(self, actor: MLPPolicy, critic_hidden: tuple[int, ...]) -> None:
+    With `actor_inputs` (a module from the observation to what the actor reads, e.g. the sensed features
+    of `bc.ppo.features`) the actor reads those and the critic the whole observation, normalised with
+    `critic_normalisation` (mean, std): an asymmetric actor-critic. Without, both read the observation,
+    the critic normalised like the actor.
+    """
+
+    def __init__(
+        self,
+        actor: MLPPolicy,
+        critic_hidden: tuple[int, ...],
+        actor_inputs: nn.Module | None = None,
+        critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> None:
         super().__init__()
         self.actor = actor
+        self.actor_inputs = actor_inputs
+        if (actor_inputs is None) != (critic_normalisation is None):
+            raise ValueError("an actor on its own inputs needs the critic's normalisation, and only it")
+        mean, std = critic_normalisation or (actor.input_mean, actor.input_std)
+        # Buffers, not trained: saved and restored with the policy (resume), copied to the samplers.
+        self.register_buffer("critic_mean", mean.detach().clone().float())
+        self.register_buffer("critic_std", std.detach().clone().float())
         layers: list[nn.Module] = []
-        width = actor.spec.input_dim
+        width = len(mean)
         for size in critic_hidden:
             layers += [nn.Linear(width, size), ACTIVATIONS[actor.spec.activation]()]
             width = size
@@ -42,13 +61,13 @@ class ActorCriticExtractor(nn.Module):
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         """The mean action: the BC policy's output."""
-        return self.actor(features)
+        return self.actor(features if self.actor_inputs is None else self.actor_inputs(features))
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
-        # The critic sees inputs normalised like the actor's (the same buffers, not trained), clipped: a fall
+        # The critic sees normalised inputs (the demonstrations' mean and std, not trained), clipped: a fall
         # or a push takes some of them hundreds of standard deviations from the demonstrations', and the
         # critic's outputs and value loss with them.
-        normalised = (features - self.actor.input_mean) / self.actor.input_std
+        normalised = (features - self.critic_mean) / self.critic_std
         return self.critic(normalised.clamp(-CRITIC_INPUT_CLIP, CRITIC_INPUT_CLIP))
 
 
@@ -66,16 +85,18 @@ class BCActorCriticPolicy(ActorCriticPolicy):
 
     def __init__(self, observation_space: gym.spaces.Space, action_space: gym.spaces.Box, lr_schedule: Schedule,
                  actor_spec: MLPSpec, actor_state: dict[str, torch.Tensor], critic_hidden: tuple[int, ...] = (256, 256),
-                 critic_lr_scale: float = 1.0, **kwargs: Any) -> None:
+                 critic_lr_scale: float = 1.0, actor_inputs: nn.Module | None = None,
+                 critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None, **kwargs: Any) -> None:
         # Plain data, set before nn.Module.__init__: `_build` (called by the parent) needs them.
         self.actor_spec, self.actor_state, self.critic_hidden = actor_spec, actor_state, critic_hidden
         self.critic_lr_scale = critic_lr_scale
+        self.asymmetric = (actor_inputs, critic_normalisation)
         super().__init__(observation_space, action_space, lr_schedule, ortho_init=False, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
         actor = MLPPolicy(self.actor_spec)
         actor.load_state_dict(self.actor_state)
-        self.mlp_extractor = ActorCriticExtractor(actor, self.critic_hidden)
+        self.mlp_extractor = ActorCriticExtractor(actor, self.critic_hidden, *self.asymmetric)
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)

@@ -96,15 +96,21 @@ class Evaluator(BaseCallback):
 
 
 def plot_curves(curves: dict[str, list[dict[str, float]]], bc_return: float | None, title: str, path: Path) -> None:
-    """Left: validation return against training steps, one line per run, BC's level dashed. Right: survival,
-    in the validation episodes (solid) and under each robustness condition evaluated (one line style each)."""
+    """Left: validation return against training steps, one line per run, BC's level dashed grey, and the clean
+    return (dashed, right axis) where evaluated. Right: survival, in the validation episodes (solid) and under
+    each robustness condition evaluated (one line style each)."""
     figure = Figure(figsize=(12, 4.5))
     returns, survival = figure.subplots(1, 2)
     styles = ["--", ":", "-.", (0, (1, 4))]
+    # Under pushes the validation return is a fraction of the clean one: the clean return gets its own axis.
+    clean = returns.twinx() if any("clean_mean_return" in p for curve in curves.values() for p in curve) else None
     for index, (label, curve) in enumerate(curves.items()):
         steps = [p["timesteps"] for p in curve]
         color = f"C{index}"
         returns.plot(steps, [p["mean_return"] for p in curve], marker="o", color=color, label=label)
+        if clean is not None:
+            values = [p.get("clean_mean_return", float("nan")) for p in curve]
+            clean.plot(steps, values, linestyle="--", marker=".", color=color, label=f"{label}, clean")
         survival.plot(steps, [100 * p["survival_rate"] for p in curve], marker="o", color=color, label=label)
         conditions = [key.removesuffix("_survival_rate") for key in curve[0] if key.endswith("_survival_rate")]
         for name, style in zip(conditions, styles, strict=False):
@@ -112,7 +118,10 @@ def plot_curves(curves: dict[str, list[dict[str, float]]], bc_return: float | No
             survival.plot(steps, values, linestyle=style, marker=".", color=color, label=f"{label}, {name}")
     if bc_return is not None:
         returns.axhline(bc_return, color="grey", linestyle="--", label="BC policy")
-    returns.set_ylabel("validation mean return")
+    returns.set_ylabel("validation mean return (solid)")
+    if clean is not None:
+        clean.set_ylabel("clean mean return (dashed)")
+        clean.legend(fontsize="small", loc="lower right")
     survival.set_ylabel("survival (%)")
     survival.set_ylim(-5, 105)
     for axes in (returns, survival):

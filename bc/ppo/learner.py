@@ -16,12 +16,14 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
+from bc.ppo.features import SensedFeatures
 from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from humanoid.conditions import DomainRandomization, Randomization
-from humanoid.env import make_env
+from humanoid.env import humanoid_model, make_env
 from humanoid.perturbations import TorsoPushes
+from humanoid.sensors import Proprioception
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
 
@@ -91,14 +93,23 @@ def build_model(
     update_threads: int = 0,
     term: DemonstrationTerm | None = None,
     tensorboard: Path | None = None,
+    critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> WorkerRolloutPPO:
     """The PPO learner around `actor` (its weights are copied); nothing is trained yet.
 
-    `update_threads` 0 means one per core: the workers are idle during updates.
+    `update_threads` 0 means one per core: the workers are idle during updates. An actor on the sensed
+    features (`inputs` "proprio") reads them from the observation (`SensedFeatures`) and the critic the
+    whole observation, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
     """
+    proprio = actor.spec.inputs == "proprio"
+    if proprio and critic_normalisation is None:
+        raise ValueError("a proprioceptive actor needs the critic's normalisation of the full observation")
     policy_kwargs = {
         "actor_spec": actor.spec,
         "actor_state": actor.state_dict(),
+        # Humanoid-v5's observation layout (the same for every drawn body).
+        "actor_inputs": SensedFeatures(Proprioception(humanoid_model())) if proprio else None,
+        "critic_normalisation": critic_normalisation if proprio else None,
         "critic_hidden": actor.spec.hidden,
         "log_std_init": log_std_init,
         "optimizer_class": RegularisedAdam,

@@ -24,6 +24,7 @@ from bc.train import main as train_bc
 from common.cli import config_dict
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
+from humanoid.sensors import Proprioception
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.mlp import MLPPolicy, MLPSpec
@@ -353,14 +354,67 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "ppo").exists()
 
 
-def test_proprio_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The PPO actor reads the full observation: a policy on the sensed features fails in one line."""
-    folder = tmp_path / "proprio"
-    spec = MLPSpec(("observation.state",), 42, 17, hidden=(8,), inputs="proprio")
-    checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
-    code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
-    assert code == 1 and len(err) == 1 and "'proprio'" in err[0]
-    assert not (tmp_path / "ppo").exists()
+@pytest.fixture(scope="module")
+def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
+    train_bc(
+        TrainConfig(
+            dataset=recorded,
+            policy=folder,
+            inputs="proprio",
+            hidden=32,
+            epochs=5,
+            eval_episodes=0,
+            progress=False,
+            tensorboard=False,
+        )
+    )
+    return folder
+
+
+def observations(count: int) -> np.ndarray:
+    """`count` gymnasium observations of a body falling under random actions (seeded)."""
+    env, rng, seen = make_env(), np.random.default_rng(0), []
+    obs, _ = env.reset(seed=0)
+    for _ in range(count):
+        seen.append(obs)
+        obs, _, terminated, _, _ = env.step(rng.uniform(-0.4, 0.4, 17))
+        if terminated:
+            obs, _ = env.reset()
+    return np.array(seen, np.float32)
+
+
+def test_a_proprioceptive_actor_reads_exactly_the_sensed_features(proprio_policy: Path) -> None:
+    """Asymmetric actor-critic: the actor's actions are the proprio BC policy's, and change with no entry of the
+    observation that the sensed features are not computed from; the critic's value changes with those entries."""
+    config = FinetuneConfig(bc_policy=proprio_policy, **TINY_PPO)
+    policy = learner(config, WorkerGroupVecEnv([make_env], workers=1)).policy
+    bc = PolicyController(checkpoint.load(proprio_policy), "bc")
+    obs = observations(50)
+    sensed = Proprioception(make_env().unwrapped.model)
+    unread = np.setdiff1d(np.arange(obs.shape[1]), np.r_[sensed.copied, sensed.quaternion, sensed.feet.ravel()])
+    assert (
+        len(unread) == 348 - 37 - 4 - 12
+    )  # height, linear velocity, cinert, cvel, qfrc_actuator, other bodies' wrenches
+    changed = obs.copy()
+    changed[:, unread] += np.random.default_rng(1).normal(0, 5, (len(obs), len(unread)))
+    with torch.no_grad():
+        actions = policy.get_distribution(torch.as_tensor(obs)).distribution.mean.numpy()
+        actions_changed = policy.get_distribution(torch.as_tensor(changed)).distribution.mean.numpy()
+        values = policy.predict_values(torch.as_tensor(obs)).numpy()
+        values_changed = policy.predict_values(torch.as_tensor(changed)).numpy()
+    np.testing.assert_array_equal(actions, actions_changed)
+    np.testing.assert_allclose(actions, np.array([bc.act(o.astype(np.float64)) for o in obs]), atol=1e-5)
+    assert np.abs(values - values_changed).min() > 0
+
+
+def test_a_proprioceptive_run_saves_a_proprioceptive_policy(proprio_policy: Path, tmp_path: Path) -> None:
+    """Fine-tuning a proprio BC checkpoint ends with a checkpoint that reads the sensed features, which make eval
+    runs."""
+    result = main(FinetuneConfig(bc_policy=proprio_policy, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO))
+    assert checkpoint.load(tmp_path / "ppo").spec == checkpoint.load(proprio_policy).spec
+    assert result["episodes"] == 1 and len(result["training_curve"]) == 2
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,34 @@
+"""The sensed features (`humanoid.sensors.Proprioception`) computed in torch, inside PPO's policy.
+
+PPO's environments give the gymnasium observation, which the critic reads whole (privileged); an actor
+cloned on what a robot senses reads these 42 features of it instead: an asymmetric actor-critic
+(docs/learning.md, "Training for robustness"). The same indices and formulas as `Proprioception`, in
+float32: the actions differ from `humanoid.learned.PolicyController`'s (float64 features) by float
+rounding only (a test).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from humanoid.sensors import Proprioception
+
+
+class SensedFeatures(nn.Module):
+    """(..., 348) gymnasium observations -> (..., 42) sensed features, as `Proprioception` computes them."""
+
+    def __init__(self, proprioception: Proprioception) -> None:
+        super().__init__()
+        self.register_buffer("copied", torch.as_tensor(proprioception.copied, dtype=torch.long))
+        self.register_buffer("quaternion", torch.as_tensor(proprioception.quaternion, dtype=torch.long))
+        self.register_buffer("feet", torch.as_tensor(proprioception.feet, dtype=torch.long))
+        self.size = proprioception.size
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        q = obs[..., self.quaternion]
+        w, x, y, z = (q / q.norm(dim=-1, keepdim=True)).unbind(-1)
+        # The world's down direction in the torso frame (`humanoid.sensors.gravity_direction`).
+        gravity = -torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
+        contacts = (obs[..., self.feet] != 0).any(dim=-1).to(obs.dtype)  # (..., 2): a foot's wrench is not zero
+        return torch.cat([obs[..., self.copied], gravity, contacts], dim=-1)
