@@ -35,14 +35,18 @@ def table(policy_dirs: Sequence[Path]) -> str:
 
 
 def suite_table(results: dict[str, dict[str, Any]]) -> str:
-    """A Markdown table of robustness results (`bc.robustness` JSON) per policy: survivors per condition,
-    and the clean mean return."""
+    """A Markdown table of robustness results (`bc.robustness` JSON) per policy: the clean mean return, the
+    mean return over the suite's conditions (what the RL issue's "× scratch under the suite" compares), and
+    survivors per condition."""
     names = list(next(iter(results.values()))["conditions"])
-    rows = ["| policy | clean return | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+    head = "| policy | clean return | suite mean return | " + " | ".join(names) + " |"
+    rows = [head, "|---|---|---|" + "---|" * len(names)]
     for policy, result in results.items():
         conditions = result["conditions"]
+        suite_mean = sum(c["mean_return"] for c in conditions.values()) / len(conditions)
         cells = [f"{round(c['survival_rate'] * c['episodes'])}/{c['episodes']}" for c in conditions.values()]
-        rows.append(f"| {policy} | {conditions['clean']['mean_return']:,.1f} | " + " | ".join(cells) + " |")
+        returns = f"{conditions['clean']['mean_return']:,.1f} | {suite_mean:,.1f}"
+        rows.append(f"| {policy} | {returns} | " + " | ".join(cells) + " |")
     seeds = next(iter(results.values()))["seeds"]
     rows.append(f"\n(survivors per condition, seeds {seeds[0]}..{seeds[-1]}; docs/robustness.md says what each is)")
     return "\n".join(rows)

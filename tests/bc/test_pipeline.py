@@ -359,9 +359,22 @@ def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: p
     first = suite("bc", 1)
     assert suite("bc", 1) == first and "reusing" in capsys.readouterr().out
     table = report.suite_table({"bc": first}).splitlines()
-    assert table[0] == "| policy | clean return | " + " | ".join(SUITE) + " |"
+    assert table[0] == "| policy | clean return | suite mean return | " + " | ".join(SUITE) + " |"
     survivors = [f"{round(c['survival_rate'])}/1" for c in first["conditions"].values()]
-    assert table[2] == f"| bc | {first['conditions']['clean']['mean_return']:,.1f} | " + " | ".join(survivors) + " |"
+    assert table[2].startswith(f"| bc | {first['conditions']['clean']['mean_return']:,.1f} | ")
+    assert table[2].endswith(" | " + " | ".join(survivors) + " |")
+
+
+def test_the_suite_table_averages_the_returns_over_the_conditions() -> None:
+    """Known answer: two conditions with returns 1,000 and 3,000 average to 2,000.0."""
+    result = {
+        "seeds": [1000, 1001],
+        "conditions": {
+            "clean": {"survival_rate": 1.0, "mean_return": 3000.0, "episodes": 2},
+            "push10": {"survival_rate": 0.5, "mean_return": 1000.0, "episodes": 2},
+        },
+    }
+    assert report.suite_table({"p": result}).splitlines()[2] == "| p | 3,000.0 | 2,000.0 | 2/2 | 1/2 |"
 
 
 def test_tutorial_runs_made_by_someone_else_are_refused_and_left_alone(outputs: Path) -> None:
