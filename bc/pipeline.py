@@ -421,7 +421,10 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
         config = tutorial_config(stages.tutorial, overwrite)
         folders = [config.preferred_policy, config.ppo_policy]
         print(f"pipeline: the tutorial's learners: {', '.join(map(str, folders))} (reused if finished)", flush=True)
-        tutorial.main(config, MADE_BY)
+        made = [learner for learner, reused in tutorial.plan(config, MADE_BY).items() if not reused]
+        results = tutorial.main(config, MADE_BY)
+        # Like the other stages: a summary line for what was trained, none for what was reused.
+        tutorial.print_results(config, {learner: results[learner] for learner in made})
         policies += folders
     table = report.table(policies)
     print(table)

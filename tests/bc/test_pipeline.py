@@ -167,6 +167,13 @@ def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str
     ]
 
 
+def test_first_run_prints_a_summary_line_per_tutorial_learner(first_run: tuple[Path, list[str]]) -> None:
+    """Each learner trained says what it cost and how it stood, as the other stages' summary lines do."""
+    summaries = [line for line in first_run[1] if line.startswith(("tutorial_preferred: ", "tutorial_ppo: "))]
+    assert [line.split(":")[0] for line in summaries] == ["tutorial_preferred", "tutorial_ppo"]
+    assert all(" steps in " in line and "survival" in line for line in summaries)
+
+
 def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path) -> None:
     """Run again with the same inputs: nothing is made or changed, and the table is `bc.report`'s, line for line."""
     before = snapshot(outputs)
