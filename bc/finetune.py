@@ -54,7 +54,7 @@ from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
-from policies.mlp import STD_FLOOR
+from policies.mlp import normalisation
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -307,8 +307,7 @@ def weights_digest(policy: Path) -> str:
 def critic_normalisation(cfg: FinetuneConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
     critic of a proprioceptive actor normalises its privileged input with."""
-    observations = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env()).inputs.double()
-    return observations.mean(dim=0), observations.std(dim=0, correction=0).clamp_min(STD_FLOOR)
+    return normalisation(load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env()).inputs)
 
 
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:

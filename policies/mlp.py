@@ -53,6 +53,13 @@ class MLPSpec:
         return cls(**{**values, "input_keys": tuple(values["input_keys"]), "hidden": tuple(values["hidden"])})
 
 
+def normalisation(inputs: torch.Tensor, std_floor: float = STD_FLOOR) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and std (floored at `std_floor`) of inputs (N, dim), in float64."""
+    # float64: a float32 variance of 50 k rows loses the small spreads the floor must tell apart.
+    data = inputs.to(torch.float64)
+    return data.mean(dim=0), data.std(dim=0, correction=0).clamp_min(std_floor)
+
+
 class MLPPolicy(nn.Module):
     """(x - mean) / std -> hidden layers -> tanh, scaled to [action_low, action_high]."""
 
@@ -80,10 +87,9 @@ class MLPPolicy(nn.Module):
 
     def fit_normalisation(self, inputs: torch.Tensor, std_floor: float = STD_FLOOR) -> None:
         """Set the input mean and std from training inputs (N, input_dim), the std floored at `std_floor`."""
-        # float64: a float32 variance of 50 k rows loses the small spreads the floor must tell apart.
-        data = inputs.to(torch.float64)
-        self.input_mean.copy_(data.mean(dim=0))
-        self.input_std.copy_(data.std(dim=0, correction=0).clamp_min(std_floor))
+        mean, std = normalisation(inputs, std_floor)
+        self.input_mean.copy_(mean)
+        self.input_std.copy_(std)
 
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
         """Actions (..., action_dim) for raw, unnormalised inputs (..., input_dim)."""

@@ -102,14 +102,12 @@ def build_model(
     whole observation, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
     """
     proprio = actor.spec.inputs == "proprio"
-    if proprio and critic_normalisation is None:
-        raise ValueError("a proprioceptive actor needs the critic's normalisation of the full observation")
     policy_kwargs = {
         "actor_spec": actor.spec,
         "actor_state": actor.state_dict(),
         # Humanoid-v5's observation layout (the same for every drawn body).
         "actor_inputs": SensedFeatures(Proprioception(humanoid_model())) if proprio else None,
-        "critic_normalisation": critic_normalisation if proprio else None,
+        "critic_normalisation": critic_normalisation,  # the extractor refuses it without actor_inputs, and vice versa
         "critic_hidden": actor.spec.hidden,
         "log_std_init": log_std_init,
         "optimizer_class": RegularisedAdam,
