@@ -44,7 +44,9 @@ EVAL_SEED = 1000  # first evaluation seed: recordings use 0, 1, 2, ... and stay 
 class EvalConfig:
     """Settings of one evaluation."""
 
-    policy: str = setting(str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert, random)")
+    policy: str = setting(
+        str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)"
+    )
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")

@@ -26,19 +26,21 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.conditions import SUITE, condition
-from humanoid.controllers import check_controller
+from humanoid.controllers import CONTROLLERS, check_controller
 
 RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
-EXPERT_FOLDER = Path("policies/expert")
-"""Where the expert's results go: it has no checkpoint folder of its own."""
+CONTROLLER_FOLDER = Path("policies")
+"""Where a registered controller's results go (`policies/expert/`): it has no checkpoint folder of its own."""
 
 
 @dataclass
 class RobustnessConfig:
     """Settings of one robustness run."""
 
-    policy: str = setting(str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert)")
+    policy: str = setting(
+        str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)"
+    )
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
@@ -76,7 +78,7 @@ def validate(cfg: RobustnessConfig) -> list[str]:
 def output_folder(cfg: RobustnessConfig) -> Path:
     if cfg.output is not None:
         return cfg.output
-    return EXPERT_FOLDER if cfg.policy == "expert" else Path(cfg.policy)
+    return CONTROLLER_FOLDER / cfg.policy if cfg.policy in CONTROLLERS else Path(cfg.policy)
 
 
 def run_chunk(policy: str, name: str, seeds: range) -> tuple[str, dict[str, Any]]:

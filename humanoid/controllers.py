@@ -55,8 +55,15 @@ def _expert(env: gym.Env) -> Controller:
     return LQRExpert(env.unwrapped.model, delay=action_delay(env))
 
 
+def _sensed_expert(env: gym.Env) -> Controller:
+    from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
+
+    return SensedExpert(env.unwrapped.model, delay=action_delay(env))
+
+
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
+    "expert-sensed": _sensed_expert,
     "random": lambda env: RandomController(env.action_space),
 }
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.

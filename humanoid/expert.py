@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 
 from humanoid.env import humanoid_model
+from humanoid.estimator import LegOdometry
 from humanoid.lqr import (
     CTRL_LIMIT,
     HEIGHT,
@@ -25,6 +26,7 @@ from humanoid.lqr import (
     state_error,
 )
 from humanoid.posture import NEUTRAL, Posture, PostureRamp
+from humanoid.sensors import Proprioception
 
 
 class LQRExpert:
@@ -105,12 +107,14 @@ class LQRExpert:
 
         While a commanded posture is being approached, each call also moves the setpoint one env step.
         """
+        # Root x, y are not observed: _qpos keeps the reference's (they drop out of the LQR state anyway).
+        self._qpos[ROOT_XY:] = obs[QPOS_OBS]
+        return self.act_on_state(self._qpos, obs[QVEL_OBS])
+
+    def act_on_state(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """`act` for a state given as (qpos, qvel); root x and y are not read (translation-invariant)."""
         if self._moving:
             self._moving = self._ramp.step()
-        # Root x, y are not observed and not in the state: borrow the reference's so they cancel.
-        self._qpos[:ROOT_XY] = self.qpos_ref[:ROOT_XY]
-        self._qpos[ROOT_XY:] = obs[QPOS_OBS]
-        qpos, qvel = self._qpos, obs[QVEL_OBS]
         if self._predictor is not None:
             qpos, qvel = self._predictor.predict(qpos, qvel, self._pending)
         x = state_error(self.model, self.qpos_ref, qpos, qvel)
@@ -143,3 +147,29 @@ class Predictor:
             data.ctrl[:] = action
             mujoco.mj_step(self.model, data, nstep=self.frame_skip)
         return data.qpos.copy(), data.qvel.copy()
+
+
+class SensedExpert:
+    """The LQR expert acting on what a robot senses: the state `LegOdometry` estimates from the sensed features.
+
+    The expert's gain reads the torso's height and linear velocity, which no sensor measures; fed the
+    estimate instead, the expert is a controller of the sensed features (and the estimator's memory,
+    which matters only while a foot is off the ground), so a policy on the sensed features can
+    imitate it (docs/robustness.md, "An expert that acts on what it senses").
+    """
+
+    name = "expert-sensed"
+
+    def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
+        """The expert designed on `model` (like `LQRExpert`); the estimator runs on it too."""
+        self.expert = LQRExpert(model, delay=delay)
+        model = self.expert.model
+        self.sensed = Proprioception(model)
+        self.estimator = LegOdometry(copy.copy(model), self.expert.design.frame_skip * model.opt.timestep)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.expert.reset(seed)
+        self.estimator.reset()
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.expert.act_on_state(*self.estimator(self.sensed(obs)))

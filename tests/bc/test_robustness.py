@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bc.robustness import FIGURE_FILE, RESULT_FILE, cli, run_suite
+from bc.robustness import FIGURE_FILE, RESULT_FILE, RobustnessConfig, cli, output_folder, run_suite
 from humanoid.conditions import SUITE
 
 
@@ -53,3 +53,9 @@ def test_bad_input_is_one_line_and_writes_nothing(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and message in err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_registered_controllers_results_go_under_policies() -> None:
+    """A controller has no checkpoint folder: its results go to policies/<name>/, a checkpoint's to its folder."""
+    assert output_folder(RobustnessConfig(policy="expert-sensed")) == Path("policies/expert-sensed")
+    assert output_folder(RobustnessConfig(policy="policies/bc")) == Path("policies/bc")

@@ -1,0 +1,106 @@
+"""The torso's state as a robot estimates it from what it senses (`observation.state`): leg odometry.
+
+The LQR expert reads the torso's height and linear velocity, which no sensor measures
+(docs/robustness.md, "The deployable observation"). This estimator computes a full MuJoCo state
+(qpos, qvel) from the sensed features alone, on the nominal model:
+
+    sensed features (42) ──> orientation without heading, from the gravity direction
+                         ──> joints, gyro: as measured
+       both feet down ─────> torso velocity: the contact points of the feet held still (kinematics)
+                             torso height: the lower foot's sphere resting on the floor
+       otherwise ──────────> the centre of mass in flight (gravity only; horizontal velocity kept),
+                             the torso's velocity relative to it by kinematics, height integrated
+
+Its only memory is the centre of mass's velocity and the height, carried through the steps where a
+foot is off the ground; `reset` starts them at rest, where gymnasium's reset puts the body. The heading
+(yaw) is set to zero: an IMU does not keep it, and standing does not depend on it.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from humanoid import physics
+from humanoid.sensors import Proprioception
+
+GRAVITY = 9.81
+"""m/s², Humanoid-v5's (MuJoCo's default)."""
+START_HEIGHT = 1.4
+"""Torso height of gymnasium's reset (the body drops from there onto the floor)."""
+
+
+def level_quaternion(gravity: np.ndarray) -> np.ndarray:
+    """The orientation (w, x, y, z) with zero heading whose body frame sees `gravity` (the down direction).
+
+    With R = Rz(yaw) Ry(pitch) Rx(roll), the body frame's down direction is minus R's third row,
+    (sin pitch, -cos pitch sin roll, -cos pitch cos roll), whatever the yaw.
+    """
+    pitch = np.arcsin(np.clip(gravity[0], -1.0, 1.0))
+    roll = np.arctan2(-gravity[1], -gravity[2])
+    cy, sy, cx, sx = np.cos(pitch / 2), np.sin(pitch / 2), np.cos(roll / 2), np.sin(roll / 2)
+    return np.array([cy * cx, cy * sx, sy * cx, -sy * sx])  # Ry(pitch) ⊗ Rx(roll)
+
+
+class LegOdometry:
+    """(qpos, qvel) of the nominal model estimated from one sensed-feature vector per env step."""
+
+    def __init__(self, model: mujoco.MjModel, step_seconds: float) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.dt = step_seconds
+        names = Proprioception(model).names
+        index = {name: i for i, name in enumerate(names)}
+        joints = [model.joint(j).name for j in range(1, model.njnt)]  # after the free joint, in qpos order
+        self._pos = np.array([index[f"{joint}.pos"] for joint in joints])
+        self._vel = np.array([index[f"{joint}.vel"] for joint in joints])
+        self._gyro = np.array([index[name] for name in ("root.wx", "root.wy", "root.wz")])
+        self._gravity = np.array([index[name] for name in ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")])
+        self._contact = np.array([index[f"contact.{foot}"] for foot in ("right_foot", "left_foot")])
+        self._feet = [model.geom(name).id for name in physics.FOOT_GEOMS]
+        self._jac = np.zeros((3, model.nv))
+        self.reset()
+
+    def reset(self) -> None:
+        """At rest at the reset height: where gymnasium's reset puts the body."""
+        self.com_velocity = np.zeros(3)
+        self.height = START_HEIGHT
+        self._first = True
+
+    def __call__(self, sensed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The estimated (qpos with root x = y = 0, qvel) after this step's sensed features."""
+        model, data = self.model, self.data
+        data.qpos[:3] = 0.0
+        data.qpos[3:7] = level_quaternion(sensed[self._gravity])
+        data.qpos[7:] = sensed[self._pos]
+        data.qvel[:3] = 0.0  # so that velocities computed below are relative to the torso's translation
+        data.qvel[3:6] = sensed[self._gyro]
+        data.qvel[6:] = sensed[self._vel]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_fwdVelocity(model, data)
+        mujoco.mj_subtreeVel(model, data)
+        relative = data.subtree_linvel[1].copy()  # the centre of mass's velocity if the torso did not translate
+        if np.all(sensed[self._contact] > 0.5):
+            velocities, heights = [], []
+            for geom in self._feet:
+                point = data.geom_xpos[geom].copy()
+                point[2] -= model.geom_size[geom][0]  # the sphere's lowest point, where it touches the floor
+                mujoco.mj_jac(model, data, self._jac, None, point, model.geom_bodyid[geom])
+                velocities.append(-(self._jac @ data.qvel))
+                heights.append(-point[2])
+            # No smoothing: the expert's gain on this velocity is large, and a filter's lag topples it.
+            velocity = np.mean(velocities, axis=0)
+            self.com_velocity = velocity + relative
+            self.height = max(heights)
+        else:
+            # The first reading is the reset state itself: time runs from the second on.
+            if not self._first and not np.any(sensed[self._contact] > 0.5):
+                self.com_velocity = self.com_velocity - np.array([0.0, 0.0, GRAVITY * self.dt])
+            velocity = self.com_velocity - relative
+            if not self._first:
+                self.height = self.height + velocity[2] * self.dt
+        self._first = False
+        qpos, qvel = data.qpos.copy(), data.qvel.copy()
+        qpos[2], qvel[:3] = self.height, velocity
+        return qpos, qvel

@@ -1,0 +1,123 @@
+"""Leg odometry (humanoid.estimator) against MuJoCo's true state, and the expert that acts on it."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from humanoid.conditions import ActionLatency
+from humanoid.controllers import make_controller
+from humanoid.env import humanoid_model, make_env
+from humanoid.episode import run_episode
+from humanoid.estimator import GRAVITY, LegOdometry, level_quaternion
+from humanoid.expert import LQRExpert, SensedExpert
+from humanoid.sensors import Proprioception, gravity_direction
+
+
+@pytest.fixture(autouse=True)
+def cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """LQR gains cached in a temporary directory, not in the user's home."""
+    monkeypatch.setenv("HUMANOID_BC_CACHE", str(tmp_path_factory.getbasetemp() / "lqr-cache"))
+
+
+def rotation(axis: int, angle: float) -> np.ndarray:
+    """Quaternion w-x-y-z of a rotation by `angle` about body axis `axis` (0 x, 1 y, 2 z)."""
+    quaternion = np.zeros(4)
+    quaternion[0], quaternion[1 + axis] = np.cos(angle / 2), np.sin(angle / 2)
+    return quaternion
+
+
+def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions w-x-y-z."""
+    w1, v1, w2, v2 = a[0], a[1:], b[0], b[1:]
+    return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+
+def test_level_quaternion_sees_the_same_gravity_with_the_heading_removed() -> None:
+    """A tilted, turned body: the level orientation has its gravity direction and the unturned body's orientation."""
+    tilt = multiply(rotation(1, 0.2), rotation(0, -0.3))  # pitch, then roll: R = Ry Rx, no heading
+    turned = multiply(rotation(2, 1.1), tilt)  # R = Rz Ry Rx
+    gravity = gravity_direction(turned)
+    level = level_quaternion(gravity)
+    np.testing.assert_allclose(gravity_direction(level), gravity, atol=1e-12)
+    np.testing.assert_allclose(level, tilt, atol=1e-12)
+
+
+def expert_rollout(seed: int, steps: int) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
+    """The privileged expert standing: each step's sensed features and MuJoCo's true (qpos, qvel)."""
+    env = make_env()
+    expert, sensed = LQRExpert(env.unwrapped.model), Proprioception(env.unwrapped.model)
+    data = env.unwrapped.data
+    obs, _ = env.reset(seed=seed)
+    features, truth = [], []
+    for _ in range(steps):
+        features.append(sensed(obs))
+        truth.append((data.qpos.copy(), data.qvel.copy()))
+        obs, *_ = env.step(expert.act(obs))
+    return features, truth
+
+
+def test_standing_on_both_feet_the_estimate_is_the_true_height_and_velocity() -> None:
+    """Past the landing from reset, the torso's height is within 2 mm and its velocity within 5 mm/s."""
+    features, truth = expert_rollout(seed=1000, steps=200)
+    model = humanoid_model()
+    odometry = LegOdometry(model, 0.015)
+    errors = []
+    for t, (sensed, (qpos, qvel)) in enumerate(zip(features, truth, strict=True)):
+        estimate = odometry(sensed)
+        if t >= 40:
+            errors.append((abs(estimate[0][2] - qpos[2]), np.abs(estimate[1][:3] - qvel[:3]).max()))
+    height, velocity = np.max(errors, axis=0)
+    assert height < 2e-3 and velocity < 5e-3
+
+
+def test_in_flight_the_torso_falls_freely_from_rest() -> None:
+    """Before the feet touch, the centre of mass gains g dt of downward speed per step, from zero at reset."""
+    features, truth = expert_rollout(seed=3, steps=4)
+    assert not any(f[-2:].any() for f in features)  # the drop from reset: no foot down yet
+    odometry = LegOdometry(humanoid_model(), 0.015)
+    vertical = np.array([odometry(f)[1][2] for f in features])
+    np.testing.assert_allclose(vertical, [qvel[2] for _, qvel in truth], atol=0.01)
+    assert vertical[-1] < -2.5 * GRAVITY * 0.015  # falling at 3 steps' worth of gravity, not held
+
+
+def test_reset_forgets_the_previous_episode() -> None:
+    """After reset the same readings give the same estimates as a fresh estimator's."""
+    features, _ = expert_rollout(seed=5, steps=30)
+    used, fresh = LegOdometry(humanoid_model(), 0.015), LegOdometry(humanoid_model(), 0.015)
+    for sensed in features:
+        used(sensed)
+    used.reset()
+    for sensed in features[:15]:
+        a, b = used(sensed), fresh(sensed)
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_sensed_expert_stands_from_reset() -> None:
+    """The expert on estimated height and velocity holds a whole episode."""
+    env = make_env()
+    episode = run_episode(env, make_controller("expert-sensed", env), seed=1000)
+    assert not episode.fell and episode.length == 1000 and episode.episode_return > 4_900
+
+
+def test_sensed_expert_reads_only_the_sensed_features() -> None:
+    """Changing every entry of the observation outside the sensed features leaves its action unchanged."""
+    env = make_env()
+    obs, _ = env.reset(seed=2)
+    sensed = Proprioception(env.unwrapped.model)
+    privileged = np.setdiff1d(np.arange(obs.size), sensed.copied)
+    # The gravity and contact features are computed from the quaternion and the feet's wrenches: keep those.
+    privileged = np.setdiff1d(privileged, np.concatenate([sensed.quaternion, sensed.feet.ravel()]))
+    changed = obs.copy()
+    changed[privileged] += np.random.default_rng(0).normal(size=privileged.size)
+    action = SensedExpert(env.unwrapped.model).act(obs)
+    np.testing.assert_array_equal(action, SensedExpert(env.unwrapped.model).act(changed))
+    assert not np.array_equal(action, LQRExpert(env.unwrapped.model).act(changed))  # the privileged one reads them
+
+
+def test_sensed_expert_built_for_a_delayed_env_knows_the_delay() -> None:
+    """As the privileged expert: the registry passes the env's action latency on."""
+    env = ActionLatency(gym.make("Humanoid-v5"), steps=1)
+    assert make_controller("expert-sensed", env).expert.delay == 1
