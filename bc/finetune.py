@@ -41,7 +41,7 @@ from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
-from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves
+from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
@@ -147,8 +147,8 @@ class FinetuneConfig:
     eval_conditions: str = setting(
         "clean,push20,mass",
         "robustness conditions (docs/robustness.md) evaluated beside the validation one (under the largest push "
-        "trained with) at every evaluation during training, for the learning curve's survival panel and "
-        "TensorBoard; comma-separated, '' = none",
+        "trained with) at every evaluation during training: they choose the actor kept with it, and go to the "
+        "learning curve's survival panel and TensorBoard; comma-separated, '' = none",
     )
     validation_seed: int = setting(
         VALIDATION_SEED,
@@ -157,8 +157,8 @@ class FinetuneConfig:
     )
     keep: str = setting(
         "best",
-        "the actor saved: 'best' (highest return of the evaluations during training, "
-        "step 0 included, earliest on ties) or 'last'",
+        "the actor saved: 'best' (of the evaluations during training, step 0 included, earliest on ties: the "
+        "highest mean return over the validation evaluation and the --eval-conditions) or 'last'",
         choices=("best", "last"),
     )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
@@ -444,7 +444,7 @@ def print_summary(cfg: FinetuneConfig, result: dict[str, Any]) -> None:
         f"{cfg.policy}: {result['timesteps']} steps in {result['seconds']:.0f} s ({result['steps_per_s']:.0f}/s); "
         f"evaluations during training {min(p['mean_return'] for p in curve):.0f}.."
         f"{max(p['mean_return'] for p in curve):.0f} (first {curve[0]['mean_return']:.1f}), "
-        f"kept step {result['kept']['timesteps']} ({result['kept']['mean_return']:.1f}); "
+        f"kept step {result['kept']['timesteps']} (mean over its evaluations {selection_score(result['kept']):.1f}); "
         f"final on seeds {result['seeds'][0]}..{result['seeds'][-1]}: "
         f"survival {result['survival_rate']:.0%}, return {result['mean_return']:.1f}"
         + (f" (BC {result['bc_mean_return']:.1f})" if result["bc_mean_return"] else "")

@@ -22,13 +22,21 @@ CHECKPOINTS_DIR = "checkpoints"
 CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
+def selection_score(point: dict[str, float]) -> float:
+    """What chooses the actor kept: the mean return over the validation evaluation and each condition evaluated
+    beside it. The validation push alone (the largest trained with) topples every actor and chose badly
+    (docs/learning.md, "Evaluations and the actor kept")."""
+    returns = [value for key, value in point.items() if key == "mean_return" or key.endswith("_mean_return")]
+    return sum(returns) / len(returns)
+
+
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
     Each evaluation saves a checkpoint (with `settings` as its training record); `settings` also go to
     TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The evaluator also
-    remembers the best of them (the first on ties), so that a run that ends worse than it went, or
-    worse than the BC policy it started from, can keep its best actor.
+    remembers the best of them by `selection_score` (the first on ties), so that a run that ends worse than
+    it went, or worse than the BC policy it started from, can keep its best actor.
     """
 
     def __init__(
@@ -61,14 +69,14 @@ class Evaluator(BaseCallback):
             "mean_return": result["mean_return"],
             "survival_rate": result["survival_rate"],
         }
-        for name in self.conditions:  # after the validation one: the actor kept is chosen on that alone
+        for name in self.conditions:  # beside the validation one: together they choose the actor kept
             under = evaluate(PolicyController(actor, "ppo"), episodes=self.episodes, seed=self.seed, condition=name)
             actor.train()
             point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
             self.logger.record(f"eval/{name}/survival_rate", under["survival_rate"])
             self.logger.record(f"eval/{name}/mean_return", under["mean_return"])
         self.curve.append(point)
-        if self.best is None or point["mean_return"] > self.best["mean_return"]:
+        if self.best is None or selection_score(point) > selection_score(self.best):
             self.best, self.best_state = point, {k: v.detach().clone() for k, v in actor.state_dict().items()}
         self.logger.record("eval/mean_return", point["mean_return"])
         self.logger.record("eval/survival_rate", point["survival_rate"])

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE
+from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -283,18 +283,28 @@ def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> No
 
 
 def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> None:
-    """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest return."""
+    """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest selection score."""
     result = main(
         FinetuneConfig(
             bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0, learning_rate=1e-3, **TINY_PPO
         )
     )
-    returns = [p["mean_return"] for p in result["training_curve"]]
-    best = result["training_curve"][returns.index(max(returns))]
+    scores = [selection_score(p) for p in result["training_curve"]]
+    best = result["training_curve"][scores.index(max(scores))]
     assert result["kept"] == best
     kept = checkpoint.load(tmp_path / "ppo" / "checkpoints" / f"step_{best['timesteps']:08d}").state_dict()
     for name, value in checkpoint.load(tmp_path / "ppo").state_dict().items():
         assert torch.equal(value, kept[name]), name
+
+
+def test_the_selection_score_is_the_mean_return_over_the_evaluated_conditions() -> None:
+    """Validation return and each condition's return count alike; survival rates do not enter."""
+    point = {"timesteps": 5, "mean_return": 1000.0, "survival_rate": 0.0, "clean_mean_return": 5000.0}
+    point |= {"clean_survival_rate": 1.0, "mass_mean_return": 3000.0, "mass_survival_rate": 0.5}
+    assert selection_score(point) == 3000.0
+    # Higher under the validation push alone, lower over the conditions: not the one kept.
+    assert selection_score({**point, "mean_return": 1200.0, "mass_mean_return": 2000.0}) < selection_score(point)
+    assert selection_score({"timesteps": 0, "mean_return": 4944.0, "survival_rate": 1.0}) == 4944.0
 
 
 def final_actors(bc_policy: Path, tmp_path: Path, settings: list[dict]) -> list[dict[str, torch.Tensor]]:
