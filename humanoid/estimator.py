@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.sensors import Proprioception
+from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names
 
 GRAVITY = 9.81
 """m/s², Humanoid-v5's (MuJoCo's default)."""
@@ -54,9 +54,9 @@ class LegOdometry:
         joints = [model.joint(j).name for j in range(1, model.njnt)]  # after the free joint, in qpos order
         self._pos = np.array([index[f"{joint}.pos"] for joint in joints])
         self._vel = np.array([index[f"{joint}.vel"] for joint in joints])
-        self._gyro = np.array([index[name] for name in ("root.wx", "root.wy", "root.wz")])
-        self._gravity = np.array([index[name] for name in ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")])
-        self._contact = np.array([index[f"contact.{foot}"] for foot in ("right_foot", "left_foot")])
+        self._gyro = np.array([index[name] for name in GYRO_NAMES])
+        self._gravity = np.array([index[name] for name in GRAVITY_NAMES])
+        self._contact = np.array([index[name] for name in contact_names()])
         self._feet = [model.geom(name).id for name in physics.FOOT_GEOMS]
         self._jac = np.zeros((3, model.nv))
         self.reset()
