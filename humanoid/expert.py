@@ -154,8 +154,8 @@ class SensedExpert:
 
     The expert's gain reads the torso's height and linear velocity, which no sensor measures; fed the
     estimate instead, the expert is a controller of the sensed features (and the estimator's memory,
-    which matters only while a foot is off the ground), so a policy on the sensed features can
-    imitate it (docs/robustness.md, "An expert that acts on what it senses").
+    which matters only while a foot is off the ground): a policy on the sensed features reads all it
+    acts on (docs/robustness.md, "An expert that acts on what it senses", measures both).
     """
 
     name = "expert-sensed"
