@@ -36,8 +36,8 @@ from common.cli import DatasetError, UserError, config_dict, flag, run_cli, sett
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.inputs import INPUTS
 from humanoid.learned import PolicyController
-from humanoid.sensors import INPUTS
 from policies import checkpoint
 from teleop import recordings
 from teleop.dataset_reader import read_episodes

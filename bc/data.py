@@ -31,13 +31,15 @@ from common import keys
 from common.cli import DatasetError
 from common.paths import cache_dir
 from humanoid.env import ENV_ID
-from humanoid.sensors import INPUT_COLUMNS, INPUTS, input_names, observation_index
+from humanoid.inputs import INPUT_COLUMNS, INPUTS, episode_inputs, recorded_names
+from humanoid.sensors import observation_index
 from teleop.dataset_reader import fingerprint, iter_frames, read_info
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
-# The policy's input is built from the dataset columns `humanoid.sensors.INPUT_COLUMNS[inputs]`, their
-# entries placed by name in the order the policy reads (`input_names`): the gymnasium observation's
-# order for "full" (whichever way a dataset split it), the sensed features' for "proprio". A dataset
+# The policy's input is built from the dataset columns `humanoid.inputs.INPUT_COLUMNS[inputs]`, their
+# entries placed by name (`recorded_names`): the gymnasium observation's order for "full" (whichever way
+# a dataset split it), the sensed features' for "proprio" and "odometry" (whose estimate is then computed
+# along each episode, `episode_inputs`). A dataset
 # that records a command (keyboard teleoperation) would add that column (it then reaches
 # `MLPSpec.input_keys`), and `PolicyController` would take the command from its source.
 _CACHE_FORMAT = 2  # bump when what the cache holds changes
@@ -56,7 +58,7 @@ class Demonstrations:
     seconds: float  # time to load, from files to tensors
     from_cache: bool
     fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
-    kind: str = "full"  # humanoid.sensors.INPUTS: which input `inputs` holds
+    kind: str = "full"  # humanoid.inputs.INPUTS: which input `inputs` holds
 
     @property
     def frames(self) -> int:
@@ -107,11 +109,11 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
     recorded = [name for key in columns for name in features[key].get("names") or []]
     if inputs == "full":
         index = observation_index(recorded, env.unwrapped.model)
-    else:  # the sensed features are read as recorded, when they are the ones the policy reads
-        wanted = input_names(inputs, env.unwrapped.model)
+    else:  # the sensed features are read as recorded, when they are the ones the policy's input is made of
+        wanted = recorded_names(inputs, env.unwrapped.model)
         index = np.arange(len(wanted)) if recorded == wanted else None
     if index is None:
-        if inputs == "proprio":
+        if inputs != "full":
             raise DatasetError(
                 f"{root} has no sensed {keys.OBS_STATE} (recorded before it existed: its {keys.OBS_STATE} has "
                 f"{features[keys.OBS_STATE]['shape'][0]} entries, not the {len(wanted)} humanoid.sensors names); "
@@ -200,6 +202,7 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
     else:
         try:
             arrays = _decode(root, info, INPUT_COLUMNS[inputs], index)
+            arrays["inputs"] = episode_inputs(inputs, arrays["inputs"], arrays["episode_index"], env.unwrapped.model)
         except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
             raise DatasetError(f"cannot read the frames of {root}: {error}") from None
         if not (np.isfinite(arrays["inputs"]).all() and np.isfinite(arrays["actions"]).all()):

@@ -43,7 +43,7 @@ from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
 from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards
-from bc.ppo.learner import build_model, fresh_actor, make_vec_env
+from bc.ppo.learner import ACTOR_INPUTS, build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
@@ -338,7 +338,11 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """
     validate(cfg)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
-    PolicyController.load(cfg.bc_policy, make_env())
+    inputs = PolicyController.load(cfg.bc_policy, make_env()).policy.spec.inputs
+    if inputs not in ACTOR_INPUTS:
+        raise UserError(
+            f"{cfg.bc_policy} reads {inputs!r} inputs; a PPO actor takes {' or '.join(map(repr, ACTOR_INPUTS))}"
+        )
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
     finished = finished_result(cfg, settings)
     if finished is not None:

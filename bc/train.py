@@ -38,8 +38,8 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
+from humanoid.inputs import INPUT_COLUMNS, INPUTS
 from humanoid.learned import PolicyController
-from humanoid.sensors import INPUT_COLUMNS, INPUTS
 from policies import checkpoint
 from policies.folder import EVAL_FILE
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
@@ -62,8 +62,8 @@ class TrainConfig:
     policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
     inputs: str = setting(
         "full",
-        "what the policy reads: the gymnasium observation (full) or what a robot senses (proprio, "
-        "humanoid/sensors.py); full by measurement, see docs/robustness.md",
+        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), or that and "
+        "the leg odometry computed from it (odometry; humanoid/inputs.py); full by measurement, see docs/robustness.md",
         choices=INPUTS,
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")

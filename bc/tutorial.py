@@ -37,7 +37,7 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.env import make_env
-from humanoid.sensors import INPUT_COLUMNS
+from humanoid.inputs import INPUT_COLUMNS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, EVAL_FILE, SB3_FILE
 from policies.mlp import MLPPolicy, MLPSpec

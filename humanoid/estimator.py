@@ -18,6 +18,8 @@ foot is off the ground; `reset` starts them at rest, where gymnasium's reset put
 
 from __future__ import annotations
 
+import copy
+
 import mujoco
 import numpy as np
 
@@ -104,3 +106,51 @@ class LegOdometry:
         qpos, qvel = data.qpos.copy(), data.qvel.copy()
         qpos[2], qvel[:3] = self.height, velocity
         return qpos, qvel
+
+
+FRAME_SKIP = 5
+"""MuJoCo steps per Humanoid-v5 env step (gymnasium's default, which `make_env` keeps)."""
+
+
+def odometry_names(model: mujoco.MjModel) -> list[str]:
+    """The names of `OdometryFeatures`' entries: the sensed features', then the estimate's."""
+    bodies = [model.body(b).name for b in range(1, model.nbody)]
+    estimate = ["odometry.height", "odometry.vx", "odometry.vy", "odometry.vz"]
+    inertias = [f"odometry.{body}.cinert{i}" for body in bodies for i in range(10)]
+    return [*Proprioception(model).names, *estimate, *inertias]
+
+
+class OdometryFeatures:
+    """A policy's input computed from what a robot senses alone: the sensed features, then `LegOdometry`'s
+    torso height and linear velocity, and the body inertias about the centre of mass (MuJoCo's `cinert`)
+    of the nominal model in the estimated, heading-free pose.
+
+    Why these: a student on the sensed features alone does not stand, one that also reads the
+    torso's velocity and the nominal-model inertias does (docs/robustness.md, "The deployable
+    observation"). Stateful like the estimator: `reset` at every episode's start.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.sensed = Proprioception(model)
+        self.odometry = LegOdometry(copy.copy(model), FRAME_SKIP * model.opt.timestep)
+        self.size = len(odometry_names(model))
+
+    def reset(self) -> None:
+        self.odometry.reset()
+
+    def from_sensed(self, sensed: np.ndarray) -> np.ndarray:
+        """This step's input from this step's sensed features (float64)."""
+        qpos, qvel = self.odometry(sensed)
+        return np.concatenate([sensed, [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.from_sensed(self.sensed(obs))
+
+    def episodes(self, sensed: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
+        """The inputs of recorded frames (rows of sensed features in frame order), each episode from a reset."""
+        out = np.empty((len(sensed), self.size), dtype=np.float64)
+        for row in range(len(sensed)):
+            if row == 0 or episode_index[row] != episode_index[row - 1]:
+                self.reset()
+            out[row] = self.from_sensed(sensed[row].astype(np.float64))
+        return out

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from humanoid.env import make_env
-from humanoid.sensors import INPUT_COLUMNS, input_features, input_names
+from humanoid.inputs import INPUT_COLUMNS, input_features, input_names
 from policies.checkpoint import CheckpointError, load
 from policies.folder import SB3_FILE
 from policies.mlp import MLPPolicy
@@ -46,7 +46,9 @@ class PolicyController:
         return cls(load(path), str(path), env)
 
     def reset(self, seed: int | None = None) -> None:
-        """Nothing to reset: the policy is deterministic and has no memory."""
+        """The policy is deterministic and has no memory; its inputs may (`odometry`'s estimator)."""
+        if hasattr(self.features, "reset"):
+            self.features.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():

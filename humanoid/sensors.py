@@ -27,12 +27,11 @@ and cfrc_ext. Datasets recorded before this split stored qpos[2:] and qvel (45) 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
-from common.keys import OBS_ENV_STATE, OBS_STATE
 from humanoid.env import humanoid_model, observation_names
 
 GRAVITY_NAMES = ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")
@@ -126,19 +125,3 @@ def observation_index(recorded: Sequence[str], model: mujoco.MjModel | None = No
         return np.array([position[name] for name in observation_names(model or _layout_model())])
     except KeyError:
         return None
-
-
-# What a policy reads (`make train-bc INPUTS=...`, recorded in its checkpoint's MLPSpec.inputs):
-# the gymnasium observation, or the sensed part of it. The dataset columns each is built from:
-INPUT_COLUMNS: dict[str, tuple[str, ...]] = {"full": (OBS_STATE, OBS_ENV_STATE), "proprio": (OBS_STATE,)}
-INPUTS = tuple(INPUT_COLUMNS)
-
-
-def input_names(inputs: str, model: mujoco.MjModel) -> list[str]:
-    """The names of a policy's input entries, in order."""
-    return observation_names(model) if inputs == "full" else proprioception_names(model)
-
-
-def input_features(inputs: str, model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
-    """The function from gymnasium observations to a policy's input, for `model`'s environment."""
-    return (lambda obs: obs) if inputs == "full" else Proprioception(model)

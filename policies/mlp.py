@@ -38,8 +38,9 @@ class MLPSpec:
     hidden: tuple[int, ...] = (256, 256)
     activation: str = "relu"
     inputs: str = "full"
-    """What the policy reads (humanoid.sensors.INPUTS): "full", the gymnasium observation, or
-    "proprio", what a robot senses. Checkpoints written before this field read "full"."""
+    """What the policy reads (humanoid.inputs.INPUTS): "full", the gymnasium observation; "proprio", what a
+    robot senses; or "odometry", that and the leg odometry computed from it. Checkpoints written before
+    this field read "full"."""
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:

@@ -74,6 +74,11 @@ def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
     return fresh
 
 
+ACTOR_INPUTS = ("full", "proprio")
+"""The inputs a PPO actor can compute inside its own graph from the observation: `odometry` needs the
+estimator's memory of the episode, which SB3's stateless policy does not keep."""
+
+
 def build_model(
     actor: MLPPolicy,
     env: VecEnv,

@@ -21,8 +21,8 @@ from common import keys
 from common.cli import UserError, config_dict
 from humanoid.controllers import make_controller
 from humanoid.env import observation_names
+from humanoid.inputs import INPUT_COLUMNS
 from humanoid.learned import PolicyController
-from humanoid.sensors import INPUT_COLUMNS
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.mlp import STD_FLOOR
@@ -233,6 +233,33 @@ def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult,
     # One row at a time against a batch: float32 matmuls may differ in the last bits.
     actions = np.array([controller.act(obs) for obs in observations[::20]])
     np.testing.assert_allclose(actions, expected[::20], rtol=0, atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def odometry(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
+    """A small MLP trained on the sensed features and the leg-odometry estimate of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("policies") / "odometry"
+    return main(TrainConfig(dataset=recorded, policy=folder, inputs="odometry", **TINY))
+
+
+def test_odometry_inputs_in_training_are_what_the_controller_computes_live(
+    odometry: TrainResult, recorded: Path, env: gym.Env
+) -> None:
+    """The estimator run along each recorded episode gives the inputs the controller computes step by step,
+    from a reset at each episode's start, out of the gymnasium observations (float32 rows against float64)."""
+    config = json.loads((odometry.policy_dir / policy_files.CONFIG_FILE).read_text())
+    assert config["policy"]["inputs"] == "odometry" and config["policy"]["input_dim"] == 42 + 4 + 130
+    frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE, "episode_index"])
+    observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    trained = load_demonstrations(recorded, env, cache=False, inputs="odometry").inputs.numpy()
+    controller = make_controller(str(odometry.policy_dir), env)
+    live = []
+    for row, obs in enumerate(observations):
+        if row == 0 or frames["episode_index"][row] != frames["episode_index"][row - 1]:
+            controller.reset()
+        live.append(controller.features(obs))
+    np.testing.assert_allclose(trained, np.array(live), rtol=0, atol=1e-4)
+    assert np.abs(trained[:, 42 + 1 : 42 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
 
 
 def test_dataset_recorded_before_the_sensed_state_is_refused_for_proprio(

@@ -354,6 +354,16 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
     assert not (tmp_path / "ppo").exists()
 
 
+def test_bc_checkpoint_on_odometry_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A checkpoint reading the leg-odometry inputs, which need the episode's memory, fails in one line."""
+    folder = tmp_path / "odometry"
+    spec = MLPSpec(("observation.state",), 42 + 4 + 130, 17, hidden=(8,), inputs="odometry")
+    checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
+    code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
+    assert code == 1 and len(err) == 1 and "'odometry'" in err[0]
+    assert not (tmp_path / "ppo").exists()
+
+
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A checkpoint built for another observation or action size fails in one line."""
     folder = tmp_path / "small"
