@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
+from humanoid.lqr import LQRDesign
 from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names
 
 GRAVITY = 9.81
@@ -47,10 +48,12 @@ def level_quaternion(gravity: np.ndarray) -> np.ndarray:
 class LegOdometry:
     """(qpos, qvel) of the nominal model estimated from one sensed-feature vector per env step."""
 
-    def __init__(self, model: mujoco.MjModel, step_seconds: float) -> None:
-        self.model = model
+    def __init__(self, model: mujoco.MjModel, step_seconds: float | None = None) -> None:
+        """On a copy of `model` as it is now (the nominal one: later draws of a randomised env do not reach it);
+        `step_seconds` defaults to one Humanoid-v5 env step (`LQRDesign.frame_skip` MuJoCo steps)."""
+        self.model = model = copy.copy(model)
         self.data = mujoco.MjData(model)
-        self.dt = step_seconds
+        self.dt = LQRDesign.frame_skip * model.opt.timestep if step_seconds is None else step_seconds
         names = Proprioception(model).names
         index = {name: i for i, name in enumerate(names)}
         joints = [model.joint(j).name for j in range(1, model.njnt)]  # after the free joint, in qpos order
@@ -108,10 +111,6 @@ class LegOdometry:
         return qpos, qvel
 
 
-FRAME_SKIP = 5
-"""MuJoCo steps per Humanoid-v5 env step (gymnasium's default, which `make_env` keeps)."""
-
-
 def odometry_names(model: mujoco.MjModel) -> list[str]:
     """The names of `OdometryFeatures`' entries: the sensed features', then the estimate's."""
     bodies = [model.body(b).name for b in range(1, model.nbody)]
@@ -132,7 +131,7 @@ class OdometryFeatures:
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.sensed = Proprioception(model)
-        self.odometry = LegOdometry(copy.copy(model), FRAME_SKIP * model.opt.timestep)
+        self.odometry = LegOdometry(model)
         self.size = len(odometry_names(model))
 
     def reset(self) -> None:

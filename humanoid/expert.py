@@ -163,9 +163,8 @@ class SensedExpert:
     def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
         """The expert designed on `model` (like `LQRExpert`); the estimator runs on it too."""
         self.expert = LQRExpert(model, delay=delay)
-        model = self.expert.model
-        self.sensed = Proprioception(model)
-        self.estimator = LegOdometry(copy.copy(model), self.expert.design.frame_skip * model.opt.timestep)
+        self.sensed = Proprioception(self.expert.model)
+        self.estimator = LegOdometry(self.expert.model)
 
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)
