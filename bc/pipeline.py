@@ -1,5 +1,13 @@
 """`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables of
-`bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the expert and every policy.
+`bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the experts and every policy.
+
+    DATASET (expert, NOISE) ----------> BC_POLICY (full) --------> SCRATCH_POLICY, PPO_POLICY; tutorial
+       '------------------------------> PROPRIO_POLICY (proprio)                     } DEPLOYABLE: what
+    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry)                   } a robot senses
+
+The deployable branch clones policies that read only the sensed features: from the same data (which
+shows what the privileged inputs did), and from demonstrations of the expert on leg odometry with
+that odometry as input (the student that stands; docs/robustness.md).
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -54,8 +62,11 @@ from bc.finetune import validate as validate_ppo
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from bc.tutorial import TutorialConfig
+from common import paths
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
 from humanoid.conditions import NO_RANDOMIZATION, SUITE
+from humanoid.controllers import CONTROLLERS
+from humanoid.expert import SensedExpert
 from policies.folder import (
     CONFIG_FILE,
     DATASET_FILE,
@@ -92,6 +103,10 @@ them did: a saved config without the setting was made with that value (a dataset
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
 
+SENSED_NOISE = 0.03
+"""DART noise of the sensed expert's demonstrations: it falls under the default 0.05 and its students stand from
+0.03 (docs/robustness.md, "An expert that acts on what it senses")."""
+
 
 def _like(config_class: type, name: str, help: str | None = None) -> Any:
     """A pipeline setting with the default (and, unless given, the help) of `config_class`'s field `name`."""
@@ -122,6 +137,21 @@ class PipelineConfig:
     tutorial: bool = setting(
         True, "also train the seed tutorial's two learners at the PPO stages' budget, as baseline rows (tutorial-rl)"
     )
+    deployable: bool = setting(
+        True,
+        "also clone policies that read only what a robot senses: PROPRIO_POLICY from DATASET, and ODOMETRY_POLICY "
+        "from SENSED_DATASET (see the module's sketch)",
+    )
+    proprio_policy: Path = setting(
+        paths.PROPRIO_POLICY, "checkpoint folder of BC on DATASET's sensed features (train-bc --inputs proprio)"
+    )
+    sensed_dataset: Path = setting(
+        paths.SENSED_DATASET, "dataset of EPISODES the expert on leg odometry records (--controller expert-sensed)"
+    )
+    sensed_noise: float = setting(SENSED_NOISE, "DART noise of SENSED_DATASET's recording")
+    odometry_policy: Path = setting(
+        paths.ODOMETRY_POLICY, "checkpoint folder of BC on SENSED_DATASET with leg odometry (--inputs odometry)"
+    )
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
     push: float = _like(FinetuneConfig, "push")
@@ -141,6 +171,15 @@ class PipelineConfig:
 
 
 @dataclass
+class Deployable:
+    """The stages of the policies that read only what a robot senses."""
+
+    proprio: TrainConfig
+    record: RecordConfig
+    odometry: TrainConfig
+
+
+@dataclass
 class Stages:
     """The config of every stage, as the pipeline runs them."""
 
@@ -149,6 +188,21 @@ class Stages:
     baseline: BaselineConfig
     finetune: FinetuneConfig
     tutorial: TutorialConfig | None
+    deployable: Deployable | None = None
+
+    def outputs(self) -> dict[str, Path]:
+        """Each output folder, by the pipeline's option that names it."""
+        folders = {
+            "--dataset": self.record.dataset,
+            "--bc-policy": self.train.policy,
+            "--scratch-policy": self.baseline.policy,
+            "--ppo-policy": self.finetune.policy,
+        }
+        if self.deployable is not None:
+            folders["--proprio-policy"] = self.deployable.proprio.policy
+            folders["--sensed-dataset"] = self.deployable.record.dataset
+            folders["--odometry-policy"] = self.deployable.odometry.policy
+        return folders
 
 
 def stages(cfg: PipelineConfig) -> Stages:
@@ -166,20 +220,34 @@ def stages(cfg: PipelineConfig) -> Stages:
         "baseline": cfg.scratch_policy,
         **workers,
     }
+    recording = RecordConfig(
+        dataset=cfg.dataset,
+        episodes=cfg.episodes,
+        seed=cfg.seed,
+        controller=cfg.controller,
+        noise=cfg.noise,
+        max_steps=cfg.max_steps,
+        **workers,
+    )
+    deployable = None
+    if cfg.deployable:
+        sensed = dataclasses.replace(
+            recording, dataset=cfg.sensed_dataset, controller=SensedExpert.name, noise=cfg.sensed_noise
+        )
+        deployable = Deployable(
+            proprio=TrainConfig(dataset=cfg.dataset, policy=cfg.proprio_policy, epochs=cfg.epochs, inputs="proprio"),
+            record=sensed,
+            odometry=TrainConfig(
+                dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs="odometry"
+            ),
+        )
     return Stages(
-        record=RecordConfig(
-            dataset=cfg.dataset,
-            episodes=cfg.episodes,
-            seed=cfg.seed,
-            controller=cfg.controller,
-            noise=cfg.noise,
-            max_steps=cfg.max_steps,
-            **workers,
-        ),
+        record=recording,
         train=TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
         tutorial=TutorialConfig(timesteps=cfg.timesteps) if cfg.tutorial else None,
+        deployable=deployable,
     )
 
 
@@ -343,14 +411,16 @@ def checkpoint_decision(
     )
 
 
-def bc_decision(cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
-    """train-bc's decision: its input is the dataset, identified by its fingerprint."""
+def bc_decision(
+    cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False, option: str = "--bc-policy"
+) -> Decision:
+    """A train-bc stage's decision: its input is the dataset, identified by its fingerprint."""
 
     def current() -> str | None:
         return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
 
     saved = _json_object(cfg.policy / DATASET_FILE).get("fingerprint")
-    return checkpoint_decision(cfg, "training", "--bc-policy", "dataset", saved, current, overwrite, dataset_remade)
+    return checkpoint_decision(cfg, "training", option, "dataset", saved, current, overwrite, dataset_remade)
 
 
 def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: bool = False) -> Decision:
@@ -365,13 +435,22 @@ def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: b
 
 
 def validate(run: Stages) -> None:
-    """Every stage's own checks, before the first one starts."""
+    """Every stage's own checks, and that no two stages write one folder, before the first one starts."""
     validate_record(run.record)
     bc_train.validate(run.train)
     validate_ppo(run.baseline)
     validate_ppo(run.finetune)
     if run.tutorial is not None:
         tutorial.validate(run.tutorial)
+    if run.deployable is not None:
+        validate_record(run.deployable.record)
+        bc_train.validate(run.deployable.proprio)
+        bc_train.validate(run.deployable.odometry)
+    seen: dict[Path, str] = {}
+    for option, folder in run.outputs().items():
+        other = seen.setdefault(folder.resolve(), option)
+        if other != option:
+            raise UserError(f"{other} and {option} both name {folder}: each output needs its own folder")
 
 
 def tutorial_config(config: TutorialConfig, overwrite: bool) -> TutorialConfig:
@@ -386,6 +465,10 @@ def foresee(run: Stages, overwrite: bool) -> None:
     run the pipeline did not make."""
     dataset_remade = dataset_decision(run.record).action != REUSE
     bc_remade = bc_decision(run.train, overwrite, dataset_remade).action != REUSE
+    if run.deployable is not None:
+        bc_decision(run.deployable.proprio, overwrite, dataset_remade, "--proprio-policy")
+        sensed_remade = dataset_decision(run.deployable.record).action != REUSE
+        bc_decision(run.deployable.odometry, overwrite, sensed_remade, "--odometry-policy")
     ppo_decision(run.baseline, "--scratch-policy", overwrite, bc_remade)
     ppo_decision(run.finetune, "--ppo-policy", overwrite, bc_remade)
     if run.tutorial is not None:
@@ -398,17 +481,14 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     validate(stages)
     foresee(stages, overwrite)
 
-    decision = dataset_decision(stages.record)
-    print(f"pipeline: {decision.line}", flush=True)
-    if decision.action == REMAKE:
-        shutil.rmtree(stages.record.dataset)
-    if decision.action != REUSE:
-        print(record(decision.config, made_by=MADE_BY).describe(), flush=True)
-
-    decision = bc_decision(stages.train, overwrite)
-    print(f"pipeline: {decision.line}", flush=True)
-    if decision.action != REUSE:
-        print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
+    record_stage(stages.record)
+    bc_stage(stages.train, overwrite, "--bc-policy")
+    policies = [stages.train.policy]
+    if stages.deployable is not None:
+        bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
+        record_stage(stages.deployable.record)
+        bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
+        policies += [stages.deployable.proprio.policy, stages.deployable.odometry.policy]
 
     for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
         decision = ppo_decision(config, option, overwrite)
@@ -416,7 +496,7 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
         if decision.action != REUSE:
             print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
 
-    policies = [stages.train.policy, stages.finetune.policy, stages.baseline.policy]
+    policies += [stages.finetune.policy, stages.baseline.policy]
     if stages.tutorial is not None:
         config = tutorial_config(stages.tutorial, overwrite)
         folders = [config.preferred_policy, config.ppo_policy]
@@ -429,19 +509,38 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     table = report.table(policies)
     print(table)
     if robustness_episodes:
-        results = {name: suite(name, robustness_episodes) for name in ["expert", *map(str, policies)]}
+        experts = ["expert"] + ([SensedExpert.name] if stages.deployable is not None else [])
+        results = {name: suite(name, robustness_episodes) for name in [*experts, *map(str, policies)]}
         table += "\n\n" + report.suite_table(results)
         print("\n" + report.suite_table(results))
     return table
 
 
+def record_stage(cfg: RecordConfig) -> None:
+    """Record the dataset of `cfg`, complete it, or reuse it (`dataset_decision`), saying which."""
+    decision = dataset_decision(cfg)
+    print(f"pipeline: {decision.line}", flush=True)
+    if decision.action == REMAKE:
+        shutil.rmtree(cfg.dataset)
+    if decision.action != REUSE:
+        print(record(decision.config, made_by=MADE_BY).describe(), flush=True)
+
+
+def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
+    """Train the BC checkpoint of `cfg` or reuse it (`bc_decision`), saying which."""
+    decision = bc_decision(cfg, overwrite, option=option)
+    print(f"pipeline: {decision.line}", flush=True)
+    if decision.action != REUSE:
+        print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
+
+
 def suite(policy: str, episodes: int) -> dict[str, Any]:
     """The robustness suite's results for `policy`: its robustness.json if made after the policy with the same
-    episodes and conditions (the expert's always), else a new run (about 30 s for 20 episodes)."""
+    episodes and conditions (a registered controller's always), else a new run (about 30 s for 20 episodes)."""
     cfg = RobustnessConfig(policy=policy, episodes=episodes, progress=False)
     saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
     weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
-    if saved.is_file() and (policy == "expert" or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
+    if saved.is_file() and (policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         result = json.loads(saved.read_text())
         if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == list(SUITE):
             print(f"pipeline: robustness of {policy}: reusing {saved}", flush=True)

@@ -13,6 +13,12 @@ DATASET = Path("datasets/humanoid_stand")
 """Demonstrations `make record` writes and `make train-bc` reads."""
 BC_POLICY = Path("policies/bc_humanoid_stand")
 """The behaviour-cloned policy: `make train-bc`'s output, `make finetune-rl`'s starting actor."""
+PROPRIO_POLICY = Path("policies/bc_proprio_humanoid_stand")
+"""Behaviour cloning on the sensed features of the same demonstrations (`make pipeline`)."""
+SENSED_DATASET = Path("datasets/humanoid_stand_sensed")
+"""Demonstrations of the expert on leg odometry (`make pipeline`)."""
+ODOMETRY_POLICY = Path("policies/bc_odometry_humanoid_stand")
+"""Behaviour cloning on the sensed features and leg odometry, from SENSED_DATASET (`make pipeline`)."""
 PPO_POLICY = Path("policies/ppo_humanoid_stand")
 """The PPO-refined policy of `make finetune-rl`."""
 SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")

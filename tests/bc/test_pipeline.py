@@ -26,6 +26,8 @@ from bc.pipeline import (
     REMAKE,
     RESUME,
     REUSE,
+    SENSED_NOISE,
+    Deployable,
     PipelineConfig,
     Stages,
     bc_decision,
@@ -37,6 +39,7 @@ from bc.pipeline import (
 )
 from bc.train import TrainConfig
 from bc.tutorial import TutorialConfig
+from common import paths
 from common.cli import UserError
 from humanoid.conditions import SUITE
 from policies.folder import CONFIG_FILE, EVAL_FILE
@@ -47,7 +50,6 @@ from teleop.record import RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
-FOLDERS = ("data", "bc", "scratch", "ppo")
 TUTORIAL_LINE = "pipeline: the tutorial's learners: tutorial_preferred, tutorial_ppo (reused if finished)"
 
 
@@ -88,9 +90,17 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         "progress": False,
         **(train or {}),
     }
+    sensed = {**record, "dataset": Path("sensed"), "controller": "expert-sensed", "noise": SENSED_NOISE}
     return Stages(
         record=RecordConfig(**record),
         train=TrainConfig(**train),
+        deployable=Deployable(
+            proprio=TrainConfig(**{**train, "policy": Path("bc_proprio"), "inputs": "proprio"}),
+            record=RecordConfig(**sensed),
+            odometry=TrainConfig(
+                **{**train, "dataset": Path("sensed"), "policy": Path("bc_odometry"), "inputs": "odometry"}
+            ),
+        ),
         baseline=BaselineConfig(policy=Path("scratch"), **ppo),
         finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
         tutorial=TutorialConfig(
@@ -124,7 +134,8 @@ def report_table() -> list[str]:
     """What `python -m bc.report` prints for every policy of the pipeline, in the current folder."""
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert report.main(["bc", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"]) == 0
+        policies = ["bc", "bc_proprio", "bc_odometry", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"]
+        assert report.main(policies) == 0
     return out.getvalue().splitlines()
 
 
@@ -157,10 +168,14 @@ def made_by_someone_else(dataset: Path) -> None:
 
 
 def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str]]) -> None:
-    """From nothing, each stage runs, one line saying so, in the order record, BC, scratch, fine-tuning."""
+    """From nothing, each stage runs, one line saying so, in the order record, BC, the deployable BC policies,
+    scratch, fine-tuning."""
     assert pipeline_lines(first_run[1]) == [
         "pipeline: recording data: no dataset there yet",
         "pipeline: training bc: no checkpoint there yet",
+        "pipeline: training bc_proprio: no checkpoint there yet",
+        "pipeline: recording sensed: no dataset there yet",
+        "pipeline: training bc_odometry: no checkpoint there yet",
         "pipeline: training from scratch scratch: no checkpoint there yet",
         "pipeline: fine-tuning ppo: no checkpoint there yet",
         TUTORIAL_LINE,
@@ -181,6 +196,9 @@ def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path
     assert pipeline_lines(lines) == [
         "pipeline: data holds the 2 episodes asked for, recorded so: not recording",
         "pipeline: bc was made from this dataset with these settings: not training",
+        "pipeline: bc_proprio was made from this dataset with these settings: not training",
+        "pipeline: sensed holds the 2 episodes asked for, recorded so: not recording",
+        "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
         TUTORIAL_LINE,
@@ -190,11 +208,15 @@ def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path
 
 
 def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(outputs: Path) -> None:
-    """Other noise: the pipeline's own dataset is recorded again, so BC is trained again, so both PPO runs are."""
+    """Other noise: the pipeline's own dataset is recorded again, so both BC runs on it are trained again, so both
+    PPO runs are; the sensed expert's dataset is another dataset, and stays."""
     lines = pipeline_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
     assert lines == [
         "pipeline: recording data again: it was recorded with --noise 0.05, not 0.02",
         "pipeline: training bc again: it was made from another dataset",
+        "pipeline: training bc_proprio again: it was made from another dataset",
+        "pipeline: sensed holds the 2 episodes asked for, recorded so: not recording",
+        "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: training from scratch scratch again: it was made from another BC policy",
         "pipeline: fine-tuning ppo again: it was made from another BC policy",
         TUTORIAL_LINE,
@@ -342,13 +364,39 @@ def test_pipeline_defaults_are_the_stages() -> None:
         BaselineConfig(),
         FinetuneConfig(),
         TutorialConfig(timesteps=FinetuneConfig().timesteps),
+        Deployable(
+            TrainConfig(policy=paths.PROPRIO_POLICY, inputs="proprio"),
+            RecordConfig(dataset=paths.SENSED_DATASET, controller="expert-sensed", noise=SENSED_NOISE),
+            TrainConfig(dataset=paths.SENSED_DATASET, policy=paths.ODOMETRY_POLICY, inputs="odometry"),
+        ),
+    )
+
+
+def test_without_the_deployable_branch_its_stages_are_left_out() -> None:
+    """DEPLOYABLE=false: the stages `make pipeline` ran before that branch existed, and nothing else."""
+    assert stages(PipelineConfig(deployable=False)).deployable is None
+
+
+def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
+    """SENSED_DATASET naming DATASET would record two experts into one dataset: one line, nothing touched."""
+    run_stages = tiny_stages()
+    run_stages.deployable.record.dataset = Path("data")
+    assert_refused_untouched(
+        outputs, run_stages, "--dataset and --sensed-dataset both name data: each output needs its own folder"
     )
 
 
 def test_pipeline_settings_and_args_reach_their_stages() -> None:
-    """WORKERS goes to the recording and both PPO runs, EPOCHS to BC, ARGS to both PPO runs."""
-    run_stages = stages(PipelineConfig(episodes=3, workers=1, epochs=4, args="--keep last --eval-episodes 2"))
+    """WORKERS goes to both recordings and both PPO runs, EPISODES to both recordings, EPOCHS to every BC run,
+    SENSED_NOISE to the sensed expert's recording only, ARGS to both PPO runs."""
+    run_stages = stages(
+        PipelineConfig(episodes=3, workers=1, epochs=4, sensed_noise=0.01, args="--keep last --eval-episodes 2")
+    )
     assert (run_stages.record.episodes, run_stages.record.workers, run_stages.train.epochs) == (3, 1, 4)
+    deployable = run_stages.deployable
+    assert (deployable.record.episodes, deployable.record.workers, deployable.record.noise) == (3, 1, 0.01)
+    assert run_stages.record.noise == RecordConfig().noise
+    assert (deployable.proprio.epochs, deployable.odometry.epochs) == (4, 4)
     for config in (run_stages.baseline, run_stages.finetune):
         assert (config.workers, config.keep, config.eval_episodes) == (1, "last", 2)
     assert run_stages.baseline.learning_rate == BaselineConfig().learning_rate  # each keeps its own defaults
