@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bc.train import TrainConfig, TrainResult
+from bc.train import MIN_UPDATES, TrainConfig, TrainResult
 from bc.train import main as train
 from common import keys, paths
 from common.cli import DatasetError, UserError, config_dict, flag, run_cli, setting
@@ -58,7 +58,8 @@ class DaggerConfig:
     )
     rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
-    epochs: int = setting(30, "training epochs of every round's policy")
+    epochs: int = setting(30, "training epochs of every round's policy (more if MIN_UPDATES needs them)")
+    min_updates: int = setting(MIN_UPDATES, "at least this many Adam steps in every round's training (bc.train's)")
     patience: int = setting(
         0,
         "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
@@ -100,8 +101,9 @@ def validate(cfg: DaggerConfig) -> None:
     for name in ("rounds", "episodes", "epochs"):
         if getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    if cfg.patience < 0 or cfg.eval_episodes < 0:
-        raise UserError(f"--patience and --eval-episodes must be >= 0, got {cfg.patience} and {cfg.eval_episodes}")
+    for name in ("patience", "min_updates", "eval_episodes"):
+        if getattr(cfg, name) < 0:
+            raise UserError(f"{flag(name)} must be >= 0, got {getattr(cfg, name)}")
     if cfg.output.resolve() == cfg.dataset.resolve():
         raise UserError("--output must differ from --dataset: DAgger leaves the demonstrations unchanged")
     if not (cfg.dataset / "meta/info.json").is_file() and not cfg.output.exists():
@@ -156,7 +158,12 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     complete = False
     try:
         done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
-        training = {"epochs": cfg.epochs, "patience": cfg.patience, "inputs": cfg.inputs}
+        training = {
+            "epochs": cfg.epochs,
+            "min_updates": cfg.min_updates,
+            "patience": cfg.patience,
+            "inputs": cfg.inputs,
+        }
         quiet = {**training, "eval_episodes": 0, "progress": False, "tensorboard": False}
         with tempfile.TemporaryDirectory(prefix=".dagger-", dir=cfg.policy.parent) as scratch:
             policy_dir = Path(scratch) / f"round{done}"

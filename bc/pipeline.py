@@ -80,7 +80,7 @@ from policies.folder import (
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_info
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import RecordConfig, record
+from teleop.record import SENSED_NOISE, RecordConfig, record
 from teleop.record import validate as validate_record
 
 MADE_BY = "bc.pipeline"
@@ -96,16 +96,13 @@ ADDED_SINCE = {
     "curriculum": "",
     "curriculum_advance": 0.8,
     "curriculum_episodes": 16,
+    "min_updates": 0,
 }
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before
 --randomize existed is one recorded with --randomize none, byte for byte)."""
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
-
-SENSED_NOISE = 0.03
-"""DART noise of the sensed expert's demonstrations: it falls under the default 0.05 and its students stand from
-0.03 (docs/robustness.md, "An expert that acts on what it senses")."""
 
 
 def _like(config_class: type, name: str, help: str | None = None) -> Any:

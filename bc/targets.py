@@ -71,7 +71,7 @@ TARGETS: dict[str, Target] = {
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
-    "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "overwrite")),
+    "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "min_updates", "overwrite")),
     "eval": Target(
         "bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video", *_LIVE)
     ),

@@ -4,9 +4,9 @@
 2. Hold out a seeded 10 % of the episodes (never single frames: neighbouring frames are nearly
    identical, so a frame split would measure memorisation) for validation.
 3. Fit an MLP policy (`policies.mlp`) whose input normalisation comes from the training frames,
-   with Adam on the mean squared error of the actions, minibatches drawn from tensors in memory.
-   Training stops when the validation loss has not improved for PATIENCE epochs and keeps the
-   weights of the best epoch.
+   with Adam on the mean squared error of the actions, minibatches drawn from tensors in memory,
+   for EPOCHS passes or, on a small dataset, as many as MIN_UPDATES Adam steps take; the last
+   epoch's weights are kept (with PATIENCE, the best epoch's, stopping early).
 4. Write the checkpoint to POLICY (weights, the run's full config, the dataset's identity and
    fingerprint, learning curve, TensorBoard logs with the config as text) through a hidden
    staging folder: an existing checkpoint is replaced only with --overwrite and only once the new
@@ -54,6 +54,11 @@ TENSORBOARD_DIR = "tensorboard"
 CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
+MIN_UPDATES = 5000
+"""Adam steps that made the sensed-expert students stand from 10 and 20 demonstrations (docs/learning.md, BC data
+efficiency); 30 epochs of 50 demonstrations are about as many."""
+
+
 @dataclass
 class TrainConfig:
     """Settings of one behaviour-cloning run."""
@@ -74,7 +79,12 @@ class TrainConfig:
     lr: float = setting(1e-3, "Adam learning rate")
     weight_decay: float = setting(0.0, "Adam weight decay (L2)")
     batch_size: int = setting(256, "minibatch size")
-    epochs: int = setting(30, "maximum number of passes over the training frames")
+    epochs: int = setting(30, "passes over the training frames (more if MIN_UPDATES needs them)")
+    min_updates: int = setting(
+        MIN_UPDATES,
+        "train for at least this many Adam steps, so fewer demonstrations do not mean less training: a small "
+        "dataset gets more than EPOCHS passes (docs/learning.md, BC data efficiency); 0 = exactly EPOCHS",
+    )
     patience: int = setting(
         0,
         "stop after this many epochs without a better validation loss and keep the best epoch; 0 = train all "
@@ -154,7 +164,7 @@ def validate(cfg: TrainConfig) -> None:
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"{flag(name)} must be positive, got {value}")
-    for name in ("weight_decay", "patience", "threads", "eval_episodes", "eval_seed"):
+    for name in ("weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed"):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
@@ -166,6 +176,12 @@ def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, t
     """(inputs, actions) of the frames of `episodes`."""
     mask = torch.from_numpy(np.isin(demos.episode_index, episodes))
     return demos.inputs[mask], demos.actions[mask]
+
+
+def planned_epochs(frames: int, cfg: TrainConfig) -> int:
+    """EPOCHS, or the passes over `frames` training frames that MIN_UPDATES Adam steps take if that is more."""
+    batches = math.ceil(frames / cfg.batch_size)
+    return max(cfg.epochs, math.ceil(cfg.min_updates / batches))
 
 
 def fit(
@@ -190,7 +206,13 @@ def fit(
 
     curves = LearningCurves(initial_val_loss=validation_loss())
     best_state = copy.deepcopy(policy.state_dict())
-    bar = tqdm(range(cfg.epochs), unit="epoch", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
+    bar = tqdm(
+        range(planned_epochs(len(x_train), cfg)),
+        unit="epoch",
+        disable=not cfg.progress,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    )
     for epoch in bar:
         start = time.perf_counter()
         policy.train()

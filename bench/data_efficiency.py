@@ -1,17 +1,18 @@
 """Behaviour cloning's data efficiency: how many demonstrations it takes to stand, full or sensed inputs.
 
     .venv/bin/python -m bench.data_efficiency [--demos 5 10 20 50] [--first-seeds 0 10000 20000]
-        [--inputs full proprio] [--work FOLDER] [--json bench/results/data_efficiency.json]
+        [--inputs full proprio odometry] [--work FOLDER] [--json bench/results/data_efficiency.json]
 
 Why: the DART table (`bench/bc_benchmark.py`) trains on 50 demonstrations only, from one seed
 range; it does not say whether 5 would do, nor how much that depends on which seeds were
 recorded, nor whether a policy that reads only what a robot senses (`--inputs proprio`, the 42
 features of observation.state, humanoid/sensors.py) stands at all.
 
-What: for each first seed (disjoint seed ranges) and each N, record N expert episodes with the
-recorder's defaults (the expert, DART noise 0.05) on seeds FIRST..FIRST+N-1 into their own dataset
-folder, so N=5 is the first 5 seeds of the range, N=10 the first 10, and so on; train `bc.train`
-with its defaults (30 epochs, the last kept) once per INPUTS setting; evaluate the policy on the
+What: for each first seed (disjoint seed ranges) and each N, record N episodes of each input's
+teacher (TEACHERS: the expert with the recorder's DART noise 0.05 for full and proprio, the expert on
+leg odometry with 0.03 for odometry, whose inputs it alone explains) on seeds FIRST..FIRST+N-1 into
+their own dataset folder, so N=5 is the first 5 seeds of the range, N=10 the first 10, and so on;
+train `bc.train` with its defaults once per INPUTS setting; evaluate the policy on the
 unseen seeds 1000..1019, which no recording or selection uses. The expert on the same seeds is the
 reference row. Prints the table in Markdown and writes every cell to a JSON file. Datasets and
 policies go to a temporary folder, or to --work (where a complete dataset from an earlier run is
@@ -37,12 +38,18 @@ from bc.train import main as train
 from common import keys
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_episodes
-from teleop.record import RecordConfig
+from teleop.record import DEFAULT_NOISE, SENSED_NOISE, RecordConfig
 from teleop.record import main as record
 
 DEMOS = (5, 10, 20, 50)
 FIRST_SEEDS = (0, 10_000, 20_000)
-INPUTS = ("full", "proprio")
+TEACHERS = {
+    "full": ("expert", DEFAULT_NOISE),
+    "proprio": ("expert", DEFAULT_NOISE),
+    "odometry": ("expert-sensed", SENSED_NOISE),
+}
+"""Who records each input's demonstrations, and with what DART noise."""
+INPUTS = tuple(TEACHERS)
 EVAL_EPISODES = 20
 RESULTS = Path("bench/results")
 
@@ -62,6 +69,7 @@ class Cell:
     episodes: int
     mean_return: float
     train_seconds: float
+    teacher: str = "expert"
 
 
 def check_seeds(first_seeds: Sequence[int], demos: Sequence[int], eval_seed: int, eval_episodes: int) -> None:
@@ -77,11 +85,11 @@ def check_seeds(first_seeds: Sequence[int], demos: Sequence[int], eval_seed: int
             )
 
 
-def dataset_dir(work: Path, first_seed: int, demos: int) -> Path:
-    return work / "data" / f"seeds_{first_seed}_n{demos}"
+def dataset_dir(work: Path, teacher: str, first_seed: int, demos: int) -> Path:
+    return work / "data" / f"{teacher}_seeds_{first_seed}_n{demos}"
 
 
-def recorded(root: Path, first_seed: int, demos: int, workers: int) -> int:
+def recorded(root: Path, first_seed: int, demos: int, workers: int, teacher: str, noise: float) -> int:
     """Record seeds first_seed..first_seed+demos-1 into `root` unless it holds exactly them; episodes that fell.
 
     Anything else in `root` (an interrupted run, other seeds) is removed first: the recorder would append to it.
@@ -95,7 +103,10 @@ def recorded(root: Path, first_seed: int, demos: int, workers: int) -> int:
         if episodes[keys.EPISODE_SEED] == wanted:
             return sum(episodes[keys.EPISODE_TERMINATED])
     shutil.rmtree(root, ignore_errors=True)
-    summary = record(RecordConfig(dataset=root, episodes=demos, seed=first_seed, workers=workers, progress=False))
+    cfg = RecordConfig(
+        dataset=root, episodes=demos, seed=first_seed, controller=teacher, noise=noise, workers=workers, progress=False
+    )
+    summary = record(cfg)
     return sum(episode.fell for episode in summary.episodes)
 
 
@@ -133,17 +144,22 @@ def run(
     eval_episodes: int = EVAL_EPISODES,
     workers: int = 2,
 ) -> list[Cell]:
-    """Every (first seed, N, inputs) cell, in that order; one recording per (first seed, N), shared by the inputs."""
+    """Every (first seed, N, inputs) cell, in that order; one recording per (teacher, first seed, N), shared by the
+    inputs it teaches."""
     check_seeds(first_seeds, demos, eval_seed, eval_episodes)
     cells = []
     for first_seed in first_seeds:
         for n in demos:
-            root = dataset_dir(work, first_seed, n)
-            fallen = recorded(root, first_seed, n, workers)
             for kind in inputs:
+                teacher, noise = TEACHERS[kind]
+                root = dataset_dir(work, teacher, first_seed, n)
+                fallen = recorded(root, first_seed, n, workers, teacher, noise)
                 policy = work / "policies" / f"{root.name}_{kind}"
                 measured = train_and_evaluate(root, policy, kind, eval_seed, eval_episodes)
-                cells.append(Cell(first_seed=first_seed, demos=n, inputs=kind, demos_fallen=fallen, **measured))
+                cell = Cell(
+                    first_seed=first_seed, demos=n, inputs=kind, demos_fallen=fallen, teacher=teacher, **measured
+                )
+                cells.append(cell)
                 print(f"{root.name} {kind}: {cells[-1].survived}/{cells[-1].episodes}, {cells[-1].mean_return:,.0f}")
     return cells
 
@@ -183,19 +199,25 @@ def table(cells: Sequence[Cell], expert: dict[str, Any]) -> str:
 def notes(cells: Sequence[Cell], eval_seed: int, eval_episodes: int) -> str:
     """What the table leaves implicit: the seeds, the split, the recipe and the expert's falls in the data."""
     fewest = min(cells, key=lambda c: c.demos)
-    fallen = {(c.first_seed, c.demos): c.demos_fallen for c in cells}
-    falls = "; ".join(
-        f"seeds from {first}: "
-        + ", ".join(f"{fallen[first, n]} of {n}" for n in sorted({n for f, n in fallen if f == first}))
-        for first in dict.fromkeys(f for f, _ in fallen)
-    )
+    defaults = TrainConfig()
+    falls = []
+    for teacher in dict.fromkeys(c.teacher for c in cells):
+        fallen = {(c.first_seed, c.demos): c.demos_fallen for c in cells if c.teacher == teacher}
+        ranges = "; ".join(
+            f"seeds from {first}: "
+            + ", ".join(f"{fallen[first, n]} of {n}" for n in sorted({n for f, n in fallen if f == first}))
+            for first in dict.fromkeys(f for f, _ in fallen)
+        )
+        falls.append(f"{teacher} ({', '.join(sorted({c.inputs for c in cells if c.teacher == teacher}))}): {ranges}")
     return (
         f"Survived / {eval_episodes} unseen seeds ({eval_seed}..{eval_seed + eval_episodes - 1}), mean return. "
-        "Each N-episode dataset is the first N seeds of its range, recorded by the expert with the default DART "
-        "noise (0.05); `bc.train` defaults (30 epochs, the last kept), split by episode with 10 % held out for "
+        "Each N-episode dataset is the first N seeds of its range, recorded by the input's teacher (the expert "
+        f"with DART noise {DEFAULT_NOISE}, the expert on leg odometry with {SENSED_NOISE}); `bc.train` defaults "
+        f"(at least {defaults.epochs} epochs and {defaults.min_updates:,} Adam steps, the last kept), split by "
+        "episode with 10 % held out for "
         f"validation and at least one, so N = {fewest.demos} trains on {fewest.train_episodes} "
         f"episode{'s' if fewest.train_episodes != 1 else ''}. "
-        f"Recorded episodes in which the noisy expert fell (kept in the data): {falls}."
+        f"Recorded episodes in which the noisy teacher fell (kept in the data): {'. '.join(falls)}."
     )
 
 

@@ -16,7 +16,16 @@ import torch
 from safetensors.torch import load_file
 
 from bc.data import load_demonstrations, split_by_episode
-from bc.train import CONFIG_TAG, LEARNING_CURVE_FILE, TENSORBOARD_DIR, TrainConfig, TrainResult, cli, main
+from bc.train import (
+    CONFIG_TAG,
+    LEARNING_CURVE_FILE,
+    TENSORBOARD_DIR,
+    TrainConfig,
+    TrainResult,
+    cli,
+    main,
+    planned_epochs,
+)
 from common import keys
 from common.cli import UserError, config_dict
 from humanoid.controllers import make_controller
@@ -30,7 +39,15 @@ from support import join_observation, snapshot, tensorboard_text
 from teleop.dataset_reader import fingerprint, read_frames
 from teleop.record import RecordConfig, validate
 
-TINY = {"hidden": 32, "epochs": 40, "batch_size": 32, "patience": 0, "eval_episodes": 0, "progress": False}
+TINY = {
+    "hidden": 32,
+    "epochs": 40,
+    "min_updates": 0,
+    "batch_size": 32,
+    "patience": 0,
+    "eval_episodes": 0,
+    "progress": False,
+}
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +65,8 @@ def trained(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainRe
 
 def train_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
     """Exit code and stderr lines of `python -m bc.train ARGS` with tiny settings."""
-    tiny = ["--hidden", "8", "--epochs", "1", "--eval-episodes", "0", "--progress", "false", "--tensorboard", "false"]
+    tiny = ["--hidden", "8", "--epochs", "1", "--min-updates", "0", "--eval-episodes", "0", "--progress", "false"]
+    tiny += ["--tensorboard", "false"]
     code = cli([*tiny, *args])
     return code, capsys.readouterr().err.strip().splitlines()
 
@@ -58,6 +76,22 @@ def test_tiny_training_lowers_the_validation_loss(trained: TrainResult) -> None:
     curves = trained.curves
     assert curves.best_val_loss < 0.75 * curves.initial_val_loss
     assert curves.train_loss[-1] < curves.train_loss[0]
+
+
+def test_min_updates_give_a_small_dataset_more_epochs() -> None:
+    """Known answers: 1,000 frames in batches of 256 are 4 steps a pass, so 5,000 steps take 1,250 passes;
+    44,085 frames (50 demonstrations) are 173 steps a pass, and 30 passes already exceed 5,000 steps."""
+    assert planned_epochs(1000, TrainConfig(epochs=30, min_updates=5000, batch_size=256)) == 1250
+    assert planned_epochs(44_085, TrainConfig(epochs=30, min_updates=5000, batch_size=256)) == 30
+    assert planned_epochs(1000, TrainConfig(epochs=30, min_updates=0, batch_size=256)) == 30
+
+
+def test_training_runs_the_passes_min_updates_need(recorded: Path, tmp_path: Path) -> None:
+    """One epoch asked for, but at least 20 Adam steps in batches of 32: the run makes ceil(20 / steps a pass)."""
+    config = TrainConfig(dataset=recorded, policy=tmp_path / "policy", **{**TINY, "epochs": 1, "min_updates": 20})
+    result = main(config)
+    steps_per_pass = -(-result.train_frames // 32)
+    assert len(result.curves.val_loss) == -(-20 // steps_per_pass) > 1
 
 
 def test_split_holds_out_whole_episodes(trained: TrainResult, recorded: Path, env: gym.Env) -> None:
@@ -199,6 +233,12 @@ def test_incompatible_dataset_is_refused(
     code, err = train_cli(["--dataset", str(root), "--policy", str(tmp_path / "policy")], capsys)
     assert code == 1 and len(err) == 1 and message in err[0]
     assert not (tmp_path / "policy").exists()
+
+
+def test_negative_min_updates_are_refused(recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "p"), "--min-updates", "-1"], capsys)
+    assert (code, err) == (1, ["error: --min-updates must be >= 0, got -1"])
+    assert not (tmp_path / "p").exists()
 
 
 def test_missing_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

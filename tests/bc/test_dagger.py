@@ -38,6 +38,7 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
         inputs="proprio",
         rounds=1,
         episodes=2,
+        min_updates=0,
         eval_episodes=0,
         progress=False,
     )

@@ -48,15 +48,15 @@ TINY_PPO = {
 }
 
 
+SMALL_BC = {"hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False, "tensorboard": False}
+"""A small BC training on the 3-episode recording: 5 passes exactly."""
+
+
 @pytest.fixture(scope="module")
 def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint trained on the 3-episode recording."""
     folder = tmp_path_factory.mktemp("bc") / "policy"
-    train_bc(
-        TrainConfig(
-            dataset=recorded, policy=folder, hidden=32, epochs=5, eval_episodes=0, progress=False, tensorboard=False
-        )
-    )
+    train_bc(TrainConfig(dataset=recorded, policy=folder, **SMALL_BC))
     return folder
 
 
@@ -378,18 +378,7 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
 def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
     folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
-    train_bc(
-        TrainConfig(
-            dataset=recorded,
-            policy=folder,
-            inputs="proprio",
-            hidden=32,
-            epochs=5,
-            eval_episodes=0,
-            progress=False,
-            tensorboard=False,
-        )
-    )
+    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="proprio", **SMALL_BC))
     return folder
 
 

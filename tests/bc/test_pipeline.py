@@ -26,7 +26,6 @@ from bc.pipeline import (
     REMAKE,
     RESUME,
     REUSE,
-    SENSED_NOISE,
     Deployable,
     PipelineConfig,
     Stages,
@@ -46,7 +45,7 @@ from policies.folder import CONFIG_FILE, EVAL_FILE
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
-from teleop.record import RecordConfig, record
+from teleop.record import SENSED_NOISE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -84,6 +83,7 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         "policy": Path("bc"),
         "hidden": 16,
         "epochs": 2,
+        "min_updates": 0,
         "batch_size": 32,
         "eval_episodes": 1,
         "tensorboard": False,
@@ -265,6 +265,17 @@ def test_dataset_recorded_before_randomize_existed_is_reused(outputs: Path) -> N
     """A log line without --randomize is one from before it existed, when recordings were what `none` records."""
     edit_recordings(outputs / "data", lambda config: config.pop("randomize"))
     assert dataset_decision(tiny_stages().record).action == REUSE
+
+
+def test_bc_trained_before_min_updates_existed_counts_as_exactly_its_epochs(outputs: Path) -> None:
+    """A checkpoint without --min-updates trained EPOCHS passes, as --min-updates 0 does: reused by a pipeline asking
+    for that, made again by one asking for the default."""
+    config = json.loads((outputs / "bc" / CONFIG_FILE).read_text())
+    del config["training"]["min_updates"]
+    (outputs / "bc" / CONFIG_FILE).write_text(json.dumps(config))
+    assert bc_decision(tiny_stages().train, overwrite=False).action == REUSE
+    decision = bc_decision(tiny_stages(train={"min_updates": 5000}).train, overwrite=False)
+    assert decision.line == "training bc again: it was made with --min-updates 0, not 5000"
 
 
 def test_randomised_dataset_is_recorded_again(outputs: Path) -> None:
