@@ -1,4 +1,4 @@
-"""`make dagger`: DAgger with the scripted expert as the oracle.
+"""`make dagger`: DAgger with the scripted expert (EXPERT: on the full state, or on leg odometry) as the oracle.
 
 Behaviour cloning only ever sees the states the expert visits; a cloned policy drifts into states
 it never saw and its errors compound. DAgger (Ross et al., 2011) collects labels where the policy
@@ -8,7 +8,7 @@ itself goes:
 2. Train a policy on OUTPUT (`bc.train`).
 3. Each round: roll the current policy out for EPISODES episodes; at every visited state store
    the expert's action as the label (`action`) and the policy's as what ran (`executed_action`);
-   append them to OUTPUT with `dagger_round` = the round and `labeller` = expert; retrain on the
+   append them to OUTPUT with `dagger_round` = the round and `labeller` = EXPERT; retrain on the
    whole aggregate.
 4. The last round's policy is the checkpoint at POLICY, evaluated like any BC policy (eval.json).
 
@@ -36,6 +36,7 @@ from common.cli import DatasetError, UserError, config_dict, flag, run_cli, sett
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS
 from humanoid.learned import PolicyController
 from policies import checkpoint
@@ -54,7 +55,15 @@ class DaggerConfig:
     output: Path = setting(paths.DAGGER_DATASET, "aggregate dataset: a copy of DATASET, then every round appended")
     policy: Path = setting(paths.DAGGER_POLICY, "checkpoint folder of the final policy")
     inputs: str = setting(
-        "full", "what the student reads (see `make train-bc`); the expert labels from the full state", choices=INPUTS
+        "full",
+        "what the student reads (see `make train-bc`); EXPERT labels from the full state or the sensed features",
+        choices=INPUTS,
+    )
+    expert: str = setting(
+        LQRExpert.name,
+        "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
+        "whose law INPUTS=odometry can read; docs/robustness.md)",
+        choices=(LQRExpert.name, SensedExpert.name),
     )
     rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
@@ -91,7 +100,7 @@ class DaggerResult:
     def describe(self) -> str:
         lines = [
             f"round {r.round}: the policy stood {r.survived}/{r.episodes} episodes, mean return "
-            f"{r.mean_return:.1f}; {r.frames} frames labelled by the expert"
+            f"{r.mean_return:.1f}; {r.frames} frames labelled"
             for r in self.rounds
         ]
         return "\n".join([*lines, self.final.describe()])
@@ -117,11 +126,13 @@ def collect_round(
     episodes: int,
     progress: bool,
     committed: list[CommittedEpisode] | None = None,
+    expert_name: str = LQRExpert.name,
 ) -> RoundReport:
-    """Roll the policy out, label its states with the expert, append the episodes to `store` (and to `committed`)."""
+    """Roll the policy out, label its states with the expert named, append the episodes to `store` (and to
+    `committed`)."""
     env = make_env()
     policy = PolicyController.load(policy_dir, env)
-    expert = make_controller("expert", env)
+    expert = make_controller(expert_name, env)
     buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
     first_seed = store.next_seed()
     returns, frames, survived = [], 0, 0
@@ -169,7 +180,9 @@ def main(cfg: DaggerConfig) -> DaggerResult:
             policy_dir = Path(scratch) / f"round{done}"
             train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)
             for round_index in range(done + 1, done + cfg.rounds + 1):
-                result.rounds.append(collect_round(store, policy_dir, round_index, cfg.episodes, cfg.progress, added))
+                result.rounds.append(
+                    collect_round(store, policy_dir, round_index, cfg.episodes, cfg.progress, added, cfg.expert)
+                )
                 if round_index < done + cfg.rounds:
                     policy_dir = Path(scratch) / f"round{round_index}"
                     train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)

@@ -77,7 +77,9 @@ TARGETS: dict[str, Target] = {
     ),
     "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),
     "dagger": Target(
-        "bc.dagger", DaggerConfig, ("dataset", "output", "policy", "inputs", "rounds", "episodes", "overwrite")
+        "bc.dagger",
+        DaggerConfig,
+        ("dataset", "output", "policy", "inputs", "expert", "rounds", "episodes", "overwrite"),
     ),
     "finetune-rl": Target("bc.finetune", FinetuneConfig, _PPO, passes_args=True),
     "baseline-rl": Target("bc.baseline", BaselineConfig, _PPO, passes_args=True),

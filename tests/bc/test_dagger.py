@@ -12,7 +12,7 @@ import pytest
 from bc.dagger import DaggerConfig, DaggerResult, cli, main
 from common import keys
 from common.cli import config_dict
-from humanoid.expert import LQRExpert
+from humanoid.expert import LQRExpert, SensedExpert
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
 from support import join_observation, snapshot
@@ -20,6 +20,10 @@ from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
+
+
+ONE_ROUND = {"rounds": 1, "episodes": 2, "min_updates": 0, "eval_episodes": 0, "progress": False}
+"""A tiny DAgger run: one round of 2 episodes, each training exactly its epochs, no final evaluation."""
 
 
 @pytest.fixture(scope="module")
@@ -32,15 +36,7 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     before = snapshot(demonstrations)
     output = folder / "aggregate"
     config = DaggerConfig(
-        dataset=demonstrations,
-        output=output,
-        policy=folder / "policy",
-        inputs="proprio",
-        rounds=1,
-        episodes=2,
-        min_updates=0,
-        eval_episodes=0,
-        progress=False,
+        dataset=demonstrations, output=output, policy=folder / "policy", inputs="proprio", **ONE_ROUND
     )
     result = main(config)
     return demonstrations, output, result, before, config
@@ -69,6 +65,37 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
     labels = np.stack([expert.act(obs) for obs in observations])
     np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
     assert not np.array_equal(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows])
+
+
+@pytest.fixture(scope="module")
+def sensed_dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One round of 2 episodes labelled by the expert on leg odometry, an odometry student: the aggregate."""
+    folder = tmp_path_factory.mktemp("sensed_dagger")
+    config = DaggerConfig(
+        dataset=recorded,
+        output=folder / "aggregate",
+        policy=folder / "policy",
+        inputs="odometry",
+        expert="expert-sensed",
+        **ONE_ROUND,
+    )
+    main(config)
+    return config.output
+
+
+def test_the_sensed_expert_labels_each_episode_from_its_start(sensed_dagger: Path) -> None:
+    """EXPERT=expert-sensed: each round episode's labels are the sensed expert's actions along it, its estimator
+    reset at the episode's start; the labeller column names it."""
+    episodes = read_episodes(sensed_dagger).to_pylist()
+    assert [e[keys.EPISODE_LABELLER] for e in episodes] == ["expert"] * 3 + ["expert-sensed"] * 2
+    frames = read_frames(sensed_dagger)
+    expert = SensedExpert()
+    for episode in episodes[3:]:
+        rows = frames["episode_index"] == episode["episode_index"]
+        expert.reset(episode[keys.EPISODE_SEED])
+        observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
+        labels = np.stack([expert.act(obs) for obs in observations])
+        np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
