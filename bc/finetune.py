@@ -43,7 +43,7 @@ from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
 from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards
-from bc.ppo.learner import ACTOR_INPUTS, build_model, fresh_actor, make_vec_env
+from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
@@ -52,6 +52,7 @@ from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
+from humanoid.sensors import Proprioception
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 from policies.mlp import normalisation
@@ -262,8 +263,17 @@ def eval_conditions(cfg: FinetuneConfig) -> list[str]:
 
 def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
     width = stage_width(0, len(stages(cfg)))  # a curriculum's first stage (1: no curriculum, the whole ranges)
+    inputs = checkpoint.load(cfg.bc_policy).spec.inputs
     return make_vec_env(
-        cfg.envs, cfg.workers, training_push(cfg), cfg.seed, cfg.backend, cfg.ray_address, randomization(cfg), width
+        cfg.envs,
+        cfg.workers,
+        training_push(cfg),
+        cfg.seed,
+        cfg.backend,
+        cfg.ray_address,
+        randomization(cfg),
+        width,
+        inputs,
     )
 
 
@@ -275,7 +285,7 @@ def learner(
     return build_model(
         bc if cfg.init == "bc" else fresh_actor(bc, cfg.seed),
         env,
-        critic_normalisation=critic_normalisation(cfg) if bc.spec.inputs == "proprio" else None,
+        critic_normalisation=critic_normalisation(cfg) if bc.spec.inputs != "full" else None,
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,
@@ -306,8 +316,14 @@ def weights_digest(policy: Path) -> str:
 
 def critic_normalisation(cfg: FinetuneConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
-    critic of a proprioceptive actor normalises its privileged input with."""
-    return normalisation(load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env()).inputs)
+    critic of a proprioceptive actor normalises its privileged input with; for an odometry actor, of the
+    observation and the estimate the environment appends (`OdometryObservation`)."""
+    dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
+    observations = load_demonstrations(dataset, env).inputs
+    if checkpoint.load(cfg.bc_policy).spec.inputs == "odometry":
+        estimated = load_demonstrations(dataset, env, inputs="odometry").inputs
+        observations = torch.cat([observations, estimated[:, Proprioception(env.unwrapped.model).size :]], dim=1)
+    return normalisation(observations)
 
 
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
@@ -338,11 +354,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """
     validate(cfg)
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
-    inputs = PolicyController.load(cfg.bc_policy, make_env()).policy.spec.inputs
-    if inputs not in ACTOR_INPUTS:
-        raise UserError(
-            f"{cfg.bc_policy} reads {inputs!r} inputs; a PPO actor takes {' or '.join(map(repr, ACTOR_INPUTS))}"
-        )
+    PolicyController.load(cfg.bc_policy, make_env())
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
     finished = finished_result(cfg, settings)
     if finished is not None:

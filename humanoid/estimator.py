@@ -19,11 +19,14 @@ foot is off the ground; `reset` starts them at rest, where gymnasium's reset put
 from __future__ import annotations
 
 import copy
+from typing import Any
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 
 from humanoid import physics
+from humanoid.env import humanoid_model
 from humanoid.lqr import LQRDesign
 from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names
 
@@ -145,6 +148,11 @@ class OdometryFeatures:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return self.from_sensed(self.sensed(obs))
 
+    @property
+    def estimate_size(self) -> int:
+        """Entries after the sensed features: what the estimator adds."""
+        return self.size - self.sensed.size
+
     def episodes(self, sensed: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
         """The inputs of recorded frames (rows of sensed features in frame order), each episode from a reset."""
         out = np.empty((len(sensed), self.size), dtype=np.float64)
@@ -153,3 +161,36 @@ class OdometryFeatures:
                 self.reset()
             out[row] = self.from_sensed(sensed[row].astype(np.float64))
         return out
+
+
+class OdometryObservation(gym.Wrapper):
+    """The env's observation with `OdometryFeatures`' estimate (height, velocity, nominal inertias) appended.
+
+    PPO's policy is stateless, and the estimator has memory: run in the env, where each episode's steps
+    arrive in order and a reset starts it afresh, the estimate becomes part of the observation, and an
+    odometry actor computes the sensed features from the observation and reads the estimate beside them
+    (`bc.ppo.features.EstimatedFeatures`). The estimator runs on the nominal model, whatever body the env
+    has drawn (its inner wrappers may randomise it).
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.features = OdometryFeatures(humanoid_model())
+        space = env.observation_space
+        extra = np.full(self.features.estimate_size, np.inf)
+        self.observation_space = gym.spaces.Box(
+            np.concatenate([space.low, -extra]), np.concatenate([space.high, extra]), dtype=space.dtype
+        )
+
+    def _with_estimate(self, obs: np.ndarray) -> np.ndarray:
+        estimate = self.features(obs)[self.features.sensed.size :]
+        return np.concatenate([obs, estimate]).astype(obs.dtype)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        self.features.reset()
+        return self._with_estimate(obs), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self._with_estimate(obs), reward, terminated, truncated, info

@@ -1,5 +1,9 @@
 """The sensed features (`humanoid.sensors.Proprioception`) computed in torch, inside PPO's policy.
 
+    gymnasium observation (348) ──SensedFeatures──> the 42 sensed features            (INPUTS=proprio)
+    observation + estimate (348 + 134, humanoid.estimator.OdometryObservation)
+                                ──EstimatedFeatures──> the 42, then the estimate     (INPUTS=odometry)
+
 PPO's environments give the gymnasium observation, which the critic reads whole (privileged); an actor
 cloned on what a robot senses reads these 42 features of it instead: an asymmetric actor-critic
 (docs/learning.md, "Training for robustness"). The same indices and formulas as `Proprioception`, in
@@ -32,3 +36,16 @@ class SensedFeatures(nn.Module):
         gravity = -torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
         contacts = (obs[..., self.feet] != 0).any(dim=-1).to(obs.dtype)  # (..., 2): a foot's wrench is not zero
         return torch.cat([obs[..., self.copied], gravity, contacts], dim=-1)
+
+
+class EstimatedFeatures(nn.Module):
+    """(..., 348 + k) observations with `OdometryObservation`'s estimate appended -> (..., 42 + k): the sensed
+    features computed here, then the estimate as the env's estimator computed it (`OdometryFeatures`' layout)."""
+
+    def __init__(self, proprioception: Proprioception, observation_size: int) -> None:
+        super().__init__()
+        self.sensed = SensedFeatures(proprioception)
+        self.observation_size = observation_size
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.sensed(obs), obs[..., self.observation_size :]], dim=-1)

@@ -16,12 +16,13 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
-from bc.ppo.features import SensedFeatures
+from bc.ppo.features import EstimatedFeatures, SensedFeatures
 from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from humanoid.conditions import DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
+from humanoid.estimator import OdometryObservation
 from humanoid.perturbations import TorsoPushes
 from humanoid.sensors import Proprioception
 from policies.actor_critic import BCActorCriticPolicy
@@ -30,19 +31,24 @@ from policies.mlp import MLPPolicy
 NOMINAL = Randomization()  # nothing drawn: the nominal body and floor
 
 
-def training_env(push: float | None, randomization: Randomization = NOMINAL, width: float = 1.0) -> gym.Env:
+def training_env(
+    push: float | None, randomization: Randomization = NOMINAL, width: float = 1.0, inputs: str = "full"
+) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
     Its physical parameters are drawn from `randomization` at every reset, at `width` of its ranges
     (`DomainRandomization.set_width`); with `push` (newtons, 0 included) it is pushed as `TorsoPushes`
-    does. A curriculum (`bc.ppo.curriculum`) changes both from an episode to the next.
+    does. A curriculum (`bc.ppo.curriculum`) changes both from an episode to the next. For an actor on
+    `inputs` "odometry" the observation also carries the leg-odometry estimate (`OdometryObservation`).
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before
     any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
     env = make_env()
     if randomization.active:
         env = DomainRandomization(env, randomization, width)
-    return Monitor(env if push is None else TorsoPushes(env, push))
+    if push is not None:
+        env = TorsoPushes(env, push)
+    return Monitor(OdometryObservation(env) if inputs == "odometry" else env)
 
 
 def make_vec_env(
@@ -54,10 +60,12 @@ def make_vec_env(
     ray_address: str | None = None,
     randomization: Randomization = NOMINAL,
     width: float = 1.0,
+    inputs: str = "full",
 ) -> WorkerGroupVecEnv:
-    """`envs` training environments over `workers` processes (or Ray actors), seeded from `seed`."""
+    """`envs` training environments over `workers` processes (or Ray actors), seeded from `seed`, for an actor
+    on `inputs`."""
     env = WorkerGroupVecEnv(
-        [functools.partial(training_env, push, randomization, width)] * envs,
+        [functools.partial(training_env, push, randomization, width, inputs)] * envs,
         workers,
         backend=backend,
         ray_address=ray_address,
@@ -74,9 +82,14 @@ def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
     return fresh
 
 
-ACTOR_INPUTS = ("full", "proprio")
-"""The inputs a PPO actor can compute inside its own graph from the observation: `odometry` needs the
-estimator's memory of the episode, which SB3's stateless policy does not keep."""
+def actor_inputs(inputs: str) -> torch.nn.Module | None:
+    """What an actor on `inputs` computes from its environment's observation (None: it reads the observation)."""
+    sensed = Proprioception(humanoid_model())  # Humanoid-v5's observation layout (the same for every drawn body)
+    if inputs == "proprio":
+        return SensedFeatures(sensed)
+    if inputs == "odometry":
+        return EstimatedFeatures(sensed, make_env().observation_space.shape[0])
+    return None
 
 
 def build_model(
@@ -103,15 +116,14 @@ def build_model(
     """The PPO learner around `actor` (its weights are copied); nothing is trained yet.
 
     `update_threads` 0 means one per core: the workers are idle during updates. An actor on the sensed
-    features (`inputs` "proprio") reads them from the observation (`SensedFeatures`) and the critic the
-    whole observation, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
+    features (`inputs` "proprio", "odometry") computes them from the observation (`actor_inputs`) and the
+    critic reads the whole observation, normalised with `critic_normalisation` (the demonstrations' mean
+    and std of it).
     """
-    proprio = actor.spec.inputs == "proprio"
     policy_kwargs = {
         "actor_spec": actor.spec,
         "actor_state": actor.state_dict(),
-        # Humanoid-v5's observation layout (the same for every drawn body).
-        "actor_inputs": SensedFeatures(Proprioception(humanoid_model())) if proprio else None,
+        "actor_inputs": actor_inputs(actor.spec.inputs),
         "critic_normalisation": critic_normalisation,  # the extractor refuses it without actor_inputs, and vice versa
         "critic_hidden": actor.spec.hidden,
         "log_std_init": log_std_init,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -23,6 +24,7 @@ from bc.train import TrainConfig
 from bc.train import main as train_bc
 from common.cli import config_dict
 from humanoid.env import make_env
+from humanoid.expert import LQRExpert
 from humanoid.learned import PolicyController
 from humanoid.sensors import Proprioception
 from policies import checkpoint
@@ -354,16 +356,6 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
     assert not (tmp_path / "ppo").exists()
 
 
-def test_bc_checkpoint_on_odometry_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """A checkpoint reading the leg-odometry inputs, which need the episode's memory, fails in one line."""
-    folder = tmp_path / "odometry"
-    spec = MLPSpec(("observation.state",), 42 + 4 + 130, 17, hidden=(8,), inputs="odometry")
-    checkpoint.save(MLPPolicy(spec), folder, {}, {"path": str(tmp_path)})
-    code, err = ppo_cli(["--bc-policy", str(folder), "--policy", str(tmp_path / "ppo")], capsys)
-    assert code == 1 and len(err) == 1 and "'odometry'" in err[0]
-    assert not (tmp_path / "ppo").exists()
-
-
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A checkpoint built for another observation or action size fails in one line."""
     folder = tmp_path / "small"
@@ -418,11 +410,49 @@ def test_a_proprioceptive_actor_reads_exactly_the_sensed_features(proprio_policy
     assert np.abs(values - values_changed).min() > 0
 
 
-def test_a_proprioceptive_run_saves_a_proprioceptive_policy(proprio_policy: Path, tmp_path: Path) -> None:
-    """Fine-tuning a proprio BC checkpoint ends with a checkpoint that reads the sensed features, which make eval
-    runs."""
-    result = main(FinetuneConfig(bc_policy=proprio_policy, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO))
-    assert checkpoint.load(tmp_path / "ppo").spec == checkpoint.load(proprio_policy).spec
+@pytest.fixture(scope="module")
+def odometry_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint on the sensed features and leg odometry (INPUTS=odometry) of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("bc_odometry") / "policy"
+    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="odometry", **SMALL_BC))
+    return folder
+
+
+def test_an_odometry_actor_reads_the_sensed_features_and_the_envs_estimate(odometry_policy: Path) -> None:
+    """The training env appends the leg-odometry estimate to the observation; along an episode the actor's actions
+    are the odometry BC policy's (which runs its own estimator), and change with no privileged entry."""
+    config = FinetuneConfig(bc_policy=odometry_policy, **TINY_PPO)
+    odometry_env = functools.partial(training_env, None, inputs="odometry")
+    policy = learner(config, WorkerGroupVecEnv([odometry_env], workers=1)).policy
+    bc = PolicyController(checkpoint.load(odometry_policy), "bc")
+    env, expert, seen, expected = odometry_env(), LQRExpert(), [], []
+    obs, _ = env.reset(seed=0)
+    bc.reset(0)
+    for _ in range(60):  # the drop from the reset, the landing (about step 27), then standing on both feet
+        seen.append(obs)
+        expected.append(bc.act(obs[:348]))
+        obs, *_ = env.step(expert.act(obs[:348]))
+    seen = np.array(seen, np.float32)
+    sensed = Proprioception(make_env().unwrapped.model)
+    unread = np.setdiff1d(np.arange(348), np.r_[sensed.copied, sensed.quaternion, sensed.feet.ravel()])
+    changed = seen.copy()
+    changed[:, unread] += np.random.default_rng(1).normal(0, 5, (len(seen), len(unread)))
+    with torch.no_grad():
+        actions = policy.get_distribution(torch.as_tensor(seen)).distribution.mean.numpy()
+        actions_changed = policy.get_distribution(torch.as_tensor(changed)).distribution.mean.numpy()
+    np.testing.assert_array_equal(actions, actions_changed)
+    np.testing.assert_allclose(actions, np.array(expected), atol=1e-5)
+
+
+@pytest.mark.parametrize("bc_folder", ["proprio_policy", "odometry_policy"])
+def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
+    bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    """Fine-tuning a proprio or odometry BC checkpoint ends with a checkpoint that reads what it read, which make
+    eval runs."""
+    bc_policy = request.getfixturevalue(bc_folder)
+    result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO))
+    assert checkpoint.load(tmp_path / "ppo").spec == checkpoint.load(bc_policy).spec
     assert result["episodes"] == 1 and len(result["training_curve"]) == 2
 
 

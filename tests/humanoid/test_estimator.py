@@ -11,7 +11,7 @@ from humanoid.conditions import ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import run_episode
-from humanoid.estimator import GRAVITY, LegOdometry, level_quaternion
+from humanoid.estimator import GRAVITY, LegOdometry, OdometryFeatures, OdometryObservation, level_quaternion
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.sensors import Proprioception, gravity_direction
 
@@ -123,3 +123,17 @@ def test_sensed_expert_built_for_a_delayed_env_knows_the_delay() -> None:
     """As the privileged expert: the registry passes the env's action latency on."""
     env = ActionLatency(gym.make("Humanoid-v5"), steps=1)
     assert make_controller("expert-sensed", env).expert.delay == 1
+
+
+def test_odometry_observation_appends_the_estimate_of_each_episode_from_its_start() -> None:
+    """The wrapped env's observation is the env's, then what `OdometryFeatures` (reset with the env) adds; two
+    episodes in a row give what two fresh estimators give."""
+    env, expert, features = OdometryObservation(make_env()), LQRExpert(), OdometryFeatures(humanoid_model())
+    assert env.observation_space.shape == (348 + features.estimate_size,)
+    for seed in (3, 4):
+        obs, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs[:348], make_env().reset(seed=seed)[0])
+        features.reset()
+        for _ in range(40):
+            np.testing.assert_array_equal(obs[348:], features(obs[:348])[42:])
+            obs, *_ = env.step(expert.act(obs[:348]))
