@@ -543,9 +543,14 @@ def kill_after_snapshots(command: list[str], policy: Path, snapshots: int, delay
     return err
 
 
-def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(bc_policy: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("bc_folder", ["bc_policy", "odometry_policy"])
+def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
+    bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
     """kill -9 mid-rollout or mid-update (twice, at different moments), then the same command: the final actor,
-    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit."""
+    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit; with an odometry
+    actor too, whose environments' estimators are rebuilt by replaying the episodes in progress."""
+    bc_policy = request.getfixturevalue(bc_folder)
     reference = tmp_path / "reference"
     main(FinetuneConfig(bc_policy=bc_policy, policy=reference, **RESUMABLE))
     broken = tmp_path / "broken"
