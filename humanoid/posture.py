@@ -134,14 +134,15 @@ def arm_angles(arms: float) -> np.ndarray:
 _FD_STEP = 1e-7  # rad: well above round-off, far below the curvature of the residual
 
 
-def _quat(axis: int, angle: float) -> np.ndarray:
+def axis_quaternion(axis: int, angle: float) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of a rotation by ``angle`` about coordinate axis ``axis``."""
     quat = np.zeros(4)
     quat[0], quat[1 + axis] = np.cos(angle / 2), np.sin(angle / 2)
     return quat
 
 
-def _mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def multiply_quaternions(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Product a ⊗ b of quaternions (w, x, y, z), MuJoCo's."""
     out = np.empty(4)
     mujoco.mju_mulQuat(out, a, b)
     return out
@@ -246,8 +247,8 @@ def posture_pose(
     # negative rotation about x), yaw the torso. The waist joints undo the roll and the yaw below
     # the torso, so the pelvis is the neutral one pitched by lean_forward:
     # R_pelvis = R_y(pitch) R_x(-roll) R_z(yaw) . R_z(-yaw) R_x(roll) = R_y(pitch).
-    tilt = _mul(_quat(1, posture.lean_forward), _quat(0, -posture.lean_left))
-    base[3:7] = _mul(tilt, _quat(2, posture.twist))
+    tilt = multiply_quaternions(axis_quaternion(1, posture.lean_forward), axis_quaternion(0, -posture.lean_left))
+    base[3:7] = multiply_quaternions(tilt, axis_quaternion(2, posture.twist))
     base[abdomen_z] = -posture.twist
     base[abdomen_x] = posture.lean_left
     base[_joint_addresses(model, ARM_JOINTS)] = arm_angles(posture.arms) if arms is None else arms

@@ -21,7 +21,7 @@ from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from humanoid.conditions import DomainRandomization, Randomization
-from humanoid.env import humanoid_model, make_env
+from humanoid.env import humanoid_model, make_env, observation_names
 from humanoid.estimator import OdometryObservation
 from humanoid.perturbations import TorsoPushes
 from humanoid.sensors import Proprioception
@@ -84,11 +84,11 @@ def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
 
 def actor_inputs(inputs: str) -> torch.nn.Module | None:
     """What an actor on `inputs` computes from its environment's observation (None: it reads the observation)."""
-    sensed = Proprioception(humanoid_model())  # Humanoid-v5's observation layout (the same for every drawn body)
+    model = humanoid_model()  # Humanoid-v5's observation layout (the same for every drawn body)
     if inputs == "proprio":
-        return SensedFeatures(sensed)
+        return SensedFeatures(Proprioception(model))
     if inputs == "odometry":
-        return EstimatedFeatures(sensed, make_env().observation_space.shape[0])
+        return EstimatedFeatures(Proprioception(model), len(observation_names(model)))
     return None
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 import pytest
 
@@ -13,6 +12,7 @@ from humanoid.env import humanoid_model, make_env
 from humanoid.episode import run_episode
 from humanoid.estimator import GRAVITY, LegOdometry, OdometryFeatures, OdometryObservation, level_quaternion
 from humanoid.expert import LQRExpert, SensedExpert
+from humanoid.posture import axis_quaternion, multiply_quaternions
 from humanoid.sensors import Proprioception, gravity_direction
 
 
@@ -22,24 +22,12 @@ def cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPa
     monkeypatch.setenv("HUMANOID_BC_CACHE", str(tmp_path_factory.getbasetemp() / "lqr-cache"))
 
 
-def rotation(axis: int, angle: float) -> np.ndarray:
-    """Quaternion w-x-y-z of a rotation by `angle` about body axis `axis` (0 x, 1 y, 2 z)."""
-    quaternion = np.zeros(4)
-    quaternion[0], quaternion[1 + axis] = np.cos(angle / 2), np.sin(angle / 2)
-    return quaternion
-
-
-def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Product of quaternions w-x-y-z (MuJoCo's)."""
-    product = np.empty(4)
-    mujoco.mju_mulQuat(product, a, b)
-    return product
-
-
 def test_level_quaternion_sees_the_same_gravity_with_the_heading_removed() -> None:
     """A tilted, turned body: the level orientation has its gravity direction and the unturned body's orientation."""
-    tilt = multiply(rotation(1, 0.2), rotation(0, -0.3))  # pitch, then roll: R = Ry Rx, no heading
-    turned = multiply(rotation(2, 1.1), tilt)  # R = Rz Ry Rx
+    tilt = multiply_quaternions(
+        axis_quaternion(1, 0.2), axis_quaternion(0, -0.3)
+    )  # pitch, then roll: R = Ry Rx, no heading
+    turned = multiply_quaternions(axis_quaternion(2, 1.1), tilt)  # R = Rz Ry Rx
     gravity = gravity_direction(turned)
     level = level_quaternion(gravity)
     np.testing.assert_allclose(gravity_direction(level), gravity, atol=1e-12)
