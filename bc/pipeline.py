@@ -1,13 +1,17 @@
 """`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables of
 `bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the experts and every policy.
 
-    DATASET (expert, NOISE) ----------> BC_POLICY (full) --------> SCRATCH_POLICY, PPO_POLICY; tutorial
-       '------------------------------> PROPRIO_POLICY (proprio)                     } DEPLOYABLE: what
-    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry)                   } a robot senses
+    DATASET (expert, NOISE) ----------> BC_POLICY (full) ------------(PPO_FROM=full)-----.
+       '------------------------------> PROPRIO_POLICY (proprio)   } DEPLOYABLE: what      +--> SCRATCH_POLICY,
+    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry) } a robot senses --(odometry)   PPO_POLICY
+    tutorial-rl (reads neither)
 
 The deployable branch clones policies that read only the sensed features: from the same data (which
 shows what the privileged inputs did), and from demonstrations of the expert on leg odometry with
-that odometry as input (the student that stands; docs/robustness.md).
+that odometry as input (the student that stands; docs/robustness.md). PPO_FROM=odometry starts the
+PPO stages from that student, so the fine-tuned actor reads what a robot senses too. The default stays
+BC_POLICY: at the pipeline's budget PPO gains nothing on that student (docs/learning.md, "An actor on
+leg odometry").
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -139,6 +143,12 @@ class PipelineConfig:
         "also clone policies that read only what a robot senses: PROPRIO_POLICY from DATASET, and ODOMETRY_POLICY "
         "from SENSED_DATASET (see the module's sketch)",
     )
+    ppo_from: str = setting(
+        "full",
+        "the BC checkpoint both PPO stages start from: 'full' (BC_POLICY, whose actor reads the privileged "
+        "observation) or 'odometry' (ODOMETRY_POLICY, with DEPLOYABLE: an actor on what a robot senses)",
+        choices=("full", "odometry"),
+    )
     proprio_policy: Path = setting(
         paths.PROPRIO_POLICY, "checkpoint folder of BC on DATASET's sensed features (train-bc --inputs proprio)"
     )
@@ -204,11 +214,13 @@ class Stages:
 
 def stages(cfg: PipelineConfig) -> Stages:
     """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
+    if cfg.ppo_from == "odometry" and not cfg.deployable:
+        raise UserError("--ppo-from odometry starts PPO from ODOMETRY_POLICY, which only --deployable true makes")
     workers = {"backend": cfg.backend, "ray_address": cfg.ray_address}
     if cfg.workers is not None:
         workers["workers"] = cfg.workers
     ppo = {
-        "bc_policy": cfg.bc_policy,
+        "bc_policy": cfg.odometry_policy if cfg.ppo_from == "odometry" else cfg.bc_policy,
         "timesteps": cfg.timesteps,
         "envs": cfg.envs,
         "push": cfg.push,
@@ -461,13 +473,19 @@ def foresee(run: Stages, overwrite: bool) -> None:
     """Refuse now what the run would refuse later: a checkpoint downstream of an output made again, a tutorial
     run the pipeline did not make."""
     dataset_remade = dataset_decision(run.record).action != REUSE
-    bc_remade = bc_decision(run.train, overwrite, dataset_remade).action != REUSE
+    remade = {run.train.policy.resolve(): bc_decision(run.train, overwrite, dataset_remade).action != REUSE}
     if run.deployable is not None:
-        bc_decision(run.deployable.proprio, overwrite, dataset_remade, "--proprio-policy")
+        proprio, odometry = run.deployable.proprio, run.deployable.odometry
+        remade[proprio.policy.resolve()] = (
+            bc_decision(proprio, overwrite, dataset_remade, "--proprio-policy").action != REUSE
+        )
         sensed_remade = dataset_decision(run.deployable.record).action != REUSE
-        bc_decision(run.deployable.odometry, overwrite, sensed_remade, "--odometry-policy")
-    ppo_decision(run.baseline, "--scratch-policy", overwrite, bc_remade)
-    ppo_decision(run.finetune, "--ppo-policy", overwrite, bc_remade)
+        remade[odometry.policy.resolve()] = (
+            bc_decision(odometry, overwrite, sensed_remade, "--odometry-policy").action != REUSE
+        )
+    for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
+        # A PPO stage is downstream of whichever BC checkpoint it starts from.
+        ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
     if run.tutorial is not None:
         tutorial.plan(tutorial_config(run.tutorial, overwrite), MADE_BY)
 

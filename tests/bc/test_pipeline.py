@@ -41,6 +41,7 @@ from bc.tutorial import TutorialConfig
 from common import paths
 from common.cli import UserError
 from humanoid.conditions import SUITE
+from policies import checkpoint
 from policies.folder import CONFIG_FILE, EVAL_FILE
 from support import snapshot
 from teleop import recordings
@@ -386,6 +387,43 @@ def test_pipeline_defaults_are_the_stages() -> None:
 def test_without_the_deployable_branch_its_stages_are_left_out() -> None:
     """DEPLOYABLE=false: the stages `make pipeline` ran before that branch existed, and nothing else."""
     assert stages(PipelineConfig(deployable=False)).deployable is None
+
+
+def test_ppo_from_odometry_starts_both_ppo_stages_from_the_odometry_student() -> None:
+    """PPO_FROM=odometry: fine-tuning refines the student, and scratch takes its shape and normalisation."""
+    run_stages = stages(PipelineConfig(ppo_from="odometry"))
+    assert run_stages.baseline == BaselineConfig(bc_policy=paths.ODOMETRY_POLICY)
+    assert run_stages.finetune == FinetuneConfig(bc_policy=paths.ODOMETRY_POLICY)
+
+
+def test_ppo_from_odometry_without_the_deployable_branch_is_refused() -> None:
+    with pytest.raises(UserError, match="--ppo-from odometry starts PPO from ODOMETRY_POLICY, which only"):
+        stages(PipelineConfig(ppo_from="odometry", deployable=False))
+
+
+def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_an_odometry_actor(outputs: Path) -> None:
+    """Switching the PPO stages' start remakes them (their --bc-policy differs), and the fine-tuned actor then
+    reads what the student reads."""
+    lines = pipeline_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("bc_odometry")})))
+    assert lines[-3:-1] == [
+        "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not bc_odometry",
+        "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not bc_odometry",
+    ]
+    assert checkpoint.load(Path("ppo")).spec.inputs == "odometry"
+
+
+def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
+    """PPO from the odometry student: a sensed dataset recorded again remakes the student, so a PPO run the
+    pipeline did not make is refused before anything runs (the BC_POLICY chain is not what it depends on)."""
+    edit_json(outputs / "ppo" / CONFIG_FILE, {"made_by": "bc.finetune"})
+    run_stages = tiny_stages(ppo={"bc_policy": Path("bc_odometry")})
+    run_stages.deployable.record.noise = 0.02
+    assert_refused_untouched(
+        outputs,
+        run_stages,
+        "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
+        "it is (--overwrite true replaces it; or choose another --ppo-policy)",
+    )
 
 
 def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
