@@ -101,6 +101,7 @@ ADDED_SINCE = {
     "curriculum_advance": 0.8,
     "curriculum_episodes": 16,
     "min_updates": 0,
+    "lr_schedule": "constant",
 }
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before

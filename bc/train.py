@@ -77,6 +77,11 @@ class TrainConfig:
     activation: str = setting("relu", "hidden activation", choices=tuple(ACTIVATIONS))
     loss: str = setting("mse", "loss on the actions", choices=tuple(LOSSES))
     lr: float = setting(1e-3, "Adam learning rate")
+    lr_schedule: str = setting(
+        "cosine",
+        "the learning rate over training: 'cosine' (from LR down to 0 at the last Adam step) or 'constant'",
+        choices=("constant", "cosine"),
+    )
     weight_decay: float = setting(0.0, "Adam weight decay (L2)")
     batch_size: int = setting(256, "minibatch size")
     epochs: int = setting(30, "passes over the training frames (more if MIN_UPDATES needs them)")
@@ -110,6 +115,7 @@ class LearningCurves:
     initial_val_loss: float
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
+    learning_rate: list[float] = field(default_factory=list)  # Adam's, at the end of each epoch
     best_epoch: int = 0  # the lowest validation loss so far
     kept_epoch: int = 0  # whose weights the policy holds: the best with early stopping, else the last
 
@@ -184,6 +190,15 @@ def planned_epochs(frames: int, cfg: TrainConfig) -> int:
     return max(cfg.epochs, math.ceil(cfg.min_updates / batches))
 
 
+def lr_factor(schedule: str, step: int, steps: int) -> float:
+    """The learning rate after `step` of `steps` Adam steps, as a fraction of LR. Cosine ends at 0, so the weights
+    kept are not one noisy step's: from few demonstrations, a constant rate's survival swung with the training seed
+    (docs/learning.md, "BC data efficiency")."""
+    if schedule == "cosine":
+        return 0.5 * (1 + math.cos(math.pi * min(step, steps) / steps))
+    return 1.0
+
+
 def fit(
     policy: MLPPolicy,
     train: tuple[torch.Tensor, torch.Tensor],
@@ -206,8 +221,11 @@ def fit(
 
     curves = LearningCurves(initial_val_loss=validation_loss())
     best_state = copy.deepcopy(policy.state_dict())
+    epochs = planned_epochs(len(x_train), cfg)
+    steps = epochs * math.ceil(len(x_train) / cfg.batch_size)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: lr_factor(cfg.lr_schedule, step, steps))
     bar = tqdm(
-        range(planned_epochs(len(x_train), cfg)),
+        range(epochs),
         unit="epoch",
         disable=not cfg.progress,
         file=sys.stderr,
@@ -222,9 +240,11 @@ def fit(
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
+            schedule.step()
             total += loss.item() * len(batch)
         curves.train_loss.append(total / len(x_train))
         curves.val_loss.append(validation_loss())
+        curves.learning_rate.append(schedule.get_last_lr()[0])
         if curves.val_loss[-1] < curves.best_val_loss or epoch == 0:
             curves.best_epoch, best_state = epoch, copy.deepcopy(policy.state_dict())
         samples_per_s = len(x_train) / (time.perf_counter() - start)
@@ -237,6 +257,7 @@ def fit(
             writer.add_scalar("loss/train", curves.train_loss[-1], epoch + 1)
             writer.add_scalar("loss/validation", curves.val_loss[-1], epoch + 1)
             writer.add_scalar("throughput/samples_per_s", samples_per_s, epoch + 1)
+            writer.add_scalar("train/learning_rate", curves.learning_rate[-1], epoch + 1)
         if cfg.patience and epoch - curves.best_epoch >= cfg.patience:
             break
     bar.close()

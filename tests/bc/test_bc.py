@@ -7,6 +7,7 @@ import json
 import shutil
 import textwrap
 from collections.abc import Callable
+from itertools import pairwise
 from pathlib import Path
 
 import gymnasium as gym
@@ -23,6 +24,7 @@ from bc.train import (
     TrainConfig,
     TrainResult,
     cli,
+    lr_factor,
     main,
     planned_epochs,
 )
@@ -84,6 +86,22 @@ def test_min_updates_give_a_small_dataset_more_epochs() -> None:
     assert planned_epochs(1000, TrainConfig(epochs=30, min_updates=5000, batch_size=256)) == 1250
     assert planned_epochs(44_085, TrainConfig(epochs=30, min_updates=5000, batch_size=256)) == 30
     assert planned_epochs(1000, TrainConfig(epochs=30, min_updates=0, batch_size=256)) == 30
+
+
+def test_cosine_schedule_known_answers() -> None:
+    """Half way through the rate is half of LR, after the last step 0; the constant schedule stays at LR."""
+    assert lr_factor("cosine", 0, 100) == 1.0
+    assert lr_factor("cosine", 50, 100) == pytest.approx(0.5)
+    assert lr_factor("cosine", 100, 100) == pytest.approx(0.0, abs=1e-12)
+    assert lr_factor("constant", 100, 100) == 1.0
+
+
+def test_default_training_anneals_the_rate_to_zero_by_its_last_step(trained: TrainResult) -> None:
+    """Adam's rate falls every epoch and is 0 once the last minibatch has been learnt from."""
+    rates = trained.curves.learning_rate
+    assert len(rates) == len(trained.curves.val_loss) == TINY["epochs"]
+    assert all(earlier > later for earlier, later in pairwise(rates))
+    assert rates[-1] == pytest.approx(0.0, abs=1e-12)
 
 
 def test_training_runs_the_passes_min_updates_need(recorded: Path, tmp_path: Path) -> None:
