@@ -285,7 +285,7 @@ def learner(
     return build_model(
         bc if cfg.init == "bc" else fresh_actor(bc, cfg.seed),
         env,
-        critic_normalisation=critic_normalisation(cfg) if bc.spec.inputs != "full" else None,
+        critic_normalisation=critic_normalisation(cfg, bc.spec.inputs) if bc.spec.inputs != "full" else None,
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,
@@ -314,13 +314,13 @@ def weights_digest(policy: Path) -> str:
     return hashlib.sha256((policy / WEIGHTS_FILE).read_bytes()).hexdigest()
 
 
-def critic_normalisation(cfg: FinetuneConfig) -> tuple[torch.Tensor, torch.Tensor]:
+def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
-    critic of a proprioceptive actor normalises its privileged input with; for an odometry actor, of the
+    critic of an actor on `inputs` "proprio" normalises its privileged input with; for "odometry", of the
     observation and the estimate the environment appends (`OdometryObservation`)."""
     dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
     observations = load_demonstrations(dataset, env).inputs
-    if checkpoint.load(cfg.bc_policy).spec.inputs == "odometry":
+    if inputs == "odometry":
         estimated = load_demonstrations(dataset, env, inputs="odometry").inputs
         observations = torch.cat([observations, estimated[:, Proprioception(env.unwrapped.model).size :]], dim=1)
     return normalisation(observations)
