@@ -115,8 +115,8 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
     if index is None:
         if inputs != "full":
             raise DatasetError(
-                f"{root} has no sensed {keys.OBS_STATE} (recorded before it existed: its {keys.OBS_STATE} has "
-                f"{features[keys.OBS_STATE]['shape'][0]} entries, not the {len(wanted)} humanoid.sensors names); "
+                f"{root} has no sensed {keys.OBS_STATE} of this version (recorded before it: its {keys.OBS_STATE} "
+                f"has {features[keys.OBS_STATE]['shape'][0]} entries, not the {len(wanted)} humanoid.sensors names); "
                 f"train on it with INPUTS=full or record a new dataset"
             )
         raise DatasetError(f"{root}: {' + '.join(columns)} do not name every entry of the {ENV_ID} observation")

@@ -66,11 +66,13 @@ from bc.finetune import validate as validate_ppo
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from bc.tutorial import TutorialConfig
-from common import paths
+from common import keys, paths
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
 from humanoid.conditions import NO_RANDOMIZATION, SUITE
 from humanoid.controllers import CONTROLLERS
+from humanoid.env import humanoid_model
 from humanoid.expert import SensedExpert
+from humanoid.sensors import proprioception_names
 from policies.folder import (
     CONFIG_FILE,
     DATASET_FILE,
@@ -337,6 +339,19 @@ def _dataset_problem(cfg: RecordConfig, total: int, runs: list[dict[str, Any]]) 
     return None
 
 
+def _layout_problem(root: Path) -> str | None:
+    """Why the dataset's sensed features are not the ones this version records (`humanoid.sensors`); None if
+    they are, or if meta/info.json cannot say (the checks that read it report that)."""
+    try:
+        names = read_info(root)["features"][keys.OBS_STATE]["names"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    wanted = proprioception_names(humanoid_model())
+    if names == wanted:
+        return None
+    return f"records {len(names)} sensed features as {keys.OBS_STATE}, not this version's {len(wanted)}"
+
+
 def dataset_decision(cfg: RecordConfig) -> Decision:
     """Whether the recording stage reuses, records, records again or completes `cfg.dataset`."""
     root = cfg.dataset
@@ -344,7 +359,7 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
     if not total:
         return Decision(RUN, f"recording {root}: {'no dataset there yet' if total is None else 'no episode yet'}", cfg)
     runs = recordings.read(root)
-    problem = _dataset_problem(cfg, total, runs)
+    problem = _dataset_problem(cfg, total, runs) or _layout_problem(root)
     ours = all(run.get("made_by") == MADE_BY for run in runs) and bool(runs)
     if problem is None and total == cfg.episodes:
         return Decision(REUSE, f"{root} holds the {total} episodes asked for, recorded so: not recording")

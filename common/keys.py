@@ -3,8 +3,8 @@
 The gymnasium observation (348 floats) is stored split in two so that LeRobot's own policies
 (ACT, Diffusion) accept the dataset, which they refuse with `observation.state` alone:
 
-- `observation.state`: what a real humanoid senses (42 named floats: joint encoders, the torso IMU's
-  gyro and gravity direction, foot contact; `humanoid.sensors`).
+- `observation.state`: what a real humanoid senses (48 named floats: joint encoders, the torso IMU's
+  gyro and gravity direction, foot contact and the feet's force sensors; `humanoid.sensors`).
 - `observation.environment_state`: the rest of the gymnasium observation, which only a simulator
   gives (root height, orientation and velocity, cinert, cvel, qfrc_actuator, cfrc_ext: 311).
 

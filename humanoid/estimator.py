@@ -1,19 +1,25 @@
-"""The torso's state as a robot estimates it from what it senses (`observation.state`): leg odometry.
+"""The torso's state as a robot estimates it from what it senses (`observation.state`): leg odometry
+fused with the feet's force sensors.
 
 The LQR expert reads the torso's height and linear velocity, which no sensor measures
 (docs/robustness.md, "The deployable observation"). This estimator computes a full MuJoCo state
 (qpos, qvel) from the sensed features alone, on the nominal model:
 
-    sensed features (42) ──> orientation without heading, from the gravity direction
+    sensed features (48) ──> orientation without heading, from the gravity direction
                          ──> joints, gyro: as measured
-       both feet down ─────> torso velocity: the contact points of the feet held still (kinematics)
-                             torso height: the lower foot's sphere resting on the floor
-       otherwise ──────────> the centre of mass in flight (gravity only; horizontal velocity kept),
-                             the torso's velocity relative to it by kinematics, height integrated
+    feet's forces ─────────> predicted centre-of-mass velocity: the last one + dt (forces / mass - g)
+       a foot down ────────> corrected towards the velocity that holds the touching feet's contact
+                             points still (kinematics), by a fixed gain per axis
+       landing ────────────> the first steps after a flight: on both feet the kinematic velocity as is,
+                             on one the prediction
+       both feet down ─────> torso height: the lower foot's sphere resting on the floor (else integrated)
+    torso velocity = the centre of mass's velocity - its motion relative to the torso (kinematics)
 
-Its only memory is the centre of mass's velocity and the height, carried through the steps where a
-foot is off the ground; `reset` starts them at rest, where gymnasium's reset puts the body. The heading
-(yaw) is set to zero: an IMU does not keep it, and standing does not depend on it.
+Why the forces: the kinematic velocity alone errs where a foot slips or rebounds, and the expert's
+gain amplifies that; the forces say how the body accelerates, and the feet correct their drift (a
+complementary filter; measured in docs/robustness.md). Its memory is the centre of mass's velocity
+and the height; `reset` starts them at rest, where gymnasium's reset puts the body. The heading (yaw)
+is set to zero: an IMU does not keep it, and standing does not depend on it.
 """
 
 from __future__ import annotations
@@ -28,12 +34,21 @@ import numpy as np
 from humanoid import physics
 from humanoid.env import humanoid_model
 from humanoid.lqr import LQRDesign
-from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names
+from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names, force_names
 
 GRAVITY = 9.81
 """m/s², Humanoid-v5's (MuJoCo's default)."""
 START_HEIGHT = 1.4
 """Torso height of gymnasium's reset (the body drops from there onto the floor)."""
+HORIZONTAL_GAIN = 0.3
+"""Share of the gap between the feet's kinematic velocity and the force-predicted one closed per step,
+horizontally: the one-step prediction errs several times less than the kinematic velocity, and a
+lower gain lets it drift (chosen on seeds 5000..5039 under action noise, docs/robustness.md)."""
+VERTICAL_GAIN = 0.1
+"""The same, vertically, where the feet's kinematic velocity is the noisier (the contacts' give)."""
+LANDING_STEPS = 5
+"""Steps on both feet after a flight that take the kinematic velocity as is: a landing's impact is not
+in the one force sample per step the sensors give."""
 
 
 def level_quaternion(gravity: np.ndarray) -> np.ndarray:
@@ -57,6 +72,7 @@ class LegOdometry:
         self.model = model = copy.copy(model)
         self.data = mujoco.MjData(model)
         self.dt = LQRDesign.frame_skip * model.opt.timestep if step_seconds is None else step_seconds
+        self.mass = float(model.body_mass.sum())
         names = Proprioception(model).names
         index = {name: i for i, name in enumerate(names)}
         joints = [model.joint(j).name for j in range(1, model.njnt)]  # after the free joint, in qpos order
@@ -65,15 +81,31 @@ class LegOdometry:
         self._gyro = np.array([index[name] for name in GYRO_NAMES])
         self._gravity = np.array([index[name] for name in GRAVITY_NAMES])
         self._contact = np.array([index[name] for name in contact_names()])
-        self._feet = [model.geom(name).id for name in physics.FOOT_GEOMS]
+        self._forces = np.array([index[name] for name in force_names()]).reshape(-1, 3)  # a row per foot
+        self._foot_geoms = [model.geom(name).id for name in physics.FOOT_GEOMS]
         self._jac = np.zeros((3, model.nv))
+        self._gains = np.array([HORIZONTAL_GAIN, HORIZONTAL_GAIN, VERTICAL_GAIN])
         self.reset()
 
     def reset(self) -> None:
         """At rest at the reset height: where gymnasium's reset puts the body."""
         self.com_velocity = np.zeros(3)
         self.height = START_HEIGHT
+        self.steps_down = 0  # consecutive steps with a foot down
         self._first = True
+
+    def _feet(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per foot (rows): the torso's velocity that holds its sphere's lowest point still, and the torso's
+        height that rests that point on the floor, for `self.data` posed at zero translation."""
+        model, data = self.model, self.data
+        velocities, heights = [], []
+        for geom in self._foot_geoms:
+            point = data.geom_xpos[geom].copy()
+            point[2] -= model.geom_size[geom][0]  # the sphere's lowest point, where it touches the floor
+            mujoco.mj_jac(model, data, self._jac, None, point, model.geom_bodyid[geom])
+            velocities.append(-(self._jac @ data.qvel))
+            heights.append(-point[2])
+        return np.array(velocities), np.array(heights)
 
     def __call__(self, sensed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The estimated (qpos with root x = y = 0, qvel) after this step's sensed features."""
@@ -89,25 +121,24 @@ class LegOdometry:
         mujoco.mj_fwdVelocity(model, data)
         mujoco.mj_subtreeVel(model, data)
         relative = data.subtree_linvel[1].copy()  # the centre of mass's velocity if the torso did not translate
-        if np.all(sensed[self._contact] > 0.5):
-            velocities, heights = [], []
-            for geom in self._feet:
-                point = data.geom_xpos[geom].copy()
-                point[2] -= model.geom_size[geom][0]  # the sphere's lowest point, where it touches the floor
-                mujoco.mj_jac(model, data, self._jac, None, point, model.geom_bodyid[geom])
-                velocities.append(-(self._jac @ data.qvel))
-                heights.append(-point[2])
-            # No smoothing: the expert's gain on this velocity is large, and a filter's lag topples it.
-            velocity = np.mean(velocities, axis=0)
-            self.com_velocity = velocity + relative
-            self.height = max(heights)
-        else:
-            # The first reading is the reset state itself: time runs from the second on.
-            if not self._first and not np.any(sensed[self._contact] > 0.5):
-                self.com_velocity = self.com_velocity - np.array([0.0, 0.0, GRAVITY * self.dt])
-            velocity = self.com_velocity - relative
-            if not self._first:
-                self.height = self.height + velocity[2] * self.dt
+        down = sensed[self._contact] > 0.5
+        feet_velocity, feet_height = self._feet()
+        self.steps_down = self.steps_down + 1 if down.any() else 0
+        if not self._first:  # the first reading is the reset state itself: time runs from the second on
+            force = data.xmat[1].reshape(3, 3) @ sensed[self._forces].sum(axis=0)  # torso frame -> level frame
+            predicted = self.com_velocity + self.dt * (force / self.mass - np.array([0.0, 0.0, GRAVITY]))
+            if down.all() and self.steps_down <= LANDING_STEPS:
+                self.com_velocity = feet_velocity.mean(axis=0) + relative
+            elif down.any() and self.steps_down > LANDING_STEPS:
+                measured = feet_velocity[down].mean(axis=0) + relative
+                self.com_velocity = predicted + self._gains * (measured - predicted)
+            else:
+                self.com_velocity = predicted
+        velocity = self.com_velocity - relative
+        if down.all():
+            self.height = feet_height.max()
+        elif not self._first:
+            self.height = self.height + velocity[2] * self.dt
         self._first = False
         qpos, qvel = data.qpos.copy(), data.qvel.copy()
         qpos[2], qvel[:3] = self.height, velocity

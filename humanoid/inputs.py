@@ -1,9 +1,9 @@
 """What a policy reads (`make train-bc INPUTS=...`, recorded in its checkpoint's `MLPSpec.inputs`).
 
     full      the gymnasium observation (348 floats), as is
-    proprio   what a robot senses: `observation.state` (42; humanoid.sensors)
+    proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
     odometry  the sensed features, then what `humanoid.estimator` computes from them alone: the torso's
-              height and linear velocity (leg odometry) and the nominal model's body inertias (176)
+              height and linear velocity (leg odometry) and the nominal model's body inertias (182)
 
 Each is built from the dataset columns `INPUT_COLUMNS[kind]`; `odometry` runs the estimator along
 each recorded episode in training (`episode_inputs`) and along the live one at run time

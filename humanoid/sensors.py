@@ -3,7 +3,7 @@
 The 348-dim gymnasium observation holds quantities no robot measures (docs/robustness.md, "The
 deployable observation"). A dataset stores it in two features that LeRobot's policies read:
 
-    gymnasium observation (348) ──split──> observation.state (42): what the robot senses
+    gymnasium observation (348) ──split──> observation.state (48): what the robot senses
                                  └───────> observation.environment_state (311): the rest, privileged
     both, joined by name ──────────────────> the gymnasium observation again, bit for bit
 
@@ -12,10 +12,13 @@ deployable observation"). A dataset stores it in two features that LeRobot's pol
 - the torso IMU's angular velocity in the torso frame (gyroscope), `root.wx` .. `root.wz`;
 - the gravity direction in the torso frame (a unit vector, what an IMU's attitude filter gives
   without the heading, which no IMU observes for long), `imu.gravity_x` .. `imu.gravity_z`;
-- foot contact, 1.0 or 0.0 per foot (contact switches or force sensors), `contact.<foot>`.
-Entries that copy the gymnasium observation keep its names; the gravity and the contacts are
-computed from it (the root quaternion and the feet's contact wrenches), so any policy that acts on
-the gymnasium observation can compute them the same way at run time (`Proprioception`).
+- foot contact, 1.0 or 0.0 per foot (contact switches), `contact.<foot>`;
+- each foot's contact force in the torso frame (N; a force sensor in the ankle, its reading turned
+  through the leg's joint angles), `force.<foot>_x` .. `_z`: what lets a state estimator tell how the
+  body accelerates (`humanoid.estimator`; docs/robustness.md, "An expert that acts on what it senses").
+Entries that copy the gymnasium observation keep its names; the gravity, the contacts and the forces
+are computed from it (the root quaternion and the feet's contact wrenches), so any policy that acts
+on the gymnasium observation can compute them the same way at run time (`Proprioception`).
 The previous action is not repeated: it is the previous frame's `action` / `executed_action`.
 
 `observation.environment_state` is every other entry of the gymnasium observation, in its order:
@@ -38,10 +41,15 @@ GRAVITY_NAMES = ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")
 GYRO_NAMES = ("root.wx", "root.wy", "root.wz")  # qvel[3:6]: the free joint's angular velocity, torso frame
 QUATERNION_NAMES = ("root.qw", "root.qx", "root.qy", "root.qz")
 FEET = ("right_foot", "left_foot")  # the bodies whose contact wrench says whether a foot touches something
+FORCE_PART = slice(3, 6)  # a body's cfrc_ext is (torque, force), world-aligned (MuJoCo's spatial vectors)
 
 
 def contact_names() -> tuple[str, ...]:
     return tuple(f"contact.{foot}" for foot in FEET)
+
+
+def force_names() -> tuple[str, ...]:
+    return tuple(f"force.{foot}_{axis}" for foot in FEET for axis in "xyz")
 
 
 def _joints(names: list[str], suffix: str) -> list[str]:
@@ -51,7 +59,14 @@ def _joints(names: list[str], suffix: str) -> list[str]:
 def proprioception_names(model: mujoco.MjModel) -> list[str]:
     """The names of `observation.state`, one per entry, in order."""
     names = observation_names(model)
-    return [*_joints(names, ".pos"), *_joints(names, ".vel"), *GYRO_NAMES, *GRAVITY_NAMES, *contact_names()]
+    return [
+        *_joints(names, ".pos"),
+        *_joints(names, ".vel"),
+        *GYRO_NAMES,
+        *GRAVITY_NAMES,
+        *contact_names(),
+        *force_names(),
+    ]
 
 
 def privileged_names(model: mujoco.MjModel) -> list[str]:
@@ -60,12 +75,24 @@ def privileged_names(model: mujoco.MjModel) -> list[str]:
     return [name for name in observation_names(model) if name not in sensed]
 
 
-def gravity_direction(quaternion: np.ndarray) -> np.ndarray:
-    """The world's down direction in the body frame, (..., 3), from body orientations (..., 4) w-x-y-z.
+def in_body_frame(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """World vectors (..., 3) in the frame of bodies with orientations (..., 4) w-x-y-z: R^T v.
 
-    R (body to world) maps the body's axes; R^T (0, 0, -1) is minus the third row of R. The state's
-    quaternion drifts from unit length between MuJoCo's normalisations: normalised first, as MuJoCo does.
+    R (body to world) maps the body's axes. The state's quaternion drifts from unit length between
+    MuJoCo's normalisations: normalised first, as MuJoCo does.
     """
+    w, x, y, z = np.moveaxis(quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True), -1, 0)
+    columns = (  # R's columns: R^T v is their dot products with v
+        (1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)),
+        (2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)),
+        (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)),
+    )
+    return np.stack([a * vector[..., 0] + b * vector[..., 1] + c * vector[..., 2] for a, b, c in columns], axis=-1)
+
+
+def gravity_direction(quaternion: np.ndarray) -> np.ndarray:
+    """The world's down direction in the body frame, (..., 3), from body orientations (..., 4) w-x-y-z:
+    `in_body_frame` of (0, 0, -1), which is minus the third row of R."""
     w, x, y, z = np.moveaxis(quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True), -1, 0)
     return -np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
 
@@ -85,10 +112,12 @@ class Proprioception:
         self.size = len(self.names)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
-        """(..., 42) float64 features of (..., 348) observations."""
+        """(..., 48) float64 features of (..., 348) observations."""
+        quaternion = obs[..., self.quaternion]
         contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self.feet]
+        forces = [in_body_frame(quaternion, obs[..., rows[FORCE_PART]]) for rows in self.feet]
         return np.concatenate(
-            [obs[..., self.copied], gravity_direction(obs[..., self.quaternion]), *contacts], axis=-1
+            [obs[..., self.copied], gravity_direction(quaternion), *contacts, *forces], axis=-1
         ).astype(np.float64)
 
 

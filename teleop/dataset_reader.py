@@ -243,7 +243,7 @@ def read_transitions(root: Path) -> list[Transitions]:
 
 
 def read_mcap_final(path: Path) -> dict[str, np.ndarray]:
-    """The `/final_observation` message of one MCAP file: {"observation": (348,), "state": (42,), "frame_index": T}."""
+    """The `/final_observation` message of one MCAP file: {"observation": (348,), "state": (48,), "frame_index": T}."""
     with path.open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, _, _, decoded in reader.iter_decoded_messages(topics=[FINAL_TOPIC]):

@@ -1,11 +1,11 @@
 """The sensed features (`humanoid.sensors.Proprioception`) computed in torch, inside PPO's policy.
 
-    gymnasium observation (348) ──SensedFeatures──> the 42 sensed features            (INPUTS=proprio)
+    gymnasium observation (348) ──SensedFeatures──> the 48 sensed features            (INPUTS=proprio)
     observation + estimate (348 + 134, humanoid.estimator.OdometryObservation)
-                                ──EstimatedFeatures──> the 42, then the estimate     (INPUTS=odometry)
+                                ──EstimatedFeatures──> the 48, then the estimate     (INPUTS=odometry)
 
 PPO's environments give the gymnasium observation, which the critic reads whole (privileged); an actor
-cloned on what a robot senses reads these 42 features of it instead: an asymmetric actor-critic
+cloned on what a robot senses reads these 48 features of it instead: an asymmetric actor-critic
 (docs/learning.md, "Training for robustness"). The same indices and formulas as `Proprioception`, in
 float32: the actions differ from `humanoid.learned.PolicyController`'s (float64 features) by float
 rounding only (a test).
@@ -16,17 +16,18 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from humanoid.sensors import Proprioception
+from humanoid.sensors import FORCE_PART, Proprioception
 
 
 class SensedFeatures(nn.Module):
-    """(..., 348) gymnasium observations -> (..., 42) sensed features, as `Proprioception` computes them."""
+    """(..., 348) gymnasium observations -> (..., 48) sensed features, as `Proprioception` computes them."""
 
     def __init__(self, proprioception: Proprioception) -> None:
         super().__init__()
         self.register_buffer("copied", torch.as_tensor(proprioception.copied, dtype=torch.long))
         self.register_buffer("quaternion", torch.as_tensor(proprioception.quaternion, dtype=torch.long))
         self.register_buffer("feet", torch.as_tensor(proprioception.feet, dtype=torch.long))
+        self.register_buffer("forces", torch.as_tensor(proprioception.feet[:, FORCE_PART], dtype=torch.long))
         self.size = proprioception.size
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -35,11 +36,21 @@ class SensedFeatures(nn.Module):
         # The world's down direction in the torso frame (`humanoid.sensors.gravity_direction`).
         gravity = -torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
         contacts = (obs[..., self.feet] != 0).any(dim=-1).to(obs.dtype)  # (..., 2): a foot's wrench is not zero
-        return torch.cat([obs[..., self.copied], gravity, contacts], dim=-1)
+        # Each foot's force in the torso frame, R^T f (`humanoid.sensors.in_body_frame`): R's columns dotted with f.
+        columns = torch.stack(
+            [
+                torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], dim=-1),
+                torch.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], dim=-1),
+                torch.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], dim=-1),
+            ],
+            dim=-2,
+        )  # (..., 3 columns, 3)
+        forces = torch.einsum("...ij,...fj->...fi", columns, obs[..., self.forces]).flatten(-2)  # (..., 6)
+        return torch.cat([obs[..., self.copied], gravity, contacts, forces], dim=-1)
 
 
 class EstimatedFeatures(nn.Module):
-    """(..., 348 + k) observations with `OdometryObservation`'s estimate appended -> (..., 42 + k): the sensed
+    """(..., 348 + k) observations with `OdometryObservation`'s estimate appended -> (..., 48 + k): the sensed
     features computed here, then the estimate as the env's estimator computed it (`OdometryFeatures`' layout)."""
 
     def __init__(self, proprioception: Proprioception, observation_size: int) -> None:

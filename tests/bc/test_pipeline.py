@@ -289,6 +289,21 @@ def test_randomised_dataset_is_recorded_again(outputs: Path) -> None:
     )
 
 
+def test_dataset_with_an_older_sensed_layout_is_recorded_again(outputs: Path) -> None:
+    """A dataset recorded before the feet's force sensors joined observation.state cannot train the sensed
+    students: the pipeline records its own again."""
+    info_path = outputs / "data" / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    state = info["features"]["observation.state"]
+    state["names"], state["shape"] = state["names"][:42], [42]
+    info_path.write_text(json.dumps(info))
+    decision = dataset_decision(tiny_stages().record)
+    assert (decision.action, decision.line) == (
+        REMAKE,
+        "recording data again: it records 42 sensed features as observation.state, not this version's 48",
+    )
+
+
 def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:
     """A run stopped during its final evaluation left no eval.json: the table needs it, so BC is made again."""
     (outputs / "bc" / EVAL_FILE).unlink()

@@ -17,15 +17,31 @@ from humanoid.sensors import (
 )
 
 
+def contact_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.ndarray:
+    """The world-frame force the contacts of the last substep exert on `geom` (mj_contactForce, per contact).
+
+    A contact's force is in its frame, whose first axis, the normal, points from geom1 to geom2: it
+    pushes geom2 along it and geom1 the other way.
+    """
+    total, wrench = np.zeros(3), np.zeros(6)
+    for i, contact in enumerate(data.contact[: data.ncon]):
+        if geom in (contact.geom1, contact.geom2):
+            mujoco.mj_contactForce(model, data, i, wrench)
+            force = contact.frame.reshape(3, 3).T @ wrench[:3]  # the frame's rows are its axes in the world
+            total += force if geom == contact.geom2 else -force
+    return total
+
+
 def rollout(steps: int, fall_after: int) -> tuple[list[np.ndarray], list[dict[str, np.ndarray]]]:
     """Observations and what MjData says at the same instants: the expert stands, then random actions topple it.
 
     The sensed values are computed here from MjData (joint addresses, the torso's rotation matrix and
-    body velocity, the contact list), independently of the gymnasium observation. After a step, qpos
-    and qvel are integrated but the derived quantities are the last substep's: the orientation and
-    velocity come from a copy brought up to date (mj_forward), the contacts from the contact list
-    of that substep, as the observation's contact wrenches do. MuJoCo's contacts act within a margin
-    (1 mm), so a foot touches when it is in the list, not only when it penetrates.
+    body velocity, the contact list and each contact's force), independently of the gymnasium
+    observation. After a step, qpos and qvel are integrated but the derived quantities are the last
+    substep's: the orientation and velocity come from a copy brought up to date (mj_forward), the
+    contacts and their forces from that substep's contact list, as the observation's contact wrenches
+    do. MuJoCo's contacts act within a margin (1 mm), so a foot touches when it is in the list, not
+    only when it penetrates.
     """
     env = make_env()
     model, data = model_and_data(env)
@@ -45,6 +61,7 @@ def rollout(steps: int, fall_after: int) -> tuple[list[np.ndarray], list[dict[st
         mujoco.mj_objectVelocity(model, current, mujoco.mjtObj.mjOBJ_BODY, torso, velocity, 0)
         rotation = current.xmat[torso].reshape(3, 3)  # torso frame to world
         touching = [any(foot in (c.geom1, c.geom2) for c in data.contact[: data.ncon]) for foot in feet]
+        forces = [rotation.T @ contact_force(model, data, foot) for foot in feet]
         observations.append(obs)
         truths.append(
             {
@@ -53,6 +70,7 @@ def rollout(steps: int, fall_after: int) -> tuple[list[np.ndarray], list[dict[st
                 "gyro": rotation.T @ velocity[:3],
                 "gravity": rotation.T @ np.array([0.0, 0.0, -1.0]),
                 "contacts": np.array(touching, float),
+                "forces": np.concatenate(forces),
             }
         )
         action = expert.act(obs) if t < fall_after else rng.uniform(-0.4, 0.4, 17)
@@ -97,6 +115,15 @@ def test_contacts_are_the_feet_touching_something(sensed: tuple) -> None:
     assert {0.0, 1.0} <= set(features[:, 40]) and {0.0, 1.0} <= set(features[:, 41])
 
 
+def test_forces_are_each_foot_contact_force_in_the_torso_frame(sensed: tuple) -> None:
+    """The sum of the contact forces on each foot, rotated into the torso frame; standing, they carry the body."""
+    features, truth = sensed
+    np.testing.assert_allclose(features[:, 42:48], truth["forces"], rtol=1e-6, atol=1e-6)
+    standing = features[60:150]  # the expert stands on both feet, past the landing
+    weight = float(make_env().unwrapped.model.body_mass.sum()) * 9.81
+    np.testing.assert_allclose((standing[:, 44] + standing[:, 47]).mean(), weight, rtol=0.05)
+
+
 def test_split_parts_join_back_to_the_observation_bit_for_bit() -> None:
     """state + environment_state hold every observation entry once; joined by name they are the observation."""
     env = make_env()
@@ -106,7 +133,7 @@ def test_split_parts_join_back_to_the_observation_bit_for_bit() -> None:
     names = proprioception_names(model) + privileged_names(model)
     index = observation_index(names, model)
     env.close()
-    assert state.shape[1] == len(proprioception_names(model)) == 42
+    assert state.shape[1] == len(proprioception_names(model)) == 48
     assert len(set(names)) == len(names)
     joined = np.concatenate([state, environment_state], axis=1)[:, index]
     assert joined.tobytes() == np.array(observations).tobytes()

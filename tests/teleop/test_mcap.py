@@ -51,7 +51,7 @@ def test_metadata_names_the_state_as_the_dataset_does(recorded: Path, episodes: 
     """The `state_names` metadata entry is observation.state's `names` in meta/info.json: Foxglove plots by index."""
     names = json.loads((recorded / "meta/info.json").read_text())["features"][keys.OBS_STATE]["names"]
     assert all(json.loads(episode.metadata[STATE_NAMES_METADATA]) == names for episode in episodes)
-    assert len(names) == episodes[0].steps["state"].shape[1] == 42
+    assert len(names) == episodes[0].steps["state"].shape[1] == 48
 
 
 def test_command_channel_equals_the_command_feature_and_tasks(recorded: Path, episodes: list[McapEpisode]) -> None:

@@ -73,7 +73,7 @@ def test_lerobot_still_loads_t_frames_per_episode(fallen: Path) -> None:
     dataset = LeRobotDataset("local/fallen", root=fallen)
     lengths = [len(t.actions) for t in read_transitions(fallen)]
     assert len(dataset) == sum(lengths) and dataset.meta.total_episodes == 2
-    assert len(dataset.meta.episodes[keys.EPISODE_FINAL_STATE][0]) == 42
+    assert len(dataset.meta.episodes[keys.EPISODE_FINAL_STATE][0]) == 48
 
 
 @pytest.fixture()
