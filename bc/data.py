@@ -31,7 +31,7 @@ from common import keys
 from common.cli import DatasetError
 from common.paths import cache_dir
 from humanoid.env import ENV_ID
-from humanoid.inputs import INPUT_COLUMNS, INPUTS, episode_inputs, recorded_names
+from humanoid.inputs import INPUT_COLUMNS, INPUTS, computation_digest, episode_inputs, recorded_names
 from humanoid.sensors import observation_index
 from teleop.dataset_reader import fingerprint, iter_frames, read_info
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
@@ -135,6 +135,7 @@ def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
         [
             _CACHE_FORMAT,
             inputs,
+            computation_digest(inputs),
             info_text,
             [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files],
         ]

@@ -51,8 +51,8 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
+from humanoid.estimator import OdometryFeatures
 from humanoid.learned import PolicyController
-from humanoid.sensors import Proprioception
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 from policies.mlp import normalisation
@@ -322,7 +322,8 @@ def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor
     observations = load_demonstrations(dataset, env).inputs
     if inputs == "odometry":
         estimated = load_demonstrations(dataset, env, inputs="odometry").inputs
-        observations = torch.cat([observations, estimated[:, Proprioception(env.unwrapped.model).size :]], dim=1)
+        estimate_size = OdometryFeatures(env.unwrapped.model).estimate_size
+        observations = torch.cat([observations, estimated[:, -estimate_size:]], dim=1)
     return normalisation(observations)
 
 

@@ -145,18 +145,31 @@ class LegOdometry:
         return qpos, qvel
 
 
+def read_sensed(names: list[str]) -> np.ndarray:
+    """Where the sensed features an odometry policy reads sit among `names` (the sensed features'): all but
+    the feet's forces, which reach it through the estimate only.
+
+    Why not the forces: at the end of a step they are what the step's executed action did, so a
+    student reading them can copy the previous action instead of acting on the state, and it falls
+    (docs/robustness.md, "A student that stands on what it senses").
+    """
+    forces = set(force_names())
+    return np.array([i for i, name in enumerate(names) if name not in forces])
+
+
 def odometry_names(model: mujoco.MjModel) -> list[str]:
-    """The names of `OdometryFeatures`' entries: the sensed features', then the estimate's."""
+    """The names of `OdometryFeatures`' entries: the sensed features' it reads, then the estimate's."""
+    sensed = Proprioception(model).names
     bodies = [model.body(b).name for b in range(1, model.nbody)]
     estimate = ["odometry.height", "odometry.vx", "odometry.vy", "odometry.vz"]
     inertias = [f"odometry.{body}.cinert{i}" for body in bodies for i in range(10)]
-    return [*Proprioception(model).names, *estimate, *inertias]
+    return [*(sensed[i] for i in read_sensed(sensed)), *estimate, *inertias]
 
 
 class OdometryFeatures:
-    """A policy's input computed from what a robot senses alone: the sensed features, then `LegOdometry`'s
-    torso height and linear velocity, and the body inertias about the centre of mass (MuJoCo's `cinert`)
-    of the nominal model in the estimated, heading-free pose.
+    """A policy's input computed from what a robot senses alone: the sensed features but the forces
+    (`read_sensed`), then `LegOdometry`'s torso height and linear velocity, and the body inertias about the
+    centre of mass (MuJoCo's `cinert`) of the nominal model in the estimated, heading-free pose.
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/robustness.md, "The deployable
@@ -165,6 +178,7 @@ class OdometryFeatures:
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.sensed = Proprioception(model)
+        self.read = read_sensed(self.sensed.names)
         self.odometry = LegOdometry(model)
         self.size = len(odometry_names(model))
 
@@ -174,7 +188,7 @@ class OdometryFeatures:
     def from_sensed(self, sensed: np.ndarray) -> np.ndarray:
         """This step's input from this step's sensed features (float64)."""
         qpos, qvel = self.odometry(sensed)
-        return np.concatenate([sensed, [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])
+        return np.concatenate([sensed[self.read], [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         return self.from_sensed(self.sensed(obs))
@@ -182,7 +196,7 @@ class OdometryFeatures:
     @property
     def estimate_size(self) -> int:
         """Entries after the sensed features: what the estimator adds."""
-        return self.size - self.sensed.size
+        return self.size - self.read.size
 
     def episodes(self, sensed: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
         """The inputs of recorded frames (rows of sensed features in frame order), each episode from a reset."""
@@ -214,7 +228,7 @@ class OdometryObservation(gym.Wrapper):
         )
 
     def _with_estimate(self, obs: np.ndarray) -> np.ndarray:
-        estimate = self.features(obs)[self.features.sensed.size :]
+        estimate = self.features(obs)[self.features.read.size :]
         return np.concatenate([obs, estimate]).astype(obs.dtype)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:

@@ -12,12 +12,15 @@ each recorded episode in training (`episode_inputs`) and along the live one at r
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from common.keys import OBS_ENV_STATE, OBS_STATE
+from humanoid import estimator, sensors
 from humanoid.env import observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
 from humanoid.sensors import Proprioception, proprioception_names
@@ -48,6 +51,16 @@ def input_features(inputs: str, model: mujoco.MjModel) -> Callable[[np.ndarray],
     if inputs == "full":
         return lambda obs: obs
     return Proprioception(model) if inputs == "proprio" else OdometryFeatures(model)
+
+
+def computation_digest(inputs: str) -> str | None:
+    """A digest of the code that computes `inputs` from recorded frames (`odometry`: the estimator and the
+    sensed features), so that inputs an earlier version computed and cached are not reused; None for
+    inputs read as recorded."""
+    if inputs != "odometry":
+        return None
+    source = b"".join(Path(module.__file__).read_bytes() for module in (estimator, sensors))
+    return hashlib.sha256(source).hexdigest()[:16]
 
 
 def episode_inputs(inputs: str, recorded: np.ndarray, episode_index: np.ndarray, model: mujoco.MjModel) -> np.ndarray:

@@ -2,10 +2,10 @@
 
     gymnasium observation (348) ──SensedFeatures──> the 48 sensed features            (INPUTS=proprio)
     observation + estimate (348 + 134, humanoid.estimator.OdometryObservation)
-                                ──EstimatedFeatures──> the 48, then the estimate     (INPUTS=odometry)
+                                ──EstimatedFeatures──> the 48 but the forces, then the estimate (INPUTS=odometry)
 
 PPO's environments give the gymnasium observation, which the critic reads whole (privileged); an actor
-cloned on what a robot senses reads these 48 features of it instead: an asymmetric actor-critic
+cloned on what a robot senses reads these features of it instead: an asymmetric actor-critic
 (docs/learning.md, "Training for robustness"). The same indices and formulas as `Proprioception`, in
 float32: the actions differ from `humanoid.learned.PolicyController`'s (float64 features) by float
 rounding only (a test).
@@ -16,6 +16,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from humanoid.estimator import read_sensed
 from humanoid.sensors import FORCE_PART, Proprioception
 
 
@@ -50,13 +51,15 @@ class SensedFeatures(nn.Module):
 
 
 class EstimatedFeatures(nn.Module):
-    """(..., 348 + k) observations with `OdometryObservation`'s estimate appended -> (..., 48 + k): the sensed
-    features computed here, then the estimate as the env's estimator computed it (`OdometryFeatures`' layout)."""
+    """(..., 348 + k) observations with `OdometryObservation`'s estimate appended -> (..., 42 + k): the sensed
+    features an odometry policy reads (`read_sensed`: not the forces) computed here, then the estimate as the
+    env's estimator computed it (`OdometryFeatures`' layout)."""
 
     def __init__(self, proprioception: Proprioception, observation_size: int) -> None:
         super().__init__()
         self.sensed = SensedFeatures(proprioception)
+        self.register_buffer("read", torch.as_tensor(read_sensed(proprioception.names), dtype=torch.long))
         self.observation_size = observation_size
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self.sensed(obs), obs[..., self.observation_size :]], dim=-1)
+        return torch.cat([self.sensed(obs)[..., self.read], obs[..., self.observation_size :]], dim=-1)

@@ -306,7 +306,8 @@ def test_odometry_inputs_in_training_are_what_the_controller_computes_live(
     """The estimator run along each recorded episode gives the inputs the controller computes step by step,
     from a reset at each episode's start, out of the gymnasium observations (float32 rows against float64)."""
     config = json.loads((odometry.policy_dir / policy_files.CONFIG_FILE).read_text())
-    assert config["policy"]["inputs"] == "odometry" and config["policy"]["input_dim"] == 48 + 4 + 130
+    # The sensed features but the forces (42), the estimated height and velocity (4), the inertias (130).
+    assert config["policy"]["inputs"] == "odometry" and config["policy"]["input_dim"] == 42 + 4 + 130
     frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE, "episode_index"])
     observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
     trained = load_demonstrations(recorded, env, cache=False, inputs="odometry").inputs.numpy()
@@ -317,7 +318,7 @@ def test_odometry_inputs_in_training_are_what_the_controller_computes_live(
             controller.reset()
         live.append(controller.features(obs))
     np.testing.assert_allclose(trained, np.array(live), rtol=0, atol=1e-4)
-    assert np.abs(trained[:, 48 + 1 : 48 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
+    assert np.abs(trained[:, 42 + 1 : 42 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
 
 
 def test_dataset_recorded_before_the_sensed_state_is_refused_for_proprio(

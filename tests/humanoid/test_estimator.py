@@ -12,7 +12,14 @@ from humanoid.conditions import ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import injected_noise, run_episode
-from humanoid.estimator import GRAVITY, LegOdometry, OdometryFeatures, OdometryObservation, level_quaternion
+from humanoid.estimator import (
+    GRAVITY,
+    LegOdometry,
+    OdometryFeatures,
+    OdometryObservation,
+    level_quaternion,
+    odometry_names,
+)
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.posture import axis_quaternion, multiply_quaternions
 from humanoid.sensors import Proprioception, gravity_direction, in_body_frame
@@ -158,5 +165,15 @@ def test_odometry_observation_appends_the_estimate_of_each_episode_from_its_star
         np.testing.assert_array_equal(obs[:348], make_env().reset(seed=seed)[0])
         features.reset()
         for _ in range(40):
-            np.testing.assert_array_equal(obs[348:], features(obs[:348])[features.sensed.size :])
+            np.testing.assert_array_equal(obs[348:], features(obs[:348])[features.read.size :])
             obs, *_ = env.step(expert.act(obs[:348]))
+
+
+def test_an_odometry_policy_reads_the_sensed_features_but_the_forces() -> None:
+    """The forces reach it through the estimate only: its inputs are the other sensed features, in order, then
+    the estimate's."""
+    model = humanoid_model()
+    names = odometry_names(model)
+    sensed = Proprioception(model).names
+    assert names[:42] == [name for name in sensed if not name.startswith("force.")]
+    assert not any(name.startswith("force.") for name in names) and names[42] == "odometry.height"
