@@ -56,6 +56,14 @@ from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 from policies.mlp import normalisation
+from teleop.record import SENSED_NOISE
+
+ODOMETRY_RECIPE = (
+    f"`make pipeline` makes the odometry student, or `make record CONTROLLER=expert-sensed NOISE={SENSED_NOISE} "
+    f"DATASET={paths.SENSED_DATASET}` then `make train-bc INPUTS=odometry DATASET={paths.SENSED_DATASET} "
+    f"POLICY={paths.ODOMETRY_POLICY}`; BC_POLICY={paths.BC_POLICY} starts from the full-observation student"
+)
+"""How to make the default BC checkpoint, said when it is missing."""
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -67,7 +75,9 @@ class FinetuneConfig:
     """Settings of one PPO run: fine-tuning the BC actor (`make finetune-rl`)."""
 
     bc_policy: Path = setting(
-        paths.BC_POLICY, "BC checkpoint: the actor to refine (with --init fresh, only its shape and normalisation)"
+        paths.ODOMETRY_POLICY,
+        "BC checkpoint: the actor to refine (with --init fresh, only its shape and normalisation); by default the "
+        "odometry student, an actor on what a robot senses (`make pipeline` makes it)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     init: str = setting(
@@ -354,6 +364,8 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
     """
     validate(cfg)
+    if cfg.bc_policy == paths.ODOMETRY_POLICY and not cfg.bc_policy.exists():
+        raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {ODOMETRY_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
     settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}

@@ -3,15 +3,15 @@
 
     DATASET (expert, NOISE) ----------> BC_POLICY (full) ------------(PPO_FROM=full)-----.
        '------------------------------> PROPRIO_POLICY (proprio)   } DEPLOYABLE: what      +--> SCRATCH_POLICY,
-    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry) } a robot senses --(odometry)   PPO_POLICY
-    tutorial-rl (reads neither)
+    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry) } a robot senses --(odometry, default)
+    tutorial-rl (reads neither)                                                                   PPO_POLICY
 
 The deployable branch clones policies that read only the sensed features: from the same data (which
 shows what the privileged inputs did), and from demonstrations of the expert on leg odometry with
-that odometry as input (the student that stands; docs/robustness.md). PPO_FROM=odometry starts the
-PPO stages from that student, so the fine-tuned actor reads what a robot senses too. The default stays
-BC_POLICY: at the pipeline's budget PPO gains nothing on that student (docs/learning.md, "An actor on
-leg odometry").
+that odometry as input (the student that stands; docs/robustness.md). Both PPO stages start from that
+student (PPO_FROM=odometry, the stages' own default), so the fine-tuned actor reads what a robot
+senses; PPO_FROM=full starts them from BC_POLICY instead (docs/learning.md, "An actor on leg
+odometry", compares the two).
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -147,7 +147,7 @@ class PipelineConfig:
         "from SENSED_DATASET (see the module's sketch)",
     )
     ppo_from: str = setting(
-        "full",
+        "odometry",
         "the BC checkpoint both PPO stages start from: 'full' (BC_POLICY, whose actor reads the privileged "
         "observation) or 'odometry' (ODOMETRY_POLICY, with DEPLOYABLE: an actor on what a robot senses)",
         choices=("full", "odometry"),
@@ -218,7 +218,10 @@ class Stages:
 def stages(cfg: PipelineConfig) -> Stages:
     """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
     if cfg.ppo_from == "odometry" and not cfg.deployable:
-        raise UserError("--ppo-from odometry starts PPO from ODOMETRY_POLICY, which only --deployable true makes")
+        raise UserError(
+            "--ppo-from odometry (the default) starts PPO from ODOMETRY_POLICY, which only --deployable true makes: "
+            "add --ppo-from full"
+        )
     workers = {"backend": cfg.backend, "ray_address": cfg.ray_address}
     if cfg.workers is not None:
         workers["workers"] = cfg.workers

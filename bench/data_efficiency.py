@@ -5,7 +5,7 @@
 
 Why: the DART table (`bench/bc_benchmark.py`) trains on 50 demonstrations only, from one seed
 range; it does not say whether 5 would do, nor how much that depends on which seeds were
-recorded, nor whether a policy that reads only what a robot senses (`--inputs proprio`, the 42
+recorded, nor whether a policy that reads only what a robot senses (`--inputs proprio`, the 48
 features of observation.state, humanoid/sensors.py) stands at all.
 
 What: for each first seed (disjoint seed ranges) and each N, record N episodes of each input's

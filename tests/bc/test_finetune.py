@@ -22,6 +22,7 @@ from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from bc.train import TrainConfig
 from bc.train import main as train_bc
+from common import paths
 from common.cli import config_dict
 from humanoid.env import make_env
 from humanoid.expert import LQRExpert
@@ -354,6 +355,18 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
     code, err = ppo_cli(["--bc-policy", str(tmp_path / "none"), "--policy", str(tmp_path / "ppo")], capsys)
     assert code == 1 and len(err) == 1 and "no policy checkpoint" in err[0]
     assert not (tmp_path / "ppo").exists()
+
+
+def test_missing_default_odometry_student_says_how_to_make_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`make finetune-rl` starts from the odometry student by default; where none was made yet, its one line
+    says which commands make it (and how to start from the full-observation student instead)."""
+    monkeypatch.chdir(tmp_path)
+    code, err = ppo_cli(["--policy", "ppo"], capsys)
+    assert code == 1 and len(err) == 1
+    assert err[0].startswith(f"error: no policy checkpoint at {paths.ODOMETRY_POLICY}: `make pipeline` makes")
+    assert "make train-bc INPUTS=odometry" in err[0] and not (tmp_path / "ppo").exists()
 
 
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -401,19 +401,25 @@ def test_pipeline_defaults_are_the_stages() -> None:
 
 def test_without_the_deployable_branch_its_stages_are_left_out() -> None:
     """DEPLOYABLE=false: the stages `make pipeline` ran before that branch existed, and nothing else."""
-    assert stages(PipelineConfig(deployable=False)).deployable is None
+    assert stages(PipelineConfig(deployable=False, ppo_from="full")).deployable is None
 
 
-def test_ppo_from_odometry_starts_both_ppo_stages_from_the_odometry_student() -> None:
-    """PPO_FROM=odometry: fine-tuning refines the student, and scratch takes its shape and normalisation."""
-    run_stages = stages(PipelineConfig(ppo_from="odometry"))
-    assert run_stages.baseline == BaselineConfig(bc_policy=paths.ODOMETRY_POLICY)
-    assert run_stages.finetune == FinetuneConfig(bc_policy=paths.ODOMETRY_POLICY)
+def test_ppo_starts_from_the_odometry_student_by_default() -> None:
+    """Fine-tuning refines the actor on what a robot senses, and scratch takes its shape and normalisation."""
+    run_stages = stages(PipelineConfig())
+    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.ODOMETRY_POLICY
+
+
+def test_ppo_from_full_starts_both_ppo_stages_from_the_full_observation_student() -> None:
+    run_stages = stages(PipelineConfig(ppo_from="full"))
+    assert run_stages.baseline == BaselineConfig(bc_policy=paths.BC_POLICY)
+    assert run_stages.finetune == FinetuneConfig(bc_policy=paths.BC_POLICY)
 
 
 def test_ppo_from_odometry_without_the_deployable_branch_is_refused() -> None:
-    with pytest.raises(UserError, match="--ppo-from odometry starts PPO from ODOMETRY_POLICY, which only"):
-        stages(PipelineConfig(ppo_from="odometry", deployable=False))
+    """The default start needs the student the deployable branch makes: one line says to start from BC_POLICY."""
+    with pytest.raises(UserError, match=r"which only --deployable true makes: add --ppo-from full$"):
+        stages(PipelineConfig(deployable=False))
 
 
 def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_an_odometry_actor(outputs: Path) -> None:
