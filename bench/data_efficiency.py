@@ -10,7 +10,7 @@ features of observation.state, humanoid/sensors.py) stands at all.
 
 What: for each first seed (disjoint seed ranges) and each N, record N episodes of each input's
 teacher (TEACHERS: the expert with the recorder's DART noise 0.05 for full and proprio, the expert on
-leg odometry with 0.03 for odometry, whose inputs it alone explains) on seeds FIRST..FIRST+N-1 into
+leg odometry with the same noise for odometry, whose inputs it alone explains) on seeds FIRST..FIRST+N-1 into
 their own dataset folder, so N=5 is the first 5 seeds of the range, N=10 the first 10, and so on;
 train `bc.train` with its defaults once per INPUTS setting; evaluate the policy on the
 unseen seeds 1000..1019, which no recording or selection uses. The expert on the same seeds is the
