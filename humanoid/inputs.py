@@ -2,8 +2,9 @@
 
     full      the gymnasium observation (348 floats), as is
     proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
-    odometry  the sensed features, then what `humanoid.estimator` computes from them alone: the torso's
-              height and linear velocity (leg odometry) and the nominal model's body inertias (182)
+    odometry  the sensed features but the feet's forces, then what `humanoid.estimator` computes from the
+              sensed features alone: the torso's height and linear velocity (leg odometry fused with the
+              forces) and the nominal model's body inertias (176)
 
 Each is built from the dataset columns `INPUT_COLUMNS[kind]`; `odometry` runs the estimator along
 each recorded episode in training (`episode_inputs`) and along the live one at run time
