@@ -75,26 +75,30 @@ def privileged_names(model: mujoco.MjModel) -> list[str]:
     return [name for name in observation_names(model) if name not in sensed]
 
 
-def in_body_frame(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """World vectors (..., 3) in the frame of bodies with orientations (..., 4) w-x-y-z: R^T v.
-
-    R (body to world) maps the body's axes. The state's quaternion drifts from unit length between
-    MuJoCo's normalisations: normalised first, as MuJoCo does.
-    """
+def body_axes(quaternion: np.ndarray) -> np.ndarray:
+    """R^T, (..., 3, 3), of body orientations (..., 4) w-x-y-z, R mapping body to world: row i is the body's
+    i-th axis in the world (R's i-th column). The state's quaternion drifts from unit length between
+    MuJoCo's normalisations: normalised first, as MuJoCo does."""
     w, x, y, z = np.moveaxis(quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True), -1, 0)
-    columns = (  # R's columns: R^T v is their dot products with v
+    columns = (
         (1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)),
         (2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)),
         (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)),
     )
-    return np.stack([a * vector[..., 0] + b * vector[..., 1] + c * vector[..., 2] for a, b, c in columns], axis=-1)
+    return np.stack([np.stack(column, axis=-1) for column in columns], axis=-2)
+
+
+def in_body_frame(axes: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """World vectors (..., 3) in the frames whose `body_axes` are `axes`: R^T v, each axis dotted with v."""
+    return (
+        axes[..., 0] * vector[..., None, 0] + axes[..., 1] * vector[..., None, 1] + axes[..., 2] * vector[..., None, 2]
+    )
 
 
 def gravity_direction(quaternion: np.ndarray) -> np.ndarray:
     """The world's down direction in the body frame, (..., 3), from body orientations (..., 4) w-x-y-z:
-    `in_body_frame` of (0, 0, -1), which is minus the third row of R."""
-    w, x, y, z = np.moveaxis(quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True), -1, 0)
-    return -np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+    R^T (0, 0, -1), minus each body axis's vertical component."""
+    return -body_axes(quaternion)[..., 2]
 
 
 class Proprioception:
@@ -113,12 +117,10 @@ class Proprioception:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """(..., 48) float64 features of (..., 348) observations."""
-        quaternion = obs[..., self.quaternion]
+        axes = body_axes(obs[..., self.quaternion])  # once for the gravity and both feet's forces
         contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self.feet]
-        forces = [in_body_frame(quaternion, obs[..., rows[FORCE_PART]]) for rows in self.feet]
-        return np.concatenate(
-            [obs[..., self.copied], gravity_direction(quaternion), *contacts, *forces], axis=-1
-        ).astype(np.float64)
+        forces = [in_body_frame(axes, obs[..., rows[FORCE_PART]]) for rows in self.feet]
+        return np.concatenate([obs[..., self.copied], -axes[..., 2], *contacts, *forces], axis=-1).astype(np.float64)
 
 
 class ObservationSplit:

@@ -34,19 +34,18 @@ class SensedFeatures(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         q = obs[..., self.quaternion]
         w, x, y, z = (q / q.norm(dim=-1, keepdim=True)).unbind(-1)
-        # The world's down direction in the torso frame (`humanoid.sensors.gravity_direction`).
-        gravity = -torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
-        contacts = (obs[..., self.feet] != 0).any(dim=-1).to(obs.dtype)  # (..., 2): a foot's wrench is not zero
-        # Each foot's force in the torso frame, R^T f (`humanoid.sensors.in_body_frame`): R's columns dotted with f.
-        columns = torch.stack(
+        # R^T, row i the torso's i-th axis in the world (`humanoid.sensors.body_axes`).
+        axes = torch.stack(
             [
                 torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], dim=-1),
                 torch.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], dim=-1),
                 torch.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], dim=-1),
             ],
             dim=-2,
-        )  # (..., 3 columns, 3)
-        forces = torch.einsum("...ij,...fj->...fi", columns, obs[..., self.forces]).flatten(-2)  # (..., 6)
+        )
+        gravity = -axes[..., 2]  # the world's down direction in the torso frame
+        contacts = (obs[..., self.feet] != 0).any(dim=-1).to(obs.dtype)  # (..., 2): a foot's wrench is not zero
+        forces = torch.einsum("...ij,...fj->...fi", axes, obs[..., self.forces]).flatten(-2)  # R^T f per foot: (..., 6)
         return torch.cat([obs[..., self.copied], gravity, contacts, forces], dim=-1)
 
 

@@ -22,7 +22,7 @@ from humanoid.estimator import (
 )
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.posture import axis_quaternion, multiply_quaternions
-from humanoid.sensors import Proprioception, gravity_direction, in_body_frame
+from humanoid.sensors import Proprioception, body_axes, gravity_direction, in_body_frame
 
 
 @pytest.fixture(autouse=True)
@@ -86,7 +86,7 @@ def horizontal_velocity_error(seed: int, steps: int) -> float:
         features = sensed(obs)
         _, qvel = odometry(features)
         mujoco.mju_quat2Mat(level, level_quaternion(gravity_direction(data.qpos[3:7])))
-        truth = level.reshape(3, 3) @ in_body_frame(data.qpos[3:7], data.qvel[:3])  # qvel[:3]: world frame
+        truth = level.reshape(3, 3) @ in_body_frame(body_axes(data.qpos[3:7]), data.qvel[:3])  # qvel[:3]: world frame
         if t >= 60:
             errors.append(qvel[:2] - truth[:2])
         obs, _, terminated, _, _ = env.step(expert.act(obs) + noise[t])
