@@ -41,7 +41,7 @@ from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
-from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, plot_curves, selection_score
+from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, keeps_best, plot_curves, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
@@ -64,6 +64,9 @@ ODOMETRY_RECIPE = (
     f"POLICY={paths.ODOMETRY_POLICY}`; BC_POLICY={paths.BC_POLICY} starts from the full-observation student"
 )
 """How to make the default BC checkpoint, said when it is missing."""
+
+KEEP = ("guarded", "best", "last")
+"""Which evaluated actor a run saves (--keep)."""
 
 # Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
 # final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
@@ -120,6 +123,16 @@ class FinetuneConfig:
         "the training environments' physical parameters, drawn at every episode: a preset (none, mild, suite) "
         "or ranges like mass=0.8:1.2,friction=0.5:1.5,strength=0.8:1.2 (humanoid.conditions)",
     )
+    latency_share: float = setting(
+        0.5,
+        "share of the training episodes run with the suite's step of action latency, growing with the curriculum's "
+        "stages as the --randomize ranges do (without a curriculum: from the start); 0 = none",
+    )
+    obs_noise_share: float = setting(
+        0.5,
+        "share of the training episodes with the suite's sensor noise on what the actor reads, growing as "
+        "--latency-share does; 0 = none",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
     critic_learning_rate: float = setting(
@@ -167,10 +180,12 @@ class FinetuneConfig:
         "the final evaluation's, since they choose the actor kept",
     )
     keep: str = setting(
-        "best",
-        "the actor saved: 'best' (of the evaluations during training, step 0 included, earliest on ties: the "
-        "highest mean return over the validation evaluation and the --eval-conditions) or 'last'",
-        choices=("best", "last"),
+        "guarded",
+        "the actor saved: 'guarded' (the last, unless its clean validation return fell below 0.9 of step 0's: "
+        "then the best), 'best' (of the evaluations during training, step 0 included, earliest on ties: the "
+        "highest mean return over the validation evaluation and the --eval-conditions) or 'last'; why "
+        "guarded: docs/learning.md, 'Evaluations and the actor kept'",
+        choices=KEEP,
     )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
@@ -226,15 +241,16 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"--rollout-steps ({cfg.rollout_steps}) must be a multiple of --envs ({cfg.envs})")
     if cfg.init not in ("bc", "fresh"):
         raise UserError(f"--init must be 'bc' or 'fresh', got {cfg.init!r}")
-    if cfg.keep not in ("best", "last"):
-        raise UserError(f"--keep must be 'best' or 'last', got {cfg.keep!r}")
+    if cfg.keep not in KEEP:
+        raise UserError(f"--keep must be one of {', '.join(KEEP)}, got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
     unknown = [name for name in eval_conditions(cfg) if name not in SUITE]
     if unknown:
         raise UserError(f"unknown --eval-conditions {', '.join(unknown)}; known: {', '.join(SUITE)}")
-    if not 0 <= cfg.curriculum_advance <= 1:
-        raise UserError(f"--curriculum-advance must be in [0, 1], got {cfg.curriculum_advance}")
+    for name in ("curriculum_advance", "latency_share", "obs_noise_share"):
+        if not 0 <= getattr(cfg, name) <= 1:
+            raise UserError(f"{flag(name)} must be in [0, 1], got {getattr(cfg, name)}")
     if stages(cfg) and cfg.push:
         raise UserError("give --push or --curriculum, not both")
     randomization(cfg)
@@ -271,6 +287,17 @@ def eval_conditions(cfg: FinetuneConfig) -> list[str]:
     return [name.strip() for name in cfg.eval_conditions.split(",") if name.strip()]
 
 
+def widened(cfg: FinetuneConfig) -> dict[str, float]:
+    """What grows with the curriculum's stages: the training environments' methods and their values at the last
+    stage (`PushCurriculum`)."""
+    grown = {
+        "set_width": 1.0 if randomization(cfg).active else 0.0,
+        "set_latency_share": cfg.latency_share,
+        "set_noise_share": cfg.obs_noise_share,
+    }
+    return {method: last for method, last in grown.items() if last > 0}
+
+
 def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
     width = stage_width(0, len(stages(cfg)))  # a curriculum's first stage (1: no curriculum, the whole ranges)
     inputs = checkpoint.load(cfg.bc_policy).spec.inputs
@@ -284,6 +311,8 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         randomization(cfg),
         width,
         inputs,
+        latency=width * cfg.latency_share if cfg.latency_share else None,
+        obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
     )
 
 
@@ -403,7 +432,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             )
             guards = Guards(cfg.critic_warmup, term)
             curriculum = (
-                PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, randomization(cfg).active)
+                PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, widened(cfg))
                 if stages(cfg)
                 else None
             )
@@ -422,8 +451,9 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             seconds = time.perf_counter() - start
             bar.close()
             actor = model.policy.actor
-            kept = evaluator.best if cfg.keep == "best" else evaluator.curve[-1]
-            if cfg.keep == "best":
+            keep_best = keeps_best(cfg.keep, evaluator.curve)
+            kept = evaluator.best if keep_best else evaluator.curve[-1]
+            if keep_best:
                 actor.load_state_dict(evaluator.best_state)
             record = {**settings, "seconds": seconds, "kept": kept}
             if curriculum is not None:

@@ -104,6 +104,8 @@ ADDED_SINCE = {
     "curriculum_episodes": 16,
     "min_updates": 0,
     "lr_schedule": "constant",
+    "latency_share": 0.0,
+    "obs_noise_share": 0.0,
 }
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before

@@ -30,6 +30,7 @@ from humanoid.perturbations import TorsoPushes
 
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
 OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
+LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training): (seed, 5)
 
 # Where the sensed parts sit in the 348-dim observation: qpos[2:] (22) then qvel (23). The rest
 # (cinert, cvel, qfrc_actuator, cfrc_ext) is simulator state no sensor measures: left noiseless.
@@ -176,20 +177,55 @@ class DomainRandomization(gym.Wrapper):
         super().close()
 
 
-class ActionLatency(gym.Wrapper):
-    """The environment executes the action given `steps` steps before (zeros until then)."""
+def check_share(name: str, share: float) -> None:
+    """ValueError unless `share` is a probability."""
+    if not 0 <= share <= 1:
+        raise ValueError(f"{name} share must be in [0, 1], got {share}")
 
-    def __init__(self, env: gym.Env, steps: int = 1) -> None:
+
+def drawn(rng: np.random.Generator, share: float) -> bool:
+    """Whether an episode is affected, with probability `share`: no draw at all at 1 (the suite's conditions, whose
+    random streams stay as they were) or 0."""
+    return share >= 1 or (share > 0 and bool(rng.random() < share))
+
+
+class ActionLatency(gym.Wrapper):
+    """The environment executes the action given `steps` steps before (zeros until then).
+
+    With `share` < 1 only that share of the episodes is delayed, each drawn at reset from the seed's
+    stream (seed, LATENCY_STREAM): training under the suite's conditions (`bc.ppo`), where a curriculum
+    changes the share from the next reset on (`set_latency_share`). `delay` is the episode's.
+    """
+
+    def __init__(self, env: gym.Env, steps: int = 1, share: float = 1.0) -> None:
         super().__init__(env)
         if steps < 0:
             raise ValueError(f"latency must be >= 0 steps, got {steps}")
-        self.steps = steps
+        self.steps = self.delay = steps
+        self.set_latency_share(share)
+        self._rng = np.random.default_rng()
         self._queue: deque[np.ndarray] = deque()
 
-    def reset(self, **kwargs: Any) -> tuple[Any, dict]:
+    def set_latency_share(self, share: float) -> None:
+        """Delay this share of the episodes from the next reset on."""
+        check_share("latency", share)
+        self.latency_share = share
+
+    def random_state(self) -> dict:
+        """What the next episode's delay depends on, to resume a PPO run exactly (as `TorsoPushes.random_state`)."""
+        return {"draws": self._rng.bit_generator.state, "share": self.latency_share}
+
+    def set_random_state(self, state: dict) -> None:
+        self._rng.bit_generator.state = state["draws"]
+        self.latency_share = state["share"]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng((seed, LATENCY_STREAM))
+        self.delay = self.steps if drawn(self._rng, self.latency_share) else 0
         zero = np.zeros(self.env.action_space.shape, self.env.action_space.dtype)
-        self._queue = deque([zero] * self.steps)
-        return self.env.reset(**kwargs)
+        self._queue = deque([zero] * self.delay)
+        return self.env.reset(seed=seed, options=options)
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         self._queue.append(np.asarray(action))
@@ -197,34 +233,55 @@ class ActionLatency(gym.Wrapper):
 
 
 def action_delay(env: gym.Env) -> int:
-    """Steps of action latency the `ActionLatency` wrappers around `env` add: a known property of the
-    system, which a controller designed for it (the expert) may compensate."""
+    """Steps of action latency the `ActionLatency` wrappers around `env` add to every episode: a known
+    property of the system, which a controller designed for it (the expert) may compensate. A delay drawn
+    per episode (share < 1) is not known in advance and does not count."""
     delay = 0
     while isinstance(env, gym.Wrapper):
-        if isinstance(env, ActionLatency):
+        if isinstance(env, ActionLatency) and env.latency_share >= 1:
             delay += env.steps
         env = env.env
     return delay
 
 
 class ObservationNoise(gym.Wrapper):
-    """Gaussian noise on the sensed parts of the observation (`OBS_NOISE_STD`), drawn from the seed."""
+    """Gaussian noise on the sensed parts of the observation (`OBS_NOISE_STD` times `scale`), drawn from the seed.
 
-    def __init__(self, env: gym.Env, scale: float = 1.0) -> None:
+    With `share` < 1 only that share of the episodes is noisy, as `ActionLatency` does with its delay
+    (`set_noise_share`; the draw comes from the noise's own stream). `noisy` is the episode's.
+    """
+
+    def __init__(self, env: gym.Env, scale: float = 1.0, share: float = 1.0) -> None:
         super().__init__(env)
         if not (math.isfinite(scale) and scale >= 0):
             raise ValueError(f"observation noise scale must be >= 0, got {scale}")
         self.std = np.zeros(env.observation_space.shape)
         self.std[QPOS_PART] = scale * OBS_NOISE_STD["qpos"]
         self.std[QVEL_PART] = scale * OBS_NOISE_STD["qvel"]
+        self.set_noise_share(share)
+        self.noisy = True
         self._rng = np.random.default_rng()
 
+    def set_noise_share(self, share: float) -> None:
+        """Make this share of the episodes noisy from the next reset on."""
+        check_share("observation noise", share)
+        self.noise_share = share
+
+    def random_state(self) -> dict:
+        """What the next episode's noise depends on, to resume a PPO run exactly (as `TorsoPushes.random_state`)."""
+        return {"noise": self._rng.bit_generator.state, "share": self.noise_share}
+
+    def set_random_state(self, state: dict) -> None:
+        self._rng.bit_generator.state = state["noise"]
+        self.noise_share = state["share"]
+
     def _noisy(self, obs: np.ndarray) -> np.ndarray:
-        return obs + self.std * self._rng.standard_normal(obs.shape)
+        return obs + self.std * self._rng.standard_normal(obs.shape) if self.noisy else obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         if seed is not None:
             self._rng = np.random.default_rng((seed, OBS_NOISE_STREAM))
+        self.noisy = drawn(self._rng, self.noise_share)
         obs, info = self.env.reset(seed=seed, options=options)
         return self._noisy(obs), info
 

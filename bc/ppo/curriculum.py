@@ -6,19 +6,22 @@ the first stage's force and move to the next stage after a rollout in which at l
 training episodes ended and at least `advance` of those reached the time limit instead of falling.
 The domain randomisation widens with the stages: stage k of K draws the physical parameters from
 their ranges narrowed to k/(K-1) of their size about 1 (`Randomization.widened`), so the first stage
-is the nominal body the demonstrations showed and the last the whole distribution. Trained on the
+is the nominal body the demonstrations showed and the last the whole distribution. The shares of the
+episodes run with the suite's action latency and sensor noise grow alike, from none to theirs. Trained on the
 whole distribution from the start, the BC actor (with PPO's exploration noise) survived about 3 % of
 its training episodes and no stage was ever passed (docs/learning.md). A new stage applies to each
-environment from its next episode (`TorsoPushes.set_force`, `DomainRandomization.set_width`), so
-every episode runs under one stage and a resumed run replays it exactly. The stage never goes back.
+environment from its next episode (`TorsoPushes.set_force`, `DomainRandomization.set_width`,
+`ActionLatency.set_latency_share`, `ObservationNoise.set_noise_share`), so every episode runs under one
+stage and a resumed run replays it exactly. The stage never goes back.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
 
 
 def parse_stages(text: str, option: str = "--curriculum") -> list[float]:
@@ -55,14 +58,18 @@ def stage_width(stage: int, stages: int) -> float:
 class PushCurriculum(BaseCallback):
     """Moves the training environments' push force through `stages` (see the module)."""
 
-    def __init__(self, stages: Sequence[float], advance: float, min_episodes: int, randomized: bool = False) -> None:
-        """`randomized`: the environments have a `DomainRandomization` whose width follows the stages."""
+    def __init__(
+        self, stages: Sequence[float], advance: float, min_episodes: int, widened: Mapping[str, float] | None = None
+    ) -> None:
+        """`widened`: the environments' methods the stage's width goes to, each times its value at the last stage,
+        e.g. {"set_width": 1.0} (`DomainRandomization`), {"set_latency_share": 0.5} (`ActionLatency`)."""
         super().__init__()
         if not stages:
             raise ValueError("a curriculum needs at least one stage")
         # min_episodes: with 64 environments x 256 steps per rollout, about 16 episodes end in a rollout
         # where each lasts its 1,000 steps.
-        self.stages, self.advance, self.min_episodes, self.randomized = list(stages), advance, min_episodes, randomized
+        self.stages, self.advance, self.min_episodes = list(stages), advance, min_episodes
+        self.widened = dict(widened or {})
         self.stage = 0
         self.history: list[dict[str, float]] = []  # when each stage began: {"timesteps", "stage", "push"}
 
@@ -74,10 +81,11 @@ class PushCurriculum(BaseCallback):
     def width(self) -> float:
         return stage_width(self.stage, len(self.stages))
 
-    def _apply(self) -> None:
-        self.training_env.env_method("set_force", self.force)
-        if self.randomized:
-            self.training_env.env_method("set_width", self.width)
+    def apply(self, env: VecEnv) -> None:
+        """Put `env`'s environments at this stage from their next episodes on."""
+        env.env_method("set_force", self.force)
+        for method, last in self.widened.items():
+            env.env_method(method, self.width * last)
 
     def get_state(self) -> dict[str, Any]:
         return {"stage": self.stage, "history": list(self.history)}
@@ -89,25 +97,25 @@ class PushCurriculum(BaseCallback):
         if not self.history:
             self.history.append(self._entry())
         # A resumed run's environments replayed their episodes under the stage they began in; new ones get this.
-        self._apply()
+        self.apply(self.training_env)
 
     def _on_rollout_end(self) -> None:
         segment = self.locals["segment"]
         ended, survived = rollout_survival(segment.dones, segment.infos)
         self.logger.record("curriculum/stage", self.stage)
         self.logger.record("curriculum/push", self.force)
-        if self.randomized:
+        if self.widened:
             self.logger.record("curriculum/randomization_width", self.width)
         if ended:
             self.logger.record("curriculum/rollout_survival", survived / ended)
         if self.ready(ended, survived):
             self.stage += 1
             self.history.append(self._entry())
-            self._apply()
+            self.apply(self.training_env)
 
     def _entry(self) -> dict[str, float]:
         entry = {"timesteps": self.num_timesteps, "stage": self.stage, "push": self.force}
-        return {**entry, "randomization_width": self.width} if self.randomized else entry
+        return {**entry, "randomization_width": self.width} if self.widened else entry
 
     def ready(self, ended: int, survived: int) -> bool:
         """Whether a rollout that ended `ended` training episodes, `survived` at the time limit, moves the stage on."""

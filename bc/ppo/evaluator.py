@@ -30,6 +30,22 @@ def selection_score(point: dict[str, float]) -> float:
     return sum(returns) / len(returns)
 
 
+CLEAN_FLOOR = 0.9
+"""Fine-tuning must never fall below this share of the BC policy's clean return (the RL issue's floor)."""
+
+
+def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -> bool:
+    """Whether the last evaluation's clean return (the validation return where `clean` is not evaluated) is at
+    least `floor` of step 0's: what `--keep guarded` asks of the last actor before keeping it."""
+    key = "clean_mean_return" if "clean_mean_return" in curve[0] else "mean_return"
+    return curve[-1][key] >= floor * curve[0][key]
+
+
+def keeps_best(keep: str, curve: Sequence[dict[str, float]]) -> bool:
+    """Whether a run with `--keep keep` saves the best evaluated actor (`Evaluator.best`) rather than the last."""
+    return keep == "best" or (keep == "guarded" and not holds_floor(curve))
+
+
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 

@@ -20,7 +20,7 @@ from bc.ppo.features import EstimatedFeatures, SensedFeatures
 from bc.ppo.guards import DemonstrationTerm, RegularisedAdam
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
-from humanoid.conditions import DomainRandomization, Randomization
+from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import humanoid_model, make_env, observation_names
 from humanoid.estimator import OdometryObservation
 from humanoid.perturbations import TorsoPushes
@@ -32,22 +32,33 @@ NOMINAL = Randomization()  # nothing drawn: the nominal body and floor
 
 
 def training_env(
-    push: float | None, randomization: Randomization = NOMINAL, width: float = 1.0, inputs: str = "full"
+    push: float | None,
+    randomization: Randomization = NOMINAL,
+    width: float = 1.0,
+    inputs: str = "full",
+    latency: float | None = None,
+    obs_noise: float | None = None,
 ) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
     Its physical parameters are drawn from `randomization` at every reset, at `width` of its ranges
     (`DomainRandomization.set_width`); with `push` (newtons, 0 included) it is pushed as `TorsoPushes`
-    does. A curriculum (`bc.ppo.curriculum`) changes both from an episode to the next. For an actor on
-    `inputs` "odometry" the observation also carries the leg-odometry estimate (`OdometryObservation`).
-    SB3's `Monitor` records each episode's return and length (the environment's own rewards, before
-    any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
+    does; with `latency` (a share of the episodes, 0 included) that share runs with the suite's step of
+    action latency, and with `obs_noise` that share with its sensor noise on what the actor reads (and
+    the estimator with it). A curriculum (`bc.ppo.curriculum`) changes all four from an episode to the
+    next. For an actor on `inputs` "odometry" the observation also carries the leg-odometry estimate
+    (`OdometryObservation`). SB3's `Monitor` records each episode's return and length (the environment's
+    own rewards, before any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
     env = make_env()
     if randomization.active:
         env = DomainRandomization(env, randomization, width)
     if push is not None:
         env = TorsoPushes(env, push)
+    if latency is not None:
+        env = ActionLatency(env, SUITE["latency"].latency, share=latency)
+    if obs_noise is not None:
+        env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
     return Monitor(OdometryObservation(env) if inputs == "odometry" else env)
 
 
@@ -61,11 +72,13 @@ def make_vec_env(
     randomization: Randomization = NOMINAL,
     width: float = 1.0,
     inputs: str = "full",
+    latency: float | None = None,
+    obs_noise: float | None = None,
 ) -> WorkerGroupVecEnv:
-    """`envs` training environments over `workers` processes (or Ray actors), seeded from `seed`, for an actor
-    on `inputs`."""
+    """`envs` training environments (`training_env`) over `workers` processes (or Ray actors), seeded from
+    `seed`, for an actor on `inputs`."""
     env = WorkerGroupVecEnv(
-        [functools.partial(training_env, push, randomization, width, inputs)] * envs,
+        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise)] * envs,
         workers,
         backend=backend,
         ray_address=ray_address,

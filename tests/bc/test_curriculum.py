@@ -98,3 +98,21 @@ def test_a_new_width_applies_from_the_next_draw() -> None:
     np.testing.assert_array_equal(model.body_mass, drawn)
     env.reset(seed=0)
     np.testing.assert_allclose(model.body_mass, nominal)
+
+
+def test_the_stage_sets_the_widened_shares_of_every_training_environment() -> None:
+    """Each method the curriculum widens gets the stage's width times its value at the last stage, in every
+    environment: at stage 1 of 3 half the latency and sensor-noise shares and half the randomisation."""
+    env = make_vec_env(4, 2, 0.0, 0, randomization=PRESETS["suite"], width=0.0, latency=0.0, obs_noise=0.0)
+    try:
+        curriculum = PushCurriculum(
+            [0.0, 10.0, 20.0], 0.8, 16, {"set_width": 1.0, "set_latency_share": 0.5, "set_noise_share": 0.3}
+        )
+        curriculum.stage = 1
+        curriculum.apply(env)
+        assert env.get_attr("next_force") == [10.0] * 4
+        assert env.get_attr("width") == [0.5] * 4
+        assert env.get_attr("latency_share") == [0.25] * 4
+        assert env.get_attr("noise_share") == [0.15] * 4
+    finally:
+        env.close()

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE, selection_score
+from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE, holds_floor, keeps_best, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -39,6 +39,8 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (second
 TINY_PPO = {
     "curriculum": "",
     "randomize": "none",
+    "latency_share": 0.0,
+    "obs_noise_share": 0.0,
     "envs": 4,
     "workers": 2,
     "rollout_steps": 256,
@@ -289,7 +291,13 @@ def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> No
     """With KEEP=best the saved actor is the checkpoint of the first evaluation with the highest selection score."""
     result = main(
         FinetuneConfig(
-            bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=768, critic_warmup=0, learning_rate=1e-3, **TINY_PPO
+            bc_policy=bc_policy,
+            policy=tmp_path / "ppo",
+            timesteps=768,
+            critic_warmup=0,
+            learning_rate=1e-3,
+            keep="best",
+            **TINY_PPO,
         )
     )
     scores = [selection_score(p) for p in result["training_curve"]]
@@ -298,6 +306,27 @@ def test_the_best_evaluated_actor_is_kept(bc_policy: Path, tmp_path: Path) -> No
     kept = checkpoint.load(tmp_path / "ppo" / "checkpoints" / f"step_{best['timesteps']:08d}").state_dict()
     for name, value in checkpoint.load(tmp_path / "ppo").state_dict().items():
         assert torch.equal(value, kept[name]), name
+
+
+def test_the_saved_actor_is_the_checkpoint_of_the_evaluation_kept(tiny_run: tuple[FinetuneConfig, dict]) -> None:
+    """By default (guarded) the last evaluation's actor unless its clean return fell below the floor."""
+    config, result = tiny_run
+    curve = result["training_curve"]
+    assert result["kept"] == (max(curve, key=selection_score) if keeps_best("guarded", curve) else curve[-1])
+    kept = checkpoint.load(config.policy / "checkpoints" / f"step_{result['kept']['timesteps']:08d}").state_dict()
+    for name, value in checkpoint.load(config.policy).state_dict().items():
+        assert torch.equal(value, kept[name]), name
+
+
+def test_guarded_keeps_the_last_actor_unless_its_clean_return_fell_below_the_floor() -> None:
+    start = {"timesteps": 0, "mean_return": 1000.0, "clean_mean_return": 4900.0}
+    held = {"timesteps": 9, "mean_return": 900.0, "clean_mean_return": 0.9 * 4900.0}
+    fell = {**held, "clean_mean_return": 0.89 * 4900.0}
+    assert not keeps_best("guarded", [start, fell, held]) and keeps_best("guarded", [start, held, fell])
+    assert keeps_best("best", [start, held]) and not keeps_best("last", [start, fell])
+    # Without a clean evaluation the validation return stands in for it.
+    assert keeps_best("guarded", [{"mean_return": 1000.0}, {"mean_return": 899.0}])
+    assert not holds_floor([{"mean_return": 1000.0}, {"mean_return": 800.0}], floor=0.85)
 
 
 def test_the_selection_score_is_the_mean_return_over_the_evaluated_conditions() -> None:
@@ -485,6 +514,8 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--curriculum", "10,x"], "give push forces in newtons"),
         (["--curriculum", "10,20", "--push", "20"], "give --push or --curriculum, not both"),
         (["--curriculum-advance", "1.5"], "--curriculum-advance must be in [0, 1]"),
+        (["--latency-share", "-0.5"], "--latency-share must be in [0, 1]"),
+        (["--obs-noise-share", "2"], "--obs-noise-share must be in [0, 1]"),
         (["--randomize", "wild"], "--randomize 'wild': unknown preset"),
         (["--randomize", "mass=1.2:0.8"], "mass range has low 1.2 > high 0.8"),
     ],
@@ -518,8 +549,9 @@ def test_existing_checkpoint_is_not_overwritten(
     assert snapshot(target) == existing and snapshot(bc_policy) == before
 
 
-# With a push curriculum that moves on after every rollout (the tiny BC policy falls often) and randomised
-# bodies: the kills fall where episodes in progress began under an earlier stage's force.
+# With a push curriculum that moves on after every rollout (the tiny BC policy falls often), randomised
+# bodies, and shares of the episodes delayed and noisy: the kills fall where episodes in progress began under
+# an earlier stage's force and shares.
 RESUMABLE = {
     **TINY_PPO,
     "timesteps": 256 * 8,
@@ -529,6 +561,8 @@ RESUMABLE = {
     "curriculum_advance": 0.0,
     "curriculum_episodes": 1,
     "randomize": "suite",
+    "latency_share": 1.0,
+    "obs_noise_share": 1.0,
 }
 
 

@@ -15,6 +15,7 @@ from humanoid.conditions import (
     DomainRandomization,
     ObservationNoise,
     Randomization,
+    action_delay,
     condition,
     parse_randomization,
 )
@@ -101,6 +102,54 @@ def test_observation_noise_touches_only_the_sensed_parts_with_the_documented_std
     np.testing.assert_array_equal(differences[:, QVEL_PART.stop :], 0.0)
     assert differences[:, QPOS_PART].std() == pytest.approx(OBS_NOISE_STD["qpos"], rel=0.05)
     assert differences[:, QVEL_PART].std() == pytest.approx(OBS_NOISE_STD["qvel"], rel=0.05)
+
+
+def executed_first(env: gym.Env, seed: int) -> np.ndarray:
+    """What the environment executed at the first step of episode `seed`, given an action of ones."""
+    _, data = model_and_data(env)
+    env.reset(seed=seed)
+    env.step(np.ones(env.action_space.shape, np.float32))
+    return data.ctrl.copy()
+
+
+def test_a_share_of_the_episodes_is_delayed_and_the_draw_repeats_with_the_seed() -> None:
+    """share 0.5: some episodes execute the previous action (zeros at first), the others the action given."""
+    env = ActionLatency(make_env(), steps=1, share=0.5)
+    delays = {seed: float(executed_first(env, seed)[0]) == 0.0 for seed in range(40)}
+    assert 10 <= sum(delays.values()) <= 30
+    assert {seed: float(executed_first(env, seed)[0]) == 0.0 for seed in reversed(range(40))} == delays
+    for seed, delayed in delays.items():
+        env.reset(seed=seed)
+        assert env.delay == int(delayed)
+    assert action_delay(env) == 0  # not every episode: no known delay a controller may compensate
+
+
+def test_a_share_of_the_episodes_is_noisy_and_the_others_read_exactly() -> None:
+    clean, noisy = make_env(), ObservationNoise(make_env(), share=0.5)
+    differs = [not np.array_equal(noisy.reset(seed=s)[0], clean.reset(seed=s)[0]) for s in range(40)]
+    assert 10 <= sum(differs) <= 30
+    assert differs == [not np.array_equal(noisy.reset(seed=s)[0], clean.reset(seed=s)[0]) for s in range(40)]
+
+
+def test_a_new_share_applies_from_the_next_reset() -> None:
+    """As a curriculum changes it: the episode in progress keeps its delay and its noise; the next draws anew."""
+    latency, noise = ActionLatency(make_env(), share=1.0), ObservationNoise(make_env(), share=1.0)
+    latency.reset(seed=0)
+    noise.reset(seed=0)
+    latency.set_latency_share(0.0)
+    noise.set_noise_share(0.0)
+    assert latency.delay == 1 and noise.noisy
+    latency.reset(seed=0)
+    noise.reset(seed=0)
+    assert latency.delay == 0 and not noise.noisy
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.5])
+def test_a_share_outside_0_to_1_is_refused(share: float) -> None:
+    with pytest.raises(ValueError, match="share must be in"):
+        ActionLatency(make_env(), share=share)
+    with pytest.raises(ValueError, match="share must be in"):
+        ObservationNoise(make_env(), share=share)
 
 
 @pytest.mark.parametrize("bounds", [(1.2, 0.8), (-0.1, 1.0), (0.5, float("inf"))])
