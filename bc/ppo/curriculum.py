@@ -6,8 +6,8 @@ the first stage's force and move to the next stage after a rollout in which at l
 training episodes ended and at least `advance` of those reached the time limit instead of falling.
 The domain randomisation widens with the stages: stage k of K draws the physical parameters from
 their ranges narrowed to k/(K-1) of their size about 1 (`Randomization.widened`), so the first stage
-is the nominal body the demonstrations showed and the last the whole distribution. The shares of the
-episodes run with the suite's action latency and sensor noise grow alike, from none to theirs. Trained on the
+is the nominal body the demonstrations showed and the last the whole distribution; the shares of the
+episodes run with the suite's action latency and sensor noise grow alike, from none. Trained on the
 whole distribution from the start, the BC actor (with PPO's exploration noise) survived about 3 % of
 its training episodes and no stage was ever passed (docs/learning.md). A new stage applies to each
 environment from its next episode (`TorsoPushes.set_force`, `DomainRandomization.set_width`,
