@@ -25,7 +25,7 @@ export PYTHONUNBUFFERED := 1
 # here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
-VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
+VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
 VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
@@ -38,7 +38,7 @@ VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY EPOCHS SCRATCH_POLICY \
 	PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES TUTORIAL \
-	DEPLOYABLE PROPRIO_POLICY SENSED_DATASET SENSED_NOISE ODOMETRY_POLICY PPO_FROM
+	DEPLOYABLE PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY ODOMETRY_INPUTS PPO_FROM
 # --name='value' for each variable of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 

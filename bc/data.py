@@ -30,10 +30,11 @@ import torch
 from common import keys
 from common.cli import DatasetError
 from common.paths import cache_dir
+from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
-from humanoid.inputs import INPUT_COLUMNS, INPUTS, computation_digest, episode_inputs, recorded_names
+from humanoid.inputs import INPUT_COLUMNS, INPUTS, PendingInputs, computation_digest, episode_inputs, recorded_names
 from humanoid.sensors import observation_index
-from teleop.dataset_reader import fingerprint, iter_frames, read_info
+from teleop.dataset_reader import fingerprint, iter_frames, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
 # The policy's input is built from the dataset columns `humanoid.inputs.INPUT_COLUMNS[inputs]`, their
@@ -203,7 +204,10 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
     else:
         try:
             arrays = _decode(root, info, INPUT_COLUMNS[inputs], index)
-            arrays["inputs"] = episode_inputs(inputs, arrays["inputs"], arrays["episode_index"], env.unwrapped.model)
+            delays = episode_delays(root)[arrays["episode_index"]] if inputs == "pending" else None
+            arrays["inputs"] = episode_inputs(
+                inputs, arrays["inputs"], arrays["episode_index"], env.unwrapped.model, delays
+            )
         except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
             raise DatasetError(f"cannot read the frames of {root}: {error}") from None
         if not (np.isfinite(arrays["inputs"]).all() and np.isfinite(arrays["actions"]).all()):
@@ -221,6 +225,18 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
         fingerprint=digest,
         kind=inputs,
     )
+
+
+def episode_delays(root: Path) -> np.ndarray:
+    """Each episode's recorded action latency in steps (`make record LATENCY=`; 0 where none was recorded);
+    DatasetError for a delay the "pending" inputs cannot carry."""
+    delays = np.array([drawn.get(LATENCY_PARAMETER, 0) for drawn in read_parameters(root)], np.int64)
+    if len(delays) and delays.max() > PendingInputs.MAX_DELAY:
+        raise DatasetError(
+            f"{root} holds episodes with {delays.max()} steps of action latency; INPUTS=pending carries "
+            f"at most {PendingInputs.MAX_DELAY}"
+        )
+    return delays
 
 
 def split_by_episode(episodes: list[int], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -51,17 +51,18 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
-from humanoid.estimator import OdometryFeatures
+from humanoid.inputs import input_features
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
 from policies.mlp import normalisation
-from teleop.record import SENSED_NOISE
+from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
 ODOMETRY_RECIPE = (
     f"`make pipeline` makes the odometry student, or `make record CONTROLLER=expert-sensed NOISE={SENSED_NOISE} "
-    f"DATASET={paths.SENSED_DATASET}` then `make train-bc INPUTS=odometry DATASET={paths.SENSED_DATASET} "
-    f"POLICY={paths.ODOMETRY_POLICY}`; BC_POLICY={paths.BC_POLICY} starts from the full-observation student"
+    f"LATENCY={SENSED_LATENCY} DATASET={paths.SENSED_DATASET}` then `make train-bc INPUTS=pending "
+    f"DATASET={paths.SENSED_DATASET} POLICY={paths.ODOMETRY_POLICY}`; BC_POLICY={paths.BC_POLICY} starts from the "
+    "full-observation student"
 )
 """How to make the default BC checkpoint, said when it is missing."""
 
@@ -355,13 +356,13 @@ def weights_digest(policy: Path) -> str:
 
 def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
-    critic of an actor on `inputs` "proprio" normalises its privileged input with; for "odometry", of the
-    observation and the estimate the environment appends (`OdometryObservation`)."""
+    critic of an actor on `inputs` "proprio" normalises its privileged input with; for "odometry" and "pending",
+    of the observation and what the environment appends (`OdometryObservation`, `PendingObservation`)."""
     dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
     observations = load_demonstrations(dataset, env).inputs
-    if inputs == "odometry":
-        estimated = load_demonstrations(dataset, env, inputs="odometry").inputs
-        estimate_size = OdometryFeatures(env.unwrapped.model).estimate_size
+    if inputs in ("odometry", "pending"):
+        estimated = load_demonstrations(dataset, env, inputs=inputs).inputs
+        estimate_size = input_features(inputs, env.unwrapped.model).estimate_size
         observations = torch.cat([observations, estimated[:, -estimate_size:]], dim=1)
     return normalisation(observations)
 

@@ -3,15 +3,17 @@
 
     DATASET (expert, NOISE) ----------> BC_POLICY (full) ------------(PPO_FROM=full)-----.
        '------------------------------> PROPRIO_POLICY (proprio)   } DEPLOYABLE: what      +--> SCRATCH_POLICY,
-    SENSED_DATASET (expert-sensed) ---> ODOMETRY_POLICY (odometry) } a robot senses --(odometry, default)
+    SENSED_DATASET (expert-sensed, ---> ODOMETRY_POLICY (pending)  } a robot senses --(odometry, default)
+      SENSED_LATENCY delayed)
     tutorial-rl (reads neither)                                                                   PPO_POLICY
 
 The deployable branch clones policies that read only the sensed features: from the same data (which
-shows what the privileged inputs did), and from demonstrations of the expert on leg odometry with
-that odometry as input (the student that stands; docs/robustness.md). Both PPO stages start from that
-student (PPO_FROM=odometry, the stages' own default), so the fine-tuned actor reads what a robot
-senses; PPO_FROM=full starts them from BC_POLICY instead (docs/learning.md, "An actor on leg
-odometry", compares the two).
+shows what the privileged inputs did), and from demonstrations of the expert on leg odometry, half of
+them under one step of action latency, with that odometry, the command in flight and the delay as
+input (ODOMETRY_INPUTS=pending: the student that stands, also under latency; docs/robustness.md).
+Both PPO stages start from that student (PPO_FROM=odometry, the stages' own default), so the
+fine-tuned actor reads what a robot senses; PPO_FROM=full starts them from BC_POLICY instead
+(docs/learning.md, "An actor on leg odometry", compares the two).
 
 Each stage runs in this process through its own `main`, with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
@@ -86,7 +88,7 @@ from policies.folder import (
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_info
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import SENSED_NOISE, RecordConfig, record
+from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
 from teleop.record import validate as validate_record
 
 MADE_BY = "bc.pipeline"
@@ -106,6 +108,7 @@ ADDED_SINCE = {
     "lr_schedule": "constant",
     "latency_share": 0.0,
     "obs_noise_share": 0.0,
+    "latency": 0.0,
 }
 """Settings added after runs began saving their config, with the value that does what the versions before
 them did: a saved config without the setting was made with that value (a dataset recorded before
@@ -161,8 +164,17 @@ class PipelineConfig:
         paths.SENSED_DATASET, "dataset of EPISODES the expert on leg odometry records (--controller expert-sensed)"
     )
     sensed_noise: float = setting(SENSED_NOISE, "DART noise of SENSED_DATASET's recording")
+    sensed_latency: float = setting(
+        SENSED_LATENCY, "share of SENSED_DATASET's episodes recorded with one step of action latency (record --latency)"
+    )
     odometry_policy: Path = setting(
-        paths.ODOMETRY_POLICY, "checkpoint folder of BC on SENSED_DATASET with leg odometry (--inputs odometry)"
+        paths.ODOMETRY_POLICY, "checkpoint folder of BC on SENSED_DATASET with leg odometry (--inputs ODOMETRY_INPUTS)"
+    )
+    odometry_inputs: str = setting(
+        "pending",
+        "what ODOMETRY_POLICY reads: the sensed features and leg odometry ('odometry'), and its command in flight "
+        "and the delay ('pending', which SENSED_LATENCY's delayed episodes teach; humanoid/inputs.py)",
+        choices=("odometry", "pending"),
     )
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
@@ -249,13 +261,17 @@ def stages(cfg: PipelineConfig) -> Stages:
     deployable = None
     if cfg.deployable:
         sensed = dataclasses.replace(
-            recording, dataset=cfg.sensed_dataset, controller=SensedExpert.name, noise=cfg.sensed_noise
+            recording,
+            dataset=cfg.sensed_dataset,
+            controller=SensedExpert.name,
+            noise=cfg.sensed_noise,
+            latency=cfg.sensed_latency,
         )
         deployable = Deployable(
             proprio=TrainConfig(dataset=cfg.dataset, policy=cfg.proprio_policy, epochs=cfg.epochs, inputs="proprio"),
             record=sensed,
             odometry=TrainConfig(
-                dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs="odometry"
+                dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs=cfg.odometry_inputs
             ),
         )
     return Stages(

@@ -66,7 +66,7 @@ TARGETS: dict[str, Target] = {
     "record": Target(
         "teleop.record",
         RecordConfig,
-        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "max_steps", *_BACKEND, *_LIVE),
+        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "latency", "max_steps", *_BACKEND, *_LIVE),
     ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),

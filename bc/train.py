@@ -67,8 +67,9 @@ class TrainConfig:
     policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
     inputs: str = setting(
         "full",
-        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), or that and "
-        "the leg odometry computed from it (odometry; humanoid/inputs.py); full by measurement, see docs/robustness.md",
+        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), that and the leg "
+        "odometry computed from it (odometry), or that and its command in flight under latency with the delay "
+        "(pending: record with LATENCY; humanoid/inputs.py); full by measurement, see docs/robustness.md",
         choices=INPUTS,
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")

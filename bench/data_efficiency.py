@@ -89,8 +89,11 @@ def dataset_dir(work: Path, teacher: str, first_seed: int, demos: int) -> Path:
     return work / "data" / f"{teacher}_seeds_{first_seed}_n{demos}"
 
 
-def recorded(root: Path, first_seed: int, demos: int, workers: int, teacher: str, noise: float) -> int:
+def recorded(
+    root: Path, first_seed: int, demos: int, workers: int, teacher: str, noise: float, latency: float = 0.0
+) -> int:
     """Record seeds first_seed..first_seed+demos-1 into `root` unless it holds exactly them; episodes that fell.
+    `latency`: the recorder's share of episodes delayed by one step (`make record LATENCY=`).
 
     Anything else in `root` (an interrupted run, other seeds) is removed first: the recorder would append to it.
     """
@@ -104,7 +107,14 @@ def recorded(root: Path, first_seed: int, demos: int, workers: int, teacher: str
             return sum(episodes[keys.EPISODE_TERMINATED])
     shutil.rmtree(root, ignore_errors=True)
     cfg = RecordConfig(
-        dataset=root, episodes=demos, seed=first_seed, controller=teacher, noise=noise, workers=workers, progress=False
+        dataset=root,
+        episodes=demos,
+        seed=first_seed,
+        controller=teacher,
+        noise=noise,
+        latency=latency,
+        workers=workers,
+        progress=False,
     )
     summary = record(cfg)
     return sum(episode.fell for episode in summary.episodes)

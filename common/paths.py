@@ -18,7 +18,8 @@ PROPRIO_POLICY = Path("policies/bc_proprio_humanoid_stand")
 SENSED_DATASET = Path("datasets/humanoid_stand_sensed")
 """Demonstrations of the expert on leg odometry (`make pipeline`)."""
 ODOMETRY_POLICY = Path("policies/bc_odometry_humanoid_stand")
-"""Behaviour cloning on the sensed features and leg odometry, from SENSED_DATASET (`make pipeline`)."""
+"""Behaviour cloning on the sensed features and leg odometry (and, INPUTS=pending, the command in flight), from
+SENSED_DATASET (`make pipeline`)."""
 PPO_POLICY = Path("policies/ppo_humanoid_stand")
 """The PPO-refined policy of `make finetune-rl`."""
 SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")

@@ -30,7 +30,8 @@ from humanoid.perturbations import TorsoPushes
 
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
 OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
-LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training): (seed, 5)
+LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training, recording): (seed, 5)
+LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
 # Where the sensed parts sit in the 348-dim observation: qpos[2:] (22) then qvel (23). The rest
 # (cinert, cvel, qfrc_actuator, cfrc_ext) is simulator state no sensor measures: left noiseless.
@@ -193,8 +194,9 @@ class ActionLatency(gym.Wrapper):
     """The environment executes the action given `steps` steps before (zeros until then).
 
     With `share` < 1 only that share of the episodes is delayed, each drawn at reset from the seed's
-    stream (seed, LATENCY_STREAM): training under the suite's conditions (`bc.ppo`), where a curriculum
-    changes the share from the next reset on (`set_latency_share`). `delay` is the episode's.
+    stream (seed, LATENCY_STREAM): demonstrations with and without the delay (`make record LATENCY=`),
+    and training under the suite's conditions (`bc.ppo`), where a curriculum changes the share from the
+    next reset on (`set_latency_share`). `delay` is the episode's.
     """
 
     def __init__(self, env: gym.Env, steps: int = 1, share: float = 1.0) -> None:
@@ -220,12 +222,15 @@ class ActionLatency(gym.Wrapper):
         self.latency_share = state["share"]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        """As the env's, and the episode's delay joins the reset info's drawn "parameters" (`LATENCY_PARAMETER`),
+        so that a recording stores it with the episode."""
         if seed is not None:
             self._rng = np.random.default_rng((seed, LATENCY_STREAM))
         self.delay = self.steps if drawn(self._rng, self.latency_share) else 0
         zero = np.zeros(self.env.action_space.shape, self.env.action_space.dtype)
         self._queue = deque([zero] * self.delay)
-        return self.env.reset(seed=seed, options=options)
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs, {**info, "parameters": {**info.get("parameters", {}), LATENCY_PARAMETER: self.delay}}
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         self._queue.append(np.asarray(action))
@@ -233,15 +238,34 @@ class ActionLatency(gym.Wrapper):
 
 
 def action_delay(env: gym.Env) -> int:
-    """Steps of action latency the `ActionLatency` wrappers around `env` add to every episode: a known
-    property of the system, which a controller designed for it (the expert) may compensate. A delay drawn
-    per episode (share < 1) is not known in advance and does not count."""
+    """Steps of action latency the `ActionLatency` wrappers around `env` add to the current episode (drawn at
+    its reset when only a share of the episodes is delayed; before the first reset, their `steps`).
+
+    A known property of the system, as a robot's actuation delay is measured: the rollout tells it to
+    every controller that can use it (`humanoid.episode.tell_delay`), the expert predicting through it,
+    a policy on the "pending" inputs reading it.
+    """
     delay = 0
     while isinstance(env, gym.Wrapper):
-        if isinstance(env, ActionLatency) and env.latency_share >= 1:
-            delay += env.steps
+        if isinstance(env, ActionLatency):
+            delay += env.delay
         env = env.env
     return delay
+
+
+def recording_env(env: gym.Env, randomization: Randomization, latency_share: float) -> gym.Env:
+    """`env` as `make record` drives it: the physical parameters drawn per episode, and one step of action latency
+    on `latency_share` of the episodes (also drawn per episode); `recorded_parameters` names what is drawn."""
+    if randomization.active:
+        env = DomainRandomization(env, randomization)  # draws at each seeded reset; the controller sees nominal
+    if latency_share > 0:
+        env = ActionLatency(env, 1, latency_share)
+    return env
+
+
+def recorded_parameters(randomization: Randomization, latency_share: float) -> tuple[str, ...]:
+    """The names of the values `recording_env` draws for each episode (the dataset's `randomization.*` columns)."""
+    return (*randomization.parameters, *((LATENCY_PARAMETER,) if latency_share > 0 else ()))
 
 
 class ObservationNoise(gym.Wrapper):

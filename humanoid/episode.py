@@ -15,6 +15,7 @@ import numpy as np
 
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
+from humanoid.conditions import action_delay
 from humanoid.controllers import Controller
 from humanoid.env import body_poses, model_and_data
 
@@ -186,9 +187,10 @@ def run_episode(
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
 
     obs, info = env.reset(seed=seed)
-    controller.reset(seed)
-    if labeller is not None:
-        labeller.reset(seed)
+    for acting in (controller, labeller):
+        if acting is not None:
+            tell_delay(acting, env)
+            acting.reset(seed)
     if observer is not None:
         observer.episode_started(seed)
     t = 0
@@ -213,6 +215,14 @@ def run_episode(
         labeller=controller.name if labeller is None else labeller.name,
         parameters=info.get("parameters", {}),
     )
+
+
+def tell_delay(controller: Controller, env: gym.Env) -> None:
+    """Tell a controller that can use it (one with `set_delay`: the experts, a policy on the "pending" inputs) the
+    action latency of the episode `env` was just reset to, as a robot knows its actuation delay."""
+    set_delay = getattr(controller, "set_delay", None)
+    if set_delay is not None:
+        set_delay(action_delay(env))
 
 
 def check_action(action: np.ndarray, controller: Controller, t: int, seed: int) -> None:

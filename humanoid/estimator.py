@@ -218,9 +218,11 @@ class OdometryObservation(gym.Wrapper):
     has drawn (its inner wrappers may randomise it).
     """
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, features: OdometryFeatures | None = None) -> None:
+        """`features`: what computes the appended entries (after its first `read.size`) from each observation;
+        default `OdometryFeatures` of the nominal model."""
         super().__init__(env)
-        self.features = OdometryFeatures(humanoid_model())
+        self.features = OdometryFeatures(humanoid_model()) if features is None else features
         space = env.observation_space
         extra = np.full(self.features.estimate_size, np.inf)
         self.observation_space = gym.spaces.Box(

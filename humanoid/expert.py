@@ -52,10 +52,8 @@ class LQRExpert:
         """
         self.model = humanoid_model() if model is None else model
         self.design = design
-        if delay < 0:
-            raise ValueError(f"delay must be >= 0 steps, got {delay}")
-        self.delay = delay
-        self._predictor = Predictor(copy.copy(self.model), design.frame_skip) if delay else None
+        self._predictor: Predictor | None = None
+        self.set_delay(delay)
         self._pending: deque[np.ndarray] = deque()
         self.gains = load_or_design(self.model, design)
         self.qpos_ref = self.gains.qpos_ref.copy()
@@ -65,6 +63,14 @@ class LQRExpert:
         self._vz = self.model.nv - ROOT_XY + VERTICAL_VEL  # vertical velocity in the state
         self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
         self._moving = False  # one attribute test per act while the setpoint is still
+
+    def set_delay(self, steps: int) -> None:
+        """The action latency from the next `reset` on, told for each episode (`humanoid.episode.tell_delay`)."""
+        if steps < 0:
+            raise ValueError(f"delay must be >= 0 steps, got {steps}")
+        self.delay = steps
+        if steps and self._predictor is None:
+            self._predictor = Predictor(copy.copy(self.model), self.design.frame_skip)
 
     def reset(self, seed: int | None = None) -> None:
         """Back to the neutral posture at once (setpoint and target); no action pending; otherwise deterministic."""
@@ -165,6 +171,9 @@ class SensedExpert:
         self.expert = LQRExpert(model, delay=delay)
         self.sensed = Proprioception(self.expert.model)
         self.estimator = LegOdometry(self.expert.model)
+
+    def set_delay(self, steps: int) -> None:
+        self.expert.set_delay(steps)
 
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)

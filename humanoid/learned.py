@@ -50,9 +50,17 @@ class PolicyController:
         if hasattr(self.features, "reset"):
             self.features.reset()
 
+    def set_delay(self, steps: int) -> None:
+        """The episode's action latency, told by the rollout: read by a policy on the "pending" inputs only."""
+        if hasattr(self.features, "set_delay"):
+            self.features.set_delay(steps)
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            return self.policy(torch.from_numpy(self.features(obs)).float()).numpy()
+            action = self.policy(torch.from_numpy(self.features(obs)).float()).numpy()
+        if hasattr(self.features, "commanded"):
+            self.features.commanded(action)
+        return action
 
 
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:

@@ -38,20 +38,19 @@ class RolloutSettings:
     max_steps: int
     task: str
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
+    latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
 
 
 class Simulator:
     """One worker's environment and controller: `run(seed)` is the episode the recorder records for that seed."""
 
     def __init__(self, settings: RolloutSettings) -> None:
-        from humanoid.conditions import DomainRandomization  # noqa: PLC0415 - heavy imports in the worker only
+        from humanoid.conditions import recording_env  # noqa: PLC0415 - heavy imports in the worker only
         from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
         from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
 
         self.settings = settings
-        self.env = make_env(settings.max_steps)
-        if settings.randomization.active:
-            self.env = DomainRandomization(self.env, settings.randomization)
+        self.env = recording_env(make_env(settings.max_steps), settings.randomization, settings.latency)
         self.controller = make_controller(settings.controller, self.env)
         self.buffer = EpisodeBuffer(self.env, settings.max_steps)
 

@@ -15,6 +15,9 @@ Domain randomisation (`--randomize`, a preset or a list of ranges: `humanoid.con
 episode's masses, friction and motor strengths are drawn from its seed at its reset, and the draw
 is stored with the episode (columns `randomization.*` of meta/episodes, and the MCAP metadata), so
 that a user can filter or condition on it. A dataset holds randomised episodes or plain ones, not both.
+Action latency (`--latency SHARE`) is drawn the same way: that share of the episodes executes every
+action one step late, the episode's delay is stored beside the other draws, and the controller is
+told it (the expert predicts through it); a student on the "pending" inputs learns from both kinds.
 
 Each session adds a line to DATASET/recordings.jsonl (`teleop.recordings`): its full config (and
 the randomisation's ranges), and the episodes it added, also when interrupted.
@@ -33,10 +36,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from common import paths
+from common import keys, paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
-from humanoid.conditions import NO_RANDOMIZATION, PRESETS, RANDOMIZE_EXAMPLE, DomainRandomization, parse_randomization
+from humanoid.conditions import (
+    LATENCY_PARAMETER,
+    NO_RANDOMIZATION,
+    PRESETS,
+    RANDOMIZE_EXAMPLE,
+    parse_randomization,
+    recorded_parameters,
+    recording_env,
+)
 from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
@@ -57,6 +68,10 @@ DEFAULT_NOISE = 0.05
 # stands under it on about half the seeds, and its students from 10 demonstrations stand where 0.03 (the noise its
 # kinematics-only version needed) left them falling (docs/learning.md, "BC data efficiency").
 SENSED_NOISE = DEFAULT_NOISE
+# The share of its episodes recorded with one step of action latency, told to it: a student on the "pending" inputs
+# learns to act through the delay from them, and the undelayed half keeps it standing without (docs/robustness.md,
+# "A student told its delay").
+SENSED_LATENCY = 0.5
 
 
 @dataclass
@@ -81,6 +96,11 @@ class RecordConfig:
         "domain randomisation, drawn per episode from its seed and stored with it: "
         f"{NO_RANDOMIZATION} (nothing), a preset ({', '.join(name for name in PRESETS if name != NO_RANDOMIZATION)}: "
         f"docs/robustness.md) or ranges of the scale factors of mass, friction, strength like {RANDOMIZE_EXAMPLE}",
+    )
+    latency: float = setting(
+        0.0,
+        "share of the episodes whose actions execute one env step late, drawn per episode from its seed; the delay "
+        f"is stored with the episode ({keys.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
@@ -174,6 +194,10 @@ def validate(cfg: RecordConfig) -> None:
     if cfg.controller in INTERACTIVE and randomization.active:
         # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
         raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
+    if not 0 <= cfg.latency <= 1:  # also rejects NaN
+        raise UserError(f"--latency must be a share in [0, 1], got {cfg.latency}")
+    if cfg.controller in INTERACTIVE and cfg.latency > 0:
+        raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
 
 
 def main(cfg: RecordConfig, summary: RecordSummary | None = None) -> RecordSummary:
@@ -211,21 +235,20 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
 def _record(
     cfg: RecordConfig, rollouts: ParallelRollouts | RayRollouts | None, summary: RecordSummary
 ) -> RecordSummary:
-    env = make_env(cfg.max_steps)
     randomization = parse_randomization(cfg.randomize)
-    if randomization.active:
-        env = DomainRandomization(env, randomization)  # draws at each seeded reset; the controller sees nominal
+    env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency)
+    parameters = recorded_parameters(randomization, cfg.latency)
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
     if cfg.writer == "process" and rollouts is None:
         from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
         # Opens the dataset while this process builds the controller.
-        sink = WriterProcess(cfg.dataset, randomization.parameters)
+        sink = WriterProcess(cfg.dataset, parameters)
     else:
         from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
-        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, randomization.parameters))
+        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, parameters))
     live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
@@ -275,7 +298,9 @@ def _record(
 def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
-    settings = RolloutSettings(cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize))
+    settings = RolloutSettings(
+        cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize), cfg.latency
+    )
     workers = min(cfg.workers, cfg.episodes)
     if cfg.backend == "ray":
         from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend

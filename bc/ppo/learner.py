@@ -23,6 +23,7 @@ from bc.ppo.vec_env import WorkerGroupVecEnv
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import humanoid_model, make_env, observation_names
 from humanoid.estimator import OdometryObservation
+from humanoid.inputs import PendingObservation
 from humanoid.perturbations import TorsoPushes
 from humanoid.sensors import Proprioception
 from policies.actor_critic import BCActorCriticPolicy
@@ -47,8 +48,9 @@ def training_env(
     action latency, and with `obs_noise` that share with its sensor noise on what the actor reads (and
     the estimator with it). A curriculum (`bc.ppo.curriculum`) changes all four from an episode to the
     next. For an actor on `inputs` "odometry" the observation also carries the leg-odometry estimate
-    (`OdometryObservation`). SB3's `Monitor` records each episode's return and length (the environment's
-    own rewards, before any reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
+    (`OdometryObservation`), on "pending" also the command in flight and the delay (`PendingObservation`).
+    SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
+    reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
     env = make_env()
     if randomization.active:
@@ -59,7 +61,8 @@ def training_env(
         env = ActionLatency(env, SUITE["latency"].latency, share=latency)
     if obs_noise is not None:
         env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
-    return Monitor(OdometryObservation(env) if inputs == "odometry" else env)
+    wrapper = {"odometry": OdometryObservation, "pending": PendingObservation}.get(inputs)
+    return Monitor(env if wrapper is None else wrapper(env))
 
 
 def make_vec_env(
@@ -100,7 +103,7 @@ def actor_inputs(inputs: str) -> torch.nn.Module | None:
     model = humanoid_model()  # Humanoid-v5's observation layout (the same for every drawn body)
     if inputs == "proprio":
         return SensedFeatures(Proprioception(model))
-    if inputs == "odometry":
+    if inputs in ("odometry", "pending"):
         return EstimatedFeatures(Proprioception(model), len(observation_names(model)))
     return None
 

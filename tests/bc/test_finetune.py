@@ -32,6 +32,7 @@ from policies import checkpoint
 from policies import folder as policy_files
 from policies.mlp import MLPPolicy, MLPSpec
 from support import RayCluster, snapshot, tensorboard_text
+from teleop.record import RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -395,7 +396,7 @@ def test_missing_default_odometry_student_says_how_to_make_it(
     code, err = ppo_cli(["--policy", "ppo"], capsys)
     assert code == 1 and len(err) == 1
     assert err[0].startswith(f"error: no policy checkpoint at {paths.ODOMETRY_POLICY}: `make pipeline` makes")
-    assert "make train-bc INPUTS=odometry" in err[0] and not (tmp_path / "ppo").exists()
+    assert "make train-bc INPUTS=pending" in err[0] and not (tmp_path / "ppo").exists()
 
 
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -486,12 +487,45 @@ def test_an_odometry_actor_reads_the_sensed_features_and_the_envs_estimate(odome
     np.testing.assert_allclose(actions, np.array(expected), atol=1e-5)
 
 
-@pytest.mark.parametrize("bc_folder", ["proprio_policy", "odometry_policy"])
+@pytest.fixture(scope="module")
+def pending_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint on the "pending" inputs of 3 short noisy expert episodes, each delayed by one step."""
+    root = tmp_path_factory.mktemp("delayed") / "dataset"
+    record(RecordConfig(dataset=root, episodes=3, max_steps=60, latency=1.0, writer="inline", progress=False))
+    folder = tmp_path_factory.mktemp("bc_pending") / "policy"
+    train_bc(TrainConfig(dataset=root, policy=folder, inputs="pending", **SMALL_BC))
+    return folder
+
+
+def test_a_pending_actor_reads_its_command_in_flight_and_the_delay(pending_policy: Path) -> None:
+    """Under one step of latency the training env appends the estimate, the last action stepped and the delay;
+    along an episode the actor's actions are the pending BC policy's (told the delay, remembering its commands)."""
+    config = FinetuneConfig(bc_policy=pending_policy, **TINY_PPO)
+    delayed_env = functools.partial(training_env, None, inputs="pending", latency=1.0)
+    policy = learner(config, WorkerGroupVecEnv([delayed_env], workers=1)).policy
+    env, seen = delayed_env(), []
+    bc = PolicyController(checkpoint.load(pending_policy), "bc", env)
+    obs, _ = env.reset(seed=0)
+    bc.set_delay(1)
+    bc.reset(0)
+    expected = []
+    for _ in range(40):
+        seen.append(obs)
+        action = bc.act(obs[:348])
+        expected.append(action)
+        obs, *_ = env.step(action)
+    with torch.no_grad():
+        actions = policy.get_distribution(torch.as_tensor(np.array(seen, np.float32))).distribution.mean.numpy()
+    np.testing.assert_allclose(actions, np.array(expected), atol=1e-5)
+    assert np.array(seen)[1:, -1].min() == 1.0 and np.abs(np.array(seen)[1:, -18:-1]).max() > 0
+
+
+@pytest.mark.parametrize("bc_folder", ["proprio_policy", "odometry_policy", "pending_policy"])
 def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
     bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
 ) -> None:
-    """Fine-tuning a proprio or odometry BC checkpoint ends with a checkpoint that reads what it read, which make
-    eval runs."""
+    """Fine-tuning a proprio, odometry or pending BC checkpoint ends with a checkpoint that reads what it read, which
+    make eval runs."""
     bc_policy = request.getfixturevalue(bc_folder)
     result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO))
     assert checkpoint.load(tmp_path / "ppo").spec == checkpoint.load(bc_policy).spec

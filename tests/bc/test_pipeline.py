@@ -46,7 +46,7 @@ from policies.folder import CONFIG_FILE, EVAL_FILE
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
-from teleop.record import SENSED_NOISE, RecordConfig, record
+from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -91,7 +91,13 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         "progress": False,
         **(train or {}),
     }
-    sensed = {**record, "dataset": Path("sensed"), "controller": "expert-sensed", "noise": SENSED_NOISE}
+    sensed = {
+        **record,
+        "dataset": Path("sensed"),
+        "controller": "expert-sensed",
+        "noise": SENSED_NOISE,
+        "latency": SENSED_LATENCY,
+    }
     return Stages(
         record=RecordConfig(**record),
         train=TrainConfig(**train),
@@ -99,7 +105,7 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
             proprio=TrainConfig(**{**train, "policy": Path("bc_proprio"), "inputs": "proprio"}),
             record=RecordConfig(**sensed),
             odometry=TrainConfig(
-                **{**train, "dataset": Path("sensed"), "policy": Path("bc_odometry"), "inputs": "odometry"}
+                **{**train, "dataset": Path("sensed"), "policy": Path("bc_odometry"), "inputs": "pending"}
             ),
         ),
         baseline=BaselineConfig(policy=Path("scratch"), **ppo),
@@ -393,8 +399,10 @@ def test_pipeline_defaults_are_the_stages() -> None:
         TutorialConfig(timesteps=FinetuneConfig().timesteps),
         Deployable(
             TrainConfig(policy=paths.PROPRIO_POLICY, inputs="proprio"),
-            RecordConfig(dataset=paths.SENSED_DATASET, controller="expert-sensed", noise=SENSED_NOISE),
-            TrainConfig(dataset=paths.SENSED_DATASET, policy=paths.ODOMETRY_POLICY, inputs="odometry"),
+            RecordConfig(
+                dataset=paths.SENSED_DATASET, controller="expert-sensed", noise=SENSED_NOISE, latency=SENSED_LATENCY
+            ),
+            TrainConfig(dataset=paths.SENSED_DATASET, policy=paths.ODOMETRY_POLICY, inputs="pending"),
         ),
     )
 
@@ -422,7 +430,7 @@ def test_ppo_from_odometry_without_the_deployable_branch_is_refused() -> None:
         stages(PipelineConfig(deployable=False))
 
 
-def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_an_odometry_actor(outputs: Path) -> None:
+def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_the_students_actor(outputs: Path) -> None:
     """Switching the PPO stages' start remakes them (their --bc-policy differs), and the fine-tuned actor then
     reads what the student reads."""
     lines = pipeline_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("bc_odometry")})))
@@ -430,7 +438,7 @@ def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_an_odometr
         "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not bc_odometry",
         "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not bc_odometry",
     ]
-    assert checkpoint.load(Path("ppo")).spec.inputs == "odometry"
+    assert checkpoint.load(Path("ppo")).spec.inputs == "pending"
 
 
 def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:

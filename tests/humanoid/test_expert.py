@@ -158,11 +158,25 @@ def test_prediction_of_the_pending_action_is_where_the_env_goes(model: mujoco.Mj
     np.testing.assert_allclose(qvel, data.qvel, atol=1e-3)
 
 
+class Untold:
+    """`expert` without `set_delay`: the rollout cannot tell it the delay, so it acts as if there were none."""
+
+    def __init__(self, expert: LQRExpert) -> None:
+        self.expert, self.name = expert, "untold"
+
+    def reset(self, seed: int | None = None) -> None:
+        self.expert.set_delay(0)
+        self.expert.reset(seed)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.expert.act(obs)
+
+
 @pytest.mark.parametrize("seed", [1000, 1001])
 def test_delay_aware_expert_stands_where_the_plain_one_falls(expert: LQRExpert, seed: int) -> None:
     """With one step of action latency the plain expert falls within 100 steps; told the delay, it stands."""
     env = ActionLatency(gym.make("Humanoid-v5", max_episode_steps=300), steps=1)
-    plain = run_episode(env, expert, seed)
+    plain = run_episode(env, Untold(expert), seed)
     aware = run_episode(env, make_controller("expert", env), seed)
     assert plain.fell and plain.length < 100
     assert not aware.fell and aware.length == 300 and aware.episode_return > 4.9 * 300
