@@ -40,9 +40,10 @@ from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 # The policy's input is built from the dataset columns `humanoid.inputs.INPUT_COLUMNS[inputs]`, their
 # entries placed by name (`recorded_names`): the gymnasium observation's order for "full" (whichever way
 # a dataset split it), the sensed features' for "proprio" and "odometry" (whose estimate is then computed
-# along each episode, `episode_inputs`). A dataset
-# that records a command (keyboard teleoperation) would add that column (it then reaches
-# `MLPSpec.input_keys`), and `PolicyController` would take the command from its source.
+# along each episode, `episode_inputs`), and for "pending" also the action labels (the command in flight is
+# the previous frame's in an episode its recording delayed, `episode_delays`). A dataset that records a
+# command (keyboard teleoperation) would add that column (it then reaches `MLPSpec.input_keys`), and
+# `PolicyController` would take the command from its source.
 _CACHE_FORMAT = 2  # bump when what the cache holds changes
 _ARRAYS = ("inputs", "actions", "episode_index")
 

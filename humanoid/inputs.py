@@ -63,7 +63,8 @@ def recorded_names(inputs: str, model: mujoco.MjModel) -> list[str]:
 
 def input_features(inputs: str, model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
     """The function from gymnasium observations to a policy's input, for `model`'s environment; a stateful
-    one (`odometry`) has a `reset` to call at every episode's start."""
+    one (`odometry`, `pending`) has a `reset` to call at every episode's start, and `pending`'s also takes the
+    episode's delay and each command sent (`PendingInputs`)."""
     if inputs == "full":
         return lambda obs: obs
     if inputs == "pending":
