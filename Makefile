@@ -119,6 +119,7 @@ bench: $(STAMP)  ## run the benchmarks whose figures are in the README
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
 	$(PY) -m bench.data_efficiency
+	$(PY) -m bench.latency_students
 	$(PY) -m bench.live_cost
 	$(PY) -m bench.ppo_throughput
 	$(PY) -m bench.ray_backend
