@@ -563,8 +563,13 @@ def _summarise(dataset: Dataset) -> Report:
 
 
 def _drawn_range(values: list) -> str:
-    """The values a randomised parameter took over the episodes: "0.803..1.197 (13 per episode)"."""
-    per_episode = [np.atleast_1d(np.array(value, dtype=float)) for value in values if value is not None]
+    """The values a randomised parameter took over the episodes: "0.803..1.197 (13 per episode)", or for a count
+    drawn per episode (the delay in steps) how many episodes drew each: "0 in 9 episodes, 1 in 11 episodes"."""
+    drawn_values = [value for value in values if value is not None]
+    if drawn_values and np.issubdtype(np.asarray(drawn_values).dtype, np.integer):
+        counts = Counter(int(value) for value in drawn_values)
+        return ", ".join(f"{value} in {n} episode{'s' if n != 1 else ''}" for value, n in sorted(counts.items()))
+    per_episode = [np.atleast_1d(np.array(value, dtype=float)) for value in drawn_values]
     if not per_episode:
         return "no value"
     drawn = np.concatenate(per_episode)

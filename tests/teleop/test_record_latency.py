@@ -14,6 +14,8 @@ from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from teleop.dataset_reader import read_episodes, read_frames, read_mcap_parameters, read_parameters
+from teleop.inspect_dataset import InspectConfig
+from teleop.inspect_dataset import main as inspect
 from teleop.record import RecordConfig, cli, main
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -66,6 +68,13 @@ def test_pending_inputs_read_each_episodes_recorded_delay(delayed: Path) -> None
     pending = demos.inputs[:, -18:-1].numpy()
     np.testing.assert_array_equal(pending[carried], demos.actions.numpy()[np.flatnonzero(carried) - 1])
     np.testing.assert_array_equal(pending[~carried], 0.0)
+
+
+def test_inspect_counts_the_episodes_of_each_delay(delayed: Path) -> None:
+    delays = [drawn[LATENCY_PARAMETER] for drawn in read_parameters(delayed)]
+    report = inspect(InspectConfig(dataset=delayed, lerobot=False))
+    expected = f"0 in {delays.count(0)} episodes, 1 in {delays.count(1)} episodes"
+    assert report.randomized == {LATENCY_PARAMETER: expected}
 
 
 @pytest.mark.parametrize("share", ["1.5", "-0.1", "nan"])
