@@ -5,7 +5,8 @@ saved itself (`SB3Controller`, the tutorial's PPO baseline of `bc.tutorial`).
 
 The policy's checkpoint says what it reads (`MLPSpec.inputs`, see `humanoid.sensors`): the
 controller computes that from each gymnasium observation, so a policy on the sensed features runs
-wherever one on the full observation does, perturbations and sensor noise included.
+wherever one on the full observation does, perturbations and sensor noise included; one on the
+"pending" inputs is also told each episode's action latency and remembers the command it sent.
 """
 
 from __future__ import annotations
