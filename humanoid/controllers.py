@@ -21,7 +21,11 @@ from policies.folder import checkpoint_problem, is_sb3_policy  # torch-free: pol
 
 @runtime_checkable
 class Controller(Protocol):
-    """Maps a gymnasium observation to an action within the action bounds."""
+    """Maps a gymnasium observation to an action within the action bounds.
+
+    One that can act through action latency also has `set_delay(steps)`: the rollout calls it before each
+    `reset` with that episode's delay (`humanoid.episode.tell_delay`).
+    """
 
     name: str
 
