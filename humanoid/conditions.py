@@ -178,16 +178,37 @@ class DomainRandomization(gym.Wrapper):
         super().close()
 
 
-def check_share(name: str, share: float) -> None:
-    """ValueError unless `share` is a probability."""
-    if not 0 <= share <= 1:
-        raise ValueError(f"{name} share must be in [0, 1], got {share}")
+class EpisodeShare:
+    """Which episodes a wrapper's condition applies to: each with probability `share`, drawn at reset from the
+    stream (seed, `stream`), which the wrapper may go on drawing from within the episode (`rng`).
 
+    At share 1 (the suite's conditions) or 0 nothing is drawn, so those streams stay as they were. `state`
+    is part of a PPO run's resume snapshot (as `TorsoPushes.random_state`).
+    """
 
-def drawn(rng: np.random.Generator, share: float) -> bool:
-    """Whether an episode is affected, with probability `share`: no draw at all at 1 (the suite's conditions, whose
-    random streams stay as they were) or 0."""
-    return share >= 1 or (share > 0 and bool(rng.random() < share))
+    def __init__(self, name: str, stream: int, share: float) -> None:
+        self.name, self.stream = name, stream
+        self.rng = np.random.default_rng()
+        self.set(share)
+
+    def set(self, share: float) -> None:
+        """ValueError unless `share` is a probability; it applies from the next `draw` on."""
+        if not 0 <= share <= 1:
+            raise ValueError(f"{self.name} share must be in [0, 1], got {share}")
+        self.share = share
+
+    def draw(self, seed: int | None) -> bool:
+        """Whether the episode reset with `seed` is affected (unseeded: drawn on from the last seed's stream)."""
+        if seed is not None:
+            self.rng = np.random.default_rng((seed, self.stream))
+        return self.share >= 1 or (self.share > 0 and bool(self.rng.random() < self.share))
+
+    def state(self) -> dict:
+        return {"draws": self.rng.bit_generator.state, "share": self.share}
+
+    def set_state(self, state: dict) -> None:
+        self.rng.bit_generator.state = state["draws"]
+        self.share = state["share"]
 
 
 class ActionLatency(gym.Wrapper):
@@ -204,29 +225,28 @@ class ActionLatency(gym.Wrapper):
         if steps < 0:
             raise ValueError(f"latency must be >= 0 steps, got {steps}")
         self.steps = self.delay = steps
-        self.set_latency_share(share)
-        self._rng = np.random.default_rng()
+        self.episodes = EpisodeShare("latency", LATENCY_STREAM, share)
         self._queue: deque[np.ndarray] = deque()
+
+    @property
+    def latency_share(self) -> float:
+        return self.episodes.share
 
     def set_latency_share(self, share: float) -> None:
         """Delay this share of the episodes from the next reset on."""
-        check_share("latency", share)
-        self.latency_share = share
+        self.episodes.set(share)
 
     def random_state(self) -> dict:
-        """What the next episode's delay depends on, to resume a PPO run exactly (as `TorsoPushes.random_state`)."""
-        return {"draws": self._rng.bit_generator.state, "share": self.latency_share}
+        """What the next episode's delay depends on, to resume a PPO run exactly."""
+        return self.episodes.state()
 
     def set_random_state(self, state: dict) -> None:
-        self._rng.bit_generator.state = state["draws"]
-        self.latency_share = state["share"]
+        self.episodes.set_state(state)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         """As the env's, and the episode's delay joins the reset info's drawn "parameters" (`LATENCY_PARAMETER`),
         so that a recording stores it with the episode."""
-        if seed is not None:
-            self._rng = np.random.default_rng((seed, LATENCY_STREAM))
-        self.delay = self.steps if drawn(self._rng, self.latency_share) else 0
+        self.delay = self.steps if self.episodes.draw(seed) else 0
         zero = np.zeros(self.env.action_space.shape, self.env.action_space.dtype)
         self._queue = deque([zero] * self.delay)
         obs, info = self.env.reset(seed=seed, options=options)
@@ -282,30 +302,30 @@ class ObservationNoise(gym.Wrapper):
         self.std = np.zeros(env.observation_space.shape)
         self.std[QPOS_PART] = scale * OBS_NOISE_STD["qpos"]
         self.std[QVEL_PART] = scale * OBS_NOISE_STD["qvel"]
-        self.set_noise_share(share)
+        self.episodes = EpisodeShare("observation noise", OBS_NOISE_STREAM, share)
         self.noisy = True
-        self._rng = np.random.default_rng()
+
+    @property
+    def noise_share(self) -> float:
+        return self.episodes.share
 
     def set_noise_share(self, share: float) -> None:
         """Make this share of the episodes noisy from the next reset on."""
-        check_share("observation noise", share)
-        self.noise_share = share
+        self.episodes.set(share)
 
     def random_state(self) -> dict:
-        """What the next episode's noise depends on, to resume a PPO run exactly (as `TorsoPushes.random_state`)."""
-        return {"noise": self._rng.bit_generator.state, "share": self.noise_share}
+        """What the next episode's noise depends on, to resume a PPO run exactly."""
+        return self.episodes.state()
 
     def set_random_state(self, state: dict) -> None:
-        self._rng.bit_generator.state = state["noise"]
-        self.noise_share = state["share"]
+        self.episodes.set_state(state)
 
     def _noisy(self, obs: np.ndarray) -> np.ndarray:
-        return obs + self.std * self._rng.standard_normal(obs.shape) if self.noisy else obs
+        # The noise comes from the stream the episode's draw came from: one stream per seed, as before shares.
+        return obs + self.std * self.episodes.rng.standard_normal(obs.shape) if self.noisy else obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
-        if seed is not None:
-            self._rng = np.random.default_rng((seed, OBS_NOISE_STREAM))
-        self.noisy = drawn(self._rng, self.noise_share)
+        self.noisy = self.episodes.draw(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         return self._noisy(obs), info
 
