@@ -4,44 +4,51 @@ Behaviour cloning only ever sees the states the expert visits; a cloned policy d
 it never saw and its errors compound. DAgger (Ross et al., 2011) collects labels where the policy
 itself goes:
 
-1. Copy DATASET to OUTPUT (once; OUTPUT is then a dataset of its own, appended to).
-2. Train a policy on OUTPUT (`bc.train`).
-3. Each round: roll the current policy out for EPISODES episodes; at every visited state store
-   the expert's action as the label (`action`) and the policy's as what ran (`executed_action`);
-   append them to OUTPUT with `dagger_round` = the round and `labeller` = EXPERT; retrain on the
-   whole aggregate.
-4. The last round's policy is the checkpoint at POLICY, evaluated like any BC policy (eval.json).
+1. Copy DATASET to OUTPUT (once; OUTPUT is then a dataset of its own, appended to), read its frames
+   into memory and fit a policy to them (`bc.train.fit_demonstrations`).
+2. Each round (`DAggerTrainer`): roll the current policy out for EPISODES episodes under the
+   conditions the dataset was recorded in (RANDOMIZE, LATENCY: by default what its recordings.jsonl
+   says); at every visited state store the expert's action as the label (`action`) and the policy's
+   as what ran (`executed_action`). Each episode is appended to OUTPUT as it ends, with
+   `dagger_round` = the round and `labeller` = EXPERT, and to the frames in memory; the next policy
+   is fitted to the aggregate in memory: nothing is read back from disk.
+3. The last round's aggregate trains the checkpoint at POLICY (`bc.train.train_and_save`), the policy
+   `make train-bc` would train on OUTPUT with the same settings, evaluated like any BC policy.
 
 Rounds continue the seeds after the dataset's last one; a second run on the same OUTPUT adds
-further rounds. The run's settings go with what it writes: a line in OUTPUT/recordings.jsonl for
-the episodes it added, and "dagger" in the final checkpoint's config.json (and its TensorBoard text).
+further rounds (a killed run loses at most the episode it was rolling out). The run's settings go
+with what it writes: a line in OUTPUT/recordings.jsonl for the episodes it added, and "dagger" in
+the final checkpoint's config.json (and its TensorBoard text).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import sys
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from bc.train import MIN_UPDATES, TrainConfig, TrainResult
-from bc.train import main as train
+from bc.data import Demonstrations, episode_rows, load_demonstrations
+from bc.train import MIN_UPDATES, TrainConfig, TrainResult, fit_demonstrations, train_and_save
 from common import keys, paths
 from common.cli import DatasetError, UserError, config_dict, flag, run_cli, setting
-from humanoid.controllers import make_controller
-from humanoid.env import make_env
+from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
+from humanoid.controllers import Controller, make_controller
+from humanoid.env import humanoid_model, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS
 from humanoid.learned import PolicyController
 from policies import checkpoint
+from policies.mlp import MLPPolicy
 from teleop import recordings
-from teleop.dataset_reader import read_episodes
+from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
@@ -64,6 +71,20 @@ class DaggerConfig:
         "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
         "whose law INPUTS=odometry can read; docs/robustness.md)",
         choices=(LQRExpert.name, SensedExpert.name),
+    )
+    randomize: str | None = setting(
+        None,
+        "the physical parameters each rollout draws, as `make record RANDOMIZE=` (a preset or ranges); "
+        "default: what DATASET's recordings drew (its recordings.jsonl)",
+    )
+    latency: float | None = setting(
+        None,
+        "the share of rollouts run with one step of action latency, as `make record LATENCY=`; default: DATASET's",
+    )
+    noise: float = setting(
+        0.0,
+        "std of Gaussian noise on the actions the rollouts execute (DART within DAgger: the expert labels the states "
+        "the noise leads to as well); 0 = none",
     )
     rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
@@ -110,98 +131,159 @@ def validate(cfg: DaggerConfig) -> None:
     for name in ("rounds", "episodes", "epochs"):
         if getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    for name in ("patience", "min_updates", "eval_episodes"):
-        if getattr(cfg, name) < 0:
+    for name in ("patience", "min_updates", "eval_episodes", "noise"):
+        if not getattr(cfg, name) >= 0:  # also rejects a NaN noise
             raise UserError(f"{flag(name)} must be >= 0, got {getattr(cfg, name)}")
+    if cfg.latency is not None and not 0 <= cfg.latency <= 1:  # also rejects NaN
+        raise UserError(f"--latency must be a share in [0, 1], got {cfg.latency}")
+    if cfg.randomize is not None:
+        try:
+            parse_randomization(cfg.randomize)
+        except ValueError as error:
+            raise UserError(str(error)) from None
     if cfg.output.resolve() == cfg.dataset.resolve():
         raise UserError("--output must differ from --dataset: DAgger leaves the demonstrations unchanged")
     if not (cfg.dataset / "meta/info.json").is_file() and not cfg.output.exists():
         raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record DATASET={cfg.dataset}`")
 
 
-def collect_round(
-    store: EpisodeStore,
-    policy_dir: Path,
-    round_index: int,
-    episodes: int,
-    progress: bool,
-    committed: list[CommittedEpisode] | None = None,
-    expert_name: str = LQRExpert.name,
-) -> RoundReport:
-    """Roll the policy out, label its states with the expert named, append the episodes to `store` (and to
-    `committed`)."""
-    env = make_env()
-    policy = PolicyController.load(policy_dir, env)
-    expert = make_controller(expert_name, env)
-    buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
-    first_seed = store.next_seed()
-    returns, frames, survived = [], 0, 0
-    for seed in tqdm(
-        range(first_seed, first_seed + episodes),
-        desc=f"round {round_index}",
-        unit="ep",
-        disable=not progress,
-        file=sys.stderr,
-        dynamic_ncols=True,
-    ):
-        episode = run_episode(env, policy, seed, buffer=buffer, labeller=expert)
-        episode.dagger_round = round_index
-        added = store.append(episode)
-        if committed is not None:
-            committed.append(added)
-        returns.append(episode.episode_return)
-        frames += episode.length
-        survived += not episode.fell
-    env.close()
-    return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived)
+def recorded_conditions(root: Path) -> tuple[str, float]:
+    """(RANDOMIZE, LATENCY) that the runs which recorded the dataset at `root` used (its recordings.jsonl: the lines
+    whose config has `randomize`; a line from before `latency` existed recorded none), ("none", 0.0) if no line
+    says; DatasetError if they differ."""
+    conditions = {
+        (config["randomize"], float(config.get("latency", 0.0)))
+        for line in recordings.read(root)
+        if (config := line.get("config", {})).get("randomize") is not None
+    }
+    if len(conditions) > 1:
+        listed = "; ".join(f"RANDOMIZE={r} LATENCY={latency}" for r, latency in sorted(conditions))
+        raise DatasetError(f"{root} was recorded under several conditions ({listed}): give RANDOMIZE and LATENCY")
+    return conditions.pop() if conditions else (NO_RANDOMIZATION, 0.0)
+
+
+def resolved(cfg: DaggerConfig) -> DaggerConfig:
+    """`cfg` with RANDOMIZE and LATENCY filled in from the aggregate's recordings where not given; DatasetError if
+    its episodes draw other parameters than rollouts under them would (the store could not append them)."""
+    root = cfg.output if cfg.output.exists() else cfg.dataset
+    randomize, latency = recorded_conditions(root)
+    cfg = dataclasses.replace(
+        cfg,
+        randomize=randomize if cfg.randomize is None else cfg.randomize,
+        latency=latency if cfg.latency is None else cfg.latency,
+    )
+    drawn = set(read_parameters(root)[0]) if read_episodes(root).num_rows else set()
+    rolled = set(recorded_parameters(parse_randomization(cfg.randomize), cfg.latency))
+    if drawn != rolled:
+        raise DatasetError(
+            f"{root}'s episodes draw {sorted(drawn) or 'no parameter'}; rollouts with RANDOMIZE={cfg.randomize} "
+            f"LATENCY={cfg.latency} would draw {sorted(rolled) or 'none'}: give the conditions it was recorded in"
+        )
+    return cfg
+
+
+class DAggerTrainer:
+    """DAgger rounds in memory, as `imitation`'s trainers run them: the aggregate's frames and the current policy
+    live here, so a round fits its policy to what the last one rolled out without reading the dataset back.
+
+    Every episode also goes to the dataset on disk as it ends (`collect`'s store), so a crash costs at most the
+    episode being rolled out and a later run continues from the rounds on disk.
+    """
+
+    def __init__(
+        self, demos: Demonstrations, training: TrainConfig, env: gym.Env, expert: Controller, name: str = "dagger"
+    ) -> None:
+        """`demos`: the aggregate so far, rows as `load_demonstrations` reads them; `training`: how each policy is
+        fitted; `env`: where the policy is rolled out (its wrappers are the conditions); `expert`: the labeller;
+        `name`: the rolled-out policies' controller name, with ":roundN" for the round whose aggregate trained it."""
+        self.demos = demos
+        self.training = training
+        self.env = env
+        self.expert = expert
+        self.name = name
+        self.policy: MLPPolicy | None = None
+        self._model = humanoid_model()  # nominal, as the training inputs are computed on load: never a drawn body
+        self._buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
+
+    def train(self) -> MLPPolicy:
+        """Fit a new policy to the aggregate; it is the one the next `collect` rolls out."""
+        self.policy = fit_demonstrations(self.demos, self.training, self.env.action_space).policy
+        return self.policy
+
+    def collect(
+        self, store: EpisodeStore, round_index: int, episodes: int, progress: bool = False, noise: float = 0.0
+    ) -> tuple[RoundReport, list[CommittedEpisode]]:
+        """Roll the current policy out for `episodes` episodes (seeds after `store`'s last), `noise` on the actions it
+        executes, the expert labelling every state; append each episode to `store` and its frames to the aggregate."""
+        if self.policy is None:
+            raise RuntimeError("train() a policy before collecting its rollouts")
+        controller = PolicyController(self.policy, f"{self.name}:round{round_index - 1}", self.env)
+        first_seed = store.next_seed()
+        added, returns, frames, survived = [], [], 0, 0
+        for seed in tqdm(
+            range(first_seed, first_seed + episodes),
+            desc=f"round {round_index}",
+            unit="ep",
+            disable=not progress,
+            file=sys.stderr,
+            dynamic_ncols=True,
+        ):
+            episode = run_episode(self.env, controller, seed, noise, self._buffer, labeller=self.expert)
+            episode.dagger_round = round_index
+            committed = store.append(episode)
+            added.append(committed)
+            self.demos = self.demos.with_episode(
+                *episode_rows(episode, self.training.inputs, self._model), committed.index
+            )
+            returns.append(episode.episode_return)
+            frames += episode.length
+            survived += not episode.fell
+        return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived), added
 
 
 def main(cfg: DaggerConfig) -> DaggerResult:
     """Run `cfg.rounds` DAgger rounds on `cfg.output` and save the final policy at `cfg.policy`."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
+    cfg = resolved(cfg)
     if not cfg.output.exists():
         shutil.copytree(cfg.dataset, cfg.output)
-    store = EpisodeStore(cfg.output, DatasetSpec.from_env(make_env()))
+    randomization = parse_randomization(cfg.randomize)
+    env = recording_env(make_env(), randomization, cfg.latency)
+    store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
     result = DaggerResult()
     context = {"dagger": config_dict(cfg)}
+    training = TrainConfig(
+        dataset=cfg.output,
+        policy=cfg.policy,
+        inputs=cfg.inputs,
+        overwrite=cfg.overwrite,
+        epochs=cfg.epochs,
+        min_updates=cfg.min_updates,
+        patience=cfg.patience,
+        eval_episodes=cfg.eval_episodes,
+        progress=cfg.progress,
+    )
     added: list[CommittedEpisode] = []
     complete = False
     try:
         done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
-        training = {
-            "epochs": cfg.epochs,
-            "min_updates": cfg.min_updates,
-            "patience": cfg.patience,
-            "inputs": cfg.inputs,
-        }
-        quiet = {**training, "eval_episodes": 0, "progress": False, "tensorboard": False}
-        with tempfile.TemporaryDirectory(prefix=".dagger-", dir=cfg.policy.parent) as scratch:
-            policy_dir = Path(scratch) / f"round{done}"
-            train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)
-            for round_index in range(done + 1, done + cfg.rounds + 1):
-                result.rounds.append(
-                    collect_round(store, policy_dir, round_index, cfg.episodes, cfg.progress, added, cfg.expert)
-                )
-                if round_index < done + cfg.rounds:
-                    policy_dir = Path(scratch) / f"round{round_index}"
-                    train(TrainConfig(dataset=cfg.output, policy=policy_dir, **quiet), MADE_BY, context)
+        demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
+        quiet = dataclasses.replace(training, progress=False)
+        trainer = DAggerTrainer(demos, quiet, env, make_controller(cfg.expert, env), cfg.policy.name)
+        for round_index in range(done + 1, done + cfg.rounds + 1):
+            trainer.train()
+            report, committed = trainer.collect(store, round_index, cfg.episodes, cfg.progress, cfg.noise)
+            result.rounds.append(report)
+            added += committed
         complete = True
     finally:
         store.close()
+        env.close()
         recordings.append(cfg.output, MADE_BY, config_dict(cfg), added, complete)
-    result.final = train(
-        TrainConfig(
-            dataset=cfg.output,
-            policy=cfg.policy,
-            overwrite=cfg.overwrite,
-            **training,
-            eval_episodes=cfg.eval_episodes,
-            progress=cfg.progress,
-        ),
-        MADE_BY,
-        context,
-    )
+    # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
+    aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
+    result.final = train_and_save(aggregate, training, env.action_space, MADE_BY, context)
     return result
 
 

@@ -18,11 +18,12 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pyarrow as pa
 import torch
@@ -32,8 +33,9 @@ from common.cli import DatasetError
 from common.paths import cache_dir
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
+from humanoid.episode import Episode
 from humanoid.inputs import INPUT_COLUMNS, INPUTS, PendingInputs, computation_digest, episode_inputs, recorded_names
-from humanoid.sensors import observation_index
+from humanoid.sensors import Proprioception, observation_index
 from teleop.dataset_reader import fingerprint, iter_frames, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
@@ -81,6 +83,18 @@ class Demonstrations:
             "fps": self.info.get("fps"),
             "fingerprint": self.fingerprint,
         }
+
+    def with_episode(self, inputs: np.ndarray, actions: np.ndarray, index: int) -> Demonstrations:
+        """These frames, then one more episode's (numbered `index`, after every other): rows in memory, as
+        `load_demonstrations` would read them once the episode is recorded (`episode_rows`)."""
+        if len(self.episode_index) and index <= self.episode_index[-1]:
+            raise ValueError(f"episode {index} does not come after episode {self.episode_index[-1]}")
+        return replace(
+            self,
+            inputs=torch.cat([self.inputs, torch.from_numpy(inputs)]),
+            actions=torch.cat([self.actions, torch.from_numpy(actions)]),
+            episode_index=np.concatenate([self.episode_index, np.full(len(actions), index, np.int64)]),
+        )
 
 
 def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[dict[str, Any], np.ndarray]:
@@ -226,6 +240,20 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
         fingerprint=digest,
         kind=inputs,
     )
+
+
+def episode_rows(episode: Episode, inputs: str, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """(inputs, label actions) of a rolled-out episode, float32, equal bit for bit to the rows `load_demonstrations`
+    reads once `teleop.store` has recorded it: DAgger trains on its rounds without reading them back."""
+    if inputs == "full":
+        recorded = episode.observation.astype(np.float32)
+    else:
+        # The recorded columns: observation.state (float64, as the store splits it), then the float32 labels.
+        columns = [Proprioception(model)(episode.observation), *([episode.action] if inputs == "pending" else [])]
+        recorded = np.concatenate(columns, axis=1).astype(np.float32)
+    delays = np.full(episode.length, episode.parameters.get(LATENCY_PARAMETER, 0), np.int64)
+    rows = episode_inputs(inputs, recorded, np.zeros(episode.length, np.int64), model, delays)
+    return rows, episode.action.astype(np.float32)
 
 
 def episode_delays(root: Path) -> np.ndarray:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from matplotlib.figure import Figure  # the object API draws to files without choosing a GUI backend
@@ -288,18 +289,24 @@ def plot_learning_curve(result: TrainResult, path: Path) -> None:
 
 
 def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | None = None) -> TrainResult:
-    """Train, save and evaluate a behaviour-cloning policy as configured.
-
-    config.json's `training` holds every setting, `made_by` (the command that ran: bc.train,
-    bc.dagger, bc.pipeline) and `context` (e.g. the DAgger settings), and so does TensorBoard's text.
-    """
+    """Train, save and evaluate a behaviour-cloning policy on the dataset `cfg` names (`train_and_save`)."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)  # before minutes of work, not after
+    env = make_env()
+    try:
+        demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache, inputs=cfg.inputs)
+    finally:
+        env.close()
+    return train_and_save(demos, cfg, env.action_space, made_by, context)
+
+
+def fit_demonstrations(
+    demos: Demonstrations, cfg: TrainConfig, action_space: gym.spaces.Box, writer: SummaryWriter | None = None
+) -> TrainResult:
+    """A policy for `action_space` fitted to `demos` in memory as `cfg` says (its split, input normalisation and
+    training); nothing is written but `writer`'s logs. The same `demos` and `cfg` give the same weights."""
     torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
     torch.manual_seed(cfg.seed)
-
-    env = make_env()
-    demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache, inputs=cfg.inputs)
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
     spec = MLPSpec(
@@ -310,9 +317,8 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
         hidden=(cfg.hidden,) * cfg.layers,
         activation=cfg.activation,
     )
-    policy = MLPPolicy(spec, env.action_space.low, env.action_space.high)
+    policy = MLPPolicy(spec, action_space.low, action_space.high)
     policy.fit_normalisation(train[0], cfg.std_floor)
-    env.close()
     result = TrainResult(
         policy_dir=cfg.policy,
         policy=policy,
@@ -322,22 +328,37 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
         train_frames=len(train[0]),
         val_frames=len(val[0]),
         load_seconds=demos.seconds,
-        load_rows_per_s=demos.frames / demos.seconds,
+        load_rows_per_s=demos.frames / demos.seconds if demos.seconds else 0.0,
         loaded_from_cache=demos.from_cache,
     )
+    start = time.perf_counter()
+    result.curves = fit(policy, train, val, cfg, writer)
+    result.train_seconds = time.perf_counter() - start
+    return result
 
+
+def train_and_save(
+    demos: Demonstrations,
+    cfg: TrainConfig,
+    action_space: gym.spaces.Box,
+    made_by: str = "bc.train",
+    context: dict[str, Any] | None = None,
+) -> TrainResult:
+    """Fit a policy to `demos` (`fit_demonstrations`), write its checkpoint to `cfg.policy`, and evaluate it.
+
+    config.json's `training` holds every setting, `made_by` (the command that ran: bc.train,
+    bc.dagger, bc.pipeline) and `context` (e.g. the DAgger settings), and so does TensorBoard's text.
+    """
     settings = {**config_dict(cfg), "made_by": made_by, **(context or {})}
     with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
         writer = SummaryWriter(str(folder / TENSORBOARD_DIR)) if cfg.tensorboard else None
         if writer is not None:
             writer.add_text(CONFIG_TAG, config_text(settings), 0)
-        start = time.perf_counter()
         try:
-            result.curves = fit(policy, train, val, cfg, writer)
+            result = fit_demonstrations(demos, cfg, action_space, writer)
         finally:
             if writer is not None:
                 writer.close()
-        result.train_seconds = time.perf_counter() - start
         training = {
             **settings,
             "kept_epoch": result.curves.kept_epoch + 1,
@@ -348,17 +369,17 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
         }
         dataset = {
             **demos.identity(),
-            "train_episodes": train_episodes,
-            "val_episodes": val_episodes,
+            "train_episodes": result.train_episodes,
+            "val_episodes": result.val_episodes,
             "train_frames": result.train_frames,
             "val_frames": result.val_frames,
         }
-        checkpoint.save(policy, folder, training, dataset)
+        checkpoint.save(result.policy, folder, training, dataset)
         plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
 
     if cfg.eval_episodes:
         settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "progress": cfg.progress}
-        evaluation = evaluate(PolicyController(policy, str(cfg.policy)), **settings)
+        evaluation = evaluate(PolicyController(result.policy, str(cfg.policy)), **settings)
         expert = evaluate("expert", **settings)  # the reference on the same seeds
         evaluation["expert_mean_return"] = expert["mean_return"]
         evaluation["expert_survival_rate"] = expert["survival_rate"]

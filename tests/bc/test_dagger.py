@@ -2,22 +2,33 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-from bc.dagger import DaggerConfig, DaggerResult, cli, main
+from bc.dagger import DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
+from bc.data import load_demonstrations
+from bc.train import TrainConfig
+from bc.train import main as train
 from common import keys
-from common.cli import config_dict
+from common.cli import DatasetError, config_dict
+from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_env
+from humanoid.controllers import make_controller
+from humanoid.env import make_env
 from humanoid.expert import LQRExpert, SensedExpert
+from humanoid.inputs import INPUTS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
 from support import join_observation, snapshot
 from teleop import recordings
-from teleop.dataset_reader import read_episodes, read_frames
+from teleop.dataset_reader import read_episodes, read_frames, read_parameters
+from teleop.record import RecordConfig, record
+from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -67,18 +78,22 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
     assert not np.array_equal(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows])
 
 
-@pytest.fixture(scope="module")
-def sensed_dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One round of 2 episodes labelled by the expert on leg odometry, an odometry student: the aggregate."""
-    folder = tmp_path_factory.mktemp("sensed_dagger")
-    config = DaggerConfig(
-        dataset=recorded,
+def sensed_run(dataset: Path, folder: Path, inputs: str) -> DaggerConfig:
+    """ONE_ROUND on `dataset` into `folder`, labelled by the expert on leg odometry, the student on `inputs`."""
+    return DaggerConfig(
+        dataset=dataset,
         output=folder / "aggregate",
         policy=folder / "policy",
-        inputs="odometry",
+        inputs=inputs,
         expert="expert-sensed",
         **ONE_ROUND,
     )
+
+
+@pytest.fixture(scope="module")
+def sensed_dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One round of 2 episodes labelled by the expert on leg odometry, an odometry student: the aggregate."""
+    config = sensed_run(recorded, tmp_path_factory.mktemp("sensed_dagger"), "odometry")
     main(config)
     return config.output
 
@@ -106,18 +121,27 @@ def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) 
     assert checkpoint.load(result.final.policy_dir).spec.inputs == "proprio"
 
 
+AS_RECORDED = {"randomize": "none", "latency": 0.0}
+"""The conditions the test recording ran under: DAgger's rollouts take them when RANDOMIZE and LATENCY are unset."""
+
+
 def test_final_checkpoint_records_the_dagger_settings(dagger: tuple) -> None:
-    """The final policy's config.json holds every DaggerConfig field beside its training's, and who ran it."""
+    """The final policy's config.json holds every DaggerConfig field beside its training's (the rollout conditions
+    as resolved from the dataset), and who ran it."""
     *_, config = dagger
     training = json.loads((config.policy / CONFIG_FILE).read_text())["training"]
-    assert training["dagger"] == config_dict(config) and training["made_by"] == "bc.dagger"
+    assert training["dagger"] == {**config_dict(config), **AS_RECORDED} and training["made_by"] == "bc.dagger"
 
 
 def test_aggregate_logs_the_rounds_in_recordings_jsonl(dagger: tuple) -> None:
     """OUTPUT/recordings.jsonl ends with the DAgger run's line: its settings and the episodes the round added."""
     _, output, _, _, config = dagger
     line = recordings.read(output)[-1]
-    assert (line["made_by"], line["config"], line["complete"]) == ("bc.dagger", config_dict(config), True)
+    assert (line["made_by"], line["config"], line["complete"]) == (
+        "bc.dagger",
+        {**config_dict(config), **AS_RECORDED},
+        True,
+    )
     assert (line["episodes"], line["seeds"], line["count"]) == ([3, 4], [3, 4], 2)
 
 
@@ -126,3 +150,117 @@ def test_output_equal_to_dataset_is_refused(recorded: Path, capsys: pytest.Captu
     code = cli(["--dataset", str(recorded), "--output", str(recorded), "--progress", "false"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "--output must differ from --dataset" in err[0]
+
+
+def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tuple, tmp_path: Path) -> None:
+    """The rounds' frames held in memory are the ones on disk: `make train-bc` on OUTPUT with the same settings gives
+    the final policy's weights exactly."""
+    _, output, result, _, config = dagger
+    again = TrainConfig(
+        dataset=output,
+        policy=tmp_path / "again",
+        inputs=config.inputs,
+        epochs=config.epochs,
+        min_updates=0,
+        eval_episodes=0,
+        progress=False,
+        tensorboard=False,
+        cache=False,
+    )
+    fitted = train(again).policy.state_dict()
+    for name, weights in result.final.policy.state_dict().items():
+        torch.testing.assert_close(weights, fitted[name], rtol=0, atol=0)
+
+
+STEPS = 40
+"""Steps of the delayed recording's episodes and of the rollouts on it."""
+
+
+@pytest.fixture(scope="module")
+def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """4 expert episodes (seeds 0..3: delayed, delayed, not, delayed) recorded with LATENCY=0.5."""
+    root = tmp_path_factory.mktemp("delayed") / "dataset"
+    record(RecordConfig(dataset=root, episodes=4, max_steps=STEPS, latency=0.5, writer="inline", progress=False))
+    return root
+
+
+@pytest.mark.parametrize("inputs", INPUTS)
+def test_round_frames_in_memory_equal_the_frames_read_back(delayed: Path, inputs: str, tmp_path: Path) -> None:
+    """A round's episodes (seeds 4, 5: one delayed, one not) join the aggregate in memory exactly as
+    `load_demonstrations` reads them from the dataset they were appended to, for every kind of input."""
+    root = tmp_path / "aggregate"
+    shutil.copytree(delayed, root)
+    env = recording_env(make_env(STEPS), Randomization(), 0.5)
+    training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
+    trainer = DAggerTrainer(
+        load_demonstrations(root, env, cache=False, inputs=inputs), training, env, make_controller("expert-sensed", env)
+    )
+    store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
+    try:
+        trainer.train()
+        trainer.collect(store, round_index=1, episodes=2)
+    finally:
+        store.close()
+        env.close()
+    assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(root)[4:]] == [1, 0]
+    read_back = load_demonstrations(root, make_env(), cache=False, inputs=inputs)
+    np.testing.assert_array_equal(trainer.demos.episode_index, read_back.episode_index)
+    torch.testing.assert_close(trainer.demos.inputs, read_back.inputs, rtol=0, atol=0)
+    torch.testing.assert_close(trainer.demos.actions, read_back.actions, rtol=0, atol=0)
+
+
+def test_rollouts_run_under_the_conditions_the_dataset_was_recorded_in(delayed: Path, tmp_path: Path) -> None:
+    """Without RANDOMIZE and LATENCY, DAgger takes the recording's (recordings.jsonl): its rollouts draw their delays
+    as `make record LATENCY=0.5` does, and the settings it logs say so."""
+    config = sensed_run(delayed, tmp_path, "pending")
+    main(config)
+    assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(config.output)] == [1, 1, 0, 1, 1, 0]
+    line = recordings.read(config.output)[-1]
+    assert (line["config"]["randomize"], line["config"]["latency"]) == (NO_RANDOMIZATION, 0.5)
+
+
+def test_rollouts_under_other_conditions_are_refused_before_anything_is_written(
+    delayed: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """LATENCY=0 on a dataset whose episodes draw their delay: one line, exit != 0, no OUTPUT."""
+    output = tmp_path / "aggregate"
+    code = cli(["--dataset", str(delayed), "--output", str(output), "--latency", "0", "--progress", "false"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "give the conditions it was recorded in" in err[0]
+    assert not output.exists()
+
+
+def test_recordings_under_several_conditions_need_them_given(tmp_path: Path) -> None:
+    """Known answers of `recorded_conditions`: a line from before LATENCY existed recorded none; two differing
+    recordings are refused; a merge line (no conditions in its config) does not count."""
+    root = tmp_path / "dataset"
+    root.mkdir()
+    recordings.append(root, "teleop.record", {"randomize": "mild"}, [CommittedEpisode(0, 0, 1, 0.0, False)], True)
+    recordings.append(root, "teleop.merge", {"shards": ["a", "b"]}, [CommittedEpisode(1, 1, 1, 0.0, False)], True)
+    assert recorded_conditions(root) == ("mild", 0.0)
+    recordings.append(
+        root, "teleop.record", {"randomize": "mild", "latency": 0.5}, [CommittedEpisode(2, 2, 1, 0.0, False)], True
+    )
+    with pytest.raises(DatasetError, match="several conditions"):
+        recorded_conditions(root)
+
+
+def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Path) -> None:
+    """NOISE: the round's episodes are rolled out with that noise on the executed actions, and say so."""
+    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", noise=0.05)
+    main(dataclasses.replace(config, **ONE_ROUND))
+    rounds = read_episodes(config.output).to_pylist()[3:]
+    assert [e[keys.EPISODE_NOISE_STD] for e in rounds] == [0.05, 0.05]
+
+
+@pytest.mark.parametrize(
+    ("option", "value"), [("--noise", "-0.1"), ("--noise", "nan"), ("--latency", "1.5"), ("--randomize", "heavy")]
+)
+def test_bad_rollout_settings_are_refused(
+    recorded: Path, tmp_path: Path, option: str, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    output = tmp_path / "aggregate"
+    code = cli(["--dataset", str(recorded), "--output", str(output), option, value, "--progress", "false"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and option in err[0]
+    assert not output.exists()
