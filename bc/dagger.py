@@ -15,8 +15,10 @@ itself goes:
 3. The last round's aggregate trains the checkpoint at POLICY (`bc.train.train_and_save`), the policy
    `make train-bc` would train on OUTPUT with the same settings, evaluated like any BC policy.
 
-Rounds continue the seeds after the dataset's last one; a second run on the same OUTPUT adds
-further rounds (a killed run loses at most the episode it was rolling out). The run's settings go
+Rounds continue the seeds after the dataset's last one. ROUNDS is how many rounds OUTPUT holds
+when the run ends: run again after a kill (-9 included), the same command finishes the round it
+was in (its policy fitted again to the same frames, so the same policy and seeds: the same result
+as an unbroken run) and the rounds after it; a larger ROUNDS adds rounds. The run's settings go
 with what it writes: a line in OUTPUT/recordings.jsonl for the episodes it added, and "dagger" in
 the final checkpoint's config.json (and its TensorBoard text).
 """
@@ -86,7 +88,11 @@ class DaggerConfig:
         "std of Gaussian noise on the actions the rollouts execute (DART within DAgger: the expert labels the states "
         "the noise leads to as well); 0 = none",
     )
-    rounds: int = setting(6, "rounds of roll out, label, aggregate, retrain")
+    rounds: int = setting(
+        6,
+        "rounds of roll out, label, aggregate, retrain that OUTPUT holds when the run ends (rounds already there, "
+        "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first)",
+    )
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
     epochs: int = setting(30, "training epochs of every round's policy (more if MIN_UPDATES needs them)")
     min_updates: int = setting(MIN_UPDATES, "at least this many Adam steps in every round's training (bc.train's)")
@@ -202,12 +208,19 @@ class DAggerTrainer:
         self.expert = expert
         self.name = name
         self.policy: MLPPolicy | None = None
+        self.round_of: dict[int, int] = {}
+        """The DAgger round of each aggregate episode the trainer added or was told of; unlisted ones are round 0."""
         self._model = humanoid_model()  # nominal, as the training inputs are computed on load: never a drawn body
         self._buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
 
-    def train(self) -> MLPPolicy:
-        """Fit a new policy to the aggregate; it is the one the next `collect` rolls out."""
-        self.policy = fit_demonstrations(self.demos, self.training, self.env.action_space).policy
+    def train(self, round_index: int | None = None) -> MLPPolicy:
+        """Fit a new policy to the aggregate (with `round_index`, to its episodes from before that round: the
+        policy that round rolls out, also when some of its episodes are already in); the next `collect` rolls it
+        out."""
+        demos = self.demos
+        if round_index is not None:
+            demos = demos.only([e for e in demos.episodes if self.round_of.get(e, 0) < round_index])
+        self.policy = fit_demonstrations(demos, self.training, self.env.action_space).policy
         return self.policy
 
     def collect(
@@ -235,6 +248,7 @@ class DAggerTrainer:
             self.demos = self.demos.with_episode(
                 *episode_rows(episode, self.training.inputs, self._model), committed.index
             )
+            self.round_of[committed.index] = round_index
             returns.append(episode.episode_return)
             frames += episode.length
             survived += not episode.fell
@@ -242,12 +256,17 @@ class DAggerTrainer:
 
 
 def main(cfg: DaggerConfig) -> DaggerResult:
-    """Run `cfg.rounds` DAgger rounds on `cfg.output` and save the final policy at `cfg.policy`."""
+    """Bring `cfg.output` to `cfg.rounds` DAgger rounds of `cfg.episodes` episodes and save the final policy at
+    `cfg.policy`."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     cfg = resolved(cfg)
     if not cfg.output.exists():
-        shutil.copytree(cfg.dataset, cfg.output)
+        # Copied aside, then renamed: a copy killed half-way is never taken for the aggregate.
+        partial = cfg.output.with_name(f".{cfg.output.name}.partial")
+        shutil.rmtree(partial, ignore_errors=True)
+        shutil.copytree(cfg.dataset, partial)
+        partial.rename(cfg.output)
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(), randomization, cfg.latency)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
@@ -267,13 +286,18 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     added: list[CommittedEpisode] = []
     complete = False
     try:
-        done = max(read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist())
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
+        rounds = read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist()
         quiet = dataclasses.replace(training, progress=False)
         trainer = DAggerTrainer(demos, quiet, env, make_controller(cfg.expert, env), cfg.policy.name)
-        for round_index in range(done + 1, done + cfg.rounds + 1):
-            trainer.train()
-            report, committed = trainer.collect(store, round_index, cfg.episodes, cfg.progress, cfg.noise)
+        trainer.round_of = dict(enumerate(rounds))
+        last = max(rounds)
+        # A last round with fewer than EPISODES episodes was cut short (a killed run): it is finished first.
+        first = last if last and rounds.count(last) < cfg.episodes else last + 1
+        for round_index in range(first, cfg.rounds + 1):
+            trainer.train(round_index)
+            missing = cfg.episodes - rounds.count(round_index)
+            report, committed = trainer.collect(store, round_index, missing, cfg.progress, cfg.noise)
             result.rounds.append(report)
             added += committed
         complete = True

@@ -84,6 +84,16 @@ class Demonstrations:
             "fingerprint": self.fingerprint,
         }
 
+    def only(self, episodes: list[int]) -> Demonstrations:
+        """The frames of `episodes` alone, in the same order."""
+        keep = np.isin(self.episode_index, episodes)
+        if keep.all():
+            return self
+        rows = torch.from_numpy(keep)
+        return replace(
+            self, inputs=self.inputs[rows], actions=self.actions[rows], episode_index=self.episode_index[keep]
+        )
+
     def with_episode(self, inputs: np.ndarray, actions: np.ndarray, index: int) -> Demonstrations:
         """These frames, then one more episode's (numbered `index`, after every other): rows in memory, as
         `load_demonstrations` would read them once the episode is recorded (`episode_rows`)."""

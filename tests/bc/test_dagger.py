@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +28,7 @@ from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
-from support import join_observation, snapshot
+from support import committed_episodes, join_observation, snapshot, wait_for_episodes
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.record import RecordConfig, record
@@ -264,3 +268,45 @@ def test_bad_rollout_settings_are_refused(
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and option in err[0]
     assert not output.exists()
+
+
+TWO_ROUNDS = {"rounds": 2, "episodes": 3, "min_updates": 0, "eval_episodes": 0, "progress": False}
+
+
+def as_flags(config: DaggerConfig) -> list[str]:
+    """The command line of `config`'s settings that differ from the defaults."""
+    default = config_dict(DaggerConfig())
+    return [
+        part
+        for name, value in config_dict(config).items()
+        if value != default[name]
+        for part in (f"--{name.replace('_', '-')}", str(value).lower() if isinstance(value, bool) else str(value))
+    ]
+
+
+def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(recorded: Path, tmp_path: Path) -> None:
+    """kill -9 once the first round's first episode is on disk, then the same command: the aggregate holds the same
+    episodes, frame for frame, and the final policy has the same weights as a run never interrupted."""
+    unbroken = DaggerConfig(dataset=recorded, output=tmp_path / "unbroken", policy=tmp_path / "p1", **TWO_ROUNDS)
+    expected = main(unbroken).final.policy.state_dict()
+    broken = dataclasses.replace(unbroken, output=tmp_path / "broken", policy=tmp_path / "p2")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bc.dagger", *as_flags(broken)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        wait_for_episodes(broken.output, 4, process)  # the 3 demonstrations and a round-1 episode
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    assert committed_episodes(broken.output) < 3 + 2 * 3 and not broken.policy.exists()  # killed mid-way
+
+    resumed = main(broken).final.policy.state_dict()
+    columns = [keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND, "length", keys.EPISODE_RETURN]
+    assert read_episodes(broken.output, columns).to_pylist() == read_episodes(unbroken.output, columns).to_pylist()
+    for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):
+        np.testing.assert_array_equal(read_frames(broken.output)[key], read_frames(unbroken.output)[key])
+    for name, weights in expected.items():
+        torch.testing.assert_close(resumed[name], weights, rtol=0, atol=0)
