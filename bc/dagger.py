@@ -287,10 +287,11 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     complete = False
     try:
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
-        rounds = read_episodes(cfg.output, [keys.EPISODE_DAGGER_ROUND])[keys.EPISODE_DAGGER_ROUND].to_pylist()
+        table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_DAGGER_ROUND]).to_pydict()
+        rounds = table[keys.EPISODE_DAGGER_ROUND]
         quiet = dataclasses.replace(training, progress=False)
         trainer = DAggerTrainer(demos, quiet, env, make_controller(cfg.expert, env), cfg.policy.name)
-        trainer.round_of = dict(enumerate(rounds))
+        trainer.round_of = dict(zip(table["episode_index"], rounds, strict=True))
         last = max(rounds)
         # A last round with fewer than EPISODES episodes was cut short (a killed run): it is finished first.
         first = last if last and rounds.count(last) < cfg.episodes else last + 1

@@ -16,7 +16,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from bc.data import load_demonstrations, split_by_episode
+from bc.data import Demonstrations, load_demonstrations, split_by_episode
 from bc.train import (
     CONFIG_TAG,
     LEARNING_CURVE_FILE,
@@ -344,3 +344,24 @@ def test_unknown_inputs_are_refused_in_one_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_info.value.code == 2 and len(err) == 1 and "'camera'" in err[0]
     assert not (tmp_path / "policy").exists()
+
+
+def small_demos() -> Demonstrations:
+    """Episodes 0 and 2, two frames each, row r holding the value r."""
+    rows = torch.arange(4, dtype=torch.float32)[:, None]
+    return Demonstrations(Path("demos"), rows, rows, np.array([0, 0, 2, 2]), {}, 0.0, False)
+
+
+def test_demonstrations_keep_the_frames_of_the_episodes_asked_in_order() -> None:
+    demos = small_demos().only([2])
+    assert demos.inputs.flatten().tolist() == [2.0, 3.0] and demos.episode_index.tolist() == [2, 2]
+    assert small_demos().only([0, 2]).frames == 4
+
+
+def test_an_episode_joins_the_demonstrations_after_the_last_one_only() -> None:
+    """Rows in memory stay in episode order, as a dataset's are: an index at or before the last is refused."""
+    frames = np.full((3, 1), 7.0, np.float32)
+    grown = small_demos().with_episode(frames, frames, 3)
+    assert grown.episode_index.tolist() == [0, 0, 2, 2, 3, 3, 3] and grown.actions[-1].item() == 7.0
+    with pytest.raises(ValueError, match="does not come after"):
+        small_demos().with_episode(frames, frames, 2)
