@@ -18,7 +18,8 @@ itself goes:
 Rounds continue the seeds after the dataset's last one. ROUNDS is how many rounds OUTPUT holds
 when the run ends: run again after a kill (-9 included), the same command finishes the round it
 was in (its policy fitted again to the same frames, so the same policy and seeds: the same result
-as an unbroken run) and the rounds after it; a larger ROUNDS adds rounds. The run's settings go
+as an unbroken run) and the rounds after it, refusing settings that would change them; a larger
+ROUNDS adds rounds. The run's settings go
 with what it writes: a line in OUTPUT/recordings.jsonl for the episodes it added, and "dagger" in
 the final checkpoint's config.json (and its TensorBoard text).
 """
@@ -26,11 +27,14 @@ the final checkpoint's config.json (and its TensorBoard text).
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
 import shutil
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -54,6 +58,12 @@ from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
+RUN_FILE = ".dagger_run.json"
+"""In OUTPUT while a run is under way: its settings and the episode it started at. A run killed before it could log
+its recordings.jsonl line (kill -9) leaves it, so the next run resumes only with the same settings and logs the
+killed run's episodes."""
+SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience")
+"""The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
 
 @dataclass
@@ -188,6 +198,37 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
     return cfg
 
 
+def killed_run(cfg: DaggerConfig) -> dict | None:
+    """The mark (`RUN_FILE`) of a run killed in OUTPUT, or None; DatasetError in one line if this run's SHAPING
+    settings differ from it. Reads only, so that a refused run leaves OUTPUT as it was."""
+    marker = cfg.output / RUN_FILE
+    if not marker.is_file():
+        return None
+    killed = json.loads(marker.read_text())
+    settings = config_dict(cfg)
+    changed = [name for name in SHAPING if killed["config"].get(name) != settings[name]]
+    if changed:
+        was = ", ".join(f"{flag(name)} {killed['config'].get(name)}" for name in changed)
+        raise DatasetError(
+            f"{cfg.output} holds the rounds of a DAgger run killed with {was}: run it again with those "
+            f"(or delete {marker} to go on with these)"
+        )
+    return killed
+
+
+def take_over(cfg: DaggerConfig, killed: dict | None) -> None:
+    """Log the `killed` run's episodes, if any (a recordings.jsonl line, complete false), then mark this run as
+    under way in OUTPUT (`RUN_FILE`)."""
+    seeds = read_episodes(cfg.output, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+    if killed is not None:
+        episodes = [SimpleNamespace(index=i, seed=seed) for i, seed in enumerate(seeds) if i >= killed["episodes"]]
+        recordings.append(cfg.output, MADE_BY, killed["config"], episodes, complete=False)
+    marker = cfg.output / RUN_FILE
+    staging = marker.with_suffix(".partial")
+    staging.write_text(json.dumps({"config": config_dict(cfg), "episodes": len(seeds)}))
+    os.replace(staging, marker)
+
+
 class DAggerTrainer:
     """DAgger rounds in memory, as `imitation`'s trainers run them: the aggregate's frames and the current policy
     live here, so a round fits its policy to what the last one rolled out without reading the dataset back.
@@ -267,6 +308,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         shutil.rmtree(partial, ignore_errors=True)
         shutil.copytree(cfg.dataset, partial)
         partial.rename(cfg.output)
+    killed = killed_run(cfg)
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(), randomization, cfg.latency)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
@@ -286,6 +328,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     added: list[CommittedEpisode] = []
     complete = False
     try:
+        take_over(cfg, killed)  # under the store's lock: one run at a time marks OUTPUT
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
         table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_DAGGER_ROUND]).to_pydict()
         rounds = table[keys.EPISODE_DAGGER_ROUND]
@@ -306,6 +349,9 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         store.close()
         env.close()
         recordings.append(cfg.output, MADE_BY, config_dict(cfg), added, complete)
+        (cfg.output / RUN_FILE).unlink(
+            missing_ok=True
+        )  # the run's episodes have their line: nothing is left to take over
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
     result.final = train_and_save(aggregate, training, env.action_space, MADE_BY, context)

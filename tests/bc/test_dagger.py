@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from bc.dagger import DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
+from bc.dagger import RUN_FILE, DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
 from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
@@ -284,29 +284,53 @@ def as_flags(config: DaggerConfig) -> list[str]:
     ]
 
 
+def kill_in_round_one(config: DaggerConfig) -> None:
+    """`python -m bc.dagger` of `config`, killed with SIGKILL once OUTPUT holds the recording's 3 episodes and a
+    round-1 episode."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bc.dagger", *as_flags(config)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        wait_for_episodes(config.output, 4, process)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+
+
 def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(recorded: Path, tmp_path: Path) -> None:
     """kill -9 once the first round's first episode is on disk, then the same command: the aggregate holds the same
     episodes, frame for frame, and the final policy has the same weights as a run never interrupted."""
     unbroken = DaggerConfig(dataset=recorded, output=tmp_path / "unbroken", policy=tmp_path / "p1", **TWO_ROUNDS)
     expected = main(unbroken).final.policy.state_dict()
     broken = dataclasses.replace(unbroken, output=tmp_path / "broken", policy=tmp_path / "p2")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "bc.dagger", *as_flags(broken)],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    try:
-        wait_for_episodes(broken.output, 4, process)  # the 3 demonstrations and a round-1 episode
-    finally:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
-    assert committed_episodes(broken.output) < 3 + 2 * 3 and not broken.policy.exists()  # killed mid-way
+    kill_in_round_one(broken)
+    killed_at = committed_episodes(broken.output)
+    assert killed_at < 3 + 2 * 3 and not broken.policy.exists()  # killed mid-way
 
     resumed = main(broken).final.policy.state_dict()
+    killed, finishing = recordings.read(broken.output)  # the killed run's episodes get their line too
+    assert (killed["complete"], killed["episodes"], finishing["complete"]) == (False, [3, killed_at - 1], True)
+    assert finishing["episodes"] == [killed_at, 3 + 2 * 3 - 1] and not (broken.output / RUN_FILE).exists()
     columns = [keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND, "length", keys.EPISODE_RETURN]
     assert read_episodes(broken.output, columns).to_pylist() == read_episodes(unbroken.output, columns).to_pylist()
     for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):
         np.testing.assert_array_equal(read_frames(broken.output)[key], read_frames(unbroken.output)[key])
     for name, weights in expected.items():
         torch.testing.assert_close(resumed[name], weights, rtol=0, atol=0)
+
+
+def test_a_killed_run_is_resumed_only_with_its_settings(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Another NOISE on the OUTPUT of a run killed mid-way: one line naming the killed run's, exit != 0, OUTPUT as it
+    was."""
+    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", **TWO_ROUNDS)
+    kill_in_round_one(config)
+    before = snapshot(config.output)
+    code = cli([*as_flags(config), "--noise", "0.05"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "killed with --noise 0.0" in err[0]
+    assert snapshot(config.output) == before
