@@ -306,7 +306,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         # Copied aside, then renamed: a copy killed half-way is never taken for the aggregate.
         partial = cfg.output.with_name(f".{cfg.output.name}.partial")
         shutil.rmtree(partial, ignore_errors=True)
-        shutil.copytree(cfg.dataset, partial)
+        shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(RUN_FILE))  # not another run's mark
         partial.rename(cfg.output)
     killed = killed_run(cfg)
     randomization = parse_randomization(cfg.randomize)
