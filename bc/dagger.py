@@ -19,9 +19,9 @@ Rounds continue the seeds after the dataset's last one. ROUNDS is how many round
 when the run ends: run again after a kill (-9 included), the same command finishes the round it
 was in (its policy fitted again to the same frames, so the same policy and seeds: the same result
 as an unbroken run) and the rounds after it, refusing settings that would change them; a larger
-ROUNDS adds rounds. The run's settings go
-with what it writes: a line in OUTPUT/recordings.jsonl for the episodes it added, and "dagger" in
-the final checkpoint's config.json (and its TensorBoard text).
+ROUNDS adds rounds. The run's settings go with what it writes: a line in OUTPUT/recordings.jsonl
+for the episodes it added, and "dagger" in the final checkpoint's config.json (and its TensorBoard
+text).
 """
 
 from __future__ import annotations
