@@ -43,7 +43,7 @@ from tqdm import tqdm
 from bc.data import Demonstrations, episode_rows, load_demonstrations
 from bc.train import MIN_UPDATES, TrainConfig, TrainResult, fit_demonstrations, train_and_save
 from common import keys, paths
-from common.cli import DatasetError, UserError, config_dict, flag, run_cli, setting
+from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import humanoid_model, make_env
@@ -150,8 +150,8 @@ def validate(cfg: DaggerConfig) -> None:
     for name in ("patience", "min_updates", "eval_episodes", "noise"):
         if not getattr(cfg, name) >= 0:  # also rejects a NaN noise
             raise UserError(f"{flag(name)} must be >= 0, got {getattr(cfg, name)}")
-    if cfg.latency is not None and not 0 <= cfg.latency <= 1:  # also rejects NaN
-        raise UserError(f"--latency must be a share in [0, 1], got {cfg.latency}")
+    if cfg.latency is not None:
+        check_share(cfg, "latency")
     if cfg.randomize is not None:
         try:
             parse_randomization(cfg.randomize)
@@ -188,7 +188,8 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
         randomize=randomize if cfg.randomize is None else cfg.randomize,
         latency=latency if cfg.latency is None else cfg.latency,
     )
-    drawn = set(read_parameters(root)[0]) if read_episodes(root).num_rows else set()
+    episodes = read_parameters(root)
+    drawn = set(episodes[0]) if episodes else set()
     rolled = set(recorded_parameters(parse_randomization(cfg.randomize), cfg.latency))
     if drawn != rolled:
         raise DatasetError(

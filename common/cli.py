@@ -39,6 +39,13 @@ def flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+def check_share(config: Any, name: str) -> None:
+    """UserError in one line unless setting `name` of `config` is a share of episodes, in [0, 1] (NaN is not)."""
+    value = getattr(config, name)
+    if not 0 <= value <= 1:
+        raise UserError(f"{flag(name)} must be a share in [0, 1], got {value}")
+
+
 def config_dict(config: Any) -> dict[str, Any]:
     """Every field of a config dataclass as a JSON value (paths as strings): what a run saves as its config."""
     values = {field.name: getattr(config, field.name) for field in dataclasses.fields(config)}

@@ -37,7 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from common import keys, paths
-from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.cli import UserError, check_share, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import (
     LATENCY_PARAMETER,
@@ -194,8 +194,7 @@ def validate(cfg: RecordConfig) -> None:
     if cfg.controller in INTERACTIVE and randomization.active:
         # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
         raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
-    if not 0 <= cfg.latency <= 1:  # also rejects NaN
-        raise UserError(f"--latency must be a share in [0, 1], got {cfg.latency}")
+    check_share(cfg, "latency")
     if cfg.controller in INTERACTIVE and cfg.latency > 0:
         raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
 
