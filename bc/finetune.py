@@ -54,7 +54,7 @@ from humanoid.env import make_env
 from humanoid.inputs import input_features
 from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, WEIGHTS_FILE
+from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DIR, WEIGHTS_FILE
 from policies.mlp import normalisation
 from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
@@ -417,7 +417,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     env = vec_env(cfg)
     try:
         with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
-            model = learner(cfg, env, term, folder / "tensorboard")
+            model = learner(cfg, env, term, folder / TENSORBOARD_DIR)
             # SB3 stops after the first whole rollout that reaches TIMESTEPS.
             steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
             bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)

@@ -42,7 +42,7 @@ from humanoid.env import make_env
 from humanoid.inputs import INPUT_COLUMNS, INPUTS
 from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.folder import EVAL_FILE
+from policies.folder import CONFIG_TAG, EVAL_FILE, TENSORBOARD_DIR
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
 
 LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
@@ -51,8 +51,6 @@ LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
     "huber": F.smooth_l1_loss,
 }
 LEARNING_CURVE_FILE = "learning_curve.png"
-TENSORBOARD_DIR = "tensorboard"
-CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
 MIN_UPDATES = 5000

@@ -22,7 +22,8 @@ import json
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,15 +32,16 @@ import numpy as np
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
+from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
-from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
 from humanoid.inputs import INPUT_COLUMNS
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, EVAL_FILE, SB3_FILE
+from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
 
 LEARNERS = ("preferred", "ppo")
@@ -87,6 +89,15 @@ def validate(cfg: TutorialConfig) -> list[str]:
     return selected(cfg)
 
 
+@contextmanager
+def tensorboard(folder: Path) -> Iterator[SummaryWriter]:
+    writer = SummaryWriter(str(folder / TENSORBOARD_DIR))
+    try:
+        yield writer
+    finally:
+        writer.close()
+
+
 def progress_bar(total: int, label: str, show: bool) -> tqdm:
     # mininterval 1 s: a bar over single steps redraws often enough for a person, and keeps logs short.
     return tqdm(
@@ -123,17 +134,26 @@ class PreferredActionLearner:
             self.mean += self.step_size * (action - self.mean)
         self.noise *= self.decay
 
-    def train(self, env: Any, timesteps: int, seed: int, bar: tqdm) -> dict[str, float]:
-        """`timesteps` steps of `env` (auto-reset, episode i seeded seed+i); the share of positive rewards."""
-        positive, episode = 0, 0
+    def train(
+        self, env: Any, timesteps: int, seed: int, bar: tqdm, writer: SummaryWriter | None = None
+    ) -> dict[str, float]:
+        """`timesteps` steps of `env` (auto-reset, episode i seeded seed+i); the share of positive rewards.
+        `writer` gets each episode's return and length and the exploration noise, by step (SB3's tags)."""
+        positive, episode, episode_return, episode_start = 0, 0, 0.0, 0
         env.reset(seed=seed)
-        for _ in range(timesteps):
+        for step in range(1, timesteps + 1):
             action = self.act()
             _, reward, terminated, truncated, _ = env.step(action.astype(np.float32))
             self.learn(action, float(reward))
             positive += reward > 0
+            episode_return += float(reward)
             if terminated or truncated:
+                if writer is not None:
+                    writer.add_scalar("rollout/ep_rew", episode_return, step)
+                    writer.add_scalar("rollout/ep_len", step - episode_start, step)
+                    writer.add_scalar("train/std", self.noise, step)
                 episode += 1
+                episode_return, episode_start = 0.0, step
                 env.reset(seed=seed + episode)
             bar.update(1)
         return {"positive_reward_share": positive / timesteps, "episodes": episode}
@@ -163,12 +183,13 @@ def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, 
         cfg.timesteps,
         cfg.seed,
     )
-    start = time.perf_counter()
-    with progress_bar(cfg.timesteps, "preferred action", cfg.progress) as bar:
-        stats = learner.train(env, cfg.timesteps, cfg.seed, bar)
-    env.close()
-    seconds = time.perf_counter() - start
     with checkpoint.staged(cfg.preferred_policy, cfg.overwrite) as folder:
+        start = time.perf_counter()
+        with progress_bar(cfg.timesteps, "preferred action", cfg.progress) as bar, tensorboard(folder) as writer:
+            writer.add_text(CONFIG_TAG, config_text(settings), 0)
+            stats = learner.train(env, cfg.timesteps, cfg.seed, bar, writer)
+        env.close()
+        seconds = time.perf_counter() - start
         record = {**settings, "learner": "preferred", "seconds": seconds, **stats, "mean_action": learner.mean.tolist()}
         checkpoint.save(learner.policy(), folder, record, {})
     return {"seconds": seconds, **stats}
@@ -176,19 +197,22 @@ def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, 
 
 def train_ppo(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
     torch.set_num_threads(1)  # one environment in-process: SB3's own default set-up, as the tutorial runs it
-    model = PPO(
-        "MlpPolicy",
-        make_env(),
-        learning_rate=cfg.learning_rate,
-        ent_coef=cfg.ent_coef,
-        seed=cfg.seed,
-        device="cpu",
-        verbose=0,
-    )
-    start = time.perf_counter()
-    model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=ProgressBar(cfg.timesteps, cfg.progress))
-    seconds = time.perf_counter() - start
     with checkpoint.staged(cfg.ppo_policy, cfg.overwrite) as folder:
+        model = PPO(
+            "MlpPolicy",
+            make_env(),
+            learning_rate=cfg.learning_rate,
+            ent_coef=cfg.ent_coef,
+            seed=cfg.seed,
+            device="cpu",
+            verbose=0,
+            # Also keeps SB3 from making an empty log folder under /tmp, as it does without one.
+            tensorboard_log=str(folder / TENSORBOARD_DIR),
+        )
+        start = time.perf_counter()
+        callback = ProgressBar(cfg.timesteps, cfg.progress, settings)
+        model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=callback, tb_log_name="ppo")
+        seconds = time.perf_counter() - start
         model.save(folder / SB3_FILE)
         checkpoint.write_json(
             folder / CONFIG_FILE,
@@ -198,13 +222,14 @@ def train_ppo(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
 
 
 class ProgressBar(BaseCallback):
-    """A tqdm bar over SB3's steps (SB3's own needs the `rich` extra)."""
+    """A tqdm bar over SB3's steps (SB3's own needs the `rich` extra); also puts the run's settings in TensorBoard."""
 
-    def __init__(self, total: int, show: bool) -> None:
+    def __init__(self, total: int, show: bool, settings: dict[str, Any]) -> None:
         super().__init__()
-        self.total, self.show = total, show
+        self.total, self.show, self.settings = total, show, settings
 
     def _on_training_start(self) -> None:
+        self.logger.record(CONFIG_TAG, config_text(self.settings), exclude=("stdout", "log", "json", "csv"))
         self.bar = progress_bar(self.total, "tutorial PPO", self.show)
 
     def _on_step(self) -> bool:

@@ -4,7 +4,6 @@ The recorder checks a controller name with `is_checkpoint` without paying for to
 content is read by `policies.checkpoint`.
 """
 
-
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,6 +13,10 @@ DATASET_FILE = "dataset.json"
 EVAL_FILE = "eval.json"
 SB3_FILE = "sb3_model.zip"
 """A stable-baselines3 policy saved by SB3 itself (`model.save`): the tutorial's PPO baseline (`bc.tutorial`)."""
+TENSORBOARD_DIR = "tensorboard"
+"""Where a training stage writes its TensorBoard curves, inside the checkpoint folder it makes."""
+CONFIG_TAG = "config"
+"""The TensorBoard text holding the run's settings (`common.cli.config_text`)."""
 
 
 def is_sb3_policy(path: Path) -> bool:

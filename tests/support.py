@@ -141,6 +141,15 @@ def tensorboard_text(folder: Path, tag: str) -> str:
     return events.Tensors(f"{tag}/text_summary")[0].tensor_proto.string_val[0].decode()
 
 
+def scalars(folder: Path, tag: str) -> list[tuple[int, float]]:
+    """(step, value) of every scalar written under `tag` in the TensorBoard event files in `folder`; [] if none."""
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0})
+    events.Reload()
+    if tag not in events.Tags()["scalars"]:
+        return []
+    return [(event.step, event.value) for event in events.Scalars(tag)]
+
+
 def start_recording(root: Path, episodes: int, *flags: str) -> subprocess.Popen:
     """`python -m teleop.record` (writer process included) of 150-step episodes in a process group of its own."""
     return subprocess.Popen(

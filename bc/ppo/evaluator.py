@@ -15,11 +15,11 @@ from bc.evaluate import evaluate
 from common.cli import config_text
 from humanoid.learned import PolicyController
 from policies import checkpoint
+from policies.folder import CONFIG_TAG
 
 CURVE_FILE = "learning_curve.json"
 CURVE_PNG = "learning_curve.png"
 CHECKPOINTS_DIR = "checkpoints"
-CONFIG_TAG = "config"  # the TensorBoard text of the run's settings
 
 
 def selection_score(point: dict[str, float]) -> float:

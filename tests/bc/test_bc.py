@@ -18,9 +18,7 @@ from safetensors.torch import load_file
 
 from bc.data import Demonstrations, load_demonstrations, split_by_episode
 from bc.train import (
-    CONFIG_TAG,
     LEARNING_CURVE_FILE,
-    TENSORBOARD_DIR,
     TrainConfig,
     TrainResult,
     cli,
@@ -36,6 +34,7 @@ from humanoid.inputs import INPUT_COLUMNS
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
+from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import STD_FLOOR
 from support import join_observation, snapshot, tensorboard_text
 from teleop.dataset_reader import fingerprint, read_frames

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import CONFIG_TAG, CURVE_FILE, holds_floor, keeps_best, selection_score
+from bc.ppo.evaluator import CURVE_FILE, holds_floor, keeps_best, selection_score
 from bc.ppo.guards import DemonstrationTerm, Guards, RegularisedAdam
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -30,6 +30,7 @@ from humanoid.learned import PolicyController
 from humanoid.sensors import Proprioception
 from policies import checkpoint
 from policies import folder as policy_files
+from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
 from support import RayCluster, snapshot, tensorboard_text
 from teleop.record import RecordConfig, record
@@ -248,7 +249,7 @@ def test_config_json_holds_every_setting_and_the_bc_policy(tiny_run: tuple[Finet
 def test_tensorboard_holds_the_config_as_text(tiny_run: tuple[FinetuneConfig, dict]) -> None:
     """PPO's TensorBoard logs (SB3's) hold the run's settings as text, as config.json has them."""
     config, _ = tiny_run
-    (events,) = {path.parent for path in (config.policy / "tensorboard").rglob("events.out.tfevents.*")}
+    (events,) = {path.parent for path in (config.policy / TENSORBOARD_DIR).rglob("events.out.tfevents.*")}
     settings = json.loads(textwrap.dedent(tensorboard_text(events, CONFIG_TAG)))
     training = json.loads((config.policy / policy_files.CONFIG_FILE).read_text())["training"]
     assert settings == {name: training[name] for name in settings} and set(config_dict(config)) <= set(settings)

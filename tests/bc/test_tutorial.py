@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +15,8 @@ from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.learned import SB3Controller
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, EVAL_FILE, SB3_FILE
-from support import snapshot
+from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR
+from support import scalars, snapshot, tensorboard_text
 
 LOW, HIGH = -0.4 * np.ones(17), 0.4 * np.ones(17)
 
@@ -86,6 +87,21 @@ def test_the_tutorial_ppo_runs_as_sb3_saved_it(trained: tuple[TutorialConfig, di
     expected, _ = controller.model.predict(obs, deterministic=True)
     np.testing.assert_array_equal(controller.act(obs), expected)
     assert evaluate(str(config.ppo_policy), episodes=2)["returns"] == results["ppo"]["returns"]
+
+
+@pytest.mark.parametrize("learner", ["preferred", "ppo"])
+def test_each_learner_leaves_its_curves_and_settings_in_tensorboard(
+    trained: tuple[TutorialConfig, dict], learner: str
+) -> None:
+    """Inside its checkpoint folder (SB3 would otherwise make an empty folder under /tmp): episode returns by step,
+    and the run's settings as text."""
+    config, _ = trained
+    folder = config.preferred_policy if learner == "preferred" else config.ppo_policy
+    (events,) = {path.parent for path in (folder / TENSORBOARD_DIR).rglob("events.out.tfevents.*")}
+    settings = json.loads(textwrap.dedent(tensorboard_text(events, CONFIG_TAG)))
+    assert settings["timesteps"] == 300 and settings["learning_rate"] == config.learning_rate
+    returns = scalars(events, "rollout/ep_rew" if learner == "preferred" else "rollout/ep_rew_mean")
+    assert returns and all(0 < step <= 2048 and value > 0 for step, value in returns)
 
 
 def test_a_finished_run_is_reused(trained: tuple[TutorialConfig, dict], capsys: pytest.CaptureFixture[str]) -> None:
