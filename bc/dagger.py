@@ -27,14 +27,11 @@ text).
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import shutil
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -58,10 +55,6 @@ from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
-RUN_FILE = ".dagger_run.json"
-"""In OUTPUT while a run is under way: its settings and the episode it started at. A run killed before it could log
-its recordings.jsonl line (kill -9) leaves it, so the next run resumes only with the same settings and logs the
-killed run's episodes."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -200,34 +193,30 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
 
 
 def killed_run(cfg: DaggerConfig) -> dict | None:
-    """The mark (`RUN_FILE`) of a run killed in OUTPUT, or None; DatasetError in one line if this run's SHAPING
-    settings differ from it. Reads only, so that a refused run leaves OUTPUT as it was."""
-    marker = cfg.output / RUN_FILE
-    if not marker.is_file():
-        return None
-    killed = json.loads(marker.read_text())
+    """The mark (`recordings.RUN_FILE`) of a run killed in OUTPUT, or None; DatasetError in one line if it was a
+    DAgger run whose SHAPING settings differ from this one's (a resume keeps its rounds). Reads only, so that a
+    refused run leaves OUTPUT as it was."""
+    killed = recordings.marked(cfg.output)
+    if killed is None or killed["made_by"] != MADE_BY:
+        return killed
     settings = config_dict(cfg)
     changed = [name for name in SHAPING if killed["config"].get(name) != settings[name]]
     if changed:
         was = ", ".join(f"{flag(name)} {killed['config'].get(name)}" for name in changed)
         raise DatasetError(
             f"{cfg.output} holds the rounds of a DAgger run killed with {was}: run it again with those "
-            f"(or delete {marker} to go on with these)"
+            f"(or delete {cfg.output / recordings.RUN_FILE} to go on with these)"
         )
     return killed
 
 
 def take_over(cfg: DaggerConfig, killed: dict | None) -> None:
-    """Log the `killed` run's episodes, if any (a recordings.jsonl line, complete false), then mark this run as
-    under way in OUTPUT (`RUN_FILE`)."""
+    """Log the `killed` run's episodes, if any (a recordings.jsonl line, complete false), then mark OUTPUT as this
+    run's (`recordings.mark`)."""
     seeds = read_episodes(cfg.output, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
     if killed is not None:
-        episodes = [SimpleNamespace(index=i, seed=seed) for i, seed in enumerate(seeds) if i >= killed["episodes"]]
-        recordings.append(cfg.output, MADE_BY, killed["config"], episodes, complete=False)
-    marker = cfg.output / RUN_FILE
-    staging = marker.with_suffix(".partial")
-    staging.write_text(json.dumps({"config": config_dict(cfg), "episodes": len(seeds)}))
-    os.replace(staging, marker)
+        recordings.log_killed(cfg.output, killed, seeds)
+    recordings.mark(cfg.output, MADE_BY, config_dict(cfg), len(seeds))
 
 
 class DAggerTrainer:
@@ -307,7 +296,9 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         # Copied aside, then renamed: a copy killed half-way is never taken for the aggregate.
         partial = cfg.output.with_name(f".{cfg.output.name}.partial")
         shutil.rmtree(partial, ignore_errors=True)
-        shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(RUN_FILE))  # not another run's mark
+        shutil.copytree(
+            cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*")
+        )  # not another run's mark
         partial.rename(cfg.output)
     killed = killed_run(cfg)
     randomization = parse_randomization(cfg.randomize)
@@ -350,9 +341,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         store.close()
         env.close()
         recordings.append(cfg.output, MADE_BY, config_dict(cfg), added, complete)
-        (cfg.output / RUN_FILE).unlink(
-            missing_ok=True
-        )  # the run's episodes have their line: nothing is left to take over
+        recordings.unmark(cfg.output)
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
     result.final = train_and_save(aggregate, training, env.action_space, MADE_BY, context)

@@ -86,7 +86,7 @@ from policies.folder import (
     is_sb3_policy,
 )
 from teleop import recordings
-from teleop.dataset_reader import fingerprint, read_info
+from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
 from teleop.record import validate as validate_record
@@ -379,7 +379,7 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
     total = _committed_episodes(root)
     if not total:
         return Decision(RUN, f"recording {root}: {'no dataset there yet' if total is None else 'no episode yet'}", cfg)
-    runs = recordings.read(root)
+    runs = recordings.sessions(root, read_episodes(root, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist())
     problem = _dataset_problem(cfg, total, runs) or _layout_problem(root)
     ours = all(run.get("made_by") == MADE_BY for run in runs) and bool(runs)
     if problem is None and total == cfg.episodes:

@@ -165,7 +165,7 @@ class Report:
     mcap_counts: dict[str, int]  # messages per topic over the readable files
     mcap_counts_match: int  # episodes whose every per-step topic has one message per frame
     leftovers: list[str] = field(default_factory=list)
-    runs: list[dict] = field(default_factory=list)  # recordings.jsonl: the sessions that added the episodes
+    runs: list[dict] = field(default_factory=list)  # the sessions that added the episodes (`recordings.sessions`)
     verified: list[str] = field(default_factory=list)  # what passed, once everything has
     plot: Path | None = None
     seconds: float = 0.0
@@ -558,7 +558,7 @@ def _summarise(dataset: Dataset) -> Report:
             for m, length in zip(dataset.mcap, episodes["length"], strict=True)
         ),
         leftovers=dataset.leftovers,
-        runs=recordings.read(dataset.root),
+        runs=recordings.sessions(dataset.root, episodes.get(keys.EPISODE_SEED, [])),
     )
 
 

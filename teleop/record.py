@@ -20,7 +20,8 @@ action one step late, the episode's delay is stored beside the other draws, and 
 told it (the expert predicts through it); a student on the "pending" inputs learns from both kinds.
 
 Each session adds a line to DATASET/recordings.jsonl (`teleop.recordings`): its full config (and
-the randomisation's ranges), and the episodes it added, also when interrupted.
+the randomisation's ranges), and the episodes it added, also when interrupted; a session killed
+with -9 gets its line from the next one (the mark it left, `teleop.recordings.mark`).
 """
 
 from __future__ import annotations
@@ -144,6 +145,7 @@ class RecordSummary:
     episodes: list[CommittedEpisode] = field(default_factory=list)
     total_episodes: int = 0
     seconds: float = 0.0
+    marked: bool = False  # the session marked the dataset as its own (`teleop.recordings.mark`)
 
     @property
     def frames(self) -> int:
@@ -199,15 +201,16 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
 
 
-def main(cfg: RecordConfig, summary: RecordSummary | None = None) -> RecordSummary:
-    """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given)."""
+def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str | None = None) -> RecordSummary:
+    """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given).
+    `made_by`: the session logs itself (`record`), so it marks the dataset while it writes."""
     validate(cfg)
     summary = RecordSummary(cfg.dataset) if summary is None else summary
     if cfg.workers == 1 and cfg.backend == "local":
-        return _record(cfg, None, summary)
+        return _record(cfg, None, summary, made_by)
     # Workers start first: their start-up overlaps with opening the dataset.
     with _start_workers(cfg) as rollouts:
-        return _record(cfg, rollouts, summary)
+        return _record(cfg, rollouts, summary, made_by)
 
 
 def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
@@ -215,11 +218,24 @@ def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
     summary = RecordSummary(cfg.dataset)
     complete = False
     try:
-        main(cfg, summary)
+        main(cfg, summary, made_by)
         complete = True
     finally:
         recordings.append(cfg.dataset, made_by, config_dict(cfg), summary.episodes, complete, _logged_ranges(cfg))
+        if summary.marked:  # a refused session leaves a killed one's mark for the next
+            recordings.unmark(cfg.dataset)
     return summary
+
+
+def _take_over(cfg: RecordConfig, made_by: str, episodes: int) -> None:
+    """Under the dataset's lock: the line of a session killed there, if any, then this session's mark."""
+    killed = recordings.marked(cfg.dataset)
+    if killed is not None and episodes > killed["episodes"]:
+        from teleop.dataset_reader import read_episodes  # noqa: PLC0415 - pyarrow, only after a kill
+
+        seeds = read_episodes(cfg.dataset, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+        recordings.log_killed(cfg.dataset, killed, seeds)
+    recordings.mark(cfg.dataset, made_by, config_dict(cfg), episodes, _logged_ranges(cfg))
 
 
 def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
@@ -232,7 +248,10 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
 
 
 def _record(
-    cfg: RecordConfig, rollouts: ParallelRollouts | RayRollouts | None, summary: RecordSummary
+    cfg: RecordConfig,
+    rollouts: ParallelRollouts | RayRollouts | None,
+    summary: RecordSummary,
+    made_by: str | None,
 ) -> RecordSummary:
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency)
@@ -267,6 +286,9 @@ def _record(
     try:
         controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
         sink.wait_ready()
+        if made_by is not None:
+            _take_over(cfg, made_by, sink.num_episodes)
+            summary.marked = True
         first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
         if first_seed < sink.next_seed():
             log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)

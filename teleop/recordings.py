@@ -7,6 +7,11 @@ which episodes (indices and seeds) the run committed; a randomised recording add
 nothing writes nothing.
 LeRobot reads only meta/ and data/ and ignores the file; `make inspect` lists the sessions.
 
+A kill -9 leaves no time for the line, so a run marks the dataset while it writes (`RUN_FILE`: who,
+its config, the episode count it started from; `mark`), and the next run, under the dataset's lock,
+writes the killed run's line for the episodes it left (`log_killed`, complete false) before marking
+the dataset as its own. A run that ends removes its mark (`unmark`) after writing its line.
+
     {"made_by": "teleop.record", "time": "2026-01-01T12:00:00+00:00", "complete": true,
      "config": {"dataset": "datasets/humanoid_stand", "episodes": 50, ...},
      "episodes": [0, 49], "seeds": [0, 49], "count": 50}
@@ -17,13 +22,18 @@ from __future__ import annotations
 import datetime
 import json
 import logging
+import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 log = logging.getLogger(__name__)
 
 RECORDINGS_FILE = "recordings.jsonl"
+RUN_FILE = ".run.json"
+"""The mark of a run writing episodes into the dataset (`mark`); a dataset copied for another run leaves it out
+(and its staging file, `RUN_FILE` + ".partial")."""
 
 
 class Committed(Protocol):
@@ -45,11 +55,25 @@ def append(
 
     `extra` adds keys to the line (the recorder's "randomization": the ranges its --randomize stands for).
     """
-    if not committed:
-        return
-    line = {
+    if committed:
+        _write(root, _line(made_by, _now(), config, committed, complete, extra))
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def _line(
+    made_by: str,
+    time: str,
+    config: dict[str, Any],
+    committed: Sequence[Committed],
+    complete: bool,
+    extra: dict[str, Any] | None,
+) -> dict[str, Any]:
+    return {
         "made_by": made_by,
-        "time": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "time": time,
         "complete": complete,
         "config": config,
         "episodes": [committed[0].index, committed[-1].index],
@@ -57,6 +81,9 @@ def append(
         "count": len(committed),
         **(extra or {}),
     }
+
+
+def _write(root: Path, line: dict[str, Any]) -> None:
     try:
         with (root / RECORDINGS_FILE).open("a") as stream:
             stream.write(json.dumps(line, default=str) + "\n")
@@ -76,3 +103,56 @@ def read(root: Path) -> list[dict[str, Any]]:
         except ValueError:  # a line cut short by a full disk: what follows cannot be trusted either
             break
     return lines
+
+
+def mark(root: Path, made_by: str, config: dict[str, Any], episodes: int, extra: dict[str, Any] | None = None) -> None:
+    """Mark `root` as written by this run, which found `episodes` episodes there; atomic, so a kill leaves the old
+    mark or the new one."""
+    staging = root / (RUN_FILE + ".partial")
+    mark = {"made_by": made_by, "time": _now(), "config": config, "episodes": episodes, "extra": extra or {}}
+    staging.write_text(json.dumps(mark, default=str))
+    os.replace(staging, root / RUN_FILE)
+
+
+def marked(root: Path) -> dict[str, Any] | None:
+    """The mark of the run that last wrote into `root` and did not end (a kill -9), or None."""
+    path = root / RUN_FILE
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def killed_line(killed: dict[str, Any], seeds: Sequence[int]) -> dict[str, Any] | None:
+    """The line the `killed` run (its mark) gets for the episodes it added, those past the count it started from,
+    with the time it started; None if it added none. `seeds`: every episode's seed in the dataset, by index."""
+    episodes = [Episode(index, seed) for index, seed in enumerate(seeds) if index >= killed["episodes"]]
+    if not episodes:
+        return None
+    return _line(killed["made_by"], killed["time"], killed["config"], episodes, False, killed["extra"])
+
+
+def sessions(root: Path, seeds: Sequence[int]) -> list[dict[str, Any]]:
+    """`read(root)`, then the line a run killed there with -9 will get from the next run (`killed_line`), if any:
+    what recorded each episode. `seeds`: every episode's seed in `root`, by index."""
+    lines = read(root)
+    killed = marked(root)
+    line = None if killed is None else killed_line(killed, seeds)
+    return lines if line is None else [*lines, line]
+
+
+def log_killed(root: Path, killed: dict[str, Any], seeds: Sequence[int]) -> None:
+    """Add the `killed` run's line (`killed_line`), if it added episodes, to `root`'s recordings.jsonl."""
+    line = killed_line(killed, seeds)
+    if line is not None:
+        _write(root, line)
+
+
+def unmark(root: Path) -> None:
+    """The run has written its line: nothing is left for a later run to log."""
+    (root / RUN_FILE).unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """An episode's index and seed: what a line records of it (a `Committed`)."""
+
+    index: int
+    seed: int

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from bc.dagger import RUN_FILE, DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
+from bc.dagger import DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
 from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
@@ -313,7 +313,7 @@ def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(recorded: 
     resumed = main(broken).final.policy.state_dict()
     killed, finishing = recordings.read(broken.output)  # the killed run's episodes get their line too
     assert (killed["complete"], killed["episodes"], finishing["complete"]) == (False, [3, killed_at - 1], True)
-    assert finishing["episodes"] == [killed_at, 3 + 2 * 3 - 1] and not (broken.output / RUN_FILE).exists()
+    assert finishing["episodes"] == [killed_at, 3 + 2 * 3 - 1] and not (broken.output / recordings.RUN_FILE).exists()
     columns = [keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND, "length", keys.EPISODE_RETURN]
     assert read_episodes(broken.output, columns).to_pylist() == read_episodes(unbroken.output, columns).to_pylist()
     for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):

@@ -389,6 +389,23 @@ def test_interrupted_recording_is_completed_into_the_same_dataset(outputs: Path,
     assert dataset_decision(tiny_stages(record={"episodes": 3}).record).action == REUSE
 
 
+def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
+    """A pipeline recording killed with -9 left its mark and no recordings.jsonl line: the pipeline still knows its
+    episodes, records the rest, and the resumed recording logs the killed one."""
+    data = Path("data")
+    (line,) = recordings.read(data)
+    (data / recordings.RECORDINGS_FILE).unlink()
+    recordings.mark(data, line["made_by"], {**line["config"], "episodes": 3}, episodes=0)
+    decision = dataset_decision(tiny_stages(record={"episodes": 3}).record)
+    assert (decision.action, decision.line) == (
+        RESUME,
+        "data holds 2 of the 3 episodes asked for: recording the other 1",
+    )
+    record(decision.config, made_by=MADE_BY)
+    assert [(run["complete"], run["episodes"]) for run in recordings.read(data)] == [(False, [0, 1]), (True, [2, 2])]
+    assert dataset_decision(tiny_stages(record={"episodes": 3}).record).action == REUSE
+
+
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every pipeline setting is the stage's own default: the same configs as `make <stage>` alone."""
     assert stages(PipelineConfig()) == Stages(

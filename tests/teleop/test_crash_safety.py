@@ -16,8 +16,10 @@ from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from support import assert_consistent, assert_no_leftovers, committed_episodes, start_recording, wait_for_episodes
+from teleop import recordings
 from teleop.dataset_reader import read_episodes
-from teleop.record import RecordConfig, main
+from teleop.inspect_dataset import cli as inspect_cli
+from teleop.record import RecordConfig, main, record
 from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -100,3 +102,46 @@ def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tm
             assert time.monotonic() < deadline, "the writer process never released the dataset"
             time.sleep(0.05)
     assert_consistent(root, committed_episodes(root))
+
+
+@pytest.fixture
+def killed(tmp_path: Path) -> tuple[Path, int]:
+    """A dataset whose recording (100 episodes asked for) was killed with -9 after its second episode or later."""
+    root = tmp_path / "dataset"
+    recorder = start_recording(root, episodes=100)
+    wait_for_episodes(root, 2, recorder)
+    os.killpg(recorder.pid, signal.SIGKILL)
+    recorder.wait()
+    return root, committed_episodes(root)
+
+
+def test_the_next_session_writes_the_line_of_a_session_killed_with_9(killed: tuple[Path, int]) -> None:
+    """kill -9 leaves no time for recordings.jsonl: the next session logs the killed one (its settings, the episodes
+    it committed, complete false), then its own, so that every episode is accounted for."""
+    root, survived = killed
+    assert recordings.read(root) == []
+    record(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False))
+    first, second = recordings.read(root)
+    assert (first["made_by"], first["complete"], first["config"]["episodes"]) == ("teleop.record", False, 100)
+    assert (first["episodes"], first["seeds"], first["count"]) == ([0, survived - 1], [0, survived - 1], survived)
+    assert (second["complete"], second["episodes"], second["config"]["episodes"]) == (True, [survived, survived + 1], 2)
+    assert not (root / recordings.RUN_FILE).exists()
+
+
+def test_a_refused_session_leaves_the_killed_sessions_mark(killed: tuple[Path, int]) -> None:
+    """A session refused before it opens the dataset writes nothing: the mark waits for a session that runs."""
+    root, _ = killed
+    mark = (root / recordings.RUN_FILE).read_bytes()
+    with pytest.raises(DatasetError):
+        record(RecordConfig(dataset=root, episodes=1, randomize="mild", writer="inline", progress=False))
+    assert (root / recordings.RUN_FILE).read_bytes() == mark and recordings.read(root) == []
+
+
+def test_inspect_lists_the_killed_session_before_its_line_is_written(
+    killed: tuple[Path, int], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`make inspect` on the killed dataset names the session that recorded its episodes, interrupted."""
+    root, survived = killed
+    assert inspect_cli(["--dataset", str(root), "--lerobot", "false"]) == 0
+    (session,) = [line for line in capsys.readouterr().out.splitlines() if "teleop.record at " in line]
+    assert session.endswith(f": episodes 0..{survived - 1}, interrupted")

@@ -1,0 +1,42 @@
+"""recordings.jsonl and the mark a run leaves while it writes: known answers, on files in tmp_path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from teleop import recordings
+
+
+def test_a_killed_runs_line_covers_the_episodes_past_its_start(tmp_path: Path) -> None:
+    """Started on 2 episodes, the killed run added the next ones: their indices and seeds, its time and config."""
+    recordings.mark(tmp_path, "teleop.record", {"episodes": 10}, episodes=2, extra={"randomization": {}})
+    killed = recordings.marked(tmp_path)
+    line = recordings.killed_line(killed, [5, 6, 7, 9])
+    assert {key: line[key] for key in ("made_by", "complete", "config", "episodes", "seeds", "count", "time")} == {
+        "made_by": "teleop.record",
+        "complete": False,
+        "config": {"episodes": 10},
+        "episodes": [2, 3],
+        "seeds": [7, 9],
+        "count": 2,
+        "time": killed["time"],
+    }
+
+
+def test_a_killed_run_that_added_nothing_gets_no_line(tmp_path: Path) -> None:
+    recordings.mark(tmp_path, "teleop.record", {}, episodes=2)
+    recordings.log_killed(tmp_path, recordings.marked(tmp_path), [0, 1])
+    assert recordings.killed_line(recordings.marked(tmp_path), [0, 1]) is None
+    assert recordings.read(tmp_path) == []
+
+
+def test_sessions_end_with_the_killed_runs_line_until_it_is_written(tmp_path: Path) -> None:
+    """Before the next run writes it, `sessions` shows the killed run's line; after, that line once, and no mark."""
+    recordings.append(tmp_path, "teleop.record", {}, [recordings.Episode(0, 0)], complete=True)
+    recordings.mark(tmp_path, "teleop.record", {"episodes": 5}, episodes=1)
+    pending = recordings.sessions(tmp_path, [0, 1, 2])
+    recordings.log_killed(tmp_path, recordings.marked(tmp_path), [0, 1, 2])
+    recordings.unmark(tmp_path)
+    assert [line["episodes"] for line in pending] == [[0, 0], [1, 2]]
+    assert recordings.sessions(tmp_path, [0, 1, 2]) == recordings.read(tmp_path) == pending
+    assert recordings.marked(tmp_path) is None
