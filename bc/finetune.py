@@ -89,7 +89,9 @@ class FinetuneConfig:
         "the actor's initial weights: 'bc' (the BC checkpoint's) or 'fresh' (PPO from scratch)",
         choices=("bc", "fresh"),
     )
-    timesteps: int = setting(300_000, "environment steps of training")
+    timesteps: int = setting(
+        600_000, 'environment steps of training (the budget: docs/learning.md, "The pipeline\'s table")'
+    )
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(
         2,
