@@ -45,6 +45,7 @@ from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSOR
 from policies.mlp import MLPPolicy, MLPSpec
 
 LEARNERS = ("preferred", "ppo")
+LOG_EVERY = 2048  # steps between the preferred learner's TensorBoard points: one SB3 PPO rollout
 
 
 @dataclass
@@ -138,8 +139,10 @@ class PreferredActionLearner:
         self, env: Any, timesteps: int, seed: int, bar: tqdm, writer: SummaryWriter | None = None
     ) -> dict[str, float]:
         """`timesteps` steps of `env` (auto-reset, episode i seeded seed+i); the share of positive rewards.
-        `writer` gets each episode's return and length and the exploration noise, by step (SB3's tags)."""
+        `writer` gets, every LOG_EVERY steps and at the end, the mean return and length of the episodes that ended
+        since and the exploration noise, under SB3's tags, so the two learners' curves share TensorBoard's charts."""
         positive, episode, episode_return, episode_start = 0, 0, 0.0, 0
+        returns, lengths = [], []
         env.reset(seed=seed)
         for step in range(1, timesteps + 1):
             action = self.act()
@@ -148,13 +151,16 @@ class PreferredActionLearner:
             positive += reward > 0
             episode_return += float(reward)
             if terminated or truncated:
-                if writer is not None:
-                    writer.add_scalar("rollout/ep_rew", episode_return, step)
-                    writer.add_scalar("rollout/ep_len", step - episode_start, step)
-                    writer.add_scalar("train/std", self.noise, step)
+                returns.append(episode_return)
+                lengths.append(step - episode_start)
                 episode += 1
                 episode_return, episode_start = 0.0, step
                 env.reset(seed=seed + episode)
+            if writer is not None and returns and (step % LOG_EVERY == 0 or step == timesteps):
+                writer.add_scalar("rollout/ep_rew_mean", float(np.mean(returns)), step)
+                writer.add_scalar("rollout/ep_len_mean", float(np.mean(lengths)), step)
+                writer.add_scalar("train/std", self.noise, step)
+                returns, lengths = [], []
             bar.update(1)
         return {"positive_reward_share": positive / timesteps, "episodes": episode}
 

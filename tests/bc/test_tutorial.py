@@ -100,7 +100,7 @@ def test_each_learner_leaves_its_curves_and_settings_in_tensorboard(
     (events,) = {path.parent for path in (folder / TENSORBOARD_DIR).rglob("events.out.tfevents.*")}
     settings = json.loads(textwrap.dedent(tensorboard_text(events, CONFIG_TAG)))
     assert settings["timesteps"] == 300 and settings["learning_rate"] == config.learning_rate
-    returns = scalars(events, "rollout/ep_rew" if learner == "preferred" else "rollout/ep_rew_mean")
+    returns = scalars(events, "rollout/ep_rew_mean")
     assert returns and all(0 < step <= 2048 and value > 0 for step, value in returns)
 
 
