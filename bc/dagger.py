@@ -296,9 +296,8 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         # Copied aside, then renamed: a copy killed half-way is never taken for the aggregate.
         partial = cfg.output.with_name(f".{cfg.output.name}.partial")
         shutil.rmtree(partial, ignore_errors=True)
-        shutil.copytree(
-            cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*")
-        )  # not another run's mark
+        # Without DATASET's mark: a run killed there is not this one.
+        shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))
         partial.rename(cfg.output)
     killed = killed_run(cfg)
     randomization = parse_randomization(cfg.randomize)

@@ -379,7 +379,7 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
     total = _committed_episodes(root)
     if not total:
         return Decision(RUN, f"recording {root}: {'no dataset there yet' if total is None else 'no episode yet'}", cfg)
-    runs = recordings.sessions(root, read_episodes(root, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist())
+    runs = recordings.sessions(root, lambda: read_episodes(root, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist())
     problem = _dataset_problem(cfg, total, runs) or _layout_problem(root)
     ours = all(run.get("made_by") == MADE_BY for run in runs) and bool(runs)
     if problem is None and total == cfg.episodes:

@@ -558,7 +558,7 @@ def _summarise(dataset: Dataset) -> Report:
             for m, length in zip(dataset.mcap, episodes["length"], strict=True)
         ),
         leftovers=dataset.leftovers,
-        runs=recordings.sessions(dataset.root, episodes.get(keys.EPISODE_SEED, [])),
+        runs=recordings.sessions(dataset.root, lambda: episodes.get(keys.EPISODE_SEED, [])),
     )
 
 

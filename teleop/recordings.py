@@ -23,7 +23,7 @@ import datetime
 import json
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -129,12 +129,13 @@ def killed_line(killed: dict[str, Any], seeds: Sequence[int]) -> dict[str, Any] 
     return _line(killed["made_by"], killed["time"], killed["config"], episodes, False, killed["extra"])
 
 
-def sessions(root: Path, seeds: Sequence[int]) -> list[dict[str, Any]]:
+def sessions(root: Path, seeds: Callable[[], Sequence[int]]) -> list[dict[str, Any]]:
     """`read(root)`, then the line a run killed there with -9 will get from the next run (`killed_line`), if any:
-    what recorded each episode. `seeds`: every episode's seed in `root`, by index."""
+    what recorded each episode. `seeds()` gives every episode's seed in `root`, by index; it is called only if a
+    killed run left its mark, so that a dataset without one is read no further than before."""
     lines = read(root)
     killed = marked(root)
-    line = None if killed is None else killed_line(killed, seeds)
+    line = None if killed is None else killed_line(killed, seeds())
     return lines if line is None else [*lines, line]
 
 

@@ -34,9 +34,9 @@ def test_sessions_end_with_the_killed_runs_line_until_it_is_written(tmp_path: Pa
     """Before the next run writes it, `sessions` shows the killed run's line; after, that line once, and no mark."""
     recordings.append(tmp_path, "teleop.record", {}, [recordings.Episode(0, 0)], complete=True)
     recordings.mark(tmp_path, "teleop.record", {"episodes": 5}, episodes=1)
-    pending = recordings.sessions(tmp_path, [0, 1, 2])
+    pending = recordings.sessions(tmp_path, lambda: [0, 1, 2])
     recordings.log_killed(tmp_path, recordings.marked(tmp_path), [0, 1, 2])
     recordings.unmark(tmp_path)
     assert [line["episodes"] for line in pending] == [[0, 0], [1, 2]]
-    assert recordings.sessions(tmp_path, [0, 1, 2]) == recordings.read(tmp_path) == pending
+    assert recordings.sessions(tmp_path, lambda: [0, 1, 2]) == recordings.read(tmp_path) == pending
     assert recordings.marked(tmp_path) is None
