@@ -158,11 +158,11 @@ def validate(cfg: DaggerConfig) -> None:
 
 def recorded_conditions(root: Path) -> tuple[str, float]:
     """(RANDOMIZE, LATENCY) that the runs which recorded the dataset at `root` used (its recordings.jsonl: the lines
-    whose config has `randomize`; a line from before `latency` existed recorded none), ("none", 0.0) if no line
-    says; DatasetError if they differ."""
+    whose config has `randomize`, a merge's by its shards' lines; a line from before `latency` existed recorded
+    none), ("none", 0.0) if no line says; DatasetError if they differ."""
     conditions = {
         (config["randomize"], float(config.get("latency", 0.0)))
-        for line in recordings.read(root)
+        for line in recordings.expanded(recordings.read(root))
         if (config := line.get("config", {})).get("randomize") is not None
     }
     if len(conditions) > 1:
@@ -192,13 +192,13 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
     return cfg
 
 
-def killed_run(cfg: DaggerConfig) -> dict | None:
-    """The mark (`recordings.RUN_FILE`) of a run killed in OUTPUT, or None; DatasetError in one line if it was a
-    DAgger run whose SHAPING settings differ from this one's (a resume keeps its rounds). Reads only, so that a
-    refused run leaves OUTPUT as it was."""
+def check_resume(cfg: DaggerConfig) -> None:
+    """DatasetError in one line if OUTPUT holds the mark (`recordings.RUN_FILE`) of a DAgger run killed with other
+    SHAPING settings than this one's: a resume keeps its rounds. Reads only, so that a refused run leaves OUTPUT as
+    it was. (A mark another kind of run left binds nothing: the next take-over logs its episodes.)"""
     killed = recordings.marked(cfg.output)
     if killed is None or killed["made_by"] != MADE_BY:
-        return killed
+        return
     settings = config_dict(cfg)
     changed = [name for name in SHAPING if killed["config"].get(name) != settings[name]]
     if changed:
@@ -207,16 +207,6 @@ def killed_run(cfg: DaggerConfig) -> dict | None:
             f"{cfg.output} holds the rounds of a DAgger run killed with {was}: run it again with those "
             f"(or delete {cfg.output / recordings.RUN_FILE} to go on with these)"
         )
-    return killed
-
-
-def take_over(cfg: DaggerConfig, killed: dict | None) -> None:
-    """Log the `killed` run's episodes, if any (a recordings.jsonl line, complete false), then mark OUTPUT as this
-    run's (`recordings.mark`)."""
-    seeds = read_episodes(cfg.output, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
-    if killed is not None:
-        recordings.log_killed(cfg.output, killed, seeds)
-    recordings.mark(cfg.output, MADE_BY, config_dict(cfg), len(seeds))
 
 
 class DAggerTrainer:
@@ -299,7 +289,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         # Without DATASET's mark: a run killed there is not this one.
         shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))
         partial.rename(cfg.output)
-    killed = killed_run(cfg)
+    check_resume(cfg)
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(), randomization, cfg.latency)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
@@ -319,9 +309,11 @@ def main(cfg: DaggerConfig) -> DaggerResult:
     added: list[CommittedEpisode] = []
     complete = False
     try:
-        take_over(cfg, killed)  # under the store's lock: one run at a time marks OUTPUT
+        table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND]).to_pydict()
+        # Under the store's lock: one run at a time marks OUTPUT; a killed run's episodes get their line first.
+        seeds = table[keys.EPISODE_SEED]
+        recordings.take_over(cfg.output, MADE_BY, config_dict(cfg), len(seeds), lambda: seeds)
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
-        table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_DAGGER_ROUND]).to_pydict()
         rounds = table[keys.EPISODE_DAGGER_ROUND]
         quiet = dataclasses.replace(training, progress=False)
         trainer = DAggerTrainer(demos, quiet, env, make_controller(cfg.expert, env), cfg.policy.name)

@@ -26,12 +26,13 @@ from mcap_protobuf.decoder import DecoderFactory
 from tqdm import tqdm
 
 from common import keys, paths
-from common.cli import UserError, run_cli, setting
+from common.cli import UserError, config_dict, run_cli, setting
 from humanoid.env import make_env
 from humanoid.episode import Episode
+from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.mcap_io.writer import TF_TOPIC
-from teleop.store import DatasetSpec, EpisodeStore
+from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 
 @dataclass
@@ -41,6 +42,9 @@ class MergeConfig:
     shards: str = setting("", "the datasets to merge, separated by spaces or commas; their seeds must not overlap")
     dataset: Path = setting(paths.DATASET, "the merged dataset: created if missing, else continued (same seeds)")
     progress: bool = setting(True, "show a progress bar")
+
+
+MADE_BY = "teleop.merge"
 
 
 def read_body_poses(path: Path, body_frames: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -115,25 +119,35 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
 
 
 def main(cfg: MergeConfig) -> int:
-    """Commit every shard episode not yet in DATASET, in seed order; returns how many were added."""
-    episodes, parameters, _ = _plan(shard_list(cfg.shards))
+    """Commit every shard episode not yet in DATASET, in seed order; returns how many were added. The run's line in
+    DATASET/recordings.jsonl holds each shard's own lines (`recordings.SESSIONS_KEY`): how its episodes were
+    recorded travels with them."""
+    shards = shard_list(cfg.shards)
+    episodes, parameters, _ = _plan(shards)
+    sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
     store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))
-    added = 0
+    committed: list[CommittedEpisode] = []
+    complete = marked = False
     try:
         have = read_episodes(cfg.dataset)[keys.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
             raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
+        recordings.take_over(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions)
+        marked = True
         commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's frames' commands, read once
         for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
             if shard not in commands:
                 commands[shard] = read_frames(shard, [keys.OBS_COMMAND, "episode_index"])
             frames = commands[shard]
             command = frames[keys.OBS_COMMAND][frames["episode_index"] == row["episode_index"]]
-            store.append(read_episode(shard, row, command, store.spec.body_frames))
-            added += 1
+            committed.append(store.append(read_episode(shard, row, command, store.spec.body_frames)))
+        complete = True
     finally:
         store.close()
-    return added
+        if marked:
+            recordings.append(cfg.dataset, MADE_BY, config_dict(cfg), committed, complete, sessions)
+            recordings.unmark(cfg.dataset)
+    return len(committed)
 
 
 def _main_and_print(cfg: MergeConfig) -> None:

@@ -31,6 +31,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -227,15 +228,10 @@ def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
     return summary
 
 
-def _take_over(cfg: RecordConfig, made_by: str, episodes: int) -> None:
-    """Under the dataset's lock: the line of a session killed there, if any, then this session's mark."""
-    killed = recordings.marked(cfg.dataset)
-    if killed is not None and episodes > killed["episodes"]:
-        from teleop.dataset_reader import read_episodes  # noqa: PLC0415 - pyarrow, only after a kill
+def _seeds(root: Path) -> list[int]:
+    from teleop.dataset_reader import read_episodes  # noqa: PLC0415 - pyarrow, only after a kill
 
-        seeds = read_episodes(cfg.dataset, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
-        recordings.log_killed(cfg.dataset, killed, seeds)
-    recordings.mark(cfg.dataset, made_by, config_dict(cfg), episodes, _logged_ranges(cfg))
+    return read_episodes(root, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
 
 
 def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
@@ -287,7 +283,8 @@ def _record(
         controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
         sink.wait_ready()
         if made_by is not None:
-            _take_over(cfg, made_by, sink.num_episodes)
+            seeds = partial(_seeds, cfg.dataset)
+            recordings.take_over(cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, seeds, _logged_ranges(cfg))
             summary.marked = True
         first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
         if first_seed < sink.next_seed():

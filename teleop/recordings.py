@@ -31,6 +31,8 @@ from typing import Any, Protocol
 log = logging.getLogger(__name__)
 
 RECORDINGS_FILE = "recordings.jsonl"
+SESSIONS_KEY = "sessions"
+"""A merge's line holds under it each shard's own lines, by shard (`teleop.merge`)."""
 RUN_FILE = ".run.json"
 """The mark of a run writing episodes into the dataset (`mark`); a dataset copied for another run leaves it out
 (and its staging file, `RUN_FILE` + ".partial")."""
@@ -144,6 +146,32 @@ def log_killed(root: Path, killed: dict[str, Any], seeds: Sequence[int]) -> None
     line = killed_line(killed, seeds)
     if line is not None:
         _write(root, line)
+
+
+def take_over(
+    root: Path,
+    made_by: str,
+    config: dict[str, Any],
+    episodes: int,
+    seeds: Callable[[], Sequence[int]],
+    extra: dict[str, Any] | None = None,
+) -> None:
+    """Under `root`'s lock, as a run starts on its `episodes` episodes: the line of a run killed there, if it added
+    any (`seeds()` as for `sessions`), then this run's mark."""
+    killed = marked(root)
+    if killed is not None and episodes > killed["episodes"]:
+        log_killed(root, killed, seeds())
+    mark(root, made_by, config, episodes, extra)
+
+
+def expanded(lines: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """`lines` with each merge's line replaced by the lines of the shards it merged (`SESSIONS_KEY`), recursively:
+    the recording sessions behind a dataset's episodes, whose configs say how they were recorded."""
+    out: list[dict[str, Any]] = []
+    for line in lines:
+        shards = line.get(SESSIONS_KEY)
+        out += [line] if shards is None else expanded([run for runs in shards.values() for run in runs])
+    return out
 
 
 def unmark(root: Path) -> None:

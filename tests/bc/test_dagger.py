@@ -249,6 +249,17 @@ def test_recordings_under_several_conditions_need_them_given(tmp_path: Path) -> 
         recorded_conditions(root)
 
 
+def test_a_merged_dataset_is_read_by_its_shards_recordings(tmp_path: Path) -> None:
+    """A merge's line carries each shard's lines: their conditions are the merged dataset's."""
+    root = tmp_path / "dataset"
+    root.mkdir()
+    shard = {"made_by": "teleop.record", "config": {"randomize": "suite", "latency": 0.5}}
+    sessions = {recordings.SESSIONS_KEY: {"a": [shard], "b": [shard]}}
+    episode = CommittedEpisode(0, 0, 1, 0.0, False)
+    recordings.append(root, "teleop.merge", {"shards": "a b"}, [episode], True, sessions)
+    assert recorded_conditions(root) == ("suite", 0.5)
+
+
 def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Path) -> None:
     """NOISE: the round's episodes are rolled out with that noise on the executed actions, and say so."""
     config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", noise=0.05)

@@ -86,6 +86,18 @@ def test_kill_9_of_the_whole_recording_keeps_every_committed_episode(tmp_path: P
     assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == list(range(survived + 2))
 
 
+def wait_for_the_writer(root: Path) -> None:
+    """Until the writer process, which outlives a killed recorder, has drained its pipe and released the dataset."""
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            EpisodeStore(root, DatasetSpec.from_env(make_env())).close()
+            return
+        except DatasetError:
+            assert time.monotonic() < deadline, "the writer process never released the dataset"
+            time.sleep(0.05)
+
+
 def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tmp_path: Path) -> None:
     """The writer process outlives a killed recorder just long enough to commit the episodes it was sent."""
     root = tmp_path / "dataset"
@@ -93,14 +105,7 @@ def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tm
     wait_for_episodes(root, 2, recorder)
     os.kill(recorder.pid, signal.SIGKILL)
     recorder.wait()
-    deadline = time.monotonic() + 30
-    while True:  # the writer holds the dataset's lock until it has drained the pipe
-        try:
-            EpisodeStore(root, DatasetSpec.from_env(make_env())).close()
-            break
-        except DatasetError:
-            assert time.monotonic() < deadline, "the writer process never released the dataset"
-            time.sleep(0.05)
+    wait_for_the_writer(root)
     assert_consistent(root, committed_episodes(root))
 
 
@@ -112,6 +117,7 @@ def killed(tmp_path: Path) -> tuple[Path, int]:
     wait_for_episodes(root, 2, recorder)
     os.killpg(recorder.pid, signal.SIGKILL)
     recorder.wait()
+    wait_for_the_writer(root)
     return root, committed_episodes(root)
 
 

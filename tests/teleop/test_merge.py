@@ -7,14 +7,15 @@ from pathlib import Path
 import pytest
 
 from support import SHORT_EPISODE, snapshot
+from teleop import recordings
 from teleop.merge import MergeConfig, cli, main
-from teleop.record import RecordConfig
-from teleop.record import main as record
+from teleop.record import RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (several recordings)
 
 
 def record_seeds(root: Path, episodes: int, seed: int, randomize: str = "none") -> Path:
+    """`make record`'s session, its recordings.jsonl line included."""
     settings = {"max_steps": SHORT_EPISODE, "writer": "inline", "progress": False, "randomize": randomize}
     record(RecordConfig(dataset=root, episodes=episodes, seed=seed, **settings))
     return root
@@ -31,6 +32,11 @@ def shards(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
     )
 
 
+def files(root: Path) -> dict[str, bytes]:
+    """The dataset's files but recordings.jsonl, whose lines say who wrote them (a merge, a recording)."""
+    return {name: content for name, content in snapshot(root).items() if name != recordings.RECORDINGS_FILE}
+
+
 def merge(shards: list[Path], dataset: Path) -> int:
     return main(MergeConfig(shards=" ".join(map(str, shards)), dataset=dataset, progress=False))
 
@@ -39,7 +45,24 @@ def test_merged_shards_are_the_one_recorders_files(shards: tuple[Path, Path, Pat
     """Given in any order, the shards merge into every file of the one-go recording, byte for byte."""
     first, second, whole = shards
     assert merge([second, first], tmp_path / "merged") == 6
-    assert snapshot(tmp_path / "merged") == snapshot(whole)
+    assert files(tmp_path / "merged") == files(whole)
+
+
+def test_the_merge_logs_itself_with_each_shards_sessions(shards: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    """The merged dataset's recordings.jsonl: one line for the merge, holding each shard's own lines, so how its
+    episodes were recorded travels with them."""
+    first, second, _ = shards
+    merge([second, first], tmp_path / "merged")
+    (line,) = recordings.read(tmp_path / "merged")
+    assert (line["made_by"], line["complete"], line["episodes"], line["seeds"]) == (
+        "teleop.merge",
+        True,
+        [0, 5],
+        [0, 5],
+    )
+    assert line[recordings.SESSIONS_KEY] == {str(shard): recordings.read(shard) for shard in (second, first)}
+    assert [run["config"]["randomize"] for run in recordings.expanded([line])] == ["suite", "suite"]
+    assert not (tmp_path / "merged" / recordings.RUN_FILE).exists()
 
 
 def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, Path], tmp_path: Path) -> None:
@@ -48,7 +71,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
     merge([first], tmp_path / "merged")
     assert merge([first, second], tmp_path / "merged") == 3
     assert merge([first, second], tmp_path / "merged") == 0
-    assert snapshot(tmp_path / "merged") == snapshot(whole)
+    assert files(tmp_path / "merged") == files(whole)
 
 
 @pytest.mark.parametrize(
