@@ -1,16 +1,17 @@
 """DATASET/recordings.jsonl: one line per run that added episodes to a dataset, with the run's full config.
 
-`make record` (and `make pipeline` when it records, and `make dagger` on its aggregate) append a line
+`make record` (and `make pipeline` when it records, `make dagger` on its aggregate, `make merge`) append a line
 when the run ends, also when it is interrupted: who ran (`made_by`), when, the resolved config, and
 which episodes (indices and seeds) the run committed; a randomised recording adds the ranges its
-`randomize` setting stands for (`"randomization": {"mass": [0.8, 1.2], ...}`). A run that committed
+`randomize` setting stands for (`"randomization": {"mass": [0.8, 1.2], ...}`), a merge its shards'
+own lines (`SESSIONS_KEY`; `expanded` gives the recordings behind a line). A run that committed
 nothing writes nothing.
 LeRobot reads only meta/ and data/ and ignores the file; `make inspect` lists the sessions.
 
 A kill -9 leaves no time for the line, so a run marks the dataset while it writes (`RUN_FILE`: who,
 its config, the episode count it started from; `mark`), and the next run, under the dataset's lock,
-writes the killed run's line for the episodes it left (`log_killed`, complete false) before marking
-the dataset as its own. A run that ends removes its mark (`unmark`) after writing its line.
+writes the killed run's line for the episodes it left (complete false) before marking the dataset as
+its own (`take_over`). A run that ends removes its mark (`unmark`) after writing its line.
 
     {"made_by": "teleop.record", "time": "2026-01-01T12:00:00+00:00", "complete": true,
      "config": {"dataset": "datasets/humanoid_stand", "episodes": 50, ...},
