@@ -253,26 +253,28 @@ class DAggerTrainer:
             raise RuntimeError("train() a policy before collecting its rollouts")
         controller = PolicyController(self.policy, f"{self.name}:round{round_index - 1}", self.env)
         first_seed = store.next_seed()
-        added, returns, frames, survived = [], [], 0, 0
-        for seed in tqdm(
+        added, returns, frames, survived, rows = [], [], 0, 0, []
+        bar = tqdm(
             range(first_seed, first_seed + episodes),
             desc=f"round {round_index}",
             unit="ep",
             disable=not progress,
             file=sys.stderr,
             dynamic_ncols=True,
-        ):
-            episode = run_episode(self.env, controller, seed, noise, self._buffer, labeller=self.expert)
-            episode.dagger_round = round_index
-            committed = store.append(episode)
-            added.append(committed)
-            self.demos = self.demos.with_episode(
-                *episode_rows(episode, self.training.inputs, self._model), committed.index
-            )
-            self.round_of[committed.index] = round_index
-            returns.append(episode.episode_return)
-            frames += episode.length
-            survived += not episode.fell
+        )
+        try:
+            for seed in bar:
+                episode = run_episode(self.env, controller, seed, noise, self._buffer, labeller=self.expert)
+                episode.dagger_round = round_index
+                committed = store.append(episode)
+                added.append(committed)
+                rows.append((*episode_rows(episode, self.training.inputs, self._model), committed.index))
+                self.round_of[committed.index] = round_index
+                returns.append(episode.episode_return)
+                frames += episode.length
+                survived += not episode.fell
+        finally:  # also when interrupted: the aggregate in memory holds every episode on disk
+            self.demos = self.demos.with_episodes(rows)
         return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived), added
 
 

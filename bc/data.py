@@ -18,6 +18,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -94,16 +95,24 @@ class Demonstrations:
             self, inputs=self.inputs[rows], actions=self.actions[rows], episode_index=self.episode_index[keep]
         )
 
-    def with_episode(self, inputs: np.ndarray, actions: np.ndarray, index: int) -> Demonstrations:
-        """These frames, then one more episode's (numbered `index`, after every other): rows in memory, as
-        `load_demonstrations` would read them once the episode is recorded (`episode_rows`)."""
-        if len(self.episode_index) and index <= self.episode_index[-1]:
-            raise ValueError(f"episode {index} does not come after episode {self.episode_index[-1]}")
+    def with_episodes(self, episodes: Sequence[tuple[np.ndarray, np.ndarray, int]]) -> Demonstrations:
+        """These frames, then more episodes' (inputs, actions, index), each numbered after every one before it: rows
+        in memory, as `load_demonstrations` would read them once the episodes are recorded (`episode_rows`). One
+        copy of the aggregate for all of them, not one per episode."""
+        if not episodes:
+            return self
+        last = self.episode_index[-1] if len(self.episode_index) else -1
+        for _, _, index in episodes:
+            if index <= last:
+                raise ValueError(f"episode {index} does not come after episode {last}")
+            last = index
         return replace(
             self,
-            inputs=torch.cat([self.inputs, torch.from_numpy(inputs)]),
-            actions=torch.cat([self.actions, torch.from_numpy(actions)]),
-            episode_index=np.concatenate([self.episode_index, np.full(len(actions), index, np.int64)]),
+            inputs=torch.cat([self.inputs, *(torch.from_numpy(inputs) for inputs, _, _ in episodes)]),
+            actions=torch.cat([self.actions, *(torch.from_numpy(actions) for _, actions, _ in episodes)]),
+            episode_index=np.concatenate(
+                [self.episode_index, *(np.full(len(actions), index, np.int64) for _, actions, index in episodes)]
+            ),
         )
 
 

@@ -357,10 +357,17 @@ def test_demonstrations_keep_the_frames_of_the_episodes_asked_in_order() -> None
     assert small_demos().only([0, 2]).frames == 4
 
 
-def test_an_episode_joins_the_demonstrations_after_the_last_one_only() -> None:
-    """Rows in memory stay in episode order, as a dataset's are: an index at or before the last is refused."""
-    frames = np.full((3, 1), 7.0, np.float32)
-    grown = small_demos().with_episode(frames, frames, 3)
-    assert grown.episode_index.tolist() == [0, 0, 2, 2, 3, 3, 3] and grown.actions[-1].item() == 7.0
+def test_episodes_join_the_demonstrations_after_the_last_one_only() -> None:
+    """Rows in memory stay in episode order, as a dataset's are: an index at or before the one before is refused."""
+    three, one = np.full((3, 1), 7.0, np.float32), np.full((1, 1), 8.0, np.float32)
+    grown = small_demos().with_episodes([(three, three, 3), (one, one, 5)])
+    assert grown.episode_index.tolist() == [0, 0, 2, 2, 3, 3, 3, 5] and grown.actions[-4:].flatten().tolist() == [
+        7,
+        7,
+        7,
+        8,
+    ]
     with pytest.raises(ValueError, match="does not come after"):
-        small_demos().with_episode(frames, frames, 2)
+        small_demos().with_episodes([(three, three, 2)])
+    with pytest.raises(ValueError, match="episode 4 does not come after episode 4"):
+        small_demos().with_episodes([(three, three, 4), (one, one, 4)])
