@@ -308,13 +308,8 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         eval_episodes=cfg.eval_episodes,
         progress=cfg.progress,
     )
-    added: list[CommittedEpisode] = []
-    complete = False
     try:
         table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND]).to_pydict()
-        # Under the store's lock: one run at a time marks OUTPUT; a killed run's episodes get their line first.
-        seeds = table[keys.EPISODE_SEED]
-        recordings.take_over(cfg.output, MADE_BY, config_dict(cfg), len(seeds), lambda: seeds)
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
         rounds = table[keys.EPISODE_DAGGER_ROUND]
         quiet = dataclasses.replace(training, progress=False)
@@ -323,18 +318,18 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         last = max(rounds)
         # A last round with fewer than EPISODES episodes was cut short (a killed run): it is finished first.
         first = last if last and rounds.count(last) < cfg.episodes else last + 1
-        for round_index in range(first, cfg.rounds + 1):
-            trainer.train(round_index)
-            missing = cfg.episodes - rounds.count(round_index)
-            report, committed = trainer.collect(store, round_index, missing, cfg.progress, cfg.noise)
-            result.rounds.append(report)
-            added += committed
-        complete = True
+        seeds = table[keys.EPISODE_SEED]
+        # Under the store's lock: one run at a time marks OUTPUT; a killed run's episodes get their line first.
+        with recordings.logged(cfg.output, MADE_BY, config_dict(cfg), len(seeds), lambda: seeds) as added:
+            for round_index in range(first, cfg.rounds + 1):
+                trainer.train(round_index)
+                missing = cfg.episodes - rounds.count(round_index)
+                report, committed = trainer.collect(store, round_index, missing, cfg.progress, cfg.noise)
+                result.rounds.append(report)
+                added += committed
     finally:
         store.close()
         env.close()
-        recordings.append(cfg.output, MADE_BY, config_dict(cfg), added, complete)
-        recordings.unmark(cfg.output)
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
     result.final = train_and_save(aggregate, training, env.action_space, MADE_BY, context)

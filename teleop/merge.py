@@ -33,7 +33,7 @@ from humanoid.episode import Episode
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.mcap_io.writer import TF_TOPIC
-from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
+from teleop.store import DatasetSpec, EpisodeStore
 
 
 @dataclass
@@ -127,28 +127,21 @@ def main(cfg: MergeConfig) -> int:
     episodes, parameters, _ = _plan(shards)
     sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
     store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))
-    committed: list[CommittedEpisode] = []
-    complete = marked = False
     try:
         have = read_episodes(cfg.dataset)[keys.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
             raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
-        recordings.take_over(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions)
-        marked = True
         commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's frames' commands, read once
-        for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
-            if shard not in commands:
-                commands[shard] = read_frames(shard, [keys.OBS_COMMAND, "episode_index"])
-            frames = commands[shard]
-            command = frames[keys.OBS_COMMAND][frames["episode_index"] == row["episode_index"]]
-            committed.append(store.append(read_episode(shard, row, command, store.spec.body_frames)))
-        complete = True
+        with recordings.logged(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions) as added:
+            for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
+                if shard not in commands:
+                    commands[shard] = read_frames(shard, [keys.OBS_COMMAND, "episode_index"])
+                frames = commands[shard]
+                command = frames[keys.OBS_COMMAND][frames["episode_index"] == row["episode_index"]]
+                added.append(store.append(read_episode(shard, row, command, store.spec.body_frames)))
     finally:
         store.close()
-        if marked:
-            recordings.append(cfg.dataset, MADE_BY, config_dict(cfg), committed, complete, sessions)
-            recordings.unmark(cfg.dataset)
-    return len(committed)
+    return len(added)
 
 
 def _main_and_print(cfg: MergeConfig) -> None:

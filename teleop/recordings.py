@@ -24,7 +24,8 @@ import datetime
 import json
 import logging
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -163,6 +164,28 @@ def take_over(
     if killed is not None and episodes > killed["episodes"]:
         log_killed(root, killed, seeds())
     mark(root, made_by, config, episodes, extra)
+
+
+@contextmanager
+def logged(
+    root: Path,
+    made_by: str,
+    config: dict[str, Any],
+    episodes: int,
+    seeds: Callable[[], Sequence[int]],
+    extra: dict[str, Any] | None = None,
+) -> Iterator[list[Committed]]:
+    """A run writing into `root`, under its lock, from `episodes` episodes on: `take_over`, then the list the run
+    adds what it commits to; on leaving, the run's line (complete unless an exception left the block) and no mark."""
+    take_over(root, made_by, config, episodes, seeds, extra)
+    committed: list[Committed] = []
+    complete = False
+    try:
+        yield committed
+        complete = True
+    finally:
+        append(root, made_by, config, committed, complete, extra)
+        unmark(root)
 
 
 def expanded(lines: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:

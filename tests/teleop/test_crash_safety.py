@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -86,6 +88,15 @@ def test_kill_9_of_the_whole_recording_keeps_every_committed_episode(tmp_path: P
     assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == list(range(survived + 2))
 
 
+def kill_after_two_episodes(root: Path, kill: Callable[[subprocess.Popen], None]) -> None:
+    """Record 100 episodes into `root`, `kill` the recording once two are committed, and wait for the writer."""
+    recorder = start_recording(root, episodes=100)
+    wait_for_episodes(root, 2, recorder)
+    kill(recorder)
+    recorder.wait()
+    wait_for_the_writer(root)
+
+
 def wait_for_the_writer(root: Path) -> None:
     """Until the writer process, which outlives a killed recorder, has drained its pipe and released the dataset."""
     deadline = time.monotonic() + 30
@@ -101,11 +112,7 @@ def wait_for_the_writer(root: Path) -> None:
 def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tmp_path: Path) -> None:
     """The writer process outlives a killed recorder just long enough to commit the episodes it was sent."""
     root = tmp_path / "dataset"
-    recorder = start_recording(root, episodes=100)
-    wait_for_episodes(root, 2, recorder)
-    os.kill(recorder.pid, signal.SIGKILL)
-    recorder.wait()
-    wait_for_the_writer(root)
+    kill_after_two_episodes(root, lambda recorder: os.kill(recorder.pid, signal.SIGKILL))
     assert_consistent(root, committed_episodes(root))
 
 
@@ -113,11 +120,7 @@ def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tm
 def killed(tmp_path: Path) -> tuple[Path, int]:
     """A dataset whose recording (100 episodes asked for) was killed with -9 after its second episode or later."""
     root = tmp_path / "dataset"
-    recorder = start_recording(root, episodes=100)
-    wait_for_episodes(root, 2, recorder)
-    os.killpg(recorder.pid, signal.SIGKILL)
-    recorder.wait()
-    wait_for_the_writer(root)
+    kill_after_two_episodes(root, lambda recorder: os.killpg(recorder.pid, signal.SIGKILL))
     return root, committed_episodes(root)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from teleop import recordings
 
 
@@ -39,4 +41,14 @@ def test_sessions_end_with_the_killed_runs_line_until_it_is_written(tmp_path: Pa
     recordings.unmark(tmp_path)
     assert [line["episodes"] for line in pending] == [[0, 0], [1, 2]]
     assert recordings.sessions(tmp_path, lambda: [0, 1, 2]) == recordings.read(tmp_path) == pending
+    assert recordings.marked(tmp_path) is None
+
+
+def test_a_run_that_fails_is_logged_incomplete_and_leaves_no_mark(tmp_path: Path) -> None:
+    """`logged`: what the run committed before the error gets its line, complete false; the mark goes."""
+    with pytest.raises(RuntimeError), recordings.logged(tmp_path, "teleop.merge", {}, 0, list) as added:
+        added.append(recordings.Episode(0, 7))
+        raise RuntimeError("interrupted")
+    (line,) = recordings.read(tmp_path)
+    assert (line["complete"], line["episodes"], line["seeds"]) == (False, [0, 0], [7, 7])
     assert recordings.marked(tmp_path) is None
