@@ -24,7 +24,8 @@ class Controller(Protocol):
     """Maps a gymnasium observation to an action within the action bounds.
 
     One that can act through action latency also has `set_delay(steps)`: the rollout calls it before each
-    `reset` with that episode's delay (`humanoid.episode.tell_delay`).
+    `reset` with that episode's delay (`humanoid.episode.tell_delay`). A privileged teacher that can use the
+    episode's drawn body has `set_body(model)`, called likewise (`humanoid.episode.tell_body`).
     """
 
     name: str
@@ -56,13 +57,16 @@ class RandomController:
 def _expert(env: gym.Env) -> Controller:
     from humanoid.expert import LQRExpert  # noqa: PLC0415 - the LQR design imports scipy; only pay for it when used
 
-    return LQRExpert(env.unwrapped.model, delay=action_delay(env))
+    # Designed on Humanoid-v5's own model, not `env`'s: a randomised env's model holds whatever body it drew
+    # last. The rollout tells the expert each episode's body (`humanoid.episode.tell_body`).
+    return LQRExpert(delay=action_delay(env))
 
 
 def _sensed_expert(env: gym.Env) -> Controller:
     from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
 
-    return SensedExpert(env.unwrapped.model, delay=action_delay(env))
+    # The nominal model too, and never told the body: it acts on what a robot senses, its estimator included.
+    return SensedExpert(delay=action_delay(env))
 
 
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {

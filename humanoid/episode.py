@@ -190,6 +190,7 @@ def run_episode(
     for acting in (controller, labeller):
         if acting is not None:
             tell_delay(acting, env)
+            tell_body(acting, env)
             acting.reset(seed)
     if observer is not None:
         observer.episode_started(seed)
@@ -223,6 +224,14 @@ def tell_delay(controller: Controller, env: gym.Env) -> None:
     set_delay = getattr(controller, "set_delay", None)
     if set_delay is not None:
         set_delay(action_delay(env))
+
+
+def tell_body(controller: Controller, env: gym.Env) -> None:
+    """Tell a controller that can use it (one with `set_body`: the expert, a privileged teacher) the body the
+    episode `env` was just reset to: its masses, friction and motors as drawn (`humanoid.conditions`)."""
+    set_body = getattr(controller, "set_body", None)
+    if set_body is not None:
+        set_body(model_and_data(env)[0])
 
 
 def check_action(action: np.ndarray, controller: Controller, t: int, seed: int) -> None:

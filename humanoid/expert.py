@@ -22,10 +22,12 @@ from humanoid.lqr import (
     ROOT_XY,
     VERTICAL_VEL,
     LQRDesign,
+    LQRGains,
+    cache_key,
     load_or_design,
     state_error,
 )
-from humanoid.posture import NEUTRAL, Posture, PostureRamp
+from humanoid.posture import NEUTRAL, Posture, PostureRamp, body_gains
 from humanoid.sensors import Proprioception
 
 
@@ -52,6 +54,8 @@ class LQRExpert:
         """
         self.model = humanoid_model() if model is None else model
         self.design = design
+        self._key = cache_key(self.model, design)  # the body the gains are designed on, as it is now
+        self._body: tuple[mujoco.MjModel, LQRGains] | None = None  # a told body other than that one
         self._predictor: Predictor | None = None
         self.set_delay(delay)
         self._pending: deque[np.ndarray] = deque()
@@ -70,12 +74,39 @@ class LQRExpert:
             raise ValueError(f"delay must be >= 0 steps, got {steps}")
         self.delay = steps
         if steps and self._predictor is None:
-            self._predictor = Predictor(copy.copy(self.model), self.design.frame_skip)
+            self._predictor = Predictor(self._body_model(), self.design.frame_skip)
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """The body of the episodes from the next `reset` on, told by the rollout (`humanoid.episode.tell_body`).
+
+        A body other than the design's (drawn masses, friction or motors: `humanoid.conditions.DomainRandomization`)
+        gets its own balanced stance and gain (`humanoid.posture.body_gains`, about 0.1 s), and the predictor
+        steps it; the design's body gets the design's gains. The expert reads the simulator's observation,
+        whose `cinert` holds the masses anyway: a privileged teacher. Without this the nominal stance tips
+        a drawn body (docs/robustness.md, "An expert told its body"). Commanded postures stay the design's.
+        """
+        if cache_key(model, self.design) == self._key:
+            self._body = None
+        else:
+            body = copy.copy(model)  # the env draws its next body into `model` in place
+            self._body = body, body_gains(body, self.design, self.gains.qpos_ref)
+        if self._predictor is not None:
+            self._predictor = Predictor(self._body_model(), self.design.frame_skip)
+
+    def _body_model(self) -> mujoco.MjModel:
+        """A model of the body acted on, for the predictor to step."""
+        return copy.copy(self.model) if self._body is None else self._body[0]
 
     def reset(self, seed: int | None = None) -> None:
         """Back to the neutral posture at once (setpoint and target); no action pending; otherwise deterministic."""
-        if self._ramp is not None:
-            self._ramp.reset()
+        gains = self.gains if self._body is None else self._body[1]
+        if self._ramp is None:
+            self.gain = gains.gain  # only read until a posture is held
+        else:
+            self._ramp.reset()  # writes the design's neutral setpoint and gain in place
+            self.gain[:] = gains.gain
+        self.qpos_ref[:] = gains.qpos_ref
+        self.ctrl_ff[:] = gains.ctrl_ff
         self._moving = False
         # As ActionLatency does: the first `delay` steps execute zeros.
         self._pending = deque([np.zeros(self.model.nu)] * self.delay)
@@ -88,7 +119,7 @@ class LQRExpert:
         calls retarget from wherever the setpoint has got to; ``Posture()`` returns to neutral.
         """
         if self._ramp is None:
-            self.gain = self.gains.gain.copy()
+            self.gain = self.gain.copy()  # the design's or the told body's
             self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
         self._ramp.hold(posture, clip)
         self._moving = self._ramp.moving

@@ -42,7 +42,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.lqr import LQRDesign, design_gain, feed_forward, load_or_design
+from humanoid.lqr import LQRDesign, LQRGains, design_gain, feed_forward, load_or_design
 
 if TYPE_CHECKING:
     import scipy.optimize
@@ -307,6 +307,20 @@ def posture_gain(model: mujoco.MjModel, posture: Posture, design: LQRDesign = LQ
     if posture == NEUTRAL:
         return _design(model, design)[2]
     return _read_only(design_gain(model, *posture_reference(model, posture, design), design, GAIN_DISCOUNT))
+
+
+def body_gains(model: mujoco.MjModel, design: LQRDesign, neutral: np.ndarray) -> LQRGains:
+    """The neutral stance balanced on ``model``, a body other than the design's, with its feed-forward and gain.
+
+    ``neutral`` is the design's balanced pose. A body with other masses or motors (``humanoid.conditions``'
+    randomisation) is not balanced by it: ``lqr.balanced_pose`` solves pitch only, which a symmetric body
+    needs, and a drawn body is not symmetric. So the stance is solved as a posture's (root height, hip_y,
+    knee split) and the gain designed there; not cached (0.05 to 0.2 s). Why: docs/robustness.md,
+    "An expert told its body".
+    """
+    qpos = posture_pose(model, NEUTRAL, neutral)
+    ctrl = feed_forward(model, qpos)
+    return LQRGains(qpos_ref=qpos, ctrl_ff=ctrl, gain=design_gain(model, qpos, ctrl, design, GAIN_DISCOUNT))
 
 
 RATES: dict[str, float] = {

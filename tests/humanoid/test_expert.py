@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 
 from humanoid import physics
-from humanoid.conditions import ActionLatency, action_delay
+from humanoid.conditions import ActionLatency, DomainRandomization, Randomization, action_delay
 from humanoid.controllers import make_controller
-from humanoid.env import humanoid_model
+from humanoid.env import humanoid_model, model_and_data
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert, Predictor
 from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, load_or_design
+from humanoid.posture import body_gains
 
 STANDING_RETURN = 4_900.0
 
@@ -159,7 +160,8 @@ def test_prediction_of_the_pending_action_is_where_the_env_goes(model: mujoco.Mj
 
 
 class Untold:
-    """`expert` without `set_delay`: the rollout cannot tell it the delay, so it acts as if there were none."""
+    """`expert` without `set_delay` or `set_body`: the rollout cannot tell it the delay or the body, so it acts as if
+    there were no delay, on the body it was designed on."""
 
     def __init__(self, expert: LQRExpert) -> None:
         self.expert, self.name = expert, "untold"
@@ -180,3 +182,48 @@ def test_delay_aware_expert_stands_where_the_plain_one_falls(expert: LQRExpert, 
     aware = run_episode(env, make_controller("expert", env), seed)
     assert plain.fell and plain.length < 100
     assert not aware.fell and aware.length == 300 and aware.episode_return > 4.9 * 300
+
+
+def drawn_masses(seed: int, max_episode_steps: int = 1000) -> DomainRandomization:
+    """Humanoid-v5 reset with the suite's `mass` draw of `seed` (each body x U(0.8, 1.2))."""
+    env = gym.make("Humanoid-v5", max_episode_steps=max_episode_steps)
+    env = DomainRandomization(env, Randomization(mass=(0.8, 1.2)))
+    env.reset(seed=seed)
+    return env
+
+
+def test_stance_for_a_told_body_needs_no_help_from_the_root(model: mujoco.MjModel, cache: Path) -> None:
+    """The design's pose does not balance a body with drawn masses (it needs a roll moment); the told body's does."""
+    drawn, _ = model_and_data(drawn_masses(1001))
+    weight = drawn.body_subtreemass[0] * -drawn.opt.gravity[2]
+    design = load_or_design(model)
+    data = mujoco.MjData(drawn)
+    data.qpos[:] = design.qpos_ref
+    assert np.abs(physics.static_root_residual(drawn, data)).max() > 1e-3 * weight
+    data.qpos[:] = body_gains(drawn, LQRDesign(), design.qpos_ref).qpos_ref
+    np.testing.assert_allclose(physics.static_root_residual(drawn, data), 0.0, atol=1e-9 * weight)
+
+
+def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert, cache: Path) -> None:
+    """On seed 1007's drawn masses the design's gains fall within 100 steps; told the body, the expert stands."""
+    env = drawn_masses(1007, max_episode_steps=300)
+    untold = run_episode(env, Untold(expert), 1007)
+    told = run_episode(env, LQRExpert(humanoid_model()), 1007)
+    assert untold.fell and untold.length < 100
+    assert not told.fell and told.length == 300 and told.episode_return > 4.9 * 300
+
+
+def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.MjModel, cache: Path) -> None:
+    """After a drawn body, the design's own body brings back the design's gains bit for bit."""
+    env = drawn_masses(1001)
+    obs, _ = env.reset(seed=1001)
+    told, fresh = LQRExpert(model), LQRExpert(model)
+    told.set_body(model_and_data(env)[0])
+    told.reset()
+    on_drawn = told.act(obs)
+    env.restore()
+    told.set_body(model_and_data(env)[0])
+    told.reset()
+    fresh.reset()
+    np.testing.assert_array_equal(told.act(obs), fresh.act(obs))
+    assert not np.array_equal(on_drawn, fresh.act(obs))
