@@ -98,7 +98,11 @@ def state_error(model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, q
 
 
 def balanced_pose(model: mujoco.MjModel, knee: float) -> np.ndarray:
-    """Pose with both knees at ``knee`` whose height and hip_y angles leave no vertical force or pitch moment."""
+    """Pose with both knees at ``knee`` whose height and hip_y angles leave no vertical force or pitch moment.
+
+    Enough for a left-right symmetric body, which needs no roll moment; a body with drawn masses does, and
+    ``humanoid.posture.body_gains`` balances that too.
+    """
     hips = [model.joint(f"{side}_hip_y").qposadr[0] for side in ("right", "left")]
     knees = [model.joint(f"{side}_knee").qposadr[0] for side in ("right", "left")]
     data = mujoco.MjData(model)
