@@ -85,12 +85,13 @@ class LQRExpert:
         whose `cinert` holds the masses anyway: a privileged teacher. Without this the nominal stance tips
         a drawn body (docs/robustness.md, "An expert told its body"). Commanded postures stay the design's.
         """
+        previous = self._body
         if cache_key(model, self.design) == self._key:
             self._body = None
         else:
             body = copy.copy(model)  # the env draws its next body into `model` in place
             self._body = body, body_gains(body, self.design, self.gains.qpos_ref)
-        if self._predictor is not None:
+        if self._predictor is not None and (previous is not None or self._body is not None):
             self._predictor = Predictor(self._body_model(), self.design.frame_skip)
 
     def _body_model(self) -> mujoco.MjModel:

@@ -227,3 +227,11 @@ def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.
     fresh.reset()
     np.testing.assert_array_equal(told.act(obs), fresh.act(obs))
     assert not np.array_equal(on_drawn, fresh.act(obs))
+
+
+def test_told_a_body_and_a_delay_the_expert_predicts_on_that_body(cache: Path) -> None:
+    """Seed 1007's drawn masses under a step of latency: predicting on the nominal body falls at step 90, on the
+    told body it stands."""
+    env = ActionLatency(drawn_masses(1007, max_episode_steps=300), steps=1)
+    episode = run_episode(env, make_controller("expert", env), 1007)
+    assert not episode.fell and episode.length == 300
