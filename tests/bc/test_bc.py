@@ -17,6 +17,7 @@ import torch
 from safetensors.torch import load_file
 
 from bc.data import Demonstrations, load_demonstrations, split_by_episode
+from bc.evaluate import evaluate
 from bc.train import (
     LEARNING_CURVE_FILE,
     TrainConfig,
@@ -39,6 +40,7 @@ from policies.mlp import STD_FLOOR
 from support import join_observation, snapshot, tensorboard_text
 from teleop.dataset_reader import fingerprint, read_frames
 from teleop.record import RecordConfig, validate
+from teleop.record import main as record
 
 TINY = {
     "hidden": 32,
@@ -77,6 +79,17 @@ def test_tiny_training_lowers_the_validation_loss(trained: TrainResult) -> None:
     curves = trained.curves
     assert curves.best_val_loss < 0.75 * curves.initial_val_loss
     assert curves.train_loss[-1] < curves.train_loss[0]
+
+
+@pytest.mark.slow
+def test_default_recipe_clones_the_expert_from_five_demonstrations(tmp_path: Path) -> None:
+    """The recipe's known answer: with ReLU units this data stood on no unseen seed (docs/learning.md, Why ELU)."""
+    data = tmp_path / "five"
+    record(RecordConfig(dataset=data, episodes=5, seed=0, writer="inline", progress=False))
+    cfg = TrainConfig(dataset=data, policy=tmp_path / "policy", eval_episodes=0, tensorboard=False, progress=False)
+    result = main(cfg)
+    evaluation = evaluate(PolicyController(result.policy, "five"), episodes=5, seed=1000)
+    assert evaluation["survivals"] == [True] * 5, evaluation["lengths"]
 
 
 def test_min_updates_give_a_small_dataset_more_epochs() -> None:
