@@ -83,10 +83,19 @@ def scale_learning_rates(optimizer: torch.optim.Optimizer) -> None:
 class BCActorCriticPolicy(ActorCriticPolicy):
     """PPO's policy with an `MLPPolicy` actor rebuilt from `actor_spec` and `actor_state` (its state_dict)."""
 
-    def __init__(self, observation_space: gym.spaces.Space, action_space: gym.spaces.Box, lr_schedule: Schedule,
-                 actor_spec: MLPSpec, actor_state: dict[str, torch.Tensor], critic_hidden: tuple[int, ...] = (256, 256),
-                 critic_lr_scale: float = 1.0, actor_inputs: nn.Module | None = None,
-                 critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        observation_space: gym.spaces.Space,
+        action_space: gym.spaces.Box,
+        lr_schedule: Schedule,
+        actor_spec: MLPSpec,
+        actor_state: dict[str, torch.Tensor],
+        critic_hidden: tuple[int, ...] = (256, 256),
+        critic_lr_scale: float = 1.0,
+        actor_inputs: nn.Module | None = None,
+        critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
+        **kwargs: Any,
+    ) -> None:
         # Plain data, set before nn.Module.__init__: `_build` (called by the parent) needs them.
         self.actor_spec, self.actor_state, self.critic_hidden = actor_spec, actor_state, critic_hidden
         self.critic_lr_scale = critic_lr_scale
@@ -104,8 +113,10 @@ class BCActorCriticPolicy(ActorCriticPolicy):
         # The parent's optimiser holds the linear action_net just replaced: rebuild it over the real parameters,
         # the critic's in a group of its own, whose rate is `critic_lr_scale` times the actor's.
         actor = {id(p) for p in self.actor_parameters()}
-        groups = [{"params": self.actor_parameters()},
-                  {"params": [p for p in self.parameters() if id(p) not in actor], "lr_scale": self.critic_lr_scale}]
+        groups = [
+            {"params": self.actor_parameters()},
+            {"params": [p for p in self.parameters() if id(p) not in actor], "lr_scale": self.critic_lr_scale},
+        ]
         self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **self.optimizer_kwargs)
         scale_learning_rates(self.optimizer)
 

@@ -24,9 +24,9 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
+from common.cli import UserError
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
-from common.cli import UserError
 
 FORMAT = "humanoid-bc/policy"
 FORMAT_VERSION = 1
@@ -49,8 +49,10 @@ def save(policy: MLPPolicy, folder: Path, training: dict[str, Any], dataset: dic
         # Bytes written here rather than by save_file, which creates the file with mode 0600.
         weights = {name: t.contiguous() for name, t in policy.state_dict().items()}
         (folder / WEIGHTS_FILE).write_bytes(save_weights(weights, metadata={"format": FORMAT}))
-        write_json(folder / CONFIG_FILE, {"format": FORMAT, "version": FORMAT_VERSION, "policy": policy_config,
-                                          "training": training})
+        write_json(
+            folder / CONFIG_FILE,
+            {"format": FORMAT, "version": FORMAT_VERSION, "policy": policy_config, "training": training},
+        )
         write_json(folder / DATASET_FILE, dataset)
     except OSError as error:  # disk full, permissions
         raise CheckpointError(f"cannot write the checkpoint to {folder}: {error.strerror or error}") from None
@@ -68,8 +70,9 @@ def read_config(path: Path) -> dict[str, Any]:
     if not isinstance(config, dict) or config.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (its {CONFIG_FILE} has another format)")
     if config.get("version") != FORMAT_VERSION:
-        raise CheckpointError(f"{path} has checkpoint version {config.get('version')}; "
-                              f"this code reads {FORMAT_VERSION}")
+        raise CheckpointError(
+            f"{path} has checkpoint version {config.get('version')}; this code reads {FORMAT_VERSION}"
+        )
     return config
 
 

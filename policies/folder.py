@@ -7,6 +7,7 @@ content is read by `policies.checkpoint`.
 from __future__ import annotations
 
 from pathlib import Path
+
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 DATASET_FILE = "dataset.json"

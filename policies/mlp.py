@@ -37,6 +37,8 @@ class MLPSpec:
     action_dim: int
     hidden: tuple[int, ...] = (256, 256)
     activation: str = "relu"
+    """Hidden units (ACTIVATIONS). `make train-bc` writes ELU networks (its `--activation` says why); this
+    default stays the ReLU that spec had before, so a spec built without the field means what it meant."""
     inputs: str = "full"
     """What the policy reads (humanoid.inputs.INPUTS): "full", the gymnasium observation; "proprio", what a
     robot senses; or "odometry", that and the leg odometry computed from it. Checkpoints written before
@@ -64,8 +66,9 @@ def normalisation(inputs: torch.Tensor, std_floor: float = STD_FLOOR) -> tuple[t
 class MLPPolicy(nn.Module):
     """(x - mean) / std -> hidden layers -> tanh, scaled to [action_low, action_high]."""
 
-    def __init__(self, spec: MLPSpec, action_low: np.ndarray | None = None,
-                 action_high: np.ndarray | None = None) -> None:
+    def __init__(
+        self, spec: MLPSpec, action_low: np.ndarray | None = None, action_high: np.ndarray | None = None
+    ) -> None:
         """A fresh policy; bounds default to +-1 (a checkpoint's state_dict restores the real ones)."""
         super().__init__()
         self.spec = spec
