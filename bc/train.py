@@ -76,8 +76,8 @@ class TrainConfig:
     layers: int = setting(2, "number of hidden layers")
     activation: str = setting(
         "elu",
-        "hidden activation; ELU by measurement: from 5 or 10 demonstrations of the full observation it stood on "
-        "every decision seed, ReLU on 19/180 and 171/180 (docs/learning.md, Why ELU)",
+        "hidden activation; ELU by measurement: students from a few demonstrations stand where ReLU ones fell "
+        "(docs/learning.md, Why ELU)",
         choices=tuple(ACTIVATIONS),
     )
     loss: str = setting("mse", "loss on the actions", choices=tuple(LOSSES))
