@@ -67,8 +67,8 @@ log = logging.getLogger(__name__)
 # cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
 DEFAULT_NOISE = 0.05
 # The expert on leg odometry (`--controller expert-sensed`) records `make pipeline`'s deployable demonstrations with
-# less noise: at 0.05, with half of them delayed (SENSED_LATENCY), it falls in most, and the students of 50 stood
-# under sensor noise on 1 or 2 seeds in 20 where 0.03 gave 10 to 18 (docs/robustness.md, "The teacher's noise").
+# less noise: at 0.05, with half of them delayed (SENSED_LATENCY), it falls in most, and their students stood under
+# sensor and action noise far less often (docs/robustness.md, "The teacher's noise").
 SENSED_NOISE = 0.03
 # The share of its episodes recorded with one step of action latency, told to it: a student on the "pending" inputs
 # learns to act through the delay from them, and the undelayed half keeps it standing without (docs/robustness.md,
