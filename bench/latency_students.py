@@ -8,11 +8,11 @@ once; the "pending" inputs add that command and the delay (humanoid/inputs.py). 
 enough, and from how many demonstrations, is measured here, not assumed.
 
 What: for each first seed (disjoint seed ranges) and each N, the expert on leg odometry records N
-episodes (DART noise SENSED_NOISE, as `make pipeline` records it), a share of them with one step of latency, drawn per
-episode and told to it (`make record LATENCY=SHARE`). Two students train on the same dataset with
-`bc.train`'s defaults: INPUTS=odometry and INPUTS=pending. Each is evaluated on the unseen seeds
-1000..1019 under the suite's clean, latency and noise conditions, the expert on leg odometry beside
-them. Prints a Markdown table and writes every cell to a JSON file.
+episodes (DART noise SENSED_NOISE, as `make pipeline` records them), a share of them with one step of
+latency, drawn per episode and told to it (`make record LATENCY=SHARE`). Two students train on the
+same dataset with `bc.train`'s defaults: INPUTS=odometry and INPUTS=pending. Each is evaluated on the
+unseen seeds 1000..1019 under the suite's clean, latency and noise conditions, the expert on leg
+odometry beside them. Prints a Markdown table and writes every cell to a JSON file.
 """
 
 from __future__ import annotations
