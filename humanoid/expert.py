@@ -1,7 +1,9 @@
 """Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5.
 
-The gains come from `humanoid.lqr`; commanded postures (`hold`) from `humanoid.posture`.
-At run time the action is ``ctrl_ff - gain @ state``, clipped to the motors' range.
+The gains come from `humanoid.lqr`; the landing after each reset from `humanoid.landing`;
+commanded postures (`hold`) from `humanoid.posture`. At run time the action is
+``ctrl_ff - gain @ state``, clipped to the motors' range; for the first steps after a reset
+the landing plan's time-varying version of it.
 """
 
 from __future__ import annotations
@@ -14,18 +16,16 @@ import numpy as np
 
 from humanoid.env import humanoid_model
 from humanoid.estimator import LegOdometry
+from humanoid.landing import Landing, load_or_design_landing
 from humanoid.lqr import (
-    CTRL_LIMIT,
-    HEIGHT,
     QPOS_OBS,
     QVEL_OBS,
     ROOT_XY,
-    VERTICAL_VEL,
     LQRDesign,
     LQRGains,
     cache_key,
     load_or_design,
-    state_error,
+    steady_action,
 )
 from humanoid.posture import NEUTRAL, Posture, PostureRamp, body_gains
 from humanoid.sensors import Proprioception
@@ -42,8 +42,15 @@ class LQRExpert:
 
     name = "expert"
 
-    def __init__(self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign(), delay: int = 0) -> None:
+    def __init__(
+        self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign(), delay: int = 0, landing: bool = True
+    ) -> None:
         """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's.
+
+        With ``landing`` (and ``design.landing_steps`` > 0) the first steps after each `reset` track the
+        planned landing (`humanoid.landing`) on the design's body without delay and until a posture is
+        commanded; the plan is the nominal body's and assumes each action executes at once. Without it
+        the steady gain acts from the first step, as before the landing was planned.
 
         ``delay`` is the system's known action latency in env steps: the environment executes each
         action that many steps late (``humanoid.conditions.ActionLatency``). The expert then acts
@@ -60,11 +67,14 @@ class LQRExpert:
         self.set_delay(delay)
         self._pending: deque[np.ndarray] = deque()
         self.gains = load_or_design(self.model, design)
+        self.landing: Landing | None = None
+        if landing and design.landing_steps > 0:
+            self.landing = load_or_design_landing(self.model, self.gains, design)
+        self._landing_step = self._landing_end = 0  # armed by `reset`
         self.qpos_ref = self.gains.qpos_ref.copy()
         self.ctrl_ff = self.gains.ctrl_ff.copy()
         self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
         self._qpos = self.qpos_ref.copy()
-        self._vz = self.model.nv - ROOT_XY + VERTICAL_VEL  # vertical velocity in the state
         self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
         self._moving = False  # one attribute test per act while the setpoint is still
 
@@ -109,6 +119,9 @@ class LQRExpert:
         self.qpos_ref[:] = gains.qpos_ref
         self.ctrl_ff[:] = gains.ctrl_ff
         self._moving = False
+        self._landing_step = 0
+        planned = self.landing is not None and self._body is None and self.delay == 0
+        self._landing_end = len(self.landing) if planned else 0
         # As ActionLatency does: the first `delay` steps execute zeros.
         self._pending = deque([np.zeros(self.model.nu)] * self.delay)
 
@@ -119,6 +132,7 @@ class LQRExpert:
         the first time a posture is commanded, its LQR gain (0.05 to 0.2 s; cached after). Later
         calls retarget from wherever the setpoint has got to; ``Posture()`` returns to neutral.
         """
+        self._landing_end = 0  # the plan lands in the neutral stance; the posture's setpoint takes over now
         if self._ramp is None:
             self.gain = self.gain.copy()  # the design's or the told body's
             self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
@@ -151,17 +165,14 @@ class LQRExpert:
 
     def act_on_state(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """`act` for a state given as (qpos, qvel); root x and y are not read (translation-invariant)."""
+        if self._landing_step < self._landing_end:  # no delay then, so nothing is pending
+            self._landing_step += 1
+            return self.landing.action(self.model, self._landing_step - 1, qpos, qvel)
         if self._moving:
             self._moving = self._ramp.step()
         if self._predictor is not None:
             qpos, qvel = self._predictor.predict(qpos, qvel, self._pending)
-        x = state_error(self.model, self.qpos_ref, qpos, qvel)
-        d = self.design
-        # Builtin min/max: np.clip costs microseconds per scalar call.
-        x[HEIGHT] = min(max(x[HEIGHT], -d.height_clip), d.height_clip)
-        x[self._vz] = min(max(x[self._vz], -d.height_vel_clip), d.height_vel_clip)
-        ctrl = self.ctrl_ff - self.gain @ x
-        action = np.clip(ctrl, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
+        action = steady_action(self.model, self.design, (self.qpos_ref, self.ctrl_ff, self.gain), qpos, qvel)
         if self._predictor is not None:
             self._pending.append(action.astype(np.float64))
             self._pending.popleft()
@@ -199,8 +210,10 @@ class SensedExpert:
     name = "expert-sensed"
 
     def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
-        """The expert designed on `model` (like `LQRExpert`); the estimator runs on it too."""
-        self.expert = LQRExpert(model, delay=delay)
+        """The expert designed on `model` (like `LQRExpert`), without the planned landing: it tracks the true
+        landing, and on the estimate it stood no more often (docs/robustness.md, "The landing planned");
+        the estimator runs on `model` too."""
+        self.expert = LQRExpert(model, delay=delay, landing=False)
         self.sensed = Proprioception(self.expert.model)
         self.estimator = LegOdometry(self.expert.model)
 

@@ -25,6 +25,7 @@ import logging
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -68,6 +69,8 @@ class LQRDesign:
     """Run-time clip of the height error (m): reset drops the body ~12 cm, beyond the linear model."""
     height_vel_clip: float = 0.2
     """Run-time clip of the vertical velocity (m/s), for the same reason."""
+    landing_steps: int = 200
+    """Env steps after each reset spent tracking the planned landing (``humanoid.landing``); 0: none."""
     fd_eps: float = 1e-6
     """Finite-difference step of the linearisation."""
     frame_skip: int = 5
@@ -151,15 +154,31 @@ def _converged_copy(model: mujoco.MjModel, design: LQRDesign) -> mujoco.MjModel:
 
 
 def linearise(
-    model: mujoco.MjModel, qpos_ref: np.ndarray, ctrl_ref: np.ndarray, design: LQRDesign
+    model: mujoco.MjModel,
+    qpos_ref: np.ndarray,
+    ctrl_ref: np.ndarray,
+    design: LQRDesign,
+    qvel: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Central-difference Jacobians (A, B) of one env step at rest in qpos_ref under ctrl_ref."""
+    """Central-difference Jacobians (A, B) of one env step from qpos_ref (at rest, or with ``qvel``) under ctrl_ref.
+
+    The next state's error is taken from where the unperturbed step goes: from rest in a balanced pose
+    that is qpos_ref itself (the steady design keeps using it); along the landing (``humanoid.landing``)
+    it is the step's own result.
+    """
     sim = _converged_copy(model, design)
     nominal = mujoco.MjData(sim)
     nominal.qpos[:], nominal.ctrl[:] = qpos_ref, ctrl_ref
-    mujoco.mj_forward(sim, nominal)
     scratch = mujoco.MjData(sim)
     nx = 2 * sim.nv - ROOT_XY
+    origin = qpos_ref
+    if qvel is not None:
+        nominal.qvel[:] = qvel
+    mujoco.mj_forward(sim, nominal)
+    if qvel is not None:
+        mujoco.mj_copyData(scratch, sim, nominal)
+        mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
+        origin = scratch.qpos.copy()
 
     def step(z: np.ndarray) -> np.ndarray:
         """Next state after perturbing the nominal state by z[:nx] and its control by z[nx:]."""
@@ -169,7 +188,7 @@ def linearise(
         scratch.qvel[:] += z[sim.nv - ROOT_XY : nx]
         scratch.ctrl[:] += z[nx:]
         mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
-        return state_error(sim, qpos_ref, scratch.qpos, scratch.qvel)
+        return state_error(sim, origin, scratch.qpos, scratch.qvel)
 
     eps = design.fd_eps
     jac = np.stack([(step(eps * e) - step(-eps * e)) / (2 * eps) for e in np.eye(nx + sim.nu)], axis=1)
@@ -200,11 +219,30 @@ def design_gain(
     step k weighted discount**k) moves that mode inside the unit circle so the equation solves
     anywhere; the default 1 is the plain LQR of ``design_lqr``.
     """
+    return riccati(model, qpos_ref, ctrl_ff, design, discount)[0]
+
+
+def riccati(
+    model: mujoco.MjModel,
+    qpos_ref: np.ndarray,
+    ctrl_ff: np.ndarray,
+    design: LQRDesign = LQRDesign(),
+    discount: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``design_gain``'s gain K and the cost-to-go matrix P it comes from (the landing's recursion ends in P)."""
     import scipy.linalg  # noqa: PLC0415 - as in balanced_pose
 
     a, b = linearise(model, qpos_ref, ctrl_ff, design)
     if discount != 1.0:
         a, b = np.sqrt(discount) * a, np.sqrt(discount) * b
+    q, r = lqr_cost(model, qpos_ref, design)
+    p = scipy.linalg.solve_discrete_are(a, b, q, r)
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a), p
+
+
+def lqr_cost(model: mujoco.MjModel, qpos_ref: np.ndarray, design: LQRDesign) -> tuple[np.ndarray, np.ndarray]:
+    """The design's state and control cost matrices (Q, R), the centre of mass's offset taken at qpos_ref."""
+    import scipy.linalg  # noqa: PLC0415 - as in balanced_pose
 
     data = mujoco.MjData(model)
     data.qpos[:] = qpos_ref
@@ -214,9 +252,25 @@ def design_gain(
     q = scipy.linalg.block_diag(
         design.q_com * jac.T @ jac + design.q_pos * np.eye(npos), design.q_vel * np.eye(model.nv)
     )
-    r = design.r * np.eye(model.nu)
-    p = scipy.linalg.solve_discrete_are(a, b, q, r)
-    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
+    return q, design.r * np.eye(model.nu)
+
+
+def steady_action(
+    model: mujoco.MjModel,
+    design: LQRDesign,
+    setpoint: tuple[np.ndarray, np.ndarray, np.ndarray],
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+) -> np.ndarray:
+    """The steady law ``ctrl_ff - gain @ state`` for ``setpoint`` = (qpos_ref, ctrl_ff, gain): the height error
+    and vertical velocity clipped (``LQRDesign.height_clip``), float32 within the motors' range."""
+    qpos_ref, ctrl_ff, gain = setpoint
+    x = state_error(model, qpos_ref, qpos, qvel)
+    vz = model.nv - ROOT_XY + VERTICAL_VEL
+    # Builtin min/max: np.clip costs microseconds per scalar call.
+    x[HEIGHT] = min(max(x[HEIGHT], -design.height_clip), design.height_clip)
+    x[vz] = min(max(x[vz], -design.height_vel_clip), design.height_vel_clip)
+    return np.clip(ctrl_ff - gain @ x, -CTRL_LIMIT, CTRL_LIMIT).astype(np.float32)
 
 
 def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
@@ -233,24 +287,28 @@ def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
 
 def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
     """``design_lqr`` through the on-disk cache: a file per (model, design) key, rebuilt when missing or stale."""
-    key = cache_key(model, design)
-    path = cache_dir() / f"lqr-{key[:16]}.npz"
-    fields = [f.name for f in dataclasses.fields(LQRGains)]
+    return load_or_build("lqr", cache_key(model, design), LQRGains, lambda: design_lqr(model, design))
+
+
+def load_or_build[T](kind: str, key: str, cls: type[T], build: Callable[[], T]) -> T:
+    """The dataclass of arrays ``cls`` cached under ``key`` (a file per kind and key), or ``build()`` written there."""
+    path = cache_dir() / f"{kind}-{key[:16]}.npz"
+    fields = [f.name for f in dataclasses.fields(cls)]
     try:
         with np.load(path) as cached:
             if str(cached["key"]) == key:
-                return LQRGains(**{name: cached[name] for name in fields})
+                return cls(**{name: cached[name] for name in fields})
     # Missing, truncated, or written by an older format:
     except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as error:
         log.debug("no usable cache at %s: %s", path, error)
 
-    gains = design_lqr(model, design)
+    built = build()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # Write-then-rename, so concurrent processes never read a half-written file.
         with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npz", delete=False) as tmp:
-            np.savez(tmp, key=key, **dataclasses.asdict(gains))
+            np.savez(tmp, key=key, **dataclasses.asdict(built))
         os.replace(tmp.name, path)
     except OSError as error:
-        log.warning("could not cache LQR gains at %s: %s", path, error)
-    return gains
+        log.warning("could not cache %s at %s: %s", kind, path, error)
+    return built
