@@ -69,7 +69,7 @@ class LQRExpert:
         self.gains = load_or_design(self.model, design)
         self.landing: Landing | None = None
         if landing and design.landing_steps > 0:
-            self.landing = load_or_design_landing(self.model, self.gains, design)
+            self.landing = load_or_design_landing(self.model, design)
         self._landing_step = self._landing_end = 0  # armed by `reset`
         self.qpos_ref = self.gains.qpos_ref.copy()
         self.ctrl_ff = self.gains.ctrl_ff.copy()

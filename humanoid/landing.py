@@ -30,6 +30,7 @@ from humanoid.lqr import (
     cache_key,
     linearise,
     load_or_build,
+    load_or_design,
     lqr_cost,
     riccati,
     state_error,
@@ -81,8 +82,8 @@ def nominal_landing(
 
 
 def design_landing(model: mujoco.MjModel, gains: LQRGains, design: LQRDesign) -> Landing:
-    """The landing plan of ``design.landing_steps`` steps for the expert with ``gains`` (about 6 s; cached:
-    ``load_or_design_landing``)."""
+    """The landing plan of ``design.landing_steps`` steps for the expert with ``gains`` (seconds, not the
+    design's fraction of one: a linear model per step; cached: ``load_or_design_landing``)."""
     horizon = design.landing_steps + SETTLE
     qpos, qvel, ctrl = nominal_landing(model, gains, design, horizon)
     q, r = lqr_cost(model, gains.qpos_ref, design)
@@ -97,7 +98,8 @@ def design_landing(model: mujoco.MjModel, gains: LQRGains, design: LQRDesign) ->
     return Landing(qpos=qpos[keep], qvel=qvel[keep], ctrl=ctrl[keep], gain=gain[keep])
 
 
-def load_or_design_landing(model: mujoco.MjModel, gains: LQRGains, design: LQRDesign) -> Landing:
-    """``design_landing`` through the on-disk cache (``humanoid.lqr.load_or_build``), keyed like the steady gains."""
+def load_or_design_landing(model: mujoco.MjModel, design: LQRDesign) -> Landing:
+    """``design_landing`` for the steady gains of (model, design) through the on-disk cache
+    (``humanoid.lqr.load_or_build``), keyed like those gains."""
     key = hashlib.sha256(f"{cache_key(model, design)} landing {_CACHE_FORMAT}".encode()).hexdigest()
-    return load_or_build("landing", key, Landing, lambda: design_landing(model, gains, design))
+    return load_or_build("landing", key, Landing, lambda: design_landing(model, load_or_design(model, design), design))
