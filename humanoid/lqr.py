@@ -27,6 +27,7 @@ import tempfile
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import mujoco
 import numpy as np
@@ -35,6 +36,8 @@ from common.paths import cache_dir
 from humanoid import physics
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")  # what load_or_build caches (a TypeVar, not 3.12's syntax: tests/test_layout.py says why)
 
 CTRL_LIMIT = 0.4
 """Every Humanoid-v5 motor accepts ctrl in [-CTRL_LIMIT, CTRL_LIMIT]."""
@@ -290,7 +293,7 @@ def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQ
     return load_or_build("lqr", cache_key(model, design), LQRGains, lambda: design_lqr(model, design))
 
 
-def load_or_build[T](kind: str, key: str, cls: type[T], build: Callable[[], T]) -> T:
+def load_or_build(kind: str, key: str, cls: type[T], build: Callable[[], T]) -> T:
     """The dataclass of arrays ``cls`` cached under ``key`` (a file per kind and key), or ``build()`` written there."""
     path = cache_dir() / f"{kind}-{key[:16]}.npz"
     fields = [f.name for f in dataclasses.fields(cls)]

@@ -70,15 +70,23 @@ def test_rounds_are_appended_after_the_demonstrations(dagger: tuple) -> None:
     assert result.rounds[0].frames == sum(e["length"] for e in episodes[3:])
 
 
+def assert_labelled_by(expert: LQRExpert | SensedExpert, frames: dict[str, np.ndarray], episodes: list[dict]) -> None:
+    """Each episode's labels are `expert`'s actions along its stored observations, the expert reset at the
+    episode's start as the rollout resets it (its landing plan and estimator run from there)."""
+    for episode in episodes:
+        rows = frames["episode_index"] == episode["episode_index"]
+        expert.reset(episode[keys.EPISODE_SEED])
+        observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
+        labels = np.stack([expert.act(obs) for obs in observations])
+        np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
+
+
 def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> None:
     """Every DAgger frame's label is what the expert does in the stored state; what ran was the policy's action."""
     _, output, _, _, _ = dagger
     frames = read_frames(output)
+    assert_labelled_by(LQRExpert(), frames, read_episodes(output).to_pylist()[3:])
     rows = frames["episode_index"] >= 3
-    observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
-    expert = LQRExpert()
-    labels = np.stack([expert.act(obs) for obs in observations])
-    np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
     assert not np.array_equal(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows])
 
 
@@ -107,14 +115,7 @@ def test_the_sensed_expert_labels_each_episode_from_its_start(sensed_dagger: Pat
     reset at the episode's start; the labeller column names it."""
     episodes = read_episodes(sensed_dagger).to_pylist()
     assert [e[keys.EPISODE_LABELLER] for e in episodes] == ["expert"] * 3 + ["expert-sensed"] * 2
-    frames = read_frames(sensed_dagger)
-    expert = SensedExpert()
-    for episode in episodes[3:]:
-        rows = frames["episode_index"] == episode["episode_index"]
-        expert.reset(episode[keys.EPISODE_SEED])
-        observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
-        labels = np.stack([expert.act(obs) for obs in observations])
-        np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
+    assert_labelled_by(SensedExpert(), read_frames(sensed_dagger), episodes[3:])
 
 
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:

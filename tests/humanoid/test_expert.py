@@ -175,10 +175,11 @@ class Untold:
 
 
 @pytest.mark.parametrize("seed", [1000, 1001])
-def test_delay_aware_expert_stands_where_the_plain_one_falls(expert: LQRExpert, seed: int) -> None:
-    """With one step of action latency the plain expert falls within 100 steps; told the delay, it stands."""
+def test_delay_aware_expert_stands_where_the_plain_one_falls(model: mujoco.MjModel, seed: int) -> None:
+    """With one step of action latency the plain expert (the steady gain: a landing plan untold of the delay
+    also falls on most seeds, not all) falls within 100 steps; told the delay, it stands."""
     env = ActionLatency(gym.make("Humanoid-v5", max_episode_steps=300), steps=1)
-    plain = run_episode(env, Untold(expert), seed)
+    plain = run_episode(env, Untold(LQRExpert(model, landing=False)), seed)
     aware = run_episode(env, make_controller("expert", env), seed)
     assert plain.fell and plain.length < 100
     assert not aware.fell and aware.length == 300 and aware.episode_return > 4.9 * 300
