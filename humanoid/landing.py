@@ -33,6 +33,7 @@ from humanoid.lqr import (
     load_or_design,
     lqr_cost,
     riccati,
+    riccati_gain,
     state_error,
     steady_action,
 )
@@ -91,7 +92,7 @@ def design_landing(model: mujoco.MjModel, gains: LQRGains, design: LQRDesign) ->
     gain = np.empty((horizon, model.nu, q.shape[0]))
     for t in reversed(range(horizon)):
         a, b = linearise(model, qpos[t], ctrl[t], design, qvel=qvel[t])
-        gain[t] = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
+        gain[t] = riccati_gain(a, b, r, p)
         p = q + a.T @ p @ (a - b @ gain[t])
         p = 0.5 * (p + p.T)  # round-off would otherwise grow an asymmetric part over the steps
     keep = slice(0, design.landing_steps)

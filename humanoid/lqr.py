@@ -240,7 +240,12 @@ def riccati(
         a, b = np.sqrt(discount) * a, np.sqrt(discount) * b
     q, r = lqr_cost(model, qpos_ref, design)
     p = scipy.linalg.solve_discrete_are(a, b, q, r)
-    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a), p
+    return riccati_gain(a, b, r, p), p
+
+
+def riccati_gain(a: np.ndarray, b: np.ndarray, r: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The LQR gain of one step of (a, b) with control cost r, given the next step's cost-to-go p."""
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
 
 
 def lqr_cost(model: mujoco.MjModel, qpos_ref: np.ndarray, design: LQRDesign) -> tuple[np.ndarray, np.ndarray]:
