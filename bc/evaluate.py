@@ -33,7 +33,7 @@ from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
-from humanoid.perturbations import TorsoPushes
+from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
 from humanoid.video import CAMERA, VideoRecorder
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
@@ -112,10 +112,13 @@ def evaluate(
                 raise UserError(str(error)) from None
         seeds = list(range(seed, seed + episodes))
         buffer = EpisodeBuffer(env, EPISODE_STEPS)
-        results = [
-            run_episode(env, controller, s, noise, buffer, observer=publisher)
-            for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
-        ]
+        pusher = torso_pushes(env)
+        results, directions, toppled = [], [], []
+        for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
+            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher))
+            if pusher is not None:
+                directions += [direction for _, direction in pusher.pushes]
+                toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
     finally:
         if publisher is not None:
             publisher.close()
@@ -138,6 +141,9 @@ def evaluate(
         "returns": [round(float(r), 3) for r in returns],
         "survivals": survived,
         "lengths": lengths.tolist(),
+        # Every push in seed order: its direction seen from the torso (0 forward, 90 left, 180 back) and
+        # whether it was the last before a fall (`humanoid.perturbations.toppling`); empty when unpushed.
+        "pushes": {"direction": [round(d, 2) for d in directions], "toppled": toppled},
         "video": None if video is None else str(video),
     }
 

@@ -1,8 +1,8 @@
 """`make robustness`: a policy (or the expert) on the same seeds under every condition of the suite.
 
     conditions x seeds --(chunks, both cores)--> rollouts under `Condition.wrap` --> per condition:
-    survival rate, mean return --> a table, POLICY/robustness.json, POLICY/robustness.png, and the
-    JSON summary as the last line printed
+    survival rate, mean return (and, pushed, which directions toppled it) --> a table,
+    POLICY/robustness.json, POLICY/robustness.png, and the JSON summary as the last line printed
 
 The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/robustness.md.
 """
@@ -28,6 +28,8 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
 
+SECTOR_DEGREES = 45
+"""Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
 RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
 CONTROLLER_FOLDER = Path("policies")
@@ -92,10 +94,24 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
+def push_sectors(directions: list[float], toppled: list[bool]) -> dict[str, list]:
+    """Pushes and the pushes that toppled the body per direction sector (`SECTOR_DEGREES` wide, centred on
+    0, 45, ..., -45: the direction seen from the torso, 0 forward, 180 back)."""
+    centres = np.arange(-180 + SECTOR_DEGREES, 181, SECTOR_DEGREES)
+    nearest = np.round(np.asarray(directions, dtype=float) / SECTOR_DEGREES).astype(int)  # in centre steps
+    index = (nearest - centres[0] // SECTOR_DEGREES) % len(centres)  # -180 and 180 fall in one sector
+    pushes = np.bincount(index, minlength=len(centres))
+    fell = np.bincount(index, weights=np.asarray(toppled, dtype=float), minlength=len(centres))
+    return {"centres": centres.tolist(), "pushes": pushes.tolist(), "toppled": fell.astype(int).tolist()}
+
+
 def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     """One condition's row from its chunks' evaluations, in seed order."""
     chunks = sorted(chunks, key=lambda chunk: chunk["seeds"][0])
     returns = np.array([r for chunk in chunks for r in chunk["returns"]])
+    directions = [d for chunk in chunks for d in chunk["pushes"]["direction"]]
+    toppled = [t for chunk in chunks for t in chunk["pushes"]["toppled"]]
+    pushed = {"push_sectors": push_sectors(directions, toppled)} if directions else {}
     return {
         "survival_rate": float(np.mean([s for chunk in chunks for s in chunk["survivals"]])),
         "mean_return": float(returns.mean()),
@@ -103,6 +119,7 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
         "episodes": len(returns),
         "returns": returns.tolist(),
         "lengths": [n for chunk in chunks for n in chunk["lengths"]],
+        **pushed,
     }
 
 
@@ -130,10 +147,13 @@ def run_suite(policy: str, names: list[str], seeds: range, workers: int, progres
 
 
 def plot(result: dict[str, Any], path: Path) -> None:
-    """Survival rate and mean return per condition, side by side."""
+    """Survival rate and mean return per condition, side by side; pushed, the share of pushes that toppled the
+    body by direction (sectors without a push left out), on a dial seen from above with the body facing up."""
     names = list(result["conditions"])
-    figure = Figure(figsize=(9, 4))
-    survival, returns = figure.subplots(1, 2)
+    pushed = [n for n in names if "push_sectors" in result["conditions"][n]]
+    figure = Figure(figsize=(13 if pushed else 9, 4))
+    survival = figure.add_subplot(1, 3 if pushed else 2, 1)
+    returns = figure.add_subplot(1, 3 if pushed else 2, 2)
     survival.bar(names, [100 * result["conditions"][n]["survival_rate"] for n in names], color="tab:green")
     survival.set_ylabel("survival (%)")
     survival.set_ylim(0, 100)
@@ -141,6 +161,19 @@ def plot(result: dict[str, Any], path: Path) -> None:
     returns.set_ylabel("mean return")
     for axes in (survival, returns):
         axes.tick_params(axis="x", rotation=60)
+    if pushed:
+        dial = figure.add_subplot(1, 3, 3, projection="polar")
+        dial.set_theta_zero_location("N")  # forward up, left to the left: the body seen from above
+        for name in pushed:
+            sectors = result["conditions"][name]["push_sectors"]
+            pushes = np.asarray(sectors["pushes"], dtype=float)
+            share = np.divide(sectors["toppled"], pushes, out=np.full(len(pushes), np.nan), where=pushes > 0)
+            angles = np.radians(sectors["centres"] + sectors["centres"][:1])
+            dial.plot(angles, 100 * np.append(share, share[0]), marker="o", label=name)
+        dial.set_ylim(0, 100)
+        dial.set_xticks(np.radians([0, 90, 180, 270]), ["forward", "left", "back", "right"])
+        dial.set_title("pushes that toppled it (%), by direction", fontsize=9)
+        dial.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.25, -0.15))
     seeds = result["seeds"]
     figure.suptitle(f"{result['policy']}: {len(seeds)} episodes per condition, seeds {seeds[0]}..{seeds[-1]}")
     figure.tight_layout()
@@ -151,6 +184,12 @@ def table(result: dict[str, Any]) -> str:
     lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}"]
     for name, row in result["conditions"].items():
         lines.append(f"{name:<10} {row['survival_rate']:>8.0%} {row['mean_return']:>12.1f}")
+    for name, row in result["conditions"].items():
+        if "push_sectors" in row:
+            sectors = row["push_sectors"]
+            counts = zip(sectors["centres"], sectors["toppled"], sectors["pushes"], strict=True)
+            lines.append(f"{name} pushes that toppled it, by direction (0 forward, 90 left, 180 back): ")
+            lines[-1] += ", ".join(f"{centre}: {fell}/{pushes}" for centre, fell, pushes in counts)
     return "\n".join(lines)
 
 

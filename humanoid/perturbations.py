@@ -2,7 +2,8 @@
 
 `TorsoPushes` reproduces the robustness test of the facts note: a horizontal force on the torso
 for 0.1 s every 2 s, in a random direction. How often 10 N and 20 N pushes topple the expert and
-each policy: docs/learning.md, "Robustness to pushes".
+each policy: docs/learning.md, "Robustness to pushes"; which directions topple them:
+docs/robustness.md, "Which pushes topple".
 """
 
 from __future__ import annotations
@@ -13,9 +14,25 @@ import gymnasium as gym
 import numpy as np
 
 from humanoid.env import model_and_data
-from humanoid.physics import TORSO_BODY
+from humanoid.physics import TORSO_BODY, heading
 
 PUSH_STREAM = 2  # random stream of the push directions: (seed, 2); the action noise uses (seed, 1)
+
+
+def relative_direction(push: np.ndarray, facing: float) -> float:
+    """Direction (degrees in (-180, 180]) of the horizontal force `push` seen from a body facing `facing` (rad):
+    0 pushes it forward (a push from behind), 90 to its left, 180 backward (a push on its chest)."""
+    degrees = np.degrees(np.arctan2(push[1], push[0]) - facing)
+    return float(180.0 - (180.0 - degrees) % 360.0)
+
+
+def toppling(starts: list[int], fell: bool) -> list[bool]:
+    """Which of an episode's pushes (their start steps, in order) toppled it: the last one begun before a fall.
+
+    A fall long after its last push is still put on it; under pushes alone the body that stood through
+    a push's 2 s rarely falls later (docs/robustness.md, "Which pushes topple").
+    """
+    return [fell and i == len(starts) - 1 for i in range(len(starts))]
 
 
 class TorsoPushes(gym.Wrapper):
@@ -24,7 +41,9 @@ class TorsoPushes(gym.Wrapper):
     The first push comes one period after reset, once the body has settled from its drop. Each
     push draws its direction from a stream seeded by the reset's seed, so episodes repeat exactly.
     `set_force` changes the force from the next reset on (a curriculum, `bc.ppo.curriculum`): an
-    episode is pushed with one force throughout, so it can be replayed from its start.
+    episode is pushed with one force throughout, so it can be replayed from its start. `pushes` lists
+    the episode's pushes so far: (start step, direction relative to where the torso faced then,
+    `relative_direction`).
     """
 
     def __init__(self, env: gym.Env, force: float, period: float = 2.0, duration: float = 0.1) -> None:
@@ -40,6 +59,7 @@ class TorsoPushes(gym.Wrapper):
         self._rng = np.random.default_rng()
         self._steps = 0
         self._push = np.zeros(3)
+        self.pushes: list[tuple[int, float]] = []
 
     def set_force(self, force: float) -> None:
         """Push with `force` newtons from the next reset on."""
@@ -60,6 +80,7 @@ class TorsoPushes(gym.Wrapper):
         if seed is not None:
             self._rng = np.random.default_rng((seed, PUSH_STREAM))
         self._steps = 0
+        self.pushes = []
         self.force = self.next_force
         obs, info = self.env.reset(seed=seed, options=options)
         self._data.xfrc_applied[self._torso] = 0.0
@@ -70,6 +91,7 @@ class TorsoPushes(gym.Wrapper):
         if self._steps >= self.period_steps and phase == 0:
             angle = self._rng.uniform(0.0, 2 * np.pi)
             self._push = self.force * np.array([np.cos(angle), np.sin(angle), 0.0])
+            self.pushes.append((self._steps, relative_direction(self._push, heading(self._data, TORSO_BODY))))
         pushing = self._steps >= self.period_steps and phase < self.duration_steps
         # xfrc_applied holds (force, torque) in world coordinates at the body's centre of mass,
         # applied for every physics substep of this env step.
@@ -77,3 +99,12 @@ class TorsoPushes(gym.Wrapper):
         self._steps += 1
         obs, reward, terminated, truncated, info = self.env.step(action)
         return obs, reward, terminated, truncated, {**info, "pushing": pushing}
+
+
+def torso_pushes(env: gym.Env) -> TorsoPushes | None:
+    """The `TorsoPushes` wrapper around `env`, if any."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, TorsoPushes):
+            return env
+        env = env.env
+    return None

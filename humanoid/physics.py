@@ -64,8 +64,8 @@ def static_inverse_dynamics(model: mujoco.MjModel, data: mujoco.MjData) -> np.nd
 PELVIS_BODY = "pelvis"
 
 
-def _heading(data: mujoco.MjData, body: str) -> float:
-    """Yaw (rad, about world z) of a body's x axis projected on the floor."""
+def heading(data: mujoco.MjData, body: str) -> float:
+    """Yaw (rad, about world z) of a body's x axis projected on the floor: where it faces (Humanoid faces +x)."""
     x_axis = data.body(body).xmat.reshape(3, 3)[:, 0]
     return float(np.arctan2(x_axis[1], x_axis[0]))
 
@@ -78,8 +78,8 @@ def torso_tilt(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[float, float
     drift in the body's yaw does not mix the two.
     """
     up = data.body(TORSO_BODY).xmat.reshape(3, 3)[:, 2]
-    heading = _heading(data, PELVIS_BODY)
-    cos, sin = np.cos(heading), np.sin(heading)
+    facing = heading(data, PELVIS_BODY)
+    cos, sin = np.cos(facing), np.sin(facing)
     forward, left = cos * up[0] + sin * up[1], -sin * up[0] + cos * up[1]
     return float(np.arctan2(forward, up[2])), float(np.arctan2(left, up[2]))
 

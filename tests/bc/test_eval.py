@@ -14,7 +14,7 @@ import torch
 from bc.evaluate import EvalConfig, cli, evaluate
 from common.cli import config_dict
 from humanoid.env import make_env
-from humanoid.perturbations import TorsoPushes
+from humanoid.perturbations import TorsoPushes, relative_direction, toppling
 from humanoid.video import VideoError
 from policies import checkpoint
 from policies.folder import WEIGHTS_FILE
@@ -113,6 +113,57 @@ def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
         assert np.isclose(np.linalg.norm(force[:2]), 7.0) and force[2] == 0 and not force[3:].any()
     assert not np.allclose(applied[10], applied[20])  # a new direction for each push
     assert all(np.array_equal(a, b) for a, b in zip(applied, forces(3), strict=True))
+
+
+def test_pushes_are_listed_with_their_direction_seen_from_the_torso() -> None:
+    """Each push is listed at its start step, its direction measured from where the torso faces (here turned 90°)."""
+    env = TorsoPushes(make_env(), force=7.0, period=0.15, duration=0.03)  # pushes start on steps 10 and 20
+    data = env.unwrapped.data
+    env.reset(seed=3)
+    data.qpos[3:7] = [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]  # the body turned to face world +y
+    world = []
+    for t in range(25):
+        env.step(np.zeros(17))
+        if t in (10, 20):
+            force = data.xfrc_applied[env.unwrapped.model.body("torso").id, :2]
+            world.append(np.degrees(np.arctan2(force[1], force[0])))
+    assert [start for start, _ in env.pushes] == [10, 20]
+    for (_, seen), angle in zip(env.pushes, world, strict=True):
+        assert np.isclose((seen - (angle - 90.0) + 180.0) % 360.0, 180.0, atol=2.0)  # the yaw drifts a little
+    env.reset(seed=3)
+    assert env.pushes == []
+
+
+@pytest.mark.parametrize(
+    "push, facing, direction",
+    [
+        ((1, 0), 0.0, 0.0),
+        ((0, 1), 0.0, 90.0),
+        ((-1, 0), 0.0, 180.0),
+        ((1, 0), np.pi / 2, -90.0),
+        ((0, -1), np.pi / 2, 180.0),
+    ],
+)
+def test_relative_direction_is_zero_forward_and_counter_clockwise(
+    push: tuple[float, float], facing: float, direction: float
+) -> None:
+    assert np.isclose(relative_direction(np.array([*push, 0.0]), facing), direction)
+
+
+def test_the_last_push_before_a_fall_is_the_one_that_toppled() -> None:
+    assert toppling([133, 266, 399], fell=True) == [False, False, True]
+    assert toppling([133, 266], fell=False) == [False, False]
+    assert toppling([], fell=True) == []
+
+
+def test_evaluation_lists_every_push_and_puts_each_fall_on_one() -> None:
+    """Every push begun before an episode ended is listed; a fallen episode's last push is marked as toppling."""
+    result = evaluate("expert", episodes=2, seed=1000, condition="push40")
+    period = 133  # 2 s of 0.015 s steps
+    assert len(result["pushes"]["direction"]) == sum((length - 1) // period for length in result["lengths"])
+    assert sum(result["pushes"]["toppled"]) == result["episodes"] - result["survived"] > 0
+    assert all(-180 < d <= 180 for d in result["pushes"]["direction"])
+    assert evaluate("expert", episodes=1, seed=1000)["pushes"] == {"direction": [], "toppled": []}
 
 
 @pytest.mark.slow

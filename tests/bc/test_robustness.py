@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bc.robustness import FIGURE_FILE, RESULT_FILE, RobustnessConfig, cli, output_folder, run_suite
+from bc.robustness import FIGURE_FILE, RESULT_FILE, RobustnessConfig, cli, output_folder, push_sectors, run_suite
 from humanoid.conditions import SUITE
 
 
@@ -25,9 +25,12 @@ def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
     assert list(summary["conditions"]) == list(SUITE)
     assert all(row["episodes"] == 2 and 0 <= row["survival_rate"] <= 1 for row in summary["conditions"].values())
     assert summary["conditions"]["clean"]["survival_rate"] == 1.0  # the expert stands on clean seeds
-    assert [line.split()[0] for line in lines[1:-1]] == list(SUITE)  # the table, a row per condition
+    assert [line.split()[0] for line in lines[1 : len(SUITE) + 1]] == list(SUITE)  # the table, a row per condition
+    pushed = [name for name in SUITE if name.startswith("push")]
+    assert [line.split()[0] for line in lines[len(SUITE) + 1 : -1]] == pushed  # then a line of directions each
     saved = json.loads((tmp_path / RESULT_FILE).read_text())
     assert len(saved["conditions"]["latency"]["returns"]) == 2
+    assert "push_sectors" in saved["conditions"]["push20"] and "push_sectors" not in saved["conditions"]["clean"]
     assert (tmp_path / FIGURE_FILE).stat().st_size > 0
 
 
@@ -59,3 +62,13 @@ def test_a_registered_controllers_results_go_under_policies() -> None:
     """A controller has no checkpoint folder: its results go to policies/<name>/, a checkpoint's to its folder."""
     assert output_folder(RobustnessConfig(policy="expert-sensed")) == Path("policies/expert-sensed")
     assert output_folder(RobustnessConfig(policy="policies/bc")) == Path("policies/bc")
+
+
+def test_pushes_are_counted_in_the_sector_of_their_nearest_centre() -> None:
+    """Sectors 45° wide centred on -135, ..., 180; -180 and 180 are the same sector (a push on the chest)."""
+    sectors = push_sectors(
+        [0.0, 22.4, 22.6, -157.0, 157.6, -180.0, 90.0], [True, False, True, False, True, True, False]
+    )
+    assert sectors["centres"] == [-135, -90, -45, 0, 45, 90, 135, 180]
+    assert sectors["pushes"] == [1, 0, 0, 2, 1, 1, 0, 2]
+    assert sectors["toppled"] == [0, 0, 0, 1, 1, 0, 0, 2]
