@@ -144,6 +144,8 @@ def evaluate(
         # Every push in seed order: its direction seen from the torso (0 forward, 90 left, 180 back) and
         # whether it was the last before a fall (`humanoid.perturbations.toppling`); empty when unpushed.
         "pushes": {"direction": [round(d, 2) for d in directions], "toppled": toppled},
+        # Each episode's drawn body (scale factors, `humanoid.conditions.DomainRandomization`), to see which draws fell.
+        "parameters": [episode.parameters for episode in results],
         "video": None if video is None else str(video),
     }
 

@@ -119,6 +119,7 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
         "episodes": len(returns),
         "returns": returns.tolist(),
         "lengths": [n for chunk in chunks for n in chunk["lengths"]],
+        "parameters": [p for chunk in chunks for p in chunk["parameters"]],
         **pushed,
     }
 

@@ -13,6 +13,7 @@ import torch
 
 from bc.evaluate import EvalConfig, cli, evaluate
 from common.cli import config_dict
+from humanoid.conditions import RANDOMIZATION_STREAM
 from humanoid.env import make_env
 from humanoid.perturbations import TorsoPushes, relative_direction, toppling
 from humanoid.video import VideoError
@@ -164,6 +165,15 @@ def test_evaluation_lists_every_push_and_puts_each_fall_on_one() -> None:
     assert sum(result["pushes"]["toppled"]) == result["episodes"] - result["survived"] > 0
     assert all(-180 < d <= 180 for d in result["pushes"]["direction"])
     assert evaluate("expert", episodes=1, seed=1000)["pushes"] == {"direction": [], "toppled": []}
+
+
+def test_evaluation_keeps_each_episodes_drawn_body() -> None:
+    """Under a randomised condition every episode's draw is in the result, the one its seed gives."""
+    result = evaluate("expert", episodes=2, seed=1000, condition="mass")
+    for seed, drawn in zip(result["seeds"], result["parameters"], strict=True):
+        scale = np.random.default_rng((seed, RANDOMIZATION_STREAM)).uniform(0.8, 1.2, size=13).round(6)
+        assert drawn == {"mass_scale": scale.tolist()}
+    assert evaluate("expert", episodes=1, seed=1000)["parameters"] == [{}]
 
 
 @pytest.mark.slow
