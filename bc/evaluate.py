@@ -45,7 +45,8 @@ class EvalConfig:
     """Settings of one evaluation."""
 
     policy: str = setting(
-        str(paths.BC_POLICY), "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)"
+        str(paths.BC_POLICY),
+        "policy checkpoint folder, or a registered controller (expert, expert-sensed, expert-adaptive, random)",
     )
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
