@@ -38,7 +38,7 @@ class IdentificationDesign:
     """How the identifier is fitted and used; every field but `RUN_TIME`'s is part of the cache key."""
 
     steps: int = 20
-    """Env steps after reset read: the landing, which tells bodies apart best (20 read as well as 40 or 100)."""
+    """Env steps after reset read: the landing, which tells bodies apart better than standing (docs/robustness.md)."""
     episodes: int = 8000
     """Simulated training episodes (about a minute; more gained little)."""
     first_seed: int = 60000
