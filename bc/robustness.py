@@ -153,9 +153,10 @@ def plot(result: dict[str, Any], path: Path) -> None:
     body by direction (sectors without a push left out), on a dial seen from above with the body facing up."""
     names = list(result["conditions"])
     pushed = [n for n in names if "push_sectors" in result["conditions"][n]]
+    panels = 3 if pushed else 2
     figure = Figure(figsize=(13 if pushed else 9, 4))
-    survival = figure.add_subplot(1, 3 if pushed else 2, 1)
-    returns = figure.add_subplot(1, 3 if pushed else 2, 2)
+    survival = figure.add_subplot(1, panels, 1)
+    returns = figure.add_subplot(1, panels, 2)
     survival.bar(names, [100 * result["conditions"][n]["survival_rate"] for n in names], color="tab:green")
     survival.set_ylabel("survival (%)")
     survival.set_ylim(0, 100)
@@ -164,7 +165,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
     for axes in (survival, returns):
         axes.tick_params(axis="x", rotation=60)
     if pushed:
-        dial = figure.add_subplot(1, 3, 3, projection="polar")
+        dial = figure.add_subplot(1, panels, 3, projection="polar")
         dial.set_theta_zero_location("N")  # forward up, left to the left: the body seen from above
         for name in pushed:
             sectors = result["conditions"][name]["push_sectors"]
@@ -190,8 +191,8 @@ def table(result: dict[str, Any]) -> str:
         if "push_sectors" in row:
             sectors = row["push_sectors"]
             counts = zip(sectors["centres"], sectors["toppled"], sectors["pushes"], strict=True)
-            lines.append(f"{name} pushes that toppled it, by direction (0 forward, 90 left, 180 back): ")
-            lines[-1] += ", ".join(f"{centre}: {fell}/{pushes}" for centre, fell, pushes in counts)
+            shares = ", ".join(f"{centre}: {fell}/{pushes}" for centre, fell, pushes in counts)
+            lines.append(f"{name} pushes that toppled it, by direction (0 forward, 90 left, 180 back): {shares}")
     return "\n".join(lines)
 
 

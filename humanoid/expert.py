@@ -77,7 +77,7 @@ class LQRExpert:
         self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
         self._qpos = self.qpos_ref.copy()
         self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
-        self._blend: tuple[np.ndarray, np.ndarray, np.ndarray, LQRGains, int, int] | None = None  # `blend_to`
+        self._blend: tuple[LQRGains, LQRGains, int, int] | None = None  # `blend_to`: from, to, steps done, steps
         self._moving = False  # one attribute test per act while the setpoint is still
 
     def set_delay(self, steps: int) -> None:
@@ -148,15 +148,16 @@ class LQRExpert:
         For a body learnt during the episode (`SensedExpert` identifying it): switched at once, the new stance
         is a jolt. The predictor keeps stepping the design's body.
         """
-        self._blend = (self.qpos_ref.copy(), self.ctrl_ff.copy(), self.gain.copy(), gains, 0, max(1, steps))
+        start = LQRGains(qpos_ref=self.qpos_ref.copy(), ctrl_ff=self.ctrl_ff.copy(), gain=self.gain.copy())
+        self._blend = (start, gains, 0, max(1, steps))
 
     def _blend_step(self) -> None:
-        start_qpos, start_ff, start_gain, gains, step, steps = self._blend
-        w = (step + 1) / steps
-        self.qpos_ref[:] = (1 - w) * start_qpos + w * gains.qpos_ref
-        self.ctrl_ff[:] = (1 - w) * start_ff + w * gains.ctrl_ff
-        self.gain = (1 - w) * start_gain + w * gains.gain  # a new array: the design's gain is shared, never written
-        self._blend = None if step + 1 >= steps else (start_qpos, start_ff, start_gain, gains, step + 1, steps)
+        start, target, done, steps = self._blend
+        w = (done + 1) / steps
+        self.qpos_ref[:] = (1 - w) * start.qpos_ref + w * target.qpos_ref
+        self.ctrl_ff[:] = (1 - w) * start.ctrl_ff + w * target.ctrl_ff
+        self.gain = (1 - w) * start.gain + w * target.gain  # a new array: the design's gain is shared, never written
+        self._blend = None if done + 1 >= steps else (start, target, done + 1, steps)
 
     @property
     def moving(self) -> bool:
@@ -260,9 +261,10 @@ class SensedExpert:
             self.identifier.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        action = self.expert.act_on_state(*self.estimator(self.sensed(obs)))
+        sensed = self.sensed(obs)
+        action = self.expert.act_on_state(*self.estimator(sensed))
         if self.identifier is not None and not self.identifier.done:
-            self.identifier.observe(obs, action)
+            self.identifier.observe(sensed, action)
             if self.identifier.done:
                 expert = self.expert
                 try:

@@ -69,7 +69,10 @@ class IdentifierWeights:
 
 
 class Acting(Protocol):
-    """What the training episodes run: an expert that acts on the gymnasium observation."""
+    """What the training episodes run: an expert that acts on the gymnasium observation.
+
+    `humanoid.controllers.Controller` says the same, but importing it would close a cycle back through the
+    expert (controllers -> expert -> identification), as would `humanoid.episode`'s noise and rollout."""
 
     def reset(self, seed: int | None = None) -> None: ...
 
@@ -83,7 +86,6 @@ class BodyIdentifier:
         self.model = model
         self.weights = weights
         self.design = design
-        self.sensed = Proprioception(model)
         self._rows: list[np.ndarray] = []
 
     def reset(self) -> None:
@@ -93,10 +95,11 @@ class BodyIdentifier:
     def done(self) -> bool:
         return len(self._rows) >= self.design.steps
 
-    def observe(self, obs: np.ndarray, action: np.ndarray) -> None:
-        """One step: the observation acted on and the action commanded (what the robot knows it sent)."""
+    def observe(self, sensed: np.ndarray, action: np.ndarray) -> None:
+        """One step: the sensed features acted on (`Proprioception`) and the action commanded (what the robot
+        knows it sent)."""
         if not self.done:
-            self._rows.append(step_features(self.sensed, obs, action))
+            self._rows.append(step_features(sensed, action))
 
     def scales(self) -> np.ndarray:
         """The body's mass scales as acted on: the estimate's deviation from 1, shrunk and clipped."""
@@ -107,9 +110,9 @@ class BodyIdentifier:
         return scaled_body(self.model, self.scales())
 
 
-def step_features(sensed: Proprioception, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+def step_features(sensed: np.ndarray, action: np.ndarray) -> np.ndarray:
     """One step's input to the map: the sensed features and the commanded action, float32 as trained."""
-    return np.concatenate([sensed(obs), action]).astype(np.float32)
+    return np.concatenate([sensed, action]).astype(np.float32)
 
 
 def acted_scales(weights: IdentifierWeights, design: IdentificationDesign, features: np.ndarray) -> np.ndarray:
@@ -162,7 +165,7 @@ def collect(
         rows = []
         for t in range(design.steps):
             action = expert.act(obs)
-            rows.append(step_features(sensed, obs, action))
+            rows.append(step_features(sensed(obs), action))
             executed = np.clip(action + noise[t], -CTRL_LIMIT, CTRL_LIMIT) if noisy else action
             obs, _, terminated, _, _ = env.step(executed)
             if terminated:
