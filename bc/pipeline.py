@@ -5,7 +5,7 @@
        '------------------------------> PROPRIO_POLICY (proprio)   } DEPLOYABLE: what      +--> SCRATCH_POLICY,
     SENSED_DATASET (expert-sensed, ---> ODOMETRY_POLICY (pending)  } a robot senses --(odometry, default)
       SENSED_LATENCY delayed)
-    tutorial-rl (reads neither)                                                                   PPO_POLICY
+    tutorial-rl (reads neither; a worker process from the start, beside the rest)                 PPO_POLICY
 
 The deployable branch clones policies that read only the sensed features: from the same data (which
 shows what the privileged inputs did), and from demonstrations of the expert on leg odometry, half of
@@ -15,7 +15,8 @@ Both PPO stages start from that student (PPO_FROM=odometry, the stages' own defa
 fine-tuned actor reads what a robot senses; PPO_FROM=full starts them from BC_POLICY instead
 (docs/learning.md, "An actor on leg odometry", compares the two).
 
-Each stage runs in this process through its own `main`, with the config `make <stage>` would use
+Each stage runs in this process through its own `main` (the tutorial's learners in a worker process, since
+they use one core and the PPO stages two), with the config `make <stage>` would use
 for the same variables: what the pipeline does not set keeps the stage's default, every field of
 `PipelineConfig` takes its default from the stage it feeds, and ARGS holds further flags of both
 PPO stages. Every stage's checks run before the first one starts.
@@ -70,6 +71,7 @@ from bc.train import TrainConfig
 from bc.tutorial import TutorialConfig
 from common import keys, paths
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
+from common.workers import Channel, Worker
 from humanoid.conditions import NO_RANDOMIZATION, SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import humanoid_model
@@ -532,32 +534,14 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     `robustness_episodes`, the suite's table of the expert and every policy too."""
     validate(stages)
     foresee(stages, overwrite)
-
-    record_stage(stages.record)
-    bc_stage(stages.train, overwrite, "--bc-policy")
-    policies = [stages.train.policy]
-    if stages.deployable is not None:
-        bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
-        record_stage(stages.deployable.record)
-        bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
-        policies += [stages.deployable.proprio.policy, stages.deployable.odometry.policy]
-
-    for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
-        decision = ppo_decision(config, option, overwrite)
-        print(f"pipeline: {decision.line}", flush=True)
-        if decision.action != REUSE:
-            print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
-
-    policies += [stages.finetune.policy, stages.baseline.policy]
-    if stages.tutorial is not None:
-        config = tutorial_config(stages.tutorial, overwrite)
-        folders = [config.preferred_policy, config.ppo_policy]
-        print(f"pipeline: the tutorial's learners: {', '.join(map(str, folders))} (reused if finished)", flush=True)
-        made = [learner for learner, reused in tutorial.plan(config, MADE_BY).items() if not reused]
-        results = tutorial.main(config, MADE_BY)
-        # Like the other stages: a summary line for what was trained, none for what was reused.
-        tutorial.print_results(config, {learner: results[learner] for learner in made})
-        policies += folders
+    learners = None if stages.tutorial is None else start_tutorial(stages.tutorial, overwrite)
+    try:
+        policies = run_stages(stages, overwrite)
+        if learners is not None:
+            policies += learners.finish()
+    finally:
+        if learners is not None:
+            learners.close()
     table = report.table(policies)
     print(table)
     if robustness_episodes:
@@ -566,6 +550,72 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
         table += "\n\n" + report.suite_table(results)
         print("\n" + report.suite_table(results))
     return table
+
+
+def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
+    """Record, clone and run both PPO stages, each unless reused; the policies' folders."""
+    record_stage(stages.record)
+    bc_stage(stages.train, overwrite, "--bc-policy")
+    policies = [stages.train.policy]
+    if stages.deployable is not None:
+        bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
+        record_stage(stages.deployable.record)
+        bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
+        policies += [stages.deployable.proprio.policy, stages.deployable.odometry.policy]
+    for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
+        decision = ppo_decision(config, option, overwrite)
+        print(f"pipeline: {decision.line}", flush=True)
+        if decision.action != REUSE:
+            print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
+    return policies + [stages.finetune.policy, stages.baseline.policy]
+
+
+@dataclass
+class TutorialRun:
+    """The tutorial's learners, training in a worker process while the other stages run: they use one core, the
+    PPO stages keep both busy (docs/learning.md, "The pipeline's table", has what it saves)."""
+
+    config: TutorialConfig
+    made: list[str]
+    """The learners trained (the others' finished runs are reused)."""
+    worker: Worker | None
+    """Their training; None when every learner is reused."""
+
+    def finish(self) -> list[Path]:
+        """Wait for the learners, print a summary line per learner trained (as the other stages do); their folders."""
+        if self.worker is None:
+            results = tutorial.main(self.config, MADE_BY)
+        else:
+            if not self.worker.poll():  # their bars are off: say why nothing moves (on stderr, with the bars)
+                print("pipeline: waiting for the tutorial's learners to finish", file=sys.stderr, flush=True)
+            results = self.worker.recv()
+        tutorial.print_results(self.config, {learner: results[learner] for learner in self.made})
+        return [self.config.preferred_policy, self.config.ppo_policy]
+
+    def close(self) -> None:
+        """Stop the learners if they still train (the pipeline failed or was interrupted first), reap the worker."""
+        if self.worker is not None:
+            self.worker.close()
+
+
+def start_tutorial(config: TutorialConfig, overwrite: bool) -> TutorialRun:
+    """Start training the tutorial's learners that are not reused, in a worker process, saying so in one line."""
+    config = tutorial_config(config, overwrite)
+    folders = ", ".join(map(str, (config.preferred_policy, config.ppo_policy)))
+    made = [learner for learner, reused in tutorial.plan(config, MADE_BY).items() if not reused]
+    print(f"pipeline: the tutorial's learners: {folders} (reused if finished; trained beside the others)", flush=True)
+    worker = None
+    if made:
+        # No progress bars: two processes' bars on one terminal garble each other. The worker ends with the
+        # pipeline, a kill -9 included: it would otherwise write on into folders a next run makes again.
+        quiet = dataclasses.replace(config, progress=False)
+        worker = Worker(_train_tutorial, quiet, name="the tutorial's learners", exit_when_input_ends=True)
+    return TutorialRun(config, made, worker)
+
+
+def _train_tutorial(channel: Channel, config: TutorialConfig) -> None:
+    """The worker's target: train the learners, send their evaluations."""
+    channel.send(tutorial.main(config, MADE_BY))
 
 
 def record_stage(cfg: RecordConfig) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from bc import report
+from bc import report, tutorial
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.finetune import FinetuneConfig
@@ -42,7 +42,7 @@ from common import paths
 from common.cli import UserError
 from humanoid.conditions import SUITE
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, EVAL_FILE
+from policies.folder import CONFIG_FILE, EVAL_FILE, WEIGHTS_FILE
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
@@ -50,7 +50,10 @@ from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
-TUTORIAL_LINE = "pipeline: the tutorial's learners: tutorial_preferred, tutorial_ppo (reused if finished)"
+TUTORIAL_LINE = (
+    "pipeline: the tutorial's learners: tutorial_preferred, tutorial_ppo (reused if finished; "
+    "trained beside the others)"
+)
 
 
 def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict | None = None) -> Stages:
@@ -178,6 +181,7 @@ def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str
     """From nothing, each stage runs, one line saying so, in the order record, BC, the deployable BC policies,
     scratch, fine-tuning."""
     assert pipeline_lines(first_run[1]) == [
+        TUTORIAL_LINE,
         "pipeline: recording data: no dataset there yet",
         "pipeline: training bc: no checkpoint there yet",
         "pipeline: training bc_proprio: no checkpoint there yet",
@@ -185,7 +189,6 @@ def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str
         "pipeline: training bc_odometry: no checkpoint there yet",
         "pipeline: training from scratch scratch: no checkpoint there yet",
         "pipeline: fine-tuning ppo: no checkpoint there yet",
-        TUTORIAL_LINE,
     ]
 
 
@@ -196,11 +199,26 @@ def test_first_run_prints_a_summary_line_per_tutorial_learner(first_run: tuple[P
     assert all(" steps in " in line and "survival" in line for line in summaries)
 
 
+def test_tutorial_learners_trained_beside_the_others_are_those_a_run_of_their_own_makes(
+    first_run: tuple[Path, list[str]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The learners train in a process of their own (`bc.background`); what they make does not depend on it."""
+    monkeypatch.chdir(tmp_path)
+    alone = tutorial.main(tiny_stages().tutorial, MADE_BY)
+    for learner, folder in (("preferred", "tutorial_preferred"), ("ppo", "tutorial_ppo")):
+        beside = json.loads((first_run[0] / folder / EVAL_FILE).read_text())
+        assert beside["returns"] == alone[learner]["returns"]
+    assert (first_run[0] / "tutorial_preferred" / WEIGHTS_FILE).read_bytes() == Path(
+        "tutorial_preferred", WEIGHTS_FILE
+    ).read_bytes()
+
+
 def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path) -> None:
     """Run again with the same inputs: nothing is made or changed, and the table is `bc.report`'s, line for line."""
     before = snapshot(outputs)
     lines = run_here(outputs, tiny_stages())
     assert pipeline_lines(lines) == [
+        TUTORIAL_LINE,
         "pipeline: data holds the 2 episodes asked for, recorded so: not recording",
         "pipeline: bc was made from this dataset with these settings: not training",
         "pipeline: bc_proprio was made from this dataset with these settings: not training",
@@ -208,7 +226,6 @@ def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path
         "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
-        TUTORIAL_LINE,
     ]
     assert lines[len(pipeline_lines(lines)) :] == report_table()
     assert snapshot(outputs) == before
@@ -219,6 +236,7 @@ def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(ou
     PPO runs are; the sensed expert's dataset is another dataset, and stays."""
     lines = pipeline_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
     assert lines == [
+        TUTORIAL_LINE,
         "pipeline: recording data again: it was recorded with --noise 0.05, not 0.02",
         "pipeline: training bc again: it was made from another dataset",
         "pipeline: training bc_proprio again: it was made from another dataset",
@@ -226,7 +244,6 @@ def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(ou
         "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: training from scratch scratch again: it was made from another BC policy",
         "pipeline: fine-tuning ppo again: it was made from another BC policy",
-        TUTORIAL_LINE,
     ]
     assert [line["config"]["noise"] for line in recordings.read(Path("data"))] == [0.02]
     assert json.loads(Path("bc/dataset.json").read_text())["fingerprint"] == fingerprint(Path("data"))
@@ -451,7 +468,7 @@ def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_the_studen
     """Switching the PPO stages' start remakes them (their --bc-policy differs), and the fine-tuned actor then
     reads what the student reads."""
     lines = pipeline_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("bc_odometry")})))
-    assert lines[-3:-1] == [
+    assert lines[-2:] == [
         "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not bc_odometry",
         "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not bc_odometry",
     ]
