@@ -90,7 +90,7 @@ class FinetuneConfig:
         choices=("bc", "fresh"),
     )
     timesteps: int = setting(
-        600_000, 'environment steps of training (the budget: docs/learning.md, "The pipeline\'s table")'
+        1_000_000, 'environment steps of training (the budget: docs/learning.md, "The pipeline\'s table")'
     )
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(

@@ -57,7 +57,7 @@ class TutorialConfig:
         paths.TUTORIAL_PREFERRED_POLICY, "checkpoint folder of the preferred-action learner"
     )
     ppo_policy: Path = setting(paths.TUTORIAL_PPO_POLICY, "folder of the tutorial's SB3 PPO (saved by SB3)")
-    timesteps: int = setting(600_000, "environment steps of training, each learner (the pipeline: the PPO stages')")
+    timesteps: int = setting(1_000_000, "environment steps of training, each learner (the pipeline: the PPO stages')")
     step_size: float = setting(0.01, "preferred action: fraction of the way the mean moves toward a rewarded action")
     noise_start: float = setting(0.2, "preferred action: exploration std at the start (half the ±0.4 action range)")
     noise_end: float = setting(0.01, "preferred action: exploration std at the end (geometric decay in between)")
