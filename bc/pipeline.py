@@ -535,18 +535,24 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     validate(stages)
     foresee(stages, overwrite)
     learners = None if stages.tutorial is None else start_tutorial(stages.tutorial, overwrite)
+    experts = ["expert"] + ([SensedExpert.name] if stages.deployable is not None else [])
+    results: dict[str, dict[str, Any]] = {}
     try:
         policies = run_stages(stages, overwrite)
+        # The suite of the others while the tutorial's learners may still train: the second core is not idle.
+        for name in [*experts, *map(str, policies)] if robustness_episodes else []:
+            results[name] = suite(name, robustness_episodes)
         if learners is not None:
-            policies += learners.finish()
+            folders = learners.finish()
+            for name in map(str, folders) if robustness_episodes else []:
+                results[name] = suite(name, robustness_episodes)
+            policies += folders
     finally:
         if learners is not None:
             learners.close()
     table = report.table(policies)
     print(table)
     if robustness_episodes:
-        experts = ["expert"] + ([SensedExpert.name] if stages.deployable is not None else [])
-        results = {name: suite(name, robustness_episodes) for name in [*experts, *map(str, policies)]}
         table += "\n\n" + report.suite_table(results)
         print("\n" + report.suite_table(results))
     return table

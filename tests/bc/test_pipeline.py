@@ -532,6 +532,26 @@ def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: p
     assert table[2].endswith(" | " + " | ".join(survivors) + " |")
 
 
+def test_the_suite_runs_on_the_others_while_the_tutorials_learners_train_and_rows_every_policy(
+    outputs: Path,
+) -> None:
+    """With the tutorial's PPO to train again, the others' suite runs meanwhile; the table still has a row for
+    each expert and every policy, in the order of the clean table, the tutorial's learners last."""
+    shutil.rmtree(outputs / "tutorial_ppo")
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        run(tiny_stages(), robustness_episodes=1)
+    lines = out.getvalue().splitlines()
+    table = lines[lines.index(next(line for line in lines if line.startswith("| policy | clean return"))) :]
+    rows = [line.split(" | ")[0].removeprefix("| ") for line in table[2:] if line.startswith("| ")]
+    assert rows == [
+        "expert",
+        "expert-sensed",
+        *("bc", "bc_proprio", "bc_odometry", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"),
+    ]
+    assert (outputs / "tutorial_ppo" / EVAL_FILE).is_file()
+
+
 def test_the_suite_table_averages_the_returns_over_the_conditions() -> None:
     """Known answer: two conditions with returns 1,000 and 3,000 average to 2,000.0."""
     result = {
