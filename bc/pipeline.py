@@ -537,15 +537,18 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     learners = None if stages.tutorial is None else start_tutorial(stages.tutorial, overwrite)
     experts = ["expert"] + ([SensedExpert.name] if stages.deployable is not None else [])
     results: dict[str, dict[str, Any]] = {}
+
+    def measure(names: list[str]) -> None:
+        if robustness_episodes:
+            results.update((name, suite(name, robustness_episodes)) for name in names)
+
     try:
         policies = run_stages(stages, overwrite)
         # The suite of the others while the tutorial's learners may still train: the second core is not idle.
-        for name in [*experts, *map(str, policies)] if robustness_episodes else []:
-            results[name] = suite(name, robustness_episodes)
+        measure([*experts, *map(str, policies)])
         if learners is not None:
             folders = learners.finish()
-            for name in map(str, folders) if robustness_episodes else []:
-                results[name] = suite(name, robustness_episodes)
+            measure(list(map(str, folders)))
             policies += folders
     finally:
         if learners is not None:

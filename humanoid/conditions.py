@@ -102,6 +102,14 @@ def subtree_masses(model: Any) -> None:
         model.body_subtreemass[model.body_parentid[body]] += model.body_subtreemass[body]
 
 
+def scale_masses(model: Any, scale: np.ndarray) -> None:
+    """Each body's mass and inertia times its scale (`scale`: one per body, the world excluded), in place: the same
+    density change, so the shape's inertia scales alike; the subtree masses follow."""
+    model.body_mass[1:] *= scale
+    model.body_inertia[1:] *= scale[:, None]
+    subtree_masses(model)
+
+
 class DomainRandomization(gym.Wrapper):
     """Draws the physical parameters of `randomization` from the seed at every seeded reset.
 
@@ -151,9 +159,7 @@ class DomainRandomization(gym.Wrapper):
         parameters: dict[str, Any] = {}
         if r.mass is not None:
             scale = self._rng.uniform(*r.mass, size=model.nbody - 1)  # the world body has no mass
-            model.body_mass[1:] *= scale
-            model.body_inertia[1:] *= scale[:, None]  # the same density change: the shape's inertia scales alike
-            subtree_masses(model)
+            scale_masses(model, scale)
             parameters["mass" + SCALE_SUFFIX] = scale.round(6).tolist()
         if r.friction is not None:
             scale = float(self._rng.uniform(*r.friction))

@@ -24,7 +24,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from humanoid.conditions import ActionLatency, DomainRandomization, ObservationNoise, Randomization, subtree_masses
+from humanoid.conditions import ActionLatency, DomainRandomization, ObservationNoise, Randomization, scale_masses
 from humanoid.env import make_env
 from humanoid.lqr import CTRL_LIMIT, load_or_build
 from humanoid.sensors import Proprioception
@@ -124,9 +124,7 @@ def acted_scales(weights: IdentifierWeights, design: IdentificationDesign, featu
 def scaled_body(model: mujoco.MjModel, scales: np.ndarray) -> mujoco.MjModel:
     """A copy of `model` with each body's mass and inertia times its scale (as `DomainRandomization` draws them)."""
     body = copy.copy(model)
-    body.body_mass[1:] *= scales
-    body.body_inertia[1:] *= scales[:, None]
-    subtree_masses(body)
+    scale_masses(body, scales)
     return body
 
 
