@@ -556,8 +556,9 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     table = report.table(policies)
     print(table)
     if robustness_episodes:
-        table += "\n\n" + report.suite_table(results)
-        print("\n" + report.suite_table(results))
+        suite_table = report.suite_table(results)
+        table += "\n\n" + suite_table
+        print("\n" + suite_table)
     return table
 
 

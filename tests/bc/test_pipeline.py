@@ -542,7 +542,7 @@ def test_the_suite_runs_on_the_others_while_the_tutorials_learners_train_and_row
     with contextlib.redirect_stdout(out):
         run(tiny_stages(), robustness_episodes=1)
     lines = out.getvalue().splitlines()
-    table = lines[lines.index(next(line for line in lines if line.startswith("| policy | clean return"))) :]
+    table = lines[next(i for i, line in enumerate(lines) if line.startswith("| policy | clean return")) :]
     rows = [line.split(" | ")[0].removeprefix("| ") for line in table[2:] if line.startswith("| ")]
     assert rows == [
         "expert",
