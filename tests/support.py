@@ -20,7 +20,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from common import keys
 from common.keys import COMMAND_NAMES
-from humanoid.env import humanoid_model
+from humanoid.conditions import ActionLatency
+from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
 from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
@@ -101,6 +102,16 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
         command_tasks=command_tasks,
     )
+
+
+def drawn_delay(seed: int, share: float = 0.5) -> int:
+    """The delay `ActionLatency` at `share` draws for `seed`, outside any recording."""
+    env = ActionLatency(make_env(), 1, share)
+    try:
+        env.reset(seed=seed)
+        return env.delay
+    finally:
+        env.close()
 
 
 def committed_episodes(root: Path) -> int:

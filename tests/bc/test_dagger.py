@@ -28,7 +28,7 @@ from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
-from support import committed_episodes, join_observation, snapshot, wait_for_episodes
+from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.record import RecordConfig, record
@@ -207,7 +207,8 @@ def test_round_frames_in_memory_equal_the_frames_read_back(delayed: Path, inputs
     finally:
         store.close()
         env.close()
-    assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(root)[4:]] == [1, 0]
+    delays = [drawn[LATENCY_PARAMETER] for drawn in read_parameters(root)[4:]]
+    assert delays == [drawn_delay(4), drawn_delay(5)] and sorted(delays) == [0, 1]  # both kinds of episode
     read_back = load_demonstrations(root, make_env(), cache=False, inputs=inputs)
     np.testing.assert_array_equal(trainer.demos.episode_index, read_back.episode_index)
     torch.testing.assert_close(trainer.demos.inputs, read_back.inputs, rtol=0, atol=0)
@@ -219,7 +220,9 @@ def test_rollouts_run_under_the_conditions_the_dataset_was_recorded_in(delayed: 
     as `make record LATENCY=0.5` does, and the settings it logs say so."""
     config = sensed_run(delayed, tmp_path, "pending")
     main(config)
-    assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(config.output)] == [1, 1, 0, 1, 1, 0]
+    seeds = read_episodes(config.output, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+    delays = [drawn[LATENCY_PARAMETER] for drawn in read_parameters(config.output)]
+    assert delays == [drawn_delay(seed) for seed in seeds] and len(seeds) > 4  # the round's rollouts too
     line = recordings.read(config.output)[-1]
     assert (line["config"]["randomize"], line["config"]["latency"]) == (NO_RANDOMIZATION, 0.5)
 

@@ -213,20 +213,20 @@ def test_bad_policy_is_refused_in_one_line(
 
 
 @pytest.mark.parametrize(
-    "args",
+    ("args", "message"),
     [
-        ["--episodes", "0"],
-        ["--push", "-1"],
-        ["--noise", "nan"],
-        ["--video", "x.avi"],
-        ["--condition", "gravity"],
-        ["--condition", "mass", "--push", "10"],
+        (["--episodes", "0"], "--episodes must be positive"),
+        (["--push", "-1"], "--push must be a force >= 0"),
+        (["--noise", "nan"], "--noise must be >= 0"),
+        (["--video", "x.avi"], "--video must be an .mp4 path"),
+        (["--condition", "gravity"], "unknown --condition 'gravity'"),
+        (["--condition", "mass", "--push", "10"], "--condition brings its own perturbation"),
     ],
 )
-def test_bad_settings_are_refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
-    """Impossible settings fail in one line before anything runs."""
+def test_bad_settings_are_refused(args: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """Impossible settings fail in one line, naming the setting, before anything runs."""
     code, out, err = eval_cli(["--policy", "random", *args], capsys)
-    assert code == 1 and out == [] and len(err) == 1
+    assert code == 1 and out == [] and len(err) == 1 and message in err[0]
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stable_baselines3 import PPO
 
 from bc.evaluate import evaluate
 from bc.tutorial import PreferredActionLearner, TutorialConfig, cli, main
@@ -84,7 +85,7 @@ def test_the_tutorial_ppo_runs_as_sb3_saved_it(trained: tuple[TutorialConfig, di
     controller = make_controller(str(config.ppo_policy), make_env())
     assert isinstance(controller, SB3Controller)
     obs, _ = make_env().reset(seed=3)
-    expected, _ = controller.model.predict(obs, deterministic=True)
+    expected, _ = PPO.load(config.ppo_policy / SB3_FILE, device="cpu").predict(obs, deterministic=True)
     np.testing.assert_array_equal(controller.act(obs), expected)
     assert evaluate(str(config.ppo_policy), episodes=2)["returns"] == results["ppo"]["returns"]
 

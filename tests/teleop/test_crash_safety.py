@@ -88,13 +88,16 @@ def test_kill_9_of_the_whole_recording_keeps_every_committed_episode(tmp_path: P
     assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == list(range(survived + 2))
 
 
-def kill_after_two_episodes(root: Path, kill: Callable[[subprocess.Popen], None]) -> None:
-    """Record 100 episodes into `root`, `kill` the recording once two are committed, and wait for the writer."""
+def kill_after_two_episodes(root: Path, kill: Callable[[subprocess.Popen], None]) -> int:
+    """Record 100 episodes into `root`, `kill` the recording once two are committed, and wait for the writer;
+    the episodes committed when the kill landed."""
     recorder = start_recording(root, episodes=100)
     wait_for_episodes(root, 2, recorder)
     kill(recorder)
     recorder.wait()
+    at_kill = committed_episodes(root)
     wait_for_the_writer(root)
+    return at_kill
 
 
 def wait_for_the_writer(root: Path) -> None:
@@ -112,7 +115,8 @@ def wait_for_the_writer(root: Path) -> None:
 def test_kill_9_of_the_recorder_alone_lets_the_writer_commit_what_it_received(tmp_path: Path) -> None:
     """The writer process outlives a killed recorder just long enough to commit the episodes it was sent."""
     root = tmp_path / "dataset"
-    kill_after_two_episodes(root, lambda recorder: os.kill(recorder.pid, signal.SIGKILL))
+    at_kill = kill_after_two_episodes(root, lambda recorder: os.kill(recorder.pid, signal.SIGKILL))
+    assert committed_episodes(root) >= at_kill >= 2
     assert_consistent(root, committed_episodes(root))
 
 

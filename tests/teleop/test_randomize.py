@@ -189,9 +189,10 @@ def test_inspect_shows_the_ranges_drawn(randomized: Path) -> None:
     drawn = read_parameters(randomized)
     friction = [p["friction_scale"] for p in drawn]
     mass = np.concatenate([p["mass_scale"] for p in drawn])
+    strength = np.concatenate([p["strength_scale"] for p in drawn])
     assert report.randomized == {
         "mass_scale": f"{mass.min():.3f}..{mass.max():.3f} (13 per episode)",
         "friction_scale": f"{min(friction):.3f}..{max(friction):.3f}",
-        "strength_scale": report.randomized["strength_scale"],
+        "strength_scale": f"{strength.min():.3f}..{strength.max():.3f} (17 per episode)",
     }
     assert "randomised  mass_scale: " in report.summary()

