@@ -195,8 +195,8 @@ class FinetuneConfig:
     update_threads: int = setting(
         0,
         "torch threads of PPO's updates (0: one per core; the workers are idle then). "
-        "The rollouts use one: idle torch threads spin, and slowed the simulation by "
-        "a tenth to a fifth",
+        "The rollouts use one: idle torch threads spin and slow the simulation "
+        "(docs/benchmarks.md, 'How it got here')",
     )
     baseline: Path = setting(
         paths.SCRATCH_POLICY, "PPO-from-scratch run whose learning curve the figure shows beside this one, if present"

@@ -648,7 +648,7 @@ def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
 
 def suite(policy: str, episodes: int) -> dict[str, Any]:
     """The robustness suite's results for `policy`: its robustness.json if made after the policy with the same
-    episodes and conditions (a registered controller's always), else a new run (about 30 s for 20 episodes)."""
+    episodes and conditions (a registered controller's always), else a new run."""
     cfg = RobustnessConfig(policy=policy, episodes=episodes, progress=False)
     saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
     weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)

@@ -10,7 +10,7 @@ driver does: docs/scaling.md). Each actor holds one CPU of the cluster's resourc
 refuses more workers than the cluster has CPUs: actors that wait for a CPU never start, and two
 actors that held a 2-CPU node's CPUs starved everything else there (docs/scaling.md). Ray does not
 pin processes to cores; each actor pins itself to a core of its node, in the order the actors
-landed there, as `common.workers` does (pinning gave 1.72x against 1.37x for two PPO workers).
+landed there, as `common.workers` does (unpinned, two PPO workers queued on one core: docs/scaling.md).
 
 Failures: an exception raised by a worker's method is raised by `get` as itself (a `UserError` is
 the user's one line); a worker whose process or node is gone raises `WorkerLost`, one line.

@@ -7,7 +7,7 @@ each property is the one it is, with the measurements.
 Start: multiprocessing's forkserver, always. The server is a fresh interpreter (it inherits no
 lock, thread or open file of the parent), started once per parent process; it imports the preload
 list once and every child is a fork of it, so a child starts in milliseconds instead of paying for
-its imports again (0.2 to 0.7 s here). Preload policy: the server imports `__main__`, the parent's
+its imports again (docs/processes.md). Preload policy: the server imports `__main__`, the parent's
 main module by name (`python -m pkg.mod`: CPython 3.12's forkserver preloads `__main__` only when
 started from a file path, and every child would re-run the main module otherwise), and every module
 the workers of this process declared (`preload=`) before the server started; a later declaration

@@ -151,7 +151,7 @@ def read_sensed(names: list[str]) -> np.ndarray:
 
     Why not the forces: at the end of a step they are what the step's executed action did, so a
     student reading them can copy the previous action instead of acting on the state, and it falls
-    (docs/robustness.md, "A student that stands on what it senses").
+    (docs/robustness.md, "An expert that acts on what it senses", its student on `INPUTS=odometry`).
     """
     forces = set(force_names())
     return np.array([i for i, name in enumerate(names) if name not in forces])

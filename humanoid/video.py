@@ -2,8 +2,8 @@
 
 MuJoCo renders through EGL (Mesa's llvmpipe when there is no GPU) or OSMesa, chosen by
 MUJOCO_GL, which gymnasium reads when it creates its first viewer: `VideoRecorder` sets it to
-`egl` unless the user chose. Shadows and reflections are switched off: in software they cost
-three quarters of the ~80 ms a frame takes with them; without, a frame costs about 25 ms.
+`egl` unless the user chose. Shadows and reflections are switched off: in software they cost most
+of a frame's time (docs/learning.md, "Evaluation").
 """
 
 from __future__ import annotations

@@ -8,8 +8,9 @@ The domain randomisation widens with the stages: stage k of K draws the physical
 their ranges narrowed to k/(K-1) of their size about 1 (`Randomization.widened`), so the first stage
 is the nominal body the demonstrations showed and the last the whole distribution; the shares of the
 episodes run with the suite's action latency and sensor noise grow alike, from none. Trained on the
-whole distribution from the start, the BC actor (with PPO's exploration noise) survived about 3 % of
-its training episodes and no stage was ever passed (docs/learning.md). A new stage applies to each
+whole distribution from the start, the BC actor (with PPO's exploration noise) survived few of
+its training episodes and no stage was ever passed (docs/learning.md, "Training for robustness").
+A new stage applies to each
 environment from its next episode (`TorsoPushes.set_force`, `DomainRandomization.set_width`,
 `ActionLatency.set_latency_share`, `ObservationNoise.set_noise_share`), so every episode runs under one
 stage and a resumed run replays it exactly. The stage never goes back.

@@ -2,8 +2,8 @@
 
 SB3's `SubprocVecEnv` runs one environment per process, so the learner pays its per-step cost
 (tensor conversion, the policy's forward pass, the rollout buffer) once for every environment
-step, and that cost, not the simulation, is what limits PPO here (about 0.65 ms against 0.23 ms
-of MuJoCo per step). Here each worker process holds a contiguous group of the environments and
+step, and that cost, not the simulation, is what limits PPO here (docs/benchmarks.md, "PPO
+fine-tuning"). Here each worker process holds a contiguous group of the environments and
 steps them as SB3's in-process `DummyVecEnv` does (auto-reset, `terminal_observation`, consecutive
 seeds), so N environments give the same observations and rewards whatever the number of workers
 (a test compares them step by step). Besides SB3's `step`, a worker can sample a whole rollout of
@@ -223,9 +223,9 @@ class WorkerGroupVecEnv(VecEnv):
 
     One worker is the learner's own process (SB3's `DummyVecEnv`, minus its copies of the infos);
     more are that many processes, each pinned to a core of its own (unpinned, Linux woke a worker
-    on the core of the learner that woke it, and two workers queued on one core gave 1.37x instead
-    of 1.72x of the simulation rate). The learner simulates nothing then: with a share of its own,
-    it was the bottleneck (its share plus PPO's per-step work), 1.35x against 1.49x end to end.
+    on the core of the learner that woke it, and two workers queued on one core). The learner
+    simulates nothing then: with a share of its own, it was the bottleneck (its share plus PPO's
+    per-step work). Both measured: docs/benchmarks.md, "How it got here".
     """
 
     def __init__(

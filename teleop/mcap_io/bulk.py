@@ -1,7 +1,8 @@
 """An MCAP writer that takes a whole episode's messages in one call: the file `mcap.Writer` writes.
 
-`mcap.Writer.add_message` builds each message record field by field in Python, about 4 µs a
-message: with three messages a step, more than a tenth of the time it takes to simulate the step.
+`mcap.Writer.add_message` builds each message record field by field in Python: with three messages
+a step, a noticeable share of the time it takes to simulate the step (docs/benchmarks.md, "What made
+writing cheap enough").
 This writer takes the messages as arrays and builds their records, the chunks and the chunks'
 message indexes with NumPy. Everything else (header, schemas, channels, attachments, metadata, the
 summary section) is written through `mcap.records`, with the same layout and chunking rule as
@@ -9,8 +10,8 @@ summary section) is written through `mcap.records`, with the same layout and chu
 into the first chunk). A test checks that both writers produce the same bytes.
 
 The one deliberate difference is the zstd level: -1 (a fast mode) instead of zstandard's default 3.
-Recorded episodes are mostly floating-point numbers, which no level compresses much: an episode's
-4.35 MB of messages become 2.97 MB at -1 (5.5 ms), 2.87 MB at 1 (8 ms) and 2.85 MB at 3 (18 ms).
+Recorded episodes are mostly floating-point numbers, which no level compresses much, so the fast
+level loses little size and saves most of the time (docs/benchmarks.md, "What made writing cheap enough").
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Protobuf wire encoding of the per-step MCAP messages, from NumPy arrays, a whole episode at once.
 
 Building `foxglove.FrameTransforms`, `humanoid_bc.Step` and `humanoid_bc.Command` through the
-protobuf API costs about 50 µs a step (13 nested transforms, 348 doubles converted one by one):
-a third of the time it takes to simulate the step. The messages are mostly numbers in fixed
+protobuf API converts 13 nested transforms and 348 doubles one by one, a large share of the time
+it takes to simulate the step (docs/benchmarks.md, "What made writing cheap enough").
+The messages are mostly numbers in fixed
 places, so their bytes are built here directly, following the wire format
 (https://protobuf.dev/programming-guides/encoding/): each message is a row of bytes, filled by
 NumPy for every step at once, plus the few fields whose size varies (timestamp, frame index, task).
