@@ -97,7 +97,7 @@ tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PP
 	$(PY) -m bc.tutorial $(flags)
 
 # Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
-pipeline: $(STAMP)  ## record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables
+pipeline: $(STAMP)  ## record -> train-bc (and the sensed students) -> baseline-rl -> finetune-rl, tutorial-rl beside them, then the tables
 	$(PY) -m bc.pipeline $(flags)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
@@ -106,7 +106,7 @@ TEST_WORKERS ?= 2
 test: $(STAMP)  ## run the whole test suite (about 10 minutes on 2 cores; TEST_WORKERS processes)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
-test-fast: $(STAMP)  ## the tests that take well under a second each (under 30 s in all)
+test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 2 minutes)
 	$(PY) -m pytest -m "not slow"
 
 lint: $(STAMP)  ## ruff: lint and format check (configured in pyproject.toml)
@@ -117,7 +117,7 @@ lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newes
 	$(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
 		--custom-compile-command "make lock" -o $(LOCK)
 
-bench: $(STAMP)  ## run the benchmarks whose figures are in the README
+bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 55 minutes)
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
