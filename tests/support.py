@@ -25,6 +25,7 @@ from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
 from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
+from teleop.record import RecordConfig, main
 
 SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
 
@@ -102,6 +103,12 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
         command_tasks=command_tasks,
     )
+
+
+def record_short(root: Path, **settings: object) -> None:
+    """`make record`'s recording (no recordings.jsonl line) into `root` in this process, with the writer inline and
+    no progress bar, unless `settings` say otherwise."""
+    main(RecordConfig(**{"dataset": root, "writer": "inline", "progress": False, **settings}))
 
 
 def drawn_delay(seed: int, share: float = 0.5) -> int:

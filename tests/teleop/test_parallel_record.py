@@ -20,12 +20,13 @@ from support import (
     assert_consistent,
     assert_no_leftovers,
     committed_episodes,
+    record_short,
     snapshot,
     start_recording,
     wait_for_episodes,
 )
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.record import RecordConfig, cli, main
+from teleop.record import cli
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -33,15 +34,7 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (second
 
 
 def record(root: Path, workers: int, **settings: object) -> None:
-    config = {
-        "dataset": root,
-        "episodes": 5,
-        "max_steps": SHORT_EPISODE,
-        "workers": workers,
-        "writer": "inline",
-        "progress": False,
-    }
-    main(RecordConfig(**{**config, **settings}))
+    record_short(root, **{"episodes": 5, "max_steps": SHORT_EPISODE, "workers": workers, **settings})
 
 
 def test_two_workers_write_the_files_one_process_writes(tmp_path: Path) -> None:

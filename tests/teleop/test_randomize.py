@@ -14,12 +14,12 @@ from humanoid.conditions import PRESETS, DomainRandomization
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
-from support import read_mcap_episode, snapshot
+from support import read_mcap_episode, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_mcap_parameters, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
-from teleop.record import RecordConfig, cli, main, record
+from teleop.record import RecordConfig, cli, record
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -31,15 +31,7 @@ SUITE = PRESETS["suite"]
 
 def record_here(root: Path, **settings: object) -> None:
     """A short in-process recording of 2 episodes with the suite's randomisation unless told otherwise."""
-    config = {
-        "dataset": root,
-        "episodes": 2,
-        "max_steps": STEPS,
-        "randomize": "suite",
-        "writer": "inline",
-        "progress": False,
-    }
-    main(RecordConfig(**{**config, **settings}))
+    record_short(root, **{"episodes": 2, "max_steps": STEPS, "randomize": "suite", **settings})
 
 
 @pytest.fixture(scope="module")

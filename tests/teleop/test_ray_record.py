@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from common import keys
-from support import RayCluster, snapshot, wait_for_episodes
+from support import RayCluster, record_short, snapshot, wait_for_episodes
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.record import RecordConfig, cli, main
+from teleop.record import cli
 from teleop.spool import Spool
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (a Ray cluster takes seconds to start)
@@ -26,8 +26,7 @@ EPISODE_STEPS = 150
 
 
 def record(root: Path, episodes: int = 5, **settings: object) -> None:
-    config = {"dataset": root, "episodes": episodes, "max_steps": EPISODE_STEPS, "writer": "inline", "progress": False}
-    main(RecordConfig(**{**config, **settings}))
+    record_short(root, **{"episodes": episodes, "max_steps": EPISODE_STEPS, **settings})
 
 
 def recording_command(root: Path, episodes: int, address: str) -> list[str]:

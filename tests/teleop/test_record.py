@@ -15,17 +15,16 @@ from common import keys
 from common.cli import config_dict, parse_config
 from humanoid.env import make_env
 from humanoid.episode import injected_noise, run_episode
-from support import SHORT_EPISODE, assert_consistent, snapshot
+from support import SHORT_EPISODE, assert_consistent, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
-from teleop.record import RecordConfig, cli, main
+from teleop.record import RecordConfig, cli
 from teleop.store import DatasetSpec, EpisodeStore
 
 
 def record(root: Path, **settings: object) -> None:
     """A short in-process recording (the writer process is exercised by the CLI and crash tests)."""
-    config = {"dataset": root, "episodes": 2, "max_steps": SHORT_EPISODE, "writer": "inline", "progress": False}
-    main(RecordConfig(**{**config, **settings}))
+    record_short(root, **{"episodes": 2, "max_steps": SHORT_EPISODE, **settings})
 
 
 def run_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
