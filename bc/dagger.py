@@ -152,6 +152,10 @@ def validate(cfg: DaggerConfig) -> None:
             raise UserError(str(error)) from None
     if cfg.output.resolve() == cfg.dataset.resolve():
         raise UserError("--output must differ from --dataset: DAgger leaves the demonstrations unchanged")
+    if cfg.output.exists() and not (cfg.output / "meta/info.json").is_file():
+        raise DatasetError(
+            f"{cfg.output} exists and holds no LeRobot dataset: OUTPUT is DAgger's own copy of DATASET, give another"
+        )
     if not (cfg.dataset / "meta/info.json").is_file() and not cfg.output.exists():
         raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record DATASET={cfg.dataset}`")
 

@@ -50,7 +50,9 @@ runs, and what happens to an output that differs depends on who made it:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import json
 import shlex
 import shutil
@@ -231,8 +233,24 @@ class Stages:
         return folders
 
 
+def check(cfg: PipelineConfig) -> None:
+    """The pipeline's own settings, refused in one line that names them before any stage starts (the stages' own
+    checks name the stages' flags)."""
+    if cfg.episodes < 2:
+        raise UserError(
+            f"--episodes must be at least 2 (BC holds whole episodes out for validation), got {cfg.episodes}"
+        )
+    if cfg.robustness_episodes < 0:
+        raise UserError(f"--robustness-episodes must be >= 0 (0 skips the suite), got {cfg.robustness_episodes}")
+    if not cfg.sensed_noise >= 0:  # also rejects NaN
+        raise UserError(f"--sensed-noise must be >= 0, got {cfg.sensed_noise}")
+    if not 0 <= cfg.sensed_latency <= 1:
+        raise UserError(f"--sensed-latency must be in [0, 1], got {cfg.sensed_latency}")
+
+
 def stages(cfg: PipelineConfig) -> Stages:
     """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
+    check(cfg)
     if cfg.ppo_from == "odometry" and not cfg.deployable:
         raise UserError(
             "--ppo-from odometry (the default) starts PPO from ODOMETRY_POLICY, which only --deployable true makes: "
@@ -289,12 +307,15 @@ def stages(cfg: PipelineConfig) -> Stages:
 def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) -> Config:
     """`config_class` from the flags in `args`, then `settings` (which `args` may not set too)."""
     module = f"python -m {config_class.__module__}"
+    printed = io.StringIO()
     try:
-        given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
+        with contextlib.redirect_stderr(printed):  # argparse's usage and message: the one line below says why
+            given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
     except ValueError as error:  # shlex: an unclosed quote
         raise UserError(f"--args {args!r}: {error}") from None
-    except SystemExit:  # argparse has printed why (an unknown flag, a bad value)
-        raise UserError(f"--args {args!r} holds something other than flags of {module}") from None
+    except SystemExit:  # an unknown flag, a bad value
+        why = printed.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
+        raise UserError(f"--args {args!r} holds something other than flags of {module}: {why}") from None
     defaults = config_class()
     repeated = [name for name in settings if getattr(given, name) != getattr(defaults, name)]
     if repeated:

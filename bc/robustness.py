@@ -72,7 +72,7 @@ def validate(cfg: RobustnessConfig) -> list[str]:
     if cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     try:
-        check_controller(cfg.policy)
+        check_controller(cfg.policy, interactive=False)
     except ValueError as error:
         raise UserError(str(error)) from None
     return selected(cfg)

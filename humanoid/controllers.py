@@ -91,9 +91,14 @@ def _is_path(name: str) -> bool:
     return "/" in name or Path(name).is_dir()
 
 
-def check_controller(name: str) -> None:
-    """ValueError with a one-line reason unless `name` is registered or a checkpoint folder; imports no torch."""
-    if name in CONTROLLERS or name in INTERACTIVE:
+def check_controller(name: str, interactive: bool = True) -> None:
+    """ValueError with a one-line reason unless `name` is registered or a checkpoint folder; imports no torch.
+    Without `interactive`, also for a controller a person drives (only the recorder runs one)."""
+    if name in INTERACTIVE:
+        if interactive:
+            return
+        raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
+    if name in CONTROLLERS:
         return
     if not _is_path(name):
         known = ", ".join([*CONTROLLERS, *INTERACTIVE])
@@ -110,9 +115,7 @@ def make_controller(name: str, env: gym.Env) -> Controller:
     """
     if name in CONTROLLERS:
         return CONTROLLERS[name](env)
-    if name in INTERACTIVE:
-        raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
-    check_controller(name)
+    check_controller(name, interactive=False)
     from humanoid.learned import PolicyController, SB3Controller  # noqa: PLC0415 - imports torch: only for policies
 
     if is_sb3_policy(Path(name)):

@@ -54,6 +54,7 @@ from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, mak
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 from teleop import recordings
+from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 if TYPE_CHECKING:
@@ -200,6 +201,7 @@ def validate(cfg: RecordConfig) -> None:
     check_share(cfg, "latency")
     if cfg.controller in INTERACTIVE and cfg.latency > 0:
         raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
+    check_destination(cfg.dataset)
 
 
 def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str | None = None) -> RecordSummary:

@@ -43,6 +43,7 @@ from humanoid.env import (
 )
 from humanoid.episode import Episode
 from humanoid.sensors import ObservationSplit, privileged_names, proprioception_names
+from teleop.lerobot_io.format import check_destination
 from teleop.lerobot_io.writer import LeRobotWriter
 from teleop.mcap_io.writer import scene_update, write_episode_mcap
 from teleop.spool import Spool
@@ -135,8 +136,7 @@ class EpisodeStore:
     """Appends episodes to one dataset folder, holding its lock until `close`."""
 
     def __init__(self, root: Path, spec: DatasetSpec) -> None:
-        if root.exists() and not root.is_dir():
-            raise DatasetError(f"{root} is a file, not a dataset folder")
+        check_destination(root)
         try:
             root.mkdir(parents=True, exist_ok=True)
             self._lock = _lock(root)

@@ -8,9 +8,12 @@ info.json, same parquet schemas, same statistics keys and aggregation.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from common.cli import DatasetError
 
 if TYPE_CHECKING:
     import datasets
@@ -38,6 +41,17 @@ DEFAULT_FEATURES = {
 }
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 Stats = dict[str, dict[str, np.ndarray]]
+
+
+def check_destination(root: Path) -> None:
+    """DatasetError unless `root` is missing, an empty folder (hidden files aside) or holds a dataset: what opening it
+    for writing refuses, found by reading only, before a recording starts."""
+    if root.exists() and not root.is_dir():
+        raise DatasetError(f"{root} is a file, not a dataset folder")
+    if root.is_dir() and not (root / INFO_PATH).exists() and any(not p.name.startswith(".") for p in root.iterdir()):
+        raise DatasetError(
+            f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); choose an empty or new folder"
+        )
 
 
 def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:

@@ -39,6 +39,7 @@ from teleop.lerobot_io.format import (
     TASKS_PATH,
     Stats,
     aggregate_stats,
+    check_destination,
     episode_stats,
     flatten_stats,
     hf_features,
@@ -105,10 +106,7 @@ class LeRobotWriter:
         info = new_info(fps, {**features, **DEFAULT_FEATURES}, robot_type)
         info_path = root / INFO_PATH
         if not info_path.exists():
-            if any(not p.name.startswith(".") for p in root.iterdir()):
-                raise DatasetError(
-                    f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); choose an empty or new folder"
-                )
+            check_destination(root)
             _write_json(info, info_path)
             return cls(root, info, _empty_tasks(), None, None)
 

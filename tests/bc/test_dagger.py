@@ -157,6 +157,26 @@ def test_output_equal_to_dataset_is_refused(recorded: Path, capsys: pytest.Captu
     assert code != 0 and len(err) == 1 and "--output must differ from --dataset" in err[0]
 
 
+@pytest.mark.parametrize("kind", ["folder", "file"])
+def test_an_output_that_is_not_a_dataset_is_refused_and_left_alone(
+    recorded: Path, tmp_path: Path, kind: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An OUTPUT holding something else (a folder with a file, or a file): one line, and it stays as it was."""
+    output = tmp_path / "mine"
+    if kind == "folder":
+        output.mkdir()
+        (output / "notes.txt").write_text("keep")
+    else:
+        output.write_text("keep")
+    before = snapshot(tmp_path)
+    code = cli(
+        ["--dataset", str(recorded), "--output", str(output), "--policy", str(tmp_path / "p"), "--progress", "false"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "holds no LeRobot dataset" in err[0]
+    assert snapshot(tmp_path) == before and not (tmp_path / "p").exists()
+
+
 def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tuple, tmp_path: Path) -> None:
     """The rounds' frames held in memory are the ones on disk: `make train-bc` on OUTPUT with the same settings gives
     the final policy's weights exactly."""

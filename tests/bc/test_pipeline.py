@@ -489,6 +489,37 @@ def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) ->
     )
 
 
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"episodes": 1}, "--episodes must be at least 2"),
+        ({"robustness_episodes": -1}, "--robustness-episodes must be >= 0"),
+        ({"sensed_noise": -1.0}, "--sensed-noise must be >= 0"),
+        ({"sensed_latency": 3.0}, "--sensed-latency must be in [0, 1]"),
+        (
+            {"args": "--bogus"},
+            "--args '--bogus' holds something other than flags of python -m bc.baseline: unrecognized",
+        ),
+    ],
+)
+def test_bad_pipeline_settings_are_refused_naming_them(settings: dict, message: str) -> None:
+    """Settings of the pipeline's own: one message naming the pipeline's flag, before any stage is planned."""
+    with pytest.raises(UserError) as refusal:
+        stages(PipelineConfig(**settings))
+    assert str(refusal.value).startswith(message) and "\n" not in str(refusal.value)
+
+
+def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs(outputs: Path) -> None:
+    """DATASET naming a folder of the user's files: refused up front (not after the recorder started), untouched."""
+    (outputs / "mine").mkdir()
+    (outputs / "mine" / "notes.txt").write_text("keep")
+    assert_refused_untouched(
+        outputs,
+        tiny_stages(record={"dataset": Path("mine")}),
+        "mine is not empty and holds no LeRobot dataset (no meta/info.json); choose an empty or new folder",
+    )
+
+
 def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
     """SENSED_DATASET naming DATASET would record two experts into one dataset: one line, nothing touched."""
     run_stages = tiny_stages()

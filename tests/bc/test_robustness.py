@@ -47,6 +47,7 @@ def test_the_same_seeds_give_the_same_results_in_one_or_two_workers() -> None:
         (["--conditions", "gravity"], "unknown condition 'gravity'"),
         (["--episodes", "0"], "--episodes must be positive"),
         (["--policy", "nowhere/policy"], "no policy checkpoint at nowhere/policy"),
+        (["--policy", "keyboard"], "controller 'keyboard' is driven by a person"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(
