@@ -509,8 +509,10 @@ def test_bad_pipeline_settings_are_refused_naming_them(settings: dict, message: 
     assert str(refusal.value).startswith(message) and "\n" not in str(refusal.value)
 
 
-def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs(outputs: Path) -> None:
-    """DATASET naming a folder of the user's files: refused up front (not after the recorder started), untouched."""
+def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs(
+    outputs: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """DATASET naming a folder of the user's files: refused before the first stage says a word, untouched."""
     (outputs / "mine").mkdir()
     (outputs / "mine" / "notes.txt").write_text("keep")
     assert_refused_untouched(
@@ -518,6 +520,7 @@ def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs
         tiny_stages(record={"dataset": Path("mine")}),
         "mine is not empty and holds no LeRobot dataset (no meta/info.json); choose an empty or new folder",
     )
+    assert capsys.readouterr().out == ""
 
 
 def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
