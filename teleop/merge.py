@@ -124,6 +124,8 @@ def main(cfg: MergeConfig) -> int:
     DATASET/recordings.jsonl holds each shard's own lines (`recordings.SESSIONS_KEY`): how its episodes were
     recorded travels with them."""
     shards = shard_list(cfg.shards)
+    if any(shard.resolve() == cfg.dataset.resolve() for shard in shards):
+        raise UserError(f"--shards names {cfg.dataset}, the DATASET merged into: a shard cannot be merged into itself")
     episodes, parameters, _ = _plan(shards)
     sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
     store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))

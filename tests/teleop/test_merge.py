@@ -80,6 +80,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
         ("overlapping", "are in more than one shard"),
         ("not a dataset", "is not a dataset"),
         ("other episodes", "holds other episodes than the first"),
+        ("itself", "a shard cannot be merged into itself"),
     ],
 )
 def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
@@ -91,8 +92,9 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
         "overlapping": [first, whole],
         "not a dataset": [first, tmp_path / "nothing"],
         "other episodes": [second],
+        "itself": [first, target],
     }[which]
-    if which == "other episodes":
+    if which in ("other episodes", "itself"):
         merge([first], target)  # seeds 0..2, which shard_1 (3..5) does not start with
     before = snapshot(target) if target.exists() else None
     code = cli(["--shards", " ".join(map(str, given)), "--dataset", str(target), "--progress", "false"])
