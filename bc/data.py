@@ -48,6 +48,7 @@ from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 # command (keyboard teleoperation) would add that column (it then reaches `MLPSpec.input_keys`), and
 # `PolicyController` would take the command from its source.
 _CACHE_FORMAT = 2  # bump when what the cache holds changes
+MIN_EPISODES = 2  # the split is by episode, and at least one is held out for validation
 _ARRAYS = ("inputs", "actions", "episode_index")
 
 
@@ -155,9 +156,9 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
                 f"train on it with INPUTS=full or record a new dataset"
             )
         raise DatasetError(f"{root}: {' + '.join(columns)} do not name every entry of the {ENV_ID} observation")
-    if info.get("total_episodes", 0) < 2:
+    if info.get("total_episodes", 0) < MIN_EPISODES:
         raise DatasetError(
-            f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least 2 "
+            f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least {MIN_EPISODES} "
             f"(one is held out for validation)"
         )
     return info, index

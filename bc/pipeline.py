@@ -65,6 +65,7 @@ from typing import Any
 from bc import report, robustness, tutorial
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
+from bc.data import MIN_EPISODES
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
@@ -72,7 +73,7 @@ from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from bc.tutorial import TutorialConfig
 from common import keys, paths
-from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
+from common.cli import Config, UserError, check_share, config_dict, flag, parse_config, run_cli, setting
 from common.workers import Channel, Worker
 from humanoid.conditions import NO_RANDOMIZATION, SUITE
 from humanoid.controllers import CONTROLLERS
@@ -236,16 +237,16 @@ class Stages:
 def check(cfg: PipelineConfig) -> None:
     """The pipeline's own settings, refused in one line that names them before any stage starts (the stages' own
     checks name the stages' flags)."""
-    if cfg.episodes < 2:
+    if cfg.episodes < MIN_EPISODES:
         raise UserError(
-            f"--episodes must be at least 2 (BC holds whole episodes out for validation), got {cfg.episodes}"
+            f"--episodes must be at least {MIN_EPISODES} (BC holds whole episodes out for validation), "
+            f"got {cfg.episodes}"
         )
     if cfg.robustness_episodes < 0:
         raise UserError(f"--robustness-episodes must be >= 0 (0 skips the suite), got {cfg.robustness_episodes}")
     if not cfg.sensed_noise >= 0:  # also rejects NaN
         raise UserError(f"--sensed-noise must be >= 0, got {cfg.sensed_noise}")
-    if not 0 <= cfg.sensed_latency <= 1:
-        raise UserError(f"--sensed-latency must be in [0, 1], got {cfg.sensed_latency}")
+    check_share(cfg, "sensed_latency")
 
 
 def stages(cfg: PipelineConfig) -> Stages:

@@ -45,7 +45,8 @@ Stats = dict[str, dict[str, np.ndarray]]
 
 def check_destination(root: Path) -> None:
     """DatasetError unless `root` is missing, an empty folder (hidden files aside) or holds a dataset: what opening it
-    for writing refuses, found by reading only, before a recording starts."""
+    for writing refuses, found by reading only, before a recording starts (here rather than in the writer, so
+    that the recorder's validation imports no pandas or pyarrow)."""
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root} is a file, not a dataset folder")
     if root.is_dir() and not (root / INFO_PATH).exists() and any(not p.name.startswith(".") for p in root.iterdir()):

@@ -495,7 +495,7 @@ def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) ->
         ({"episodes": 1}, "--episodes must be at least 2"),
         ({"robustness_episodes": -1}, "--robustness-episodes must be >= 0"),
         ({"sensed_noise": -1.0}, "--sensed-noise must be >= 0"),
-        ({"sensed_latency": 3.0}, "--sensed-latency must be in [0, 1]"),
+        ({"sensed_latency": 3.0}, "--sensed-latency must be a share in [0, 1]"),
         (
             {"args": "--bogus"},
             "--args '--bogus' holds something other than flags of python -m bc.baseline: unrecognized",
