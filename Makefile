@@ -128,5 +128,11 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 55 minutes)
 	$(PY) -m bench.ray_backend
 	$(PY) -m bench.shard_merge
 
+# The flag reference is generated from the stages' configs, as `make help` is; tests/test_docs.py checks it is current.
+.PHONY: docs
+docs: $(STAMP)  ## regenerate docs/reference/flags.md from the stages' configs
+	$(PY) -m bc.targets --markdown > docs/reference/flags.md.tmp
+	mv docs/reference/flags.md.tmp docs/reference/flags.md
+
 clean-venv:  ## remove .venv
 	rm -rf $(VENV)

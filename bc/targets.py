@@ -7,6 +7,7 @@ is the first recorded seed for `make record`, the first evaluation seed for `mak
 help` lists every target's variables with their flags, help and defaults.
 
     python -m bc.targets          # what `make help` prints after the targets
+    python -m bc.targets --markdown   # every flag of every stage: docs/reference/flags.md (`make docs`)
 
 tests/test_makefile.py holds the Makefile to this table: every variable of a target becomes its
 flag with its value, an unset one passes nothing, and the Makefile passes no variable the table
@@ -16,6 +17,7 @@ does not list.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import shutil
 import sys
 import textwrap
@@ -125,8 +127,48 @@ def help_text(width: int = 120) -> str:
     return "\n".join(lines)
 
 
+MARKDOWN_COMMAND = "python -m bc.targets --markdown"
+"""What writes docs/reference/flags.md (`make docs`); tests/test_docs.py checks the committed file is its output."""
+
+
+def _cell(text: object) -> str:
+    """`text` as one Markdown table cell: one line, its pipes escaped."""
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def markdown_text() -> str:
+    """Every flag of every stage target as Markdown tables: its Make variable (if any), default and help."""
+    lines = [
+        "# Flag reference",
+        "",
+        f"Generated from each stage's config by `make docs` (`{MARKDOWN_COMMAND}`); do not edit by hand:",
+        "tests/test_docs.py fails when this page and the configs differ. `make help` prints the Make variables",
+        "of the same table. A Make variable is its flag in capitals (`MAX_STEPS=500` is `--max-steps 500`), passed",
+        "only when set; a flag without one is set with `python -m <module> --flag value`, or for the PPO targets",
+        f'with `{ARGS}="--flag value"`.',
+    ]
+    for name, target in TARGETS.items():
+        summary = (importlib.import_module(target.module).__doc__ or "").strip().split("\n\n")[0]
+        lines += ["", f"## make {name}", "", f"`python -m {target.module}`: {_cell(summary)}", ""]
+        lines += ["| Make variable | flag | default | what it sets |", "|---|---|---|---|"]
+        variables = {field_name: var for var, field_name in target.variables.items()}
+        for field in dataclasses.fields(target.config):
+            var = f"`{variables[field.name]}`" if field.name in variables else ""
+            text = field.metadata.get("help", "")
+            default = f"`{field.default}`" if field.default != "" else '`""`'
+            if "default:" in text:  # the help says it itself when the default is not one value
+                default = "(in the help)"
+            lines.append(f"| {var} | `{flag(field.name)}` | {_cell(default)} | {_cell(text)} |")
+        if target.passes_args:
+            lines.append(f"| `{ARGS}` | ... | | any other flag above, as typed |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> int:
     try:
+        if sys.argv[1:] == ["--markdown"]:
+            print(markdown_text(), end="", flush=True)
+            return 0
         print(help_text(min(shutil.get_terminal_size((120, 24)).columns, 120)), flush=True)
     except BrokenPipeError:  # `make help | head`
         sys.stdout = None
