@@ -74,7 +74,7 @@ class DaggerConfig:
     expert: str = setting(
         LQRExpert.name,
         "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
-        "whose law INPUTS=odometry can read; docs/robustness.md)",
+        "whose law INPUTS=odometry can read; docs/concepts/controllers.md)",
         choices=(LQRExpert.name, SensedExpert.name),
     )
     randomize: str | None = setting(

@@ -9,9 +9,9 @@ them) to callers such as `bc.train`.
     PUSH=F     a horizontal push of F newtons on the torso for 0.1 s every 2 s, random direction
     NOISE=σ    Gaussian noise of std σ added to every executed action (then clipped)
     CONDITION=name  a condition of the robustness suite instead (`humanoid.conditions.SUITE`:
-               masses, friction, motor strength, latency, sensor noise, pushes; docs/robustness.md)
+               masses, friction, motor strength, latency, sensor noise, pushes; docs/concepts/robustness-suite.md)
     VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
-               (docs/learning.md, "Evaluation"); use a few episodes
+               (docs/how-to/evaluate.md); use a few episodes
 """
 
 from __future__ import annotations
@@ -52,7 +52,9 @@ class EvalConfig:
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")
     noise: float = setting(0.0, "std of the Gaussian noise added to every executed action; 0 = none")
-    condition: str = setting("clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/robustness.md)")
+    condition: str = setting(
+        "clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/concepts/robustness-suite.md)"
+    )
     video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
     progress: bool = setting(True, "show a progress bar")
     live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")

@@ -10,7 +10,7 @@ datasets root at OUT (the folder `MINARI_DATASETS_PATH` points at), holding one 
 so `minari.load_dataset(id)` serves (o_t, a_t, r_t, o_t+1) for every step, and
 `recover_environment()` gives Humanoid-v5. The reference scores that normalise returns come from
 the random and the expert controllers, rolled out here on the same seeds (`--seed` on). Why Arrow,
-and what Minari does with fewer observations than it needs: docs/design.md, "Minari export".
+and what Minari does with fewer observations than it needs: docs/how-to/minari.md.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ Data flow:
    TensorBoard gets the same as text.
 
 `make baseline-rl` (`bc.baseline`) runs the same with fresh weights and no guards. Why each
-default is what it is: docs/learning.md.
+default is what it is: docs/how-to/finetune-ppo.md.
 """
 
 from __future__ import annotations
@@ -89,9 +89,7 @@ class FinetuneConfig:
         "the actor's initial weights: 'bc' (the BC checkpoint's) or 'fresh' (PPO from scratch)",
         choices=("bc", "fresh"),
     )
-    timesteps: int = setting(
-        1_000_000, 'environment steps of training (the budget: docs/learning.md, "The pipeline\'s table")'
-    )
+    timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(
         2,
@@ -101,7 +99,7 @@ class FinetuneConfig:
     backend: str = setting(
         "local",
         "where the workers run: 'local' (processes here) or 'ray' (Ray actors in the cluster at "
-        "--ray-address, one CPU each: docs/scaling.md); the same weights either way",
+        "--ray-address, one CPU each: docs/concepts/ray.md); the same weights either way",
         choices=BACKENDS,
     )
     ray_address: str | None = setting(
@@ -113,7 +111,7 @@ class FinetuneConfig:
         "train with pushes whose force grows through these stages, in newtons (e.g. '0,10,20,40'; instead of "
         "--push), the --randomize ranges widening with them from nominal to whole: the next stage after a "
         "rollout whose ended episodes survived at --curriculum-advance (bc.ppo.curriculum; the stages and "
-        "what they gave: docs/learning.md, 'Training for robustness'); 'none' = no curriculum",
+        "what they gave: docs/decisions/curriculum.md); 'none' = no curriculum",
     )
     curriculum_advance: float = setting(
         0.8, "share of a rollout's ended training episodes that must reach the time limit to move to the next stage"
@@ -173,8 +171,9 @@ class FinetuneConfig:
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
     eval_conditions: str = setting(
         "clean,push20,mass",
-        "robustness conditions (docs/robustness.md) evaluated beside the validation one (under the largest push "
-        "trained with) at every evaluation during training: they choose the actor kept with it, and go to the "
+        "robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one "
+        "(under the largest push trained with) at every evaluation during training: they choose the actor kept "
+        "with it, and go to the "
         "learning curve's survival panel and TensorBoard; comma-separated, '' = none",
     )
     validation_seed: int = setting(
@@ -187,7 +186,7 @@ class FinetuneConfig:
         "the actor saved: 'guarded' (the last, unless its clean validation return fell below 0.9 of step 0's: "
         "then the best), 'best' (of the evaluations during training, step 0 included, earliest on ties: the "
         "highest mean return over the validation evaluation and the --eval-conditions) or 'last'; why "
-        "guarded: docs/learning.md, 'Evaluations and the actor kept'",
+        "guarded: docs/decisions/ppo-guards.md",
         choices=KEEP,
     )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
@@ -196,7 +195,7 @@ class FinetuneConfig:
         0,
         "torch threads of PPO's updates (0: one per core; the workers are idle then). "
         "The rollouts use one: idle torch threads spin and slow the simulation "
-        "(docs/benchmarks.md, 'How it got here')",
+        "(docs/log.md, 'How it got here')",
     )
     baseline: Path = setting(
         paths.SCRATCH_POLICY, "PPO-from-scratch run whose learning curve the figure shows beside this one, if present"

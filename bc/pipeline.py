@@ -10,10 +10,10 @@
 The deployable branch clones policies that read only the sensed features: from the same data (which
 shows what the privileged inputs did), and from demonstrations of the expert on leg odometry, half of
 them under one step of action latency, with that odometry, the command in flight and the delay as
-input (ODOMETRY_INPUTS=pending: the student that stands, also under latency; docs/robustness.md).
+input (ODOMETRY_INPUTS=pending: the student that stands, also under latency; docs/decisions/pending-inputs.md).
 Both PPO stages start from that student (PPO_FROM=odometry, the stages' own default), so the
 fine-tuned actor reads what a robot senses; PPO_FROM=full starts them from BC_POLICY instead
-(docs/learning.md, "An actor on leg odometry", compares the two).
+(docs/log.md, "An actor on leg odometry", compares the two).
 
 Each stage runs in this process through its own `main` (the tutorial's learners in a worker process, since
 they use one core and the PPO stages two), with the config `make <stage>` would use
@@ -195,7 +195,7 @@ class PipelineConfig:
     robustness_episodes: int = setting(
         20,
         "episodes per condition of the robustness suite run at the end on the expert and every policy "
-        "(seeds 1000.., docs/robustness.md); 0 = skip",
+        "(seeds 1000.., docs/concepts/robustness-suite.md); 0 = skip",
     )
 
 
@@ -605,7 +605,7 @@ def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
 @dataclass
 class TutorialRun:
     """The tutorial's learners, training in a worker process while the other stages run: they use one core, the
-    PPO stages keep both busy (docs/learning.md, "The pipeline's table", has what it saves)."""
+    PPO stages keep both busy (docs/benchmarks.md, "Fresh-clone set-up and the pipeline", has its length)."""
 
     config: TutorialConfig
     made: list[str]

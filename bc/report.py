@@ -48,7 +48,9 @@ def suite_table(results: dict[str, dict[str, Any]]) -> str:
         returns = f"{conditions['clean']['mean_return']:,.1f} | {suite_mean:,.1f}"
         rows.append(f"| {policy} | {returns} | " + " | ".join(cells) + " |")
     seeds = next(iter(results.values()))["seeds"]
-    rows.append(f"\n(survivors per condition, seeds {seeds[0]}..{seeds[-1]}; docs/robustness.md says what each is)")
+    rows.append(
+        f"\n(survivors per condition, seeds {seeds[0]}..{seeds[-1]}; what each is: docs/concepts/robustness-suite.md)"
+    )
     return "\n".join(rows)
 
 

@@ -4,7 +4,7 @@
     survival rate, mean return (and, pushed, which directions toppled it) --> a table,
     POLICY/robustness.json, POLICY/robustness.png, and the JSON summary as the last line printed
 
-The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/robustness.md.
+The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/concepts/robustness-suite.md.
 """
 
 from __future__ import annotations

@@ -54,8 +54,8 @@ LEARNING_CURVE_FILE = "learning_curve.png"
 
 
 MIN_UPDATES = 5000
-"""Adam steps that made the sensed-expert students stand from 10 and 20 demonstrations (docs/learning.md, BC data
-efficiency); 30 epochs of 50 demonstrations are about as many."""
+"""Adam steps that made the sensed-expert students stand from 10 and 20 demonstrations (docs/decisions/bc-epochs.md);
+30 epochs of 50 demonstrations are about as many."""
 
 
 @dataclass
@@ -68,7 +68,7 @@ class TrainConfig:
         "full",
         "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), that and the leg "
         "odometry computed from it (odometry), or that and its command in flight under latency with the delay "
-        "(pending: record with LATENCY; humanoid/inputs.py); full by measurement, see docs/robustness.md",
+        "(pending: record with LATENCY; humanoid/inputs.py); full by measurement, see docs/concepts/inputs.md",
         choices=INPUTS,
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
@@ -77,7 +77,7 @@ class TrainConfig:
     activation: str = setting(
         "elu",
         "hidden activation; ELU by measurement: students from a few demonstrations stand where ReLU ones fell "
-        "(docs/learning.md, Why ELU)",
+        "(docs/decisions/activation.md)",
         choices=tuple(ACTIVATIONS),
     )
     loss: str = setting("mse", "loss on the actions", choices=tuple(LOSSES))
@@ -93,12 +93,13 @@ class TrainConfig:
     min_updates: int = setting(
         MIN_UPDATES,
         "train for at least this many Adam steps, so fewer demonstrations do not mean less training: a small "
-        "dataset gets more than EPOCHS passes (docs/learning.md, BC data efficiency); 0 = exactly EPOCHS",
+        "dataset gets more than EPOCHS passes (docs/decisions/bc-epochs.md); 0 = exactly EPOCHS",
     )
     patience: int = setting(
         0,
         "stop after this many epochs without a better validation loss and keep the best epoch; 0 = train all "
-        "EPOCHS and keep the last (the default: the validation loss says little about standing, docs/learning.md)",
+        "EPOCHS and keep the last (the default: the validation loss says little about standing, "
+        "docs/decisions/bc-epochs.md)",
     )
     val_fraction: float = setting(0.1, "fraction of the episodes held out for validation (at least one)")
     std_floor: float = setting(
@@ -198,7 +199,7 @@ def planned_epochs(frames: int, cfg: TrainConfig) -> int:
 def lr_factor(schedule: str, step: int, steps: int) -> float:
     """The learning rate after `step` of `steps` Adam steps, as a fraction of LR. Cosine ends at 0, so the weights
     kept are not one noisy step's: from few demonstrations, a constant rate's survival swung with the training seed
-    (docs/learning.md, "BC data efficiency")."""
+    (docs/decisions/bc-epochs.md)."""
     if schedule == "cosine":
         return 0.5 * (1 + math.cos(math.pi * min(step, steps) / steps))
     return 1.0

@@ -13,7 +13,7 @@ What a reader of that tutorial would have got on the same task and budget:
 
 Both train on the clean task for TIMESTEPS environment steps (the pipeline gives them the PPO
 stages' budget). Where the tutorial names no value (the mean's step, the noise's start and end),
-the choice and the measured result are in docs/learning.md, "The tutorial's learners".
+the choice and the measured result are in docs/log.md, "The tutorial's learners".
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ TEACHERS = {
 }
 """Who records each input's demonstrations, and with what DART noise. The expert on leg odometry records with the
 expert's noise here, not the pipeline's lower SENSED_NOISE: from 5 and 10 demonstrations without latency, the
-recoveries from its falls at 0.05 are what made students stand (docs/learning.md, "BC data efficiency")."""
+recoveries from its falls at 0.05 are what made students stand (docs/log.md, "BC data efficiency")."""
 INPUTS = tuple(TEACHERS)
 EVAL_EPISODES = 20
 RESULTS = Path("bench/results")

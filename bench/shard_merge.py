@@ -2,7 +2,7 @@
 
     .venv/bin/python -m bench.shard_merge [--episodes 10]
 
-Past one writer (docs/scaling.md), each node records its own dataset on a disjoint seed range and
+Past one writer (docs/concepts/ray.md), each node records its own dataset on a disjoint seed range and
 the shards are merged afterwards. This records two shards (seeds 0.. and EPISODES..) and the same
 seeds in one go, merges the shards with `lerobot.datasets.aggregate.aggregate_datasets`, times it
 against copying the shards (a floor: the bytes have to move anyway), and checks the merge against

@@ -6,11 +6,11 @@
     close()                          the actors go, then ray.shutdown (a local Ray stops with it)
 
 The workers' code is this project's, imported on every node (the nodes need it installed, as the
-driver does: docs/scaling.md). Each actor holds one CPU of the cluster's resources and a session
+driver does: docs/concepts/ray.md). Each actor holds one CPU of the cluster's resources and a session
 refuses more workers than the cluster has CPUs: actors that wait for a CPU never start, and two
-actors that held a 2-CPU node's CPUs starved everything else there (docs/scaling.md). Ray does not
+actors that held a 2-CPU node's CPUs starved everything else there (docs/concepts/ray.md). Ray does not
 pin processes to cores; each actor pins itself to a core of its node, in the order the actors
-landed there, as `common.workers` does (unpinned, two PPO workers queued on one core: docs/scaling.md).
+landed there, as `common.workers` does (unpinned, two PPO workers queued on one core: docs/concepts/ray.md).
 
 Failures: an exception raised by a worker's method is raised by `get` as itself (a `UserError` is
 the user's one line); a worker whose process or node is gone raises `WorkerLost`, one line.
@@ -145,7 +145,7 @@ class RaySession:
             if workers > cpus:
                 raise UserError(
                     f"--workers {workers} needs {workers} CPUs in the Ray cluster, it has {cpus}: "
-                    "each worker holds one (docs/scaling.md)"
+                    "each worker holds one (docs/concepts/ray.md)"
                 )
         except BaseException:
             ray.shutdown()

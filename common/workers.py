@@ -1,13 +1,13 @@
 """Worker processes: one way to start a child, talk to it, hear that it failed, and stop it.
 
 The recorder's simulation workers (`teleop.parallel`), its writer process (`teleop.writer_process`)
-and PPO's environment workers (`bc.ppo.vec_env`) all run on this; docs/processes.md says why
+and PPO's environment workers (`bc.ppo.vec_env`) all run on this; docs/concepts/processes.md says why
 each property is the one it is, with the measurements.
 
 Start: multiprocessing's forkserver, always. The server is a fresh interpreter (it inherits no
 lock, thread or open file of the parent), started once per parent process; it imports the preload
 list once and every child is a fork of it, so a child starts in milliseconds instead of paying for
-its imports again (docs/processes.md). Preload policy: the server imports `__main__`, the parent's
+its imports again (docs/concepts/processes.md). Preload policy: the server imports `__main__`, the parent's
 main module by name (`python -m pkg.mod`: CPython 3.12's forkserver preloads `__main__` only when
 started from a file path, and every child would re-run the main module otherwise), and every module
 the workers of this process declared (`preload=`) before the server started; a later declaration

@@ -12,7 +12,7 @@ it does for DART recordings. Every draw comes from a random stream of the reset'
 episode repeats exactly; the model's nominal values are restored before each draw and on close.
 `parse_randomization` reads the `--randomize` setting (a preset of PRESETS or a list of ranges)
 that recording (`make record RANDOMIZE=...`) draws its episodes' physical parameters with.
-The suite's conditions and why each magnitude: docs/robustness.md.
+The suite's conditions and why each magnitude: docs/concepts/robustness-suite.md.
 """
 
 from __future__ import annotations
@@ -379,7 +379,7 @@ SUITE: dict[str, Condition] = {
     "latency": Condition(latency=1),
     "obs_noise": Condition(obs_noise=1.0),
 }
-"""The robustness suite: each condition changes one thing (docs/robustness.md says why each size)."""
+"""The robustness suite: each condition changes one thing (docs/concepts/robustness-suite.md says why each size)."""
 
 
 def condition(name: str) -> Condition:
@@ -403,7 +403,7 @@ PRESETS: dict[str, Randomization] = {
         strength=SUITE["strength"].randomization.strength,
     ),
 }
-"""Named randomisations (docs/robustness.md, "Randomised demonstrations", says why these sizes)."""
+"""Named randomisations (docs/decisions/randomisation-presets.md says why these sizes)."""
 RANDOMIZE_EXAMPLE = "mass=0.8:1.2,friction=0.5:1.5"
 
 

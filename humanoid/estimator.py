@@ -2,7 +2,7 @@
 fused with the feet's force sensors.
 
 The LQR expert reads the torso's height and linear velocity, which no sensor measures
-(docs/robustness.md, "The deployable observation"). This estimator computes a full MuJoCo state
+(docs/log.md, "The deployable observation"). This estimator computes a full MuJoCo state
 (qpos, qvel) from the sensed features alone, on the nominal model:
 
     sensed features (48) ──> orientation without heading, from the gravity direction
@@ -17,7 +17,7 @@ The LQR expert reads the torso's height and linear velocity, which no sensor mea
 
 Why the forces: the kinematic velocity alone errs where a foot slips or rebounds, and the expert's
 gain amplifies that; the forces say how the body accelerates, and the feet correct their drift (a
-complementary filter; measured in docs/robustness.md). Its memory is the centre of mass's velocity
+complementary filter; measured in docs/log.md). Its memory is the centre of mass's velocity
 and the height; `reset` starts them at rest, where gymnasium's reset puts the body. The heading (yaw)
 is set to zero: an IMU does not keep it, and standing does not depend on it.
 """
@@ -43,7 +43,7 @@ START_HEIGHT = 1.4
 HORIZONTAL_GAIN = 0.3
 """Share of the gap between the feet's kinematic velocity and the force-predicted one closed per step,
 horizontally: the one-step prediction errs several times less than the kinematic velocity, and a
-lower gain lets it drift (chosen on seeds 5000..5039 under action noise, docs/robustness.md)."""
+lower gain lets it drift (chosen on seeds 5000..5039 under action noise, docs/log.md)."""
 VERTICAL_GAIN = 0.1
 """The same, vertically, where the feet's kinematic velocity is the noisier (the contacts' give)."""
 LANDING_STEPS = 5
@@ -151,7 +151,7 @@ def read_sensed(names: list[str]) -> np.ndarray:
 
     Why not the forces: at the end of a step they are what the step's executed action did, so a
     student reading them can copy the previous action instead of acting on the state, and it falls
-    (docs/robustness.md, "An expert that acts on what it senses", its student on `INPUTS=odometry`).
+    (docs/log.md, "An expert that acts on what it senses", its student on `INPUTS=odometry`).
     """
     forces = set(force_names())
     return np.array([i for i, name in enumerate(names) if name not in forces])
@@ -172,7 +172,7 @@ class OdometryFeatures:
     centre of mass (MuJoCo's `cinert`) of the nominal model in the estimated, heading-free pose.
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
-    torso's velocity and the nominal-model inertias does (docs/robustness.md, "The deployable
+    torso's velocity and the nominal-model inertias does (docs/log.md, "The deployable
     observation"). Stateful like the estimator: `reset` at every episode's start.
     """
 

@@ -57,7 +57,7 @@ class LQRExpert:
         action that many steps late (``humanoid.conditions.ActionLatency``). The expert then acts
         on the state its pending actions will have led to, predicted by stepping its own copy of
         the model (the nominal one: it knows no randomised parameter) from the observed state.
-        Without it one step of latency topples the expert at once (docs/robustness.md, "A sturdier
+        Without it one step of latency topples the expert at once (docs/log.md, "A sturdier
         expert").
         """
         self.model = humanoid_model() if model is None else model
@@ -95,7 +95,7 @@ class LQRExpert:
         gets its own balanced stance and gain (`humanoid.posture.body_gains`, about 0.1 s), and the predictor
         steps it; the design's body gets the design's gains. The expert reads the simulator's observation,
         whose `cinert` holds the masses anyway: a privileged teacher. Without this the nominal stance tips
-        a drawn body (docs/robustness.md, "An expert told its body"). Commanded postures stay the design's.
+        a drawn body (docs/log.md, "An expert told its body"). Commanded postures stay the design's.
         """
         previous = self._body
         if cache_key(model, self.design) == self._key:
@@ -226,7 +226,7 @@ class SensedExpert:
     The expert's gain reads the torso's height and linear velocity, which no sensor measures; fed the
     estimate instead, the expert is a controller of the sensed features (and the estimator's memory,
     which matters only while a foot is off the ground): a policy on the sensed features reads all it
-    acts on (docs/robustness.md, "An expert that acts on what it senses", measures both).
+    acts on (docs/log.md, "An expert that acts on what it senses", measures both).
     """
 
     name = "expert-sensed"
@@ -234,11 +234,11 @@ class SensedExpert:
     def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0, identify: bool = False) -> None:
         """The expert designed on `model` (like `LQRExpert`), without the planned landing: on the estimate it
         stood no more often, and the odometry students of its demonstrations stood less often
-        (docs/robustness.md, "The landing planned"); the estimator runs on `model` too.
+        (docs/decisions/landing-plan.md); the estimator runs on `model` too.
 
         With `identify` it estimates each episode's masses from its landing (`humanoid.identification`; the
         map is fitted on first use, about a minute, then cached) and moves to a stance and gain designed on
-        that body, as the privileged expert does when told it (docs/robustness.md, "Identifying the body
+        that body, as the privileged expert does when told it (docs/log.md, "Identifying the body
         from the landing"): `expert-adaptive`.
         """
         self.expert = LQRExpert(model, delay=delay, landing=False)

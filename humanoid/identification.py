@@ -1,7 +1,7 @@
 """Identifying the body from the landing: a learnt map from what a robot senses in its first steps to its masses.
 
 The drop after each reset shakes the body more than standing does, so the first steps tell bodies apart
-(docs/robustness.md, "Identifying the body from the landing"):
+(docs/log.md, "Identifying the body from the landing"):
 
     simulated episodes of the sensed expert (masses drawn; action noise, sensor noise and delay mixed in)
         --first `steps` steps: sensed features and commanded actions--> ridge regression --> BodyIdentifier
@@ -38,7 +38,7 @@ class IdentificationDesign:
     """How the identifier is fitted and used; every field but `RUN_TIME`'s is part of the cache key."""
 
     steps: int = 20
-    """Env steps after reset read: the landing, which tells bodies apart better than standing (docs/robustness.md)."""
+    """Env steps after reset read: the landing, which tells bodies apart better than standing (docs/log.md)."""
     episodes: int = 8000
     """Simulated training episodes (about a minute; more gained little)."""
     first_seed: int = 60000
@@ -51,7 +51,7 @@ class IdentificationDesign:
     """Ridge penalty on the standardised features."""
     shrink: float = 0.3
     """Share of the estimated deviation from the nominal masses acted on: the full estimate misreads action noise
-    as a body, and more of it stands more bodies but fewer noisy episodes (the trade: docs/robustness.md)."""
+    as a body, and more of it stands more bodies but fewer noisy episodes (the trade: docs/log.md)."""
     clip: float = 0.3
     """Largest deviation of an acted-on scale from 1."""
 

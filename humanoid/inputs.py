@@ -7,7 +7,7 @@
               forces) and the nominal model's body inertias (176)
     pending   odometry's, then the command sent but not yet executed under one step of action latency
               (zeros without latency) and that latency in steps (176 + 17 + 1): what a robot knows of
-              its own actuation delay (docs/robustness.md, "A student told its delay")
+              its own actuation delay (docs/decisions/pending-inputs.md)
 
 Each is built from the dataset columns `INPUT_COLUMNS[kind]`; `odometry` runs the estimator along
 each recorded episode in training (`episode_inputs`) and along the live one at run time
@@ -110,7 +110,7 @@ class PendingInputs:
     """The "pending" inputs of one live episode: `OdometryFeatures`, the policy's command still in flight, the delay.
 
     Why: one step of action latency topples a policy that acts as if its command ran at once; told the
-    delay and what it sent, a student learns to act through it (docs/robustness.md, "A student told its delay").
+    delay and what it sent, a student learns to act through it (docs/decisions/pending-inputs.md).
     The rollout tells the episode's delay before `reset` (`humanoid.episode.tell_delay`); the policy
     reports each command it sends (`commanded`).
     """

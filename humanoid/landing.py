@@ -2,7 +2,7 @@
 
 ``reset()`` starts the body about 12 cm above its stance, far from the standing pose the steady gain
 is linearised at, and most of the expert's falls under action noise start in that landing
-(docs/robustness.md, "The landing planned"). The plan, designed once per model and design and cached
+(docs/decisions/landing-plan.md). The plan, designed once per model and design and cached
 on disk like the steady gains:
 
 1. the nominal landing: the steady expert's own rollout from the nominal reset state (``qpos0`` at

@@ -1,6 +1,6 @@
 """The LQR design behind the standing expert (`humanoid.expert`) and its postures (`humanoid.posture`).
 
-The design, run once per model and cached on disk (docs/design.md, "The expert"):
+The design, run once per model and cached on disk (docs/concepts/controllers.md, "The expert"):
 
 1. a statically balanced pose: knees at ``LQRDesign.knee``, torso height and both hip_y angles
    solved so that inverse dynamics leaves no vertical force and no pitch moment on the root;

@@ -2,8 +2,8 @@
 
 `TorsoPushes` reproduces the robustness test of the facts note: a horizontal force on the torso
 for 0.1 s every 2 s, in a random direction. How often 10 N and 20 N pushes topple the expert and
-each policy: docs/learning.md, "Robustness to pushes"; which directions topple them:
-docs/robustness.md, "Which pushes topple".
+each policy: docs/log.md, "Robustness to pushes"; which directions topple them:
+docs/concepts/robustness-suite.md, "Which pushes topple".
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def toppling(starts: list[int], fell: bool) -> list[bool]:
     """Which of an episode's pushes (their start steps, in order) toppled it: the last one begun before a fall.
 
     A fall long after its last push is still put on it; under pushes alone the body that stood through
-    a push's 2 s rarely falls later (docs/robustness.md, "Which pushes topple").
+    a push's 2 s rarely falls later (docs/concepts/robustness-suite.md, "Which pushes topple").
     """
     return [fell and i == len(starts) - 1 for i in range(len(starts))]
 

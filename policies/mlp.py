@@ -18,7 +18,7 @@ from torch import nn
 # of bodies that never touch anything), which need some floor. Beyond that, the floor decides how
 # much the policy may amplify inputs that barely vary in the demonstrations (waist inertia terms
 # with std 3e-5 in clean data): flooring them at 0.1 rather than 1e-6 gave a lower validation loss
-# on every training seed and higher returns under pushes (measured: docs/learning.md, "The input
+# on every training seed and higher returns under pushes (measured: docs/log.md, "The input
 # normalisation floor"). Joint angles and velocities, the signals that matter for balance, keep a
 # scale of order one.
 STD_FLOOR = 0.1

@@ -93,7 +93,7 @@ KEY_ACTIONS = {key: binding.effect for binding in KEY_MAP for key in binding.key
 
 
 def key_help() -> str:
-    """The key map as aligned lines, for --help (docs/design.md, "Keyboard teleoperation", explains it)."""
+    """The key map as aligned lines, for --help (docs/how-to/teleoperate.md explains it)."""
     return "\n".join(f"  {' / '.join(binding.keys):<12} {binding.help}" for binding in KEY_MAP)
 
 

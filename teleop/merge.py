@@ -5,13 +5,13 @@
       -> teleop.store.EpisodeStore.append, in seed order, as the recorder commits them
 
 Past one writer's throughput each node records its own dataset on its own seed range
-(docs/scaling.md). Merging re-commits every episode through the recorder's own store, so the
+(docs/concepts/ray.md). Merging re-commits every episode through the recorder's own store, so the
 result is the dataset one recorder would have written for the same seeds, file for file (a test;
 recordings.jsonl holds the merge's line, with the shards' own lines in it), with its guarantees:
 one data and MCAP file per episode, an episode committed whole or not at all.
 Killed, the same command continues: the seeds already in DATASET are skipped. LeRobot's
 `aggregate_datasets` merges the LeRobot part only (no MCAP); the measurements are in
-docs/scaling.md.
+docs/concepts/ray.md.
 """
 
 from __future__ import annotations

@@ -64,16 +64,16 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# Measured (docs/learning.md, "Choosing the noise: DART"): at 0.05 the expert still stands on most seeds and behaviour
+# Measured (docs/decisions/dart-noise.md): at 0.05 the expert still stands on most seeds and behaviour
 # cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
 DEFAULT_NOISE = 0.05
 # The expert on leg odometry (`--controller expert-sensed`) records `make pipeline`'s deployable demonstrations with
 # less noise: at 0.05, with half of them delayed (SENSED_LATENCY), it falls in most, and their students stood under
-# sensor and action noise far less often (docs/robustness.md, "The teacher's noise").
+# sensor and action noise far less often (docs/decisions/dart-noise.md).
 SENSED_NOISE = 0.03
 # The share of its episodes recorded with one step of action latency, told to it: a student on the "pending" inputs
-# learns to act through the delay from them, and the undelayed half keeps it standing without (docs/robustness.md,
-# "A student told its delay").
+# learns to act through the delay from them, and the undelayed half keeps it standing without
+# (docs/decisions/latency-share.md).
 SENSED_LATENCY = 0.5
 
 
@@ -98,7 +98,8 @@ class RecordConfig:
         NO_RANDOMIZATION,
         "domain randomisation, drawn per episode from its seed and stored with it: "
         f"{NO_RANDOMIZATION} (nothing), a preset ({', '.join(name for name in PRESETS if name != NO_RANDOMIZATION)}: "
-        f"docs/robustness.md) or ranges of the scale factors of mass, friction, strength like {RANDOMIZE_EXAMPLE}",
+        "docs/decisions/randomisation-presets.md) or ranges of the scale factors of mass, friction, strength "
+        f"like {RANDOMIZE_EXAMPLE}",
     )
     latency: float = setting(
         0.0,
@@ -115,7 +116,7 @@ class RecordConfig:
     backend: str = setting(
         "local",
         "where the simulation workers run: 'local' (processes here) or 'ray' (Ray actors, anywhere "
-        "in the cluster at --ray-address; the writer stays here: docs/scaling.md)",
+        "in the cluster at --ray-address; the writer stays here: docs/concepts/ray.md)",
         choices=BACKENDS,
     )
     ray_address: str | None = setting(

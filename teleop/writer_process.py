@@ -11,7 +11,7 @@ lock until then, so a new recorder cannot interleave with it.
 
 The child is a `common.workers.Worker` with `outlives_parent` (a forkserver child, as the
 recording workers are; it used to be a `python -m` interpreter of its own, and reaches "ready" as
-fast as that did: docs/processes.md).
+fast as that did: docs/concepts/processes.md).
 """
 
 from __future__ import annotations

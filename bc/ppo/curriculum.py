@@ -1,7 +1,7 @@
 """A curriculum of push sizes for PPO: the torso pushes of the training environments grow as the policy copes.
 
 Trained straight at the size it should withstand, the policy spends most of its episodes falling early
-and learns slowly (docs/learning.md, "Robustness to pushes"). Here the training environments start at
+and learns slowly (docs/log.md, "Robustness to pushes"). Here the training environments start at
 the first stage's force and move to the next stage after a rollout in which at least `min_episodes`
 training episodes ended and at least `advance` of those reached the time limit instead of falling.
 The domain randomisation widens with the stages: stage k of K draws the physical parameters from
@@ -9,7 +9,7 @@ their ranges narrowed to k/(K-1) of their size about 1 (`Randomization.widened`)
 is the nominal body the demonstrations showed and the last the whole distribution; the shares of the
 episodes run with the suite's action latency and sensor noise grow alike, from none. Trained on the
 whole distribution from the start, the BC actor (with PPO's exploration noise) survived few of
-its training episodes and no stage was ever passed (docs/learning.md, "Training for robustness").
+its training episodes and no stage was ever passed (docs/decisions/curriculum.md).
 A new stage applies to each
 environment from its next episode (`TorsoPushes.set_force`, `DomainRandomization.set_width`,
 `ActionLatency.set_latency_share`, `ObservationNoise.set_noise_share`), so every episode runs under one

@@ -25,7 +25,7 @@ CHECKPOINTS_DIR = "checkpoints"
 def selection_score(point: dict[str, float]) -> float:
     """What chooses the actor kept: the mean return over the validation evaluation and each condition evaluated
     beside it. The validation push alone (the largest trained with) topples every actor and chose badly
-    (docs/learning.md, "Evaluations and the actor kept")."""
+    (docs/decisions/ppo-guards.md)."""
     returns = [value for key, value in point.items() if key == "mean_return" or key.endswith("_mean_return")]
     return sum(returns) / len(returns)
 

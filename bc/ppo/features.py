@@ -6,7 +6,7 @@
 
 PPO's environments give the gymnasium observation, which the critic reads whole (privileged); an actor
 cloned on what a robot senses reads these features of it instead: an asymmetric actor-critic
-(docs/learning.md, "Training for robustness"). The same indices and formulas as `Proprioception`, in
+(docs/concepts/inputs.md). The same indices and formulas as `Proprioception`, in
 float32: the actions differ from `humanoid.learned.PolicyController`'s (float64 features) by float
 rounding only (a test).
 """

@@ -1,7 +1,7 @@
 """Guards that keep PPO from wrecking a pretrained actor: critic warm-up and a decaying BC term.
 
 A random critic's first updates wreck a pretrained actor (stable-baselines3 issue #543); see
-docs/learning.md for what each guard changed in measured runs.
+docs/decisions/ppo-guards.md for what each guard changed in measured runs.
 """
 
 from __future__ import annotations

@@ -83,7 +83,7 @@ def test_tiny_training_lowers_the_validation_loss(trained: TrainResult) -> None:
 
 @pytest.mark.slow
 def test_default_recipe_clones_the_expert_from_five_demonstrations(tmp_path: Path) -> None:
-    """The recipe's known answer: with ReLU units this data stood on no unseen seed (docs/learning.md, Why ELU)."""
+    """The recipe's known answer: with ReLU units this data stood on no unseen seed (docs/decisions/activation.md)."""
     data = tmp_path / "five"
     record(RecordConfig(dataset=data, episodes=5, seed=0, writer="inline", progress=False))
     cfg = TrainConfig(dataset=data, policy=tmp_path / "policy", eval_episodes=0, tensorboard=False, progress=False)

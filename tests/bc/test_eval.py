@@ -86,7 +86,7 @@ def test_saved_policy_runs_by_path(tmp_path: Path, capsys: pytest.CaptureFixture
 
 
 def test_a_suite_condition_is_applied_by_name(capsys: pytest.CaptureFixture[str]) -> None:
-    """CONDITION=push20 topples the expert, which stands the same seed clean (docs/robustness.md)."""
+    """CONDITION=push20 topples the expert, which stands the same seed clean (docs/concepts/robustness-suite.md)."""
     clean = evaluate("expert", episodes=1, seed=1000)
     pushed = evaluate("expert", episodes=1, seed=1000, condition="push20")
     assert clean["survival_rate"] == 1.0 and pushed["survival_rate"] == 0.0
