@@ -86,11 +86,15 @@ def link_problems(page: Path) -> list[str]:
     return problems
 
 
+DATA = {"datasets", "exports", "outputs"}  # data folders the stages write, which hold no code
+
+
 def sources() -> list[Path]:
-    """The project's Python files and its Makefile (not .venv, .git or other hidden folders)."""
+    """The project's Python files and its Makefile (not .venv, .git, other hidden folders or data)."""
     here = Path(__file__).resolve()  # its examples point nowhere on purpose
-    files = [p for p in ROOT.rglob("*.py") if not any(part.startswith(".") for part in p.parts) and p != here]
-    return [*files, ROOT / "Makefile"]
+    tops = [top for top in ROOT.iterdir() if not top.name.startswith(".") and top.name not in DATA]
+    files = [p for top in tops for p in ([top] if top.is_file() else top.rglob("*.py")) if p.suffix == ".py"]
+    return [*(p for p in files if p != here and not any(part.startswith(".") for part in p.parts)), ROOT / "Makefile"]
 
 
 def test_the_flag_reference_is_generated_from_the_configs() -> None:
