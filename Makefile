@@ -24,7 +24,9 @@ export PYTHONUNBUFFERED := 1
 # passed only when set, so an unset one keeps the default of the stage's config: no default is typed
 # here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
-# of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --keep last".
+# of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
+# REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
+# line saying what to use instead (common/cli.py's REMOVED_FLAGS) rather than make ignoring them.
 VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
 VARS.merge := SHARDS DATASET
@@ -38,9 +40,10 @@ VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY EPOCHS SCRATCH_POLICY \
 	PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES TUTORIAL \
-	DEPLOYABLE PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY ODOMETRY_INPUTS PPO_FROM
-# --name='value' for each variable of the target being made ($@) that is set.
-flags = $(strip $(foreach v,$(VARS.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
+	PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY
+REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS
+# --name='value' for each variable (or removed one) of the target being made ($@) that is set.
+flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
 .PHONY: help venv record merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 

@@ -11,6 +11,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from bc.finetune import FinetuneConfig, main, print_summary
 from common import paths
@@ -22,11 +23,12 @@ class BaselineConfig(FinetuneConfig):
     """Settings of PPO from scratch: `bc.finetune`'s, with the defaults of an unguarded run."""
 
     policy: Path = setting(paths.SCRATCH_POLICY, "checkpoint folder to write")
-    init: str = setting("fresh", "the actor's initial weights: 'fresh' or 'bc'", choices=("bc", "fresh"))
     learning_rate: float = setting(3e-4, "Adam learning rate of the actor (SB3's PPO default)")
     critic_learning_rate: float = setting(3e-4, "Adam learning rate of the critic (the actor's, as in SB3)")
-    reward_scale: float = setting(1.0, "factor on the rewards PPO learns from")
     critic_warmup: int = setting(0, "first steps that train the critic only (actor frozen); 0 = none")
+
+    fresh: ClassVar[bool] = True
+    reward_scale: ClassVar[float] = 1.0  # the environment's own rewards
 
 
 def _main_and_print(cfg: BaselineConfig) -> None:

@@ -46,7 +46,7 @@ class EvalConfig:
 
     policy: str = setting(
         str(paths.BC_POLICY),
-        "policy checkpoint folder, or a registered controller (expert, expert-sensed, expert-adaptive, random)",
+        "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)",
     )
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")

@@ -10,15 +10,16 @@ Data flow:
 1. The BC checkpoint's `MLPPolicy` becomes the actor of a stable-baselines3 PPO policy: at step 0
    PPO's deterministic actions are the BC policy's, exactly. The log std starts small.
 2. Guards against the known failure (a random critic's first updates wreck a pretrained actor):
-   critic warm-up, an optional DAPG-style BC term, a conservative learning rate, clip range and
-   target KL; and a critic that can learn (its own rate, scaled rewards, clipped inputs).
+   critic warm-up, a conservative learning rate, clip range and target KL; and a critic that can
+   learn (its own rate, scaled rewards, clipped inputs). The actor kept is the last one unless its
+   clean return fell below the floor (`bc.ppo.evaluator.holds_floor`): then the best evaluated.
 3. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
    with eval.json and a learning curve beside BC's level and the scratch baseline's curve. Its
    config.json holds every setting, who ran it and the BC weights' digest (`bc_policy_sha256`);
    TensorBoard gets the same as text.
 
 `make baseline-rl` (`bc.baseline`) runs the same with fresh weights and no guards. Why each
-default is what it is: docs/how-to/finetune-ppo.md.
+default is what it is: docs/how-to/finetune-ppo.md; what was tried and removed: docs/decisions/.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from stable_baselines3.common.callbacks import CallbackList
@@ -41,15 +42,15 @@ from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
-from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, keeps_best, plot_curves, selection_score
-from bc.ppo.guards import DemonstrationTerm, Guards
+from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, holds_floor, plot_curves, selection_score
+from bc.ppo.guards import Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
-from humanoid.conditions import SUITE, Randomization, parse_randomization
+from humanoid.conditions import Randomization, parse_randomization
 from humanoid.env import make_env
 from humanoid.inputs import input_features
 from humanoid.learned import PolicyController
@@ -66,12 +67,14 @@ ODOMETRY_RECIPE = (
 )
 """How to make the default BC checkpoint, said when it is missing."""
 
-KEEP = ("guarded", "best", "last")
-"""Which evaluated actor a run saves (--keep)."""
-
-# Evaluations during training run on seeds 2000.. (validation) and select the actor kept; the
-# final evaluation runs on 1000.. (EVAL_SEED), as every other policy's does.
 VALIDATION_SEED = 2000
+"""First seed of the evaluations during training, which choose the actor kept: apart from the final evaluation's
+(EVAL_SEED, 1000..), as every other policy's is."""
+
+EVAL_CONDITIONS = ("clean", "push20", "mass")
+"""Robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one at every
+evaluation during training: they choose the actor kept with it (`selection_score`; docs/log.md, "Evaluations
+and the actor kept"), and go to the learning curve's survival panel and TensorBoard."""
 
 
 @dataclass
@@ -80,15 +83,10 @@ class FinetuneConfig:
 
     bc_policy: Path = setting(
         paths.ODOMETRY_POLICY,
-        "BC checkpoint: the actor to refine (with --init fresh, only its shape and normalisation); by default the "
+        "BC checkpoint: the actor to refine (`make baseline-rl`: only its shape and normalisation); by default the "
         "odometry student, an actor on what a robot senses (`make pipeline` makes it)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
-    init: str = setting(
-        "bc",
-        "the actor's initial weights: 'bc' (the BC checkpoint's) or 'fresh' (PPO from scratch)",
-        choices=("bc", "fresh"),
-    )
     timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int = setting(
@@ -139,15 +137,6 @@ class FinetuneConfig:
     critic_learning_rate: float = setting(
         1e-3, "Adam learning rate of the critic (at the actor's rate the critic never fitted the returns)"
     )
-    reward_scale: float = setting(
-        0.01,
-        "factor on the rewards PPO learns from (the returns reported are the environment's own): keeps "
-        "the value loss below 1, not in the 1,000s, under the gradient-norm clip actor and critic share",
-    )
-    log_std_init: float = setting(
-        math.log(0.05),
-        "initial log std of the exploration noise (std 0.05: the DART noise the BC data was recorded with)",
-    )
     rollout_steps: int = setting(
         16_384,
         "environment steps per PPO update, over all environments (with 2,048 the "
@@ -162,33 +151,11 @@ class FinetuneConfig:
         0.02, "stop an update's epochs once the KL to the rollout policy exceeds 1.5x this; 0 = never"
     )
     critic_warmup: int = setting(50_000, "first steps that train the critic only (actor frozen); 0 = none")
-    bc_weight: float = setting(0.0, "weight of the BC term on the demonstrations added to PPO's loss; 0 = none")
-    bc_decay: float = setting(0.95, "factor applied to the BC weight after every PPO update")
     eval_freq: int = setting(
         20_000,
         "steps between evaluations (and checkpoints) during training; each runs after the first update past its mark",
     )
     eval_episodes: int = setting(5, "episodes of each evaluation during training")
-    eval_conditions: str = setting(
-        "clean,push20,mass",
-        "robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one "
-        "(under the largest push trained with) at every evaluation during training: they choose the actor kept "
-        "with it, and go to the "
-        "learning curve's survival panel and TensorBoard; comma-separated, '' = none",
-    )
-    validation_seed: int = setting(
-        VALIDATION_SEED,
-        "first seed of the evaluations during training: apart from "
-        "the final evaluation's, since they choose the actor kept",
-    )
-    keep: str = setting(
-        "guarded",
-        "the actor saved: 'guarded' (the last, unless its clean validation return fell below 0.9 of step 0's: "
-        "then the best), 'best' (of the evaluations during training, step 0 included, earliest on ties: the "
-        "highest mean return over the validation evaluation and the --eval-conditions) or 'last'; why "
-        "guarded: docs/decisions/ppo-guards.md",
-        choices=KEEP,
-    )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
     update_threads: int = setting(
@@ -201,6 +168,15 @@ class FinetuneConfig:
         paths.SCRATCH_POLICY, "PPO-from-scratch run whose learning curve the figure shows beside this one, if present"
     )
     progress: bool = setting(True, "show a progress bar")
+
+    fresh: ClassVar[bool] = False
+    """Whether the actor starts from fresh weights (`make baseline-rl`) rather than the BC checkpoint's."""
+    reward_scale: ClassVar[float] = 0.01
+    """Factor on the rewards PPO learns from (the returns reported are the environment's own): keeps the value loss
+    below 1, not in the 1,000s, under the gradient-norm clip actor and critic share
+    (docs/decisions/fixed-settings.md)."""
+    log_std_init: ClassVar[float] = math.log(0.05)
+    """Initial log std of the exploration noise: std 0.05, the DART noise the BC data was recorded with."""
 
 
 def validate(cfg: FinetuneConfig) -> None:
@@ -216,15 +192,12 @@ def validate(cfg: FinetuneConfig) -> None:
         "eval_episodes",
         "learning_rate",
         "critic_learning_rate",
-        "reward_scale",
     ):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"{flag(name)} must be positive, got {value}")
     for name in (
-        "validation_seed",
         "push",
-        "bc_weight",
         "target_kl",
         "critic_warmup",
         "final_eval_episodes",
@@ -234,22 +207,13 @@ def validate(cfg: FinetuneConfig) -> None:
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
-    if not 0 < cfg.bc_decay <= 1:
-        raise UserError(f"--bc-decay must be in (0, 1], got {cfg.bc_decay}")
     check_backend(cfg.backend, cfg.ray_address)
     if cfg.workers > cfg.envs:
         raise UserError(f"--workers ({cfg.workers}) must not exceed --envs ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"--rollout-steps ({cfg.rollout_steps}) must be a multiple of --envs ({cfg.envs})")
-    if cfg.init not in ("bc", "fresh"):
-        raise UserError(f"--init must be 'bc' or 'fresh', got {cfg.init!r}")
-    if cfg.keep not in KEEP:
-        raise UserError(f"--keep must be one of {', '.join(KEEP)}, got {cfg.keep!r}")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
-    unknown = [name for name in eval_conditions(cfg) if name not in SUITE]
-    if unknown:
-        raise UserError(f"unknown --eval-conditions {', '.join(unknown)}; known: {', '.join(SUITE)}")
     for name in ("curriculum_advance", "latency_share", "obs_noise_share"):
         if not 0 <= getattr(cfg, name) <= 1:
             raise UserError(f"{flag(name)} must be in [0, 1], got {getattr(cfg, name)}")
@@ -285,10 +249,6 @@ def validation_push(cfg: FinetuneConfig) -> float:
     return max(stages(cfg), default=cfg.push)
 
 
-def eval_conditions(cfg: FinetuneConfig) -> list[str]:
-    return [name.strip() for name in cfg.eval_conditions.split(",") if name.strip()]
-
-
 def widened(cfg: FinetuneConfig) -> dict[str, float]:
     """What grows with the curriculum's stages: the training environments' methods and their values at the last
     stage (`PushCurriculum`)."""
@@ -318,13 +278,11 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
     )
 
 
-def learner(
-    cfg: FinetuneConfig, env: WorkerGroupVecEnv, term: DemonstrationTerm | None = None, tensorboard: Path | None = None
-) -> WorkerRolloutPPO:
+def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | None = None) -> WorkerRolloutPPO:
     """The PPO learner of `cfg`: the BC actor (or a fresh one of its shape) and the configured hyperparameters."""
     bc = checkpoint.load(cfg.bc_policy)
     return build_model(
-        bc if cfg.init == "bc" else fresh_actor(bc, cfg.seed),
+        fresh_actor(bc, cfg.seed) if cfg.fresh else bc,
         env,
         critic_normalisation=critic_normalisation(cfg, bc.spec.inputs) if bc.spec.inputs != "full" else None,
         learning_rate=cfg.learning_rate,
@@ -340,7 +298,6 @@ def learner(
         target_kl=cfg.target_kl or None,
         seed=cfg.seed,
         update_threads=cfg.update_threads,
-        term=term,
         tensorboard=tensorboard,
     )
 
@@ -368,15 +325,6 @@ def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor
     return normalisation(observations)
 
 
-def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
-    """The BC term on the BC checkpoint's own training data (the inputs its actor reads), or None when off."""
-    if cfg.bc_weight == 0:
-        return None
-    inputs = checkpoint.load(cfg.bc_policy).spec.inputs
-    demos = load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env(), inputs=inputs)
-    return DemonstrationTerm(demos.inputs, demos.actions, cfg.bc_weight, cfg.bc_decay, cfg.batch_size, cfg.seed)
-
-
 def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, Any] | None:
     """The final evaluation of a run already finished at POLICY with these settings (not re-run); else None."""
     config, evaluation = cfg.policy / CONFIG_FILE, cfg.policy / EVAL_FILE
@@ -399,7 +347,13 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {ODOMETRY_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
-    settings = {**config_dict(cfg), "made_by": made_by, "bc_policy_sha256": weights_digest(cfg.bc_policy)}
+    settings = {
+        **config_dict(cfg),
+        # The fixed settings too, so that config.json still holds every setting the run used.
+        **{name: getattr(cfg, name) for name in ("fresh", "reward_scale", "log_std_init")},
+        "made_by": made_by,
+        "bc_policy_sha256": weights_digest(cfg.bc_policy),
+    }
     finished = finished_result(cfg, settings)
     if finished is not None:
         return finished
@@ -414,35 +368,34 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             f"settings to resume it, or remove that folder"
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
-    term = demonstration_term(cfg)
     env = vec_env(cfg)
     try:
         with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
-            model = learner(cfg, env, term, folder / TENSORBOARD_DIR)
+            model = learner(cfg, env, folder / TENSORBOARD_DIR)
             # SB3 stops after the first whole rollout that reaches TIMESTEPS.
             steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
             bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
             evaluator = Evaluator(
                 episodes=cfg.eval_episodes,
-                seed=cfg.validation_seed,
+                seed=VALIDATION_SEED,
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,
-                conditions=eval_conditions(cfg),
+                conditions=EVAL_CONDITIONS,
                 settings=settings,
                 folder=folder,
                 bar=bar,
             )
-            guards = Guards(cfg.critic_warmup, term)
+            guards = Guards(cfg.critic_warmup)
             curriculum = (
                 PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, widened(cfg))
                 if stages(cfg)
                 else None
             )
             if saved is not None:
-                resume.restore(saved, model, env, evaluator, guards, curriculum)
+                resume.restore(saved, model, env, evaluator, curriculum)
                 bar.update(model.num_timesteps)
                 print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
-            snapshots = resume.Snapshots(folder, evaluator, guards, settings, saved, curriculum)
+            snapshots = resume.Snapshots(folder, evaluator, settings, saved, curriculum)
             start = time.perf_counter()
             model.learn(
                 total_timesteps=cfg.timesteps - model.num_timesteps,
@@ -453,7 +406,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             seconds = time.perf_counter() - start
             bar.close()
             actor = model.policy.actor
-            keep_best = keeps_best(cfg.keep, evaluator.curve)
+            keep_best = not holds_floor(evaluator.curve)  # the guarded actor: docs/decisions/keep-policy.md
             kept = evaluator.best if keep_best else evaluator.curve[-1]
             if keep_best:
                 actor.load_state_dict(evaluator.best_state)
@@ -483,7 +436,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         kept=kept,
     )
     checkpoint.write_json(cfg.policy / EVAL_FILE, result)
-    fine_tuning = cfg.init == "bc"
+    fine_tuning = not cfg.fresh
     curves = {"PPO fine-tuning" if fine_tuning else "PPO from scratch": evaluator.curve}
     baseline_curve = cfg.baseline / CURVE_FILE
     if cfg.baseline.resolve() != cfg.policy.resolve() and baseline_curve.is_file():
@@ -491,8 +444,8 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     plot_curves(
         curves,
         evaluator.curve[0]["mean_return"] if fine_tuning else None,
-        f"{cfg.policy.name}: validation on seeds {cfg.validation_seed}.."
-        f"{cfg.validation_seed + cfg.eval_episodes - 1}"
+        f"{cfg.policy.name}: validation on seeds {VALIDATION_SEED}.."
+        f"{VALIDATION_SEED + cfg.eval_episodes - 1}"
         f"{f', {validation_push(cfg):g} N pushes' if validation_push(cfg) else ''}",
         cfg.policy / CURVE_PNG,
     )

@@ -1,19 +1,18 @@
 """`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables of
 `bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the experts and every policy.
 
-    DATASET (expert, NOISE) ----------> BC_POLICY (full) ------------(PPO_FROM=full)-----.
-       '------------------------------> PROPRIO_POLICY (proprio)   } DEPLOYABLE: what      +--> SCRATCH_POLICY,
-    SENSED_DATASET (expert-sensed, ---> ODOMETRY_POLICY (pending)  } a robot senses --(odometry, default)
-      SENSED_LATENCY delayed)
-    tutorial-rl (reads neither; a worker process from the start, beside the rest)                 PPO_POLICY
+    DATASET (expert, NOISE) ----------> BC_POLICY (full)
+       '------------------------------> PROPRIO_POLICY (proprio)   } what a robot senses
+    SENSED_DATASET (expert-sensed, ---> ODOMETRY_POLICY (pending)  } ------------------------> SCRATCH_POLICY,
+      SENSED_LATENCY delayed)                                                                  PPO_POLICY
+    tutorial-rl (reads neither; a worker process from the start, beside the rest)
 
-The deployable branch clones policies that read only the sensed features: from the same data (which
-shows what the privileged inputs did), and from demonstrations of the expert on leg odometry, half of
-them under one step of action latency, with that odometry, the command in flight and the delay as
-input (ODOMETRY_INPUTS=pending: the student that stands, also under latency; docs/decisions/pending-inputs.md).
-Both PPO stages start from that student (PPO_FROM=odometry, the stages' own default), so the
-fine-tuned actor reads what a robot senses; PPO_FROM=full starts them from BC_POLICY instead
-(docs/log.md, "An actor on leg odometry", compares the two).
+The deployable students read only the sensed features: one from the same data (which shows what the
+privileged inputs did), and one from demonstrations of the expert on leg odometry, half of them under
+one step of action latency, with that odometry, the command in flight and the delay as input (inputs
+`pending`: the student that stands, also under latency; docs/decisions/pending-inputs.md). Both PPO stages start
+from that student (the stages' own default), so the fine-tuned actor reads what a robot senses
+(docs/decisions/ppo-start.md says why; `make finetune-rl BC_POLICY=...` starts from another).
 
 Each stage runs in this process through its own `main` (the tutorial's learners in a worker process, since
 they use one core and the PPO stages two), with the config `make <stage>` would use
@@ -32,10 +31,9 @@ A stage is skipped only if its output exists and was made from the same inputs:
 
 Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
 counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
-they change nothing else). A setting added after an output was made counts as the value that does
-what the version before it did (ADDED_SINCE: --randomize none), so such outputs stay reusable; the
-pipeline records without domain randomisation. Otherwise the pipeline says in one line why the stage
-runs, and what happens to an output that differs depends on who made it:
+they change nothing else). An output whose saved settings lack one of this version's was made by an
+older version: it differs (docs/decisions/added-since.md). Otherwise the pipeline says in one line why
+the stage runs, and what happens to an output that differs depends on who made it:
 
 - the pipeline (`made_by` "bc.pipeline" in config.json, or on every line of recordings.jsonl): made
   again. A checkpoint is replaced once the new one is complete (the stage's --overwrite). A dataset
@@ -75,7 +73,7 @@ from bc.tutorial import TutorialConfig
 from common import keys, paths
 from common.cli import Config, UserError, check_share, config_dict, flag, parse_config, run_cli, setting
 from common.workers import Channel, Worker
-from humanoid.conditions import NO_RANDOMIZATION, SUITE
+from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import humanoid_model
 from humanoid.expert import SensedExpert
@@ -103,23 +101,11 @@ NOT_COMPARED = frozenset(
 )
 """Settings that change only speed, display or permissions: never a reason to make an output again."""
 
-ADDED_SINCE = {
-    "randomize": NO_RANDOMIZATION,
-    "eval_conditions": "",
-    "curriculum": "",
-    "curriculum_advance": 0.8,
-    "curriculum_episodes": 16,
-    "min_updates": 0,
-    "lr_schedule": "constant",
-    "latency_share": 0.0,
-    "obs_noise_share": 0.0,
-    "latency": 0.0,
-}
-"""Settings added after runs began saving their config, with the value that does what the versions before
-them did: a saved config without the setting was made with that value (a dataset recorded before
---randomize existed is one recorded with --randomize none, byte for byte)."""
-
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
+
+ODOMETRY_INPUTS = "pending"
+"""What ODOMETRY_POLICY reads (humanoid/inputs.py): the student that stands, also under latency
+(docs/decisions/ppo-start.md)."""
 
 
 def _like(config_class: type, name: str, help: str | None = None) -> Any:
@@ -151,17 +137,6 @@ class PipelineConfig:
     tutorial: bool = setting(
         True, "also train the seed tutorial's two learners at the PPO stages' budget, as baseline rows (tutorial-rl)"
     )
-    deployable: bool = setting(
-        True,
-        "also clone policies that read only what a robot senses: PROPRIO_POLICY from DATASET, and ODOMETRY_POLICY "
-        "from SENSED_DATASET (see the module's sketch)",
-    )
-    ppo_from: str = setting(
-        "odometry",
-        "the BC checkpoint both PPO stages start from: 'full' (BC_POLICY, whose actor reads the privileged "
-        "observation) or 'odometry' (ODOMETRY_POLICY, with DEPLOYABLE: an actor on what a robot senses)",
-        choices=("full", "odometry"),
-    )
     proprio_policy: Path = setting(
         paths.PROPRIO_POLICY, "checkpoint folder of BC on DATASET's sensed features (train-bc --inputs proprio)"
     )
@@ -173,13 +148,10 @@ class PipelineConfig:
         SENSED_LATENCY, "share of SENSED_DATASET's episodes recorded with one step of action latency (record --latency)"
     )
     odometry_policy: Path = setting(
-        paths.ODOMETRY_POLICY, "checkpoint folder of BC on SENSED_DATASET with leg odometry (--inputs ODOMETRY_INPUTS)"
-    )
-    odometry_inputs: str = setting(
-        "pending",
-        "what ODOMETRY_POLICY reads: the sensed features and leg odometry ('odometry'), and its command in flight "
-        "and the delay ('pending', which SENSED_LATENCY's delayed episodes teach; humanoid/inputs.py)",
-        choices=("odometry", "pending"),
+        paths.ODOMETRY_POLICY,
+        f"checkpoint folder of BC on SENSED_DATASET (--inputs {ODOMETRY_INPUTS}: the sensed features, leg odometry, "
+        "the command in flight and the delay, which SENSED_LATENCY's delayed episodes teach); both PPO stages start "
+        "from it",
     )
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
@@ -188,7 +160,9 @@ class PipelineConfig:
     randomize: str = _like(
         FinetuneConfig, "randomize", "the PPO stages' training bodies and floors (humanoid.conditions)"
     )
-    args: str = setting("", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --keep last'; default: none")
+    args: str = setting(
+        "", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --target-kl 0.01'; default: none"
+    )
     overwrite: bool = setting(
         False, "also replace checkpoints the pipeline did not make when they differ (never a dataset it did not record)"
     )
@@ -217,21 +191,19 @@ class Stages:
     baseline: BaselineConfig
     finetune: FinetuneConfig
     tutorial: TutorialConfig | None
-    deployable: Deployable | None = None
+    deployable: Deployable
 
     def outputs(self) -> dict[str, Path]:
         """Each output folder, by the pipeline's option that names it."""
-        folders = {
+        return {
             "--dataset": self.record.dataset,
             "--bc-policy": self.train.policy,
             "--scratch-policy": self.baseline.policy,
             "--ppo-policy": self.finetune.policy,
+            "--proprio-policy": self.deployable.proprio.policy,
+            "--sensed-dataset": self.deployable.record.dataset,
+            "--odometry-policy": self.deployable.odometry.policy,
         }
-        if self.deployable is not None:
-            folders["--proprio-policy"] = self.deployable.proprio.policy
-            folders["--sensed-dataset"] = self.deployable.record.dataset
-            folders["--odometry-policy"] = self.deployable.odometry.policy
-        return folders
 
 
 def check(cfg: PipelineConfig) -> None:
@@ -252,16 +224,11 @@ def check(cfg: PipelineConfig) -> None:
 def stages(cfg: PipelineConfig) -> Stages:
     """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
     check(cfg)
-    if cfg.ppo_from == "odometry" and not cfg.deployable:
-        raise UserError(
-            "--ppo-from odometry (the default) starts PPO from ODOMETRY_POLICY, which only --deployable true makes: "
-            "add --ppo-from full"
-        )
     workers = {"backend": cfg.backend, "ray_address": cfg.ray_address}
     if cfg.workers is not None:
         workers["workers"] = cfg.workers
     ppo = {
-        "bc_policy": cfg.odometry_policy if cfg.ppo_from == "odometry" else cfg.bc_policy,
+        "bc_policy": cfg.odometry_policy,
         "timesteps": cfg.timesteps,
         "envs": cfg.envs,
         "push": cfg.push,
@@ -279,22 +246,20 @@ def stages(cfg: PipelineConfig) -> Stages:
         max_steps=cfg.max_steps,
         **workers,
     )
-    deployable = None
-    if cfg.deployable:
-        sensed = dataclasses.replace(
-            recording,
-            dataset=cfg.sensed_dataset,
-            controller=SensedExpert.name,
-            noise=cfg.sensed_noise,
-            latency=cfg.sensed_latency,
-        )
-        deployable = Deployable(
-            proprio=TrainConfig(dataset=cfg.dataset, policy=cfg.proprio_policy, epochs=cfg.epochs, inputs="proprio"),
-            record=sensed,
-            odometry=TrainConfig(
-                dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs=cfg.odometry_inputs
-            ),
-        )
+    sensed = dataclasses.replace(
+        recording,
+        dataset=cfg.sensed_dataset,
+        controller=SensedExpert.name,
+        noise=cfg.sensed_noise,
+        latency=cfg.sensed_latency,
+    )
+    deployable = Deployable(
+        proprio=TrainConfig(dataset=cfg.dataset, policy=cfg.proprio_policy, epochs=cfg.epochs, inputs="proprio"),
+        record=sensed,
+        odometry=TrainConfig(
+            dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs=ODOMETRY_INPUTS
+        ),
+    )
     return Stages(
         record=recording,
         train=TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs),
@@ -313,6 +278,8 @@ def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) 
         with contextlib.redirect_stderr(printed):  # argparse's usage and message: the one line below says why
             given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
     except ValueError as error:  # shlex: an unclosed quote
+        raise UserError(f"--args {args!r}: {error}") from None
+    except UserError as error:  # a removed flag or value (`common.cli.REMOVED_FLAGS`)
         raise UserError(f"--args {args!r}: {error}") from None
     except SystemExit:  # an unknown flag, a bad value
         why = printed.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
@@ -338,9 +305,9 @@ def first_difference(saved: dict[str, Any], config: Any, skip: frozenset[str] | 
     for name, wanted in config_dict(config).items():
         if name in skip:
             continue
-        if name not in saved and name not in ADDED_SINCE:
+        if name not in saved:
             return f"no {flag(name)} (an older version)"
-        have = saved.get(name, ADDED_SINCE.get(name))
+        have = saved[name]
         if isinstance(getattr(config, name), Path) and isinstance(have, str):
             same = Path(have).resolve() == getattr(config, name).resolve()
         else:
@@ -500,7 +467,7 @@ def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: b
         return weights_digest(cfg.bc_policy) if is_checkpoint(cfg.bc_policy) else None
 
     saved = _training_record(cfg.policy).get("bc_policy_sha256")
-    verb = "fine-tuning" if cfg.init == "bc" else "training from scratch"
+    verb = "training from scratch" if cfg.fresh else "fine-tuning"
     return checkpoint_decision(cfg, verb, option, "BC policy", saved, current, overwrite, bc_remade)
 
 
@@ -512,10 +479,9 @@ def validate(run: Stages) -> None:
     validate_ppo(run.finetune)
     if run.tutorial is not None:
         tutorial.validate(run.tutorial)
-    if run.deployable is not None:
-        validate_record(run.deployable.record)
-        bc_train.validate(run.deployable.proprio)
-        bc_train.validate(run.deployable.odometry)
+    validate_record(run.deployable.record)
+    bc_train.validate(run.deployable.proprio)
+    bc_train.validate(run.deployable.odometry)
     seen: dict[Path, str] = {}
     for option, folder in run.outputs().items():
         other = seen.setdefault(folder.resolve(), option)
@@ -535,15 +501,14 @@ def foresee(run: Stages, overwrite: bool) -> None:
     run the pipeline did not make."""
     dataset_remade = dataset_decision(run.record).action != REUSE
     remade = {run.train.policy.resolve(): bc_decision(run.train, overwrite, dataset_remade).action != REUSE}
-    if run.deployable is not None:
-        proprio, odometry = run.deployable.proprio, run.deployable.odometry
-        remade[proprio.policy.resolve()] = (
-            bc_decision(proprio, overwrite, dataset_remade, "--proprio-policy").action != REUSE
-        )
-        sensed_remade = dataset_decision(run.deployable.record).action != REUSE
-        remade[odometry.policy.resolve()] = (
-            bc_decision(odometry, overwrite, sensed_remade, "--odometry-policy").action != REUSE
-        )
+    proprio, odometry = run.deployable.proprio, run.deployable.odometry
+    remade[proprio.policy.resolve()] = (
+        bc_decision(proprio, overwrite, dataset_remade, "--proprio-policy").action != REUSE
+    )
+    sensed_remade = dataset_decision(run.deployable.record).action != REUSE
+    remade[odometry.policy.resolve()] = (
+        bc_decision(odometry, overwrite, sensed_remade, "--odometry-policy").action != REUSE
+    )
     for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
@@ -557,7 +522,7 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
     validate(stages)
     foresee(stages, overwrite)
     learners = None if stages.tutorial is None else start_tutorial(stages.tutorial, overwrite)
-    experts = ["expert"] + ([SensedExpert.name] if stages.deployable is not None else [])
+    experts = ["expert", SensedExpert.name]
     results: dict[str, dict[str, Any]] = {}
 
     def measure(names: list[str]) -> None:
@@ -588,12 +553,10 @@ def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
     """Record, clone and run both PPO stages, each unless reused; the policies' folders."""
     record_stage(stages.record)
     bc_stage(stages.train, overwrite, "--bc-policy")
-    policies = [stages.train.policy]
-    if stages.deployable is not None:
-        bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
-        record_stage(stages.deployable.record)
-        bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
-        policies += [stages.deployable.proprio.policy, stages.deployable.odometry.policy]
+    bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
+    record_stage(stages.deployable.record)
+    bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
+    policies = [stages.train.policy, stages.deployable.proprio.policy, stages.deployable.odometry.policy]
     for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
         decision = ppo_decision(config, option, overwrite)
         print(f"pipeline: {decision.line}", flush=True)

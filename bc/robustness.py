@@ -42,7 +42,7 @@ class RobustnessConfig:
 
     policy: str = setting(
         str(paths.BC_POLICY),
-        "policy checkpoint folder, or a registered controller (expert, expert-sensed, expert-adaptive, random)",
+        "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)",
     )
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")

@@ -11,7 +11,9 @@ help` lists every target's variables with their flags, help and defaults.
 
 tests/test_makefile.py holds the Makefile to this table: every variable of a target becomes its
 flag with its value, an unset one passes nothing, and the Makefile passes no variable the table
-does not list.
+does not list. A target's removed variables (`Target.removed`) are still passed, so that the stage
+refuses them in one line naming what to use instead (`common.cli.REMOVED_FLAGS`) rather than make
+ignoring them.
 """
 
 from __future__ import annotations
@@ -50,11 +52,18 @@ class Target:
     config: type
     fields: tuple[str, ...]
     passes_args: bool = False  # ARGS is appended as it is (further flags)
+    removed: tuple[str, ...] = ()
+    """Fields an earlier version had (keys of `common.cli.REMOVED_FLAGS`): passed when set, for the stage to refuse."""
 
     @property
     def variables(self) -> dict[str, str]:
         """Make variable -> config field."""
         return {name.upper(): name for name in self.fields}
+
+    @property
+    def removed_variables(self) -> dict[str, str]:
+        """Removed Make variable -> the removed flag's field name."""
+        return {name.upper(): name for name in self.removed}
 
     def field(self, name: str) -> dataclasses.Field[Any]:
         return next(f for f in dataclasses.fields(self.config) if f.name == name)
@@ -98,7 +107,12 @@ TARGETS: dict[str, Target] = {
     "finetune-rl": Target("bc.finetune", FinetuneConfig, _PPO, passes_args=True),
     "baseline-rl": Target("bc.baseline", BaselineConfig, _PPO, passes_args=True),
     "tutorial-rl": Target("bc.tutorial", TutorialConfig, ("learners", "timesteps", "overwrite")),
-    "pipeline": Target("bc.pipeline", PipelineConfig, tuple(f.name for f in dataclasses.fields(PipelineConfig))),
+    "pipeline": Target(
+        "bc.pipeline",
+        PipelineConfig,
+        tuple(f.name for f in dataclasses.fields(PipelineConfig)),
+        removed=("deployable", "ppo_from", "odometry_inputs"),
+    ),
 }
 
 

@@ -1,7 +1,9 @@
 """Command lines built from a stage's config dataclass: one flag per field, its help from the field.
 
 Every stage declares its settings once, as a dataclass whose fields carry `help` metadata; the
-flags, their defaults in `--help`, and the Makefile variables all follow from it.
+flags, their defaults in `--help`, and the Makefile variables all follow from it. A flag or value that
+an earlier version had and this one removed is refused here, for every stage, in one line that says what
+to use instead (`REMOVED_FLAGS`, `REMOVED_VALUES`), before anything is read or written.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import sys
 import types
 import typing
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -27,6 +30,89 @@ class UserError(Exception):
 
 class DatasetError(UserError):
     """A dataset folder that cannot be used as asked (missing, incompatible, locked, unwritable)."""
+
+
+@dataclass(frozen=True)
+class Removed:
+    """A flag or value an earlier version had: what it was, what to do instead, the decision record saying why."""
+
+    what: str
+    instead: str
+    record: str
+    """The decision record's name: docs/decisions/<record>.md."""
+
+    def message(self) -> str:
+        return f"{self.what} was removed; {self.instead} (docs/decisions/{self.record}.md)"
+
+
+_ADAPTIVE = Removed("controller 'expert-adaptive'", "use expert-sensed", "identification")
+_FIXED = "it is fixed at the value every run used"
+_FIXED_RECORD = "fixed-settings"
+
+REMOVED_FLAGS: dict[str, Removed] = {
+    removed.what[2:].replace("-", "_"): removed
+    for removed in (
+        Removed("--bc-weight", "PPO fine-tuning runs without a BC term (as every default run did)", "bc-regulariser"),
+        Removed("--bc-decay", "PPO fine-tuning runs without a BC term (as every default run did)", "bc-regulariser"),
+        Removed("--keep", "the run keeps the guarded actor, as the default did", "keep-policy"),
+        Removed(
+            "--ppo-from",
+            "the PPO stages start from ODOMETRY_POLICY, as the default did; for a PPO run from another BC policy: "
+            "make finetune-rl BC_POLICY=policies/bc_humanoid_stand",
+            "ppo-start",
+        ),
+        Removed(
+            "--deployable",
+            "the pipeline always makes the deployable students (PPO starts from one of them)",
+            "ppo-start",
+        ),
+        Removed(
+            "--init", "make baseline-rl trains from fresh weights, make finetune-rl from the BC policy's", _FIXED_RECORD
+        ),
+        Removed("--reward-scale", f"{_FIXED}: 0.01 for make finetune-rl, 1 for make baseline-rl", _FIXED_RECORD),
+        Removed("--log-std-init", f"{_FIXED}: log(0.05), the DART noise of the demonstrations", _FIXED_RECORD),
+        Removed("--eval-conditions", f"{_FIXED}: clean, push20, mass", _FIXED_RECORD),
+        Removed("--validation-seed", f"{_FIXED}: 2000", _FIXED_RECORD),
+        *(
+            Removed(f"--{name}", f"{_FIXED}: the tutorial's ({value}; make tutorial-rl)", _FIXED_RECORD)
+            for name, value in (("step-size", 0.01), ("noise-start", 0.2), ("noise-end", 0.01), ("ent-coef", 0.005))
+        ),
+        Removed(
+            "--odometry-inputs",
+            "ODOMETRY_POLICY reads INPUTS=pending, as the default did; for another: "
+            "make train-bc INPUTS=... DATASET=datasets/humanoid_stand_sensed",
+            "ppo-start",
+        ),
+    )
+}
+"""Flags removed from every stage that had them, by config field name. A stage that still has a field of the
+name (none does today) parses it as its own."""
+
+REMOVED_VALUES: dict[tuple[str, str], Removed] = {
+    ("controller", "expert-adaptive"): _ADAPTIVE,  # make record, make pipeline
+    ("policy", "expert-adaptive"): _ADAPTIVE,  # make eval, make robustness
+    ("expert", "expert-adaptive"): _ADAPTIVE,  # make dagger
+}
+"""Values removed from a flag that stays, by (config field name, value)."""
+
+
+def check_removed(config_class: type, argv: Sequence[str]) -> None:
+    """UserError in one line for a removed flag or value in `argv` (`--name value` or `--name=value`), naming what
+    to use instead: argparse's own "unrecognized arguments" would not say it."""
+    fields = {field.name for field in dataclasses.fields(config_class)}
+    for index, word in enumerate(argv):
+        if not word.startswith("--"):
+            continue
+        text, equals, value = word[2:].partition("=")
+        name = text.replace("-", "_")
+        if name not in fields:
+            if name in REMOVED_FLAGS:
+                raise UserError(REMOVED_FLAGS[name].message())
+            continue
+        if not equals:
+            value = argv[index + 1] if index + 1 < len(argv) else ""
+        if (name, value) in REMOVED_VALUES:
+            raise UserError(REMOVED_VALUES[name, value].message())
 
 
 def setting(default: Any, help: str, **kwargs: Any) -> Any:
@@ -83,7 +169,9 @@ class _OneLineParser(argparse.ArgumentParser):
 def parse_config(
     config_class: type[Config], argv: Sequence[str] | None, description: str, prog: str | None = None
 ) -> Config:
-    """Parse `argv` into `config_class`; `--help` lists each field with its default."""
+    """Parse `argv` into `config_class`; `--help` lists each field with its default. UserError for a removed flag
+    or value (`check_removed`)."""
+    check_removed(config_class, sys.argv[1:] if argv is None else argv)
     parser = _OneLineParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     hints = typing.get_type_hints(config_class)
     for field in dataclasses.fields(config_class):
@@ -108,9 +196,8 @@ def run_cli(
     prog: str | None = None,
 ) -> int:
     """Parse, run `main`, and turn user errors into one line on stderr and a non-zero exit code."""
-    config = parse_config(config_class, argv, description, prog)
     try:
-        main(config)
+        main(parse_config(config_class, argv, description, prog))
     except UserError as error:
         print(f"error: {error}", file=sys.stderr)
         return EXIT_FAILURE

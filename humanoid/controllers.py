@@ -69,17 +69,9 @@ def _sensed_expert(env: gym.Env) -> Controller:
     return SensedExpert(delay=action_delay(env))
 
 
-def _adaptive_expert(env: gym.Env) -> Controller:
-    from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
-
-    # The sensed expert that identifies each episode's masses from its landing, from what it senses alone.
-    return SensedExpert(delay=action_delay(env), identify=True)
-
-
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
     "expert-sensed": _sensed_expert,
-    "expert-adaptive": _adaptive_expert,
     "random": lambda env: RandomController(env.action_space),
 }
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.

@@ -16,7 +16,6 @@ import numpy as np
 
 from humanoid.env import humanoid_model
 from humanoid.estimator import LegOdometry
-from humanoid.identification import BodyIdentifier, IdentificationDesign, load_or_fit
 from humanoid.landing import Landing, load_or_design_landing
 from humanoid.lqr import (
     QPOS_OBS,
@@ -77,7 +76,6 @@ class LQRExpert:
         self.gain = self.gains.gain  # replaced by a copy that PostureRamp writes into on the first hold
         self._qpos = self.qpos_ref.copy()
         self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
-        self._blend: tuple[LQRGains, LQRGains, int, int] | None = None  # `blend_to`: from, to, steps done, steps
         self._moving = False  # one attribute test per act while the setpoint is still
 
     def set_delay(self, steps: int) -> None:
@@ -120,7 +118,6 @@ class LQRExpert:
             self.gain[:] = gains.gain
         self.qpos_ref[:] = gains.qpos_ref
         self.ctrl_ff[:] = gains.ctrl_ff
-        self._blend = None
         self._moving = False
         self._landing_step = 0
         planned = self.landing is not None and self._body is None and self.delay == 0
@@ -141,23 +138,6 @@ class LQRExpert:
             self._ramp = PostureRamp(self.model, self.design, self.qpos_ref, self.ctrl_ff, self.gain)
         self._ramp.hold(posture, clip)
         self._moving = self._ramp.moving
-
-    def blend_to(self, gains: LQRGains, steps: int) -> None:
-        """Move setpoint, feed-forward and gain linearly to ``gains`` over the next ``steps`` actions, until `reset`.
-
-        For a body learnt during the episode (`SensedExpert` identifying it): switched at once, the new stance
-        is a jolt. The predictor keeps stepping the design's body.
-        """
-        start = LQRGains(qpos_ref=self.qpos_ref.copy(), ctrl_ff=self.ctrl_ff.copy(), gain=self.gain.copy())
-        self._blend = (start, gains, 0, max(1, steps))
-
-    def _blend_step(self) -> None:
-        start, target, done, steps = self._blend
-        w = (done + 1) / steps
-        self.qpos_ref[:] = (1 - w) * start.qpos_ref + w * target.qpos_ref
-        self.ctrl_ff[:] = (1 - w) * start.ctrl_ff + w * target.ctrl_ff
-        self.gain = (1 - w) * start.gain + w * target.gain  # a new array: the design's gain is shared, never written
-        self._blend = None if done + 1 >= steps else (start, target, done + 1, steps)
 
     @property
     def moving(self) -> bool:
@@ -190,8 +170,6 @@ class LQRExpert:
             return self.landing.action(self.model, self._landing_step - 1, qpos, qvel)
         if self._moving:
             self._moving = self._ramp.step()
-        if self._blend is not None:
-            self._blend_step()
         if self._predictor is not None:
             qpos, qvel = self._predictor.predict(qpos, qvel, self._pending)
         action = steady_action(self.model, self.design, (self.qpos_ref, self.ctrl_ff, self.gain), qpos, qvel)
@@ -231,50 +209,21 @@ class SensedExpert:
 
     name = "expert-sensed"
 
-    def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0, identify: bool = False) -> None:
+    def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
         """The expert designed on `model` (like `LQRExpert`), without the planned landing: on the estimate it
         stood no more often, and the odometry students of its demonstrations stood less often
         (docs/decisions/landing-plan.md); the estimator runs on `model` too.
-
-        With `identify` it estimates each episode's masses from its landing (`humanoid.identification`; the
-        map is fitted on first use, about a minute, then cached) and moves to a stance and gain designed on
-        that body, as the privileged expert does when told it (docs/log.md, "Identifying the body
-        from the landing"): `expert-adaptive`.
         """
         self.expert = LQRExpert(model, delay=delay, landing=False)
         self.sensed = Proprioception(self.expert.model)
         self.estimator = LegOdometry(self.expert.model)
-        self.identifier: BodyIdentifier | None = None
-        if identify:
-            self.name = "expert-adaptive"
-            design = IdentificationDesign()
-            key = cache_key(self.expert.model, self.expert.design)
-            self.identifier = load_or_fit(self.expert.model, design, key, _plain_sensed_expert)
 
     def set_delay(self, steps: int) -> None:
         self.expert.set_delay(steps)
 
     def reset(self, seed: int | None = None) -> None:
-        self.expert.reset(seed)  # the design's stance and gain again: the body is unknown until identified
+        self.expert.reset(seed)
         self.estimator.reset()
-        if self.identifier is not None:
-            self.identifier.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        sensed = self.sensed(obs)
-        action = self.expert.act_on_state(*self.estimator(sensed))
-        if self.identifier is not None and not self.identifier.done:
-            self.identifier.observe(sensed, action)
-            if self.identifier.done:
-                expert = self.expert
-                try:
-                    gains = body_gains(self.identifier.body(), expert.design, expert.gains.qpos_ref)
-                except RuntimeError:  # no balanced stance on the estimated body: keep the design's
-                    return action
-                expert.blend_to(gains, self.identifier.design.steps)
-        return action
-
-
-def _plain_sensed_expert(model: mujoco.MjModel, delay: int) -> SensedExpert:
-    """The sensed expert without identification: what acts while an identifier reads the landing."""
-    return SensedExpert(model, delay=delay)
+        return self.expert.act_on_state(*self.estimator(self.sensed(obs)))

@@ -19,12 +19,14 @@ from pathlib import Path
 import pytest
 
 from bc.targets import ARGS, TARGETS, Target, help_text
-from common.cli import flag, parse_config
+from common.cli import REMOVED_FLAGS, UserError, flag, parse_config
 
 ROOT = Path(__file__).resolve().parent.parent
 MAKEFILE = ROOT / "Makefile"
-EVERY_VARIABLE = sorted({var for target in TARGETS.values() for var in target.variables} | {ARGS})
-PPO_ARGS = "--keep last --learning-rate 1e-4"
+EVERY_VARIABLE = sorted(
+    {var for target in TARGETS.values() for var in (*target.variables, *target.removed_variables)} | {ARGS}
+)
+PPO_ARGS = "--target-kl 0.01 --learning-rate 1e-4"
 
 
 @pytest.fixture(scope="module")
@@ -89,9 +91,10 @@ def typed_value(target: Target, field_name: str) -> str:
     return {int: "7", float: "0.25", Path: f"some dir/{field_name}", str: f"text-{field_name}"}[kind]
 
 
-def makefile_variables(target: str) -> set[str]:
-    """The variables the Makefile passes to `target`'s stage (its VARS.<target> list), as make expands it."""
-    query = f"print-target-variables: ; @echo $(VARS.{target})"
+def makefile_variables(target: str, kind: str = "VARS") -> set[str]:
+    """The variables the Makefile passes to `target`'s stage (its VARS.<target> list, or with `kind` REMOVED its
+    REMOVED.<target> list), as make expands it."""
+    query = f"print-target-variables: ; @echo $({kind}.{target})"
     (line,) = make("-s", "--eval", query, "print-target-variables")
     return set(line.split())
 
@@ -100,6 +103,20 @@ def makefile_variables(target: str) -> set[str]:
 def test_the_table_lists_the_variables_the_makefile_passes(target: str) -> None:
     """The Makefile's variable list of each target is the table's: no variable passed that the table does not map."""
     assert makefile_variables(target) == set(TARGETS[target].variables)
+    assert makefile_variables(target, "REMOVED") == set(TARGETS[target].removed_variables)
+
+
+@pytest.mark.parametrize("target", [name for name, target in TARGETS.items() if target.removed])
+def test_a_removed_variable_is_refused_by_its_stage_in_one_line(target: str, stamp: Path) -> None:
+    """`make pipeline PPO_FROM=full` reaches the stage, which refuses it naming what to do instead (not make
+    ignoring it, nor argparse's "unrecognized arguments")."""
+    spec = TARGETS[target]
+    for var, field in spec.removed_variables.items():
+        assert field in REMOVED_FLAGS and field not in {f.name for f in dataclasses.fields(spec.config)}
+        words = stage_command(target, stamp, **{var: "value"})
+        assert words == [f"{flag(field)}=value"]
+        with pytest.raises(UserError, match=rf"^{flag(field)} was removed; .+ \(docs/decisions/[a-z-]+\.md\)$"):
+            parse_config(spec.config, words, description="")
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -120,7 +137,8 @@ def test_each_variable_becomes_its_flag(target: str, stamp: Path) -> None:
     if spec.passes_args:
         assert words[-len(shlex.split(values[ARGS])) :] == shlex.split(values[ARGS])
         words = words[: -len(shlex.split(values[ARGS]))]
-    assert flags_given(words) == {flag(field): values[var] for var, field in spec.variables.items()}
+    passed = {**spec.variables, **spec.removed_variables}
+    assert flags_given(words) == {flag(field): values[var] for var, field in passed.items()}
 
 
 @pytest.mark.parametrize("target", TARGETS)

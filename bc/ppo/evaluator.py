@@ -36,14 +36,10 @@ CLEAN_FLOOR = 0.9
 
 def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -> bool:
     """Whether the last evaluation's clean return (the validation return where `clean` is not evaluated) is at
-    least `floor` of step 0's: what `--keep guarded` asks of the last actor before keeping it."""
+    least `floor` of step 0's: what a run asks of its last actor before keeping it, else it keeps the best
+    (docs/decisions/keep-policy.md)."""
     key = "clean_mean_return" if "clean_mean_return" in curve[0] else "mean_return"
     return curve[-1][key] >= floor * curve[0][key]
-
-
-def keeps_best(keep: str, curve: Sequence[dict[str, float]]) -> bool:
-    """Whether a run with `--keep keep` saves the best evaluated actor (`Evaluator.best`) rather than the last."""
-    return keep == "best" or (keep == "guarded" and not holds_floor(curve))
 
 
 class Evaluator(BaseCallback):

@@ -8,8 +8,7 @@ atomically, with everything the rest of the run depends on:
                NumPy's, torch's and Python's global random states (minibatch order, ...)
     workers:   each environment's episode in progress, as its start and its actions since
                (`bc.ppo.vec_env`), and each sampler's noise streams
-    callbacks: the evaluator's curve and best actor, the guards' update count, the BC term's
-               minibatch stream and weight, the push curriculum's stage
+    callbacks: the evaluator's curve and best actor, the push curriculum's stage
 
 Started again with the same settings, `bc.finetune` rebuilds the learner and the environments as
 before and `restore`s the snapshot: the workers replay their episodes (and check that they arrive
@@ -30,7 +29,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bc.ppo.curriculum import PushCurriculum
 from bc.ppo.evaluator import Evaluator
-from bc.ppo.guards import DemonstrationTerm, Guards
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 
@@ -49,12 +47,10 @@ def snapshot(
     model: WorkerRolloutPPO,
     env: WorkerGroupVecEnv,
     evaluator: Evaluator,
-    guards: Guards,
     settings: dict[str, Any],
     curriculum: PushCurriculum | None = None,
 ) -> dict[str, Any]:
     """Everything the rest of the run depends on, at a rollout's start (see the module)."""
-    term: DemonstrationTerm | None = guards.term
     return {
         "settings": comparable(settings),
         "num_timesteps": model.num_timesteps,
@@ -73,11 +69,7 @@ def snapshot(
             "best_state": evaluator.best_state,
             "next_at": evaluator.next_at,
         },
-        "guards": {"actor_updates": guards.actor_updates},
         "curriculum": None if curriculum is None else curriculum.get_state(),
-        "term": None
-        if term is None
-        else {"generator": term.generator.get_state(), "updates": term.updates, "active": term.active},
     }
 
 
@@ -105,7 +97,6 @@ def restore(
     model: WorkerRolloutPPO,
     env: WorkerGroupVecEnv,
     evaluator: Evaluator,
-    guards: Guards,
     curriculum: PushCurriculum | None = None,
 ) -> None:
     """Put a freshly built run where `state` was taken; `model.learn` then continues it (with `Snapshots`
@@ -118,12 +109,8 @@ def restore(
     env.set_state(state["workers"])
     evaluator.curve, evaluator.best = state["evaluator"]["curve"], state["evaluator"]["best"]
     evaluator.best_state, evaluator.next_at = state["evaluator"]["best_state"], state["evaluator"]["next_at"]
-    guards.actor_updates = state["guards"]["actor_updates"]
     if curriculum is not None:  # same settings, so the snapshot has its state
         curriculum.set_state(state["curriculum"])
-    if guards.term is not None and state["term"] is not None:
-        guards.term.generator.set_state(state["term"]["generator"])
-        guards.term.updates, guards.term.active = state["term"]["updates"], state["term"]["active"]
     np.random.set_state(state["rng"]["numpy"])
     torch.set_rng_state(state["rng"]["torch"])
     random.setstate(state["rng"]["python"])
@@ -136,13 +123,12 @@ class Snapshots(BaseCallback):
         self,
         folder: Path,
         evaluator: Evaluator,
-        guards: Guards,
         settings: dict[str, Any],
         restored: dict[str, Any] | None = None,
         curriculum: PushCurriculum | None = None,
     ) -> None:
         super().__init__()
-        self.folder, self.evaluator, self.guards, self.settings = folder, evaluator, guards, settings
+        self.folder, self.evaluator, self.settings = folder, evaluator, settings
         self.restored, self.curriculum = restored, curriculum
 
     def _on_training_start(self) -> None:
@@ -153,7 +139,7 @@ class Snapshots(BaseCallback):
     def _on_rollout_start(self) -> None:
         save(
             self.folder,
-            snapshot(self.model, self.training_env, self.evaluator, self.guards, self.settings, self.curriculum),
+            snapshot(self.model, self.training_env, self.evaluator, self.settings, self.curriculum),
         )
 
     def _on_step(self) -> bool:

@@ -285,21 +285,20 @@ def edit_recordings(dataset: Path, edit: Callable[[dict], None]) -> None:
     (dataset / recordings.RECORDINGS_FILE).write_text("".join(json.dumps(line) + "\n" for line in lines))
 
 
-def test_dataset_recorded_before_randomize_existed_is_reused(outputs: Path) -> None:
-    """A log line without --randomize is one from before it existed, when recordings were what `none` records."""
+def test_outputs_made_before_a_setting_existed_are_made_again(outputs: Path) -> None:
+    """A recording or checkpoint whose saved settings lack one of this version's was made by an older version: the
+    pipeline makes its own again, saying so (docs/decisions/added-since.md)."""
     edit_recordings(outputs / "data", lambda config: config.pop("randomize"))
-    assert dataset_decision(tiny_stages().record).action == REUSE
-
-
-def test_bc_trained_before_min_updates_existed_counts_as_exactly_its_epochs(outputs: Path) -> None:
-    """A checkpoint without --min-updates trained EPOCHS passes, as --min-updates 0 does: reused by a pipeline asking
-    for that, made again by one asking for the default."""
+    decision = dataset_decision(tiny_stages().record)
+    assert (decision.action, decision.line) == (
+        REMAKE,
+        "recording data again: it was recorded with no --randomize (an older version)",
+    )
     config = json.loads((outputs / "bc" / CONFIG_FILE).read_text())
     del config["training"]["min_updates"]
     (outputs / "bc" / CONFIG_FILE).write_text(json.dumps(config))
-    assert bc_decision(tiny_stages().train, overwrite=False).action == REUSE
-    decision = bc_decision(tiny_stages(train={"min_updates": 5000}).train, overwrite=False)
-    assert decision.line == "training bc again: it was made with --min-updates 0, not 5000"
+    decision = bc_decision(tiny_stages().train, overwrite=False)
+    assert decision.line == "training bc again: it was made with no --min-updates (an older version)"
 
 
 def test_randomised_dataset_is_recorded_again(outputs: Path) -> None:
@@ -441,27 +440,10 @@ def test_pipeline_defaults_are_the_stages() -> None:
     )
 
 
-def test_without_the_deployable_branch_its_stages_are_left_out() -> None:
-    """DEPLOYABLE=false: the stages `make pipeline` ran before that branch existed, and nothing else."""
-    assert stages(PipelineConfig(deployable=False, ppo_from="full")).deployable is None
-
-
 def test_ppo_starts_from_the_odometry_student_by_default() -> None:
     """Fine-tuning refines the actor on what a robot senses, and scratch takes its shape and normalisation."""
     run_stages = stages(PipelineConfig())
     assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.ODOMETRY_POLICY
-
-
-def test_ppo_from_full_starts_both_ppo_stages_from_the_full_observation_student() -> None:
-    run_stages = stages(PipelineConfig(ppo_from="full"))
-    assert run_stages.baseline == BaselineConfig(bc_policy=paths.BC_POLICY)
-    assert run_stages.finetune == FinetuneConfig(bc_policy=paths.BC_POLICY)
-
-
-def test_ppo_from_odometry_without_the_deployable_branch_is_refused() -> None:
-    """The default start needs the student the deployable branch makes: one line says to start from BC_POLICY."""
-    with pytest.raises(UserError, match=r"which only --deployable true makes: add --ppo-from full$"):
-        stages(PipelineConfig(deployable=False))
 
 
 def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_the_students_actor(outputs: Path) -> None:
@@ -500,6 +482,7 @@ def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) ->
             {"args": "--bogus"},
             "--args '--bogus' holds something other than flags of python -m bc.baseline: unrecognized",
         ),
+        ({"args": "--keep last"}, "--args '--keep last': --keep was removed; the run keeps the guarded actor"),
     ],
 )
 def test_bad_pipeline_settings_are_refused_naming_them(settings: dict, message: str) -> None:
@@ -536,7 +519,7 @@ def test_pipeline_settings_and_args_reach_their_stages() -> None:
     """WORKERS goes to both recordings and both PPO runs, EPISODES to both recordings, EPOCHS to every BC run,
     SENSED_NOISE to the sensed expert's recording only, ARGS to both PPO runs."""
     run_stages = stages(
-        PipelineConfig(episodes=3, workers=1, epochs=4, sensed_noise=0.01, args="--keep last --eval-episodes 2")
+        PipelineConfig(episodes=3, workers=1, epochs=4, sensed_noise=0.01, args="--target-kl 0.01 --eval-episodes 2")
     )
     assert (run_stages.record.episodes, run_stages.record.workers, run_stages.train.epochs) == (3, 1, 4)
     deployable = run_stages.deployable
@@ -544,7 +527,7 @@ def test_pipeline_settings_and_args_reach_their_stages() -> None:
     assert run_stages.record.noise == RecordConfig().noise
     assert (deployable.proprio.epochs, deployable.odometry.epochs) == (4, 4)
     for config in (run_stages.baseline, run_stages.finetune):
-        assert (config.workers, config.keep, config.eval_episodes) == (1, "last", 2)
+        assert (config.workers, config.target_kl, config.eval_episodes) == (1, 0.01, 2)
     assert run_stages.baseline.learning_rate == BaselineConfig().learning_rate  # each keeps its own defaults
 
 

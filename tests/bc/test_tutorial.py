@@ -118,7 +118,8 @@ def test_a_finished_run_is_reused(trained: tuple[TutorialConfig, dict], capsys: 
     [
         (["--learners", "preferred,dqn"], "--learners 'preferred,dqn': choose from preferred, ppo"),
         (["--timesteps", "0"], "--timesteps must be positive"),
-        (["--step-size", "2"], "--step-size must be at most 1"),
+        (["--learning-rate", "-1"], "--learning-rate must be positive"),
+        (["--step-size", "2"], "--step-size was removed; it is fixed at the value every run used"),
     ],
 )
 def test_bad_settings_are_refused_in_one_line(

@@ -1,0 +1,78 @@
+"""Removed flags and values (`common.cli.REMOVED_FLAGS`, `REMOVED_VALUES`) are refused in one line naming what to
+use instead, before anything is written: argument parsing only, through each stage's real `cli`."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from bc import evaluate, finetune, pipeline
+from bc.targets import TARGETS
+from common.cli import REMOVED_FLAGS, REMOVED_VALUES, parse_config
+from teleop import record
+from teleop.record import RecordConfig
+
+ADAPTIVE = "error: controller 'expert-adaptive' was removed; use expert-sensed (docs/decisions/identification.md)\n"
+
+
+def refused(cli: Callable[[list[str]], int], argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """What `cli(argv)` printed on stderr, after checking it exited 1 having printed that one line alone."""
+    assert cli(argv) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1, err
+    return err
+
+
+def test_a_removed_controller_is_refused_by_the_recorder_and_nothing_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`make record CONTROLLER=expert-adaptive`: one line naming the controller to use, and no dataset folder."""
+    dataset = tmp_path / "data"
+    for argv in (["--controller", "expert-adaptive"], ["--controller=expert-adaptive"]):
+        assert refused(record.cli, [*argv, "--dataset", str(dataset)], capsys) == ADAPTIVE
+    assert not dataset.exists()
+
+
+def test_a_removed_controller_is_refused_by_the_evaluator(capsys: pytest.CaptureFixture[str]) -> None:
+    """`make eval POLICY=expert-adaptive`: the same line (the registry holds it once for every stage)."""
+    assert refused(evaluate.cli, ["--policy", "expert-adaptive"], capsys) == ADAPTIVE
+
+
+def test_a_removed_ppo_flag_is_refused_naming_what_runs_instead(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`make finetune-rl ARGS="--bc-weight 0.5"`: not argparse's "unrecognized arguments", and no checkpoint."""
+    policy = tmp_path / "ppo"
+    err = refused(finetune.cli, ["--policy", str(policy), "--bc-weight", "0.5"], capsys)
+    assert err == f"error: {REMOVED_FLAGS['bc_weight'].message()}\n"
+    assert err.startswith("error: --bc-weight was removed; ") and "docs/decisions/bc-regulariser.md" in err
+    assert not policy.exists()
+
+
+def test_the_pipelines_removed_switches_say_what_to_run_instead(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`make pipeline PPO_FROM=full` names the command that fine-tunes another BC policy; a removed flag in ARGS
+    is refused the same way, saying it came from ARGS. Nothing is recorded."""
+    dataset = tmp_path / "data"
+    err = refused(pipeline.cli, ["--dataset", str(dataset), "--ppo-from=full"], capsys)
+    assert err.startswith("error: --ppo-from was removed; ") and "make finetune-rl BC_POLICY=" in err
+    err = refused(pipeline.cli, ["--dataset", str(dataset), "--args", "--keep last"], capsys)
+    assert err == f"error: --args '--keep last': {REMOVED_FLAGS['keep'].message()}\n"
+    assert not dataset.exists()
+
+
+def test_a_current_value_and_flag_still_parse() -> None:
+    """The registry refuses only what was removed: the sensed expert, say, is still a controller."""
+    assert parse_config(RecordConfig, ["--controller", "expert-sensed"], "").controller == "expert-sensed"
+
+
+def test_no_stage_has_a_flag_or_value_the_registry_calls_removed() -> None:
+    """A removed flag is a field of no stage's config (else the stage would parse it as its own), and every removed
+    value belongs to a field some stage has (else it could never be given)."""
+    fields = {field.name for target in TARGETS.values() for field in dataclasses.fields(target.config)}
+    assert not fields & set(REMOVED_FLAGS)
+    assert {name for name, _ in REMOVED_VALUES} <= fields
