@@ -51,7 +51,6 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
-from humanoid.inputs import input_features
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DIR, WEIGHTS_FILE
@@ -327,7 +326,7 @@ def learner(
     return build_model(
         bc if cfg.init == "bc" else fresh_actor(bc, cfg.seed),
         env,
-        critic_normalisation=critic_normalisation(cfg, bc.spec.inputs) if bc.spec.inputs != "full" else None,
+        critic_normalisation=critic_normalisation(cfg),
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,
@@ -356,17 +355,10 @@ def weights_digest(policy: Path) -> str:
     return hashlib.sha256((policy / WEIGHTS_FILE).read_bytes()).hexdigest()
 
 
-def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
-    critic of an actor on `inputs` "proprio" normalises its privileged input with; for "odometry" and "pending",
-    of the observation and what the environment appends (`OdometryObservation`, `PendingObservation`)."""
-    dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
-    observations = load_demonstrations(dataset, env).inputs
-    if inputs in ("odometry", "pending"):
-        estimated = load_demonstrations(dataset, env, inputs=inputs).inputs
-        estimate_size = input_features(inputs, env.unwrapped.model).estimate_size
-        observations = torch.cat([observations, estimated[:, -estimate_size:]], dim=1)
-    return normalisation(observations)
+def critic_normalisation(cfg: FinetuneConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and std (floored as the actor's) of what the critic reads, the gymnasium observation, in the BC
+    checkpoint's data."""
+    return normalisation(load_demonstrations(Path(bc_dataset(cfg.bc_policy)["path"]), make_env()).inputs)
 
 
 def demonstration_term(cfg: FinetuneConfig) -> DemonstrationTerm | None:
