@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import torch
 
@@ -53,6 +54,9 @@ class PolicyController:
     def set_delay(self, steps: int) -> None:
         """The episode's action latency, told by the rollout (`humanoid.episode.tell_delay`) to the inputs."""
         self.features.set_delay(steps)
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """A policy acts on what it reads, whatever the body."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
@@ -100,6 +104,12 @@ class SB3Controller:
 
     def reset(self, seed: int | None = None) -> None:
         """Nothing to reset: deterministic, no memory."""
+
+    def set_delay(self, steps: int) -> None:
+        """It acts on the observation alone, whatever the delay."""
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """It acts on the observation alone, whatever the body."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action, _ = self.model.predict(obs, deterministic=True)
