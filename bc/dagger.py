@@ -46,7 +46,7 @@ from humanoid.controllers import Controller, make_controller
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUTS
+from humanoid.inputs import INPUTS, input_set
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.mlp import MLPPolicy
@@ -69,12 +69,12 @@ class DaggerConfig:
     inputs: str = setting(
         "full",
         "what the student reads (see `make train-bc`); EXPERT labels from the full state or the sensed features",
-        choices=INPUTS,
+        metavar="{" + ",".join(INPUTS) + "}",
     )
     expert: str = setting(
         LQRExpert.name,
         "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
-        "whose law INPUTS=odometry can read; docs/concepts/controllers.md)",
+        "whose law INPUTS=pending can read; docs/concepts/controllers.md)",
         choices=(LQRExpert.name, SensedExpert.name),
     )
     randomize: str | None = setting(
@@ -137,6 +137,7 @@ class DaggerResult:
 
 
 def validate(cfg: DaggerConfig) -> None:
+    input_set(cfg.inputs)
     for name in ("rounds", "episodes", "epochs"):
         if getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")

@@ -30,24 +30,20 @@ import pyarrow as pa
 import torch
 
 from common import keys
-from common.cli import DatasetError
+from common.cli import DatasetError, UserError
 from common.paths import cache_dir
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
 from humanoid.episode import Episode
-from humanoid.inputs import INPUT_COLUMNS, INPUTS, PendingInputs, computation_digest, episode_inputs, recorded_names
-from humanoid.sensors import Proprioception, observation_index
+from humanoid.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set
 from teleop.dataset_reader import fingerprint, iter_frames, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
-# The policy's input is built from the dataset columns `humanoid.inputs.INPUT_COLUMNS[inputs]`, their
-# entries placed by name (`recorded_names`): the gymnasium observation's order for "full" (whichever way
-# a dataset split it), the sensed features' for "proprio" and "odometry" (whose estimate is then computed
-# along each episode, `episode_inputs`), and for "pending" also the action labels (the command in flight is
-# the previous frame's in an episode its recording delayed, `episode_delays`). A dataset that records a
-# command (keyboard teleoperation) would add that column (it then reaches `MLPSpec.input_keys`), and
-# `PolicyController` would take the command from its source.
-_CACHE_FORMAT = 2  # bump when what the cache holds changes
+# The policy's input is computed by its input set (`humanoid.inputs.INPUT_SETS`) along each recorded episode
+# (`episode_inputs`), as a rollout runs it: each frame the entries of its `observed_columns`, placed by name in
+# `observed_names` order (the gymnasium observation's for "full", whichever way a dataset split it), then the
+# frame's action label as the command sent; each episode told its recorded delay (`episode_delays`).
+_CACHE_FORMAT = 3  # bump when what the cache holds changes
 MIN_EPISODES = 2  # the split is by episode, and at least one is held out for validation
 _ARRAYS = ("inputs", "actions", "episode_index")
 
@@ -64,7 +60,7 @@ class Demonstrations:
     seconds: float  # time to load, from files to tensors
     from_cache: bool
     fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
-    kind: str = "full"  # humanoid.inputs.INPUTS: which input `inputs` holds
+    kind: str = "full"  # humanoid.inputs.INPUT_SETS: which input `inputs` holds
 
     @property
     def frames(self) -> int:
@@ -118,10 +114,9 @@ class Demonstrations:
 
 
 def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[dict[str, Any], np.ndarray]:
-    """(meta/info.json, where each input entry sits among the input columns' entries) of the dataset at
+    """(meta/info.json, where each frame entry sits among the observed columns' entries) of the dataset at
     `root`; DatasetError says in one line why it cannot train a policy on `inputs` for `env`."""
-    if inputs not in INPUT_COLUMNS:
-        raise DatasetError(f"unknown inputs {inputs!r}; known: {', '.join(INPUTS)}")
+    kind = input_set(inputs)
     if not (root / INFO_PATH).is_file():
         reason = "no such folder" if not root.exists() else f"no {INFO_PATH}"
         raise DatasetError(f"no LeRobot dataset at {root} ({reason}); record one with `make record DATASET={root}`")
@@ -132,7 +127,7 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
         raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
-    columns = INPUT_COLUMNS[inputs]
+    columns = kind.columns
     missing = [key for key in (*columns, keys.ACTION) if key not in features]
     if missing:
         needed = ", ".join((*columns, keys.ACTION))
@@ -142,20 +137,16 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
         raise DatasetError(
             f"{root} records {recorded_action_dim} action dimensions; {ENV_ID} has {env.action_space.shape[0]}"
         )
-    recorded = [name for key in columns for name in features[key].get("names") or []]
-    if inputs == "full":
-        index = observation_index(recorded, env.unwrapped.model)
-    else:  # the sensed features are read as recorded, when they are the ones the policy's input is made of
-        wanted = recorded_names(inputs, env.unwrapped.model)
-        index = np.arange(len(wanted)) if recorded == wanted else None
-    if index is None:
-        if inputs != "full":
-            raise DatasetError(
-                f"{root} has no sensed {keys.OBS_STATE} of this version (recorded before it: its {keys.OBS_STATE} "
-                f"has {features[keys.OBS_STATE]['shape'][0]} entries, not the {len(wanted)} humanoid.sensors names); "
-                f"train on it with INPUTS=full or record a new dataset"
-            )
-        raise DatasetError(f"{root}: {' + '.join(columns)} do not name every entry of the {ENV_ID} observation")
+    recorded = [name for key in kind.observed_columns for name in features[key].get("names") or []]
+    position = {name: i for i, name in enumerate(recorded)}
+    wanted = kind.observed_names(env.unwrapped.model)
+    if not set(wanted) <= position.keys():
+        raise DatasetError(
+            f"{root}: its {' + '.join(kind.observed_columns)} do not name every entry INPUTS={inputs} is computed "
+            f"from (recorded before this version? its {keys.OBS_STATE} has {features[keys.OBS_STATE]['shape'][0]} "
+            f"entries); record a new dataset, or train on it with INPUTS=full if it holds the whole observation"
+        )
+    index = np.array([position[name] for name in wanted])
     if info.get("total_episodes", 0) < MIN_EPISODES:
         raise DatasetError(
             f"{root} has {info.get('total_episodes', 0)} episodes; training needs at least {MIN_EPISODES} "
@@ -171,7 +162,7 @@ def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
         [
             _CACHE_FORMAT,
             inputs,
-            computation_digest(inputs),
+            computation_digest(),
             info_text,
             [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files],
         ]
@@ -238,13 +229,16 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
         arrays = {name: np.array(np.load(folder / f"{name}.npy", mmap_mode="r")) for name in _ARRAYS}
     else:
         try:
-            arrays = _decode(root, info, INPUT_COLUMNS[inputs], index)
-            delays = episode_delays(root)[arrays["episode_index"]] if inputs == "pending" else None
-            arrays["inputs"] = episode_inputs(
-                inputs, arrays["inputs"], arrays["episode_index"], env.unwrapped.model, delays
-            )
+            arrays = _decode(root, info, INPUT_SETS[inputs].observed_columns, index)
+            delays = episode_delays(root)[arrays["episode_index"]]
         except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
             raise DatasetError(f"cannot read the frames of {root}: {error}") from None
+        try:
+            arrays["inputs"] = episode_inputs(
+                inputs, arrays["inputs"], arrays["actions"], arrays["episode_index"], delays, env.unwrapped.model
+            )
+        except UserError as error:  # a delay the input set cannot carry
+            raise DatasetError(f"{root}: {error}") from None
         if not (np.isfinite(arrays["inputs"]).all() and np.isfinite(arrays["actions"]).all()):
             raise DatasetError(f"{root} holds non-finite observations or actions")
         if cache:
@@ -265,27 +259,16 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
 def episode_rows(episode: Episode, inputs: str, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     """(inputs, label actions) of a rolled-out episode, float32, equal bit for bit to the rows `load_demonstrations`
     reads once `teleop.store` has recorded it: DAgger trains on its rounds without reading them back."""
-    if inputs == "full":
-        recorded = episode.observation.astype(np.float32)
-    else:
-        # The recorded columns: observation.state (float64, as the store splits it), then the float32 labels.
-        columns = [Proprioception(model)(episode.observation), *([episode.action] if inputs == "pending" else [])]
-        recorded = np.concatenate(columns, axis=1).astype(np.float32)
+    # The frames as the store records them: split from the whole episode's observations, in float32.
+    frames = INPUT_SETS[inputs](model).observe(episode.observation).astype(np.float32)
+    actions = episode.action.astype(np.float32)
     delays = np.full(episode.length, episode.parameters.get(LATENCY_PARAMETER, 0), np.int64)
-    rows = episode_inputs(inputs, recorded, np.zeros(episode.length, np.int64), model, delays)
-    return rows, episode.action.astype(np.float32)
+    return episode_inputs(inputs, frames, actions, np.zeros(episode.length, np.int64), delays, model), actions
 
 
 def episode_delays(root: Path) -> np.ndarray:
-    """Each episode's recorded action latency in steps (`make record LATENCY=`; 0 where none was recorded);
-    DatasetError for a delay the "pending" inputs cannot carry."""
-    delays = np.array([drawn.get(LATENCY_PARAMETER, 0) for drawn in read_parameters(root)], np.int64)
-    if len(delays) and delays.max() > PendingInputs.MAX_DELAY:
-        raise DatasetError(
-            f"{root} holds episodes with {delays.max()} steps of action latency; INPUTS=pending carries "
-            f"at most {PendingInputs.MAX_DELAY}"
-        )
-    return delays
+    """Each episode's recorded action latency in steps (`make record LATENCY=`; 0 where none was recorded)."""
+    return np.array([drawn.get(LATENCY_PARAMETER, 0) for drawn in read_parameters(root)], np.int64)
 
 
 def split_by_episode(episodes: list[int], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -52,7 +52,6 @@ from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import Randomization, parse_randomization
 from humanoid.env import make_env
-from humanoid.inputs import input_features
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DIR, WEIGHTS_FILE
@@ -284,7 +283,7 @@ def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | Non
     return build_model(
         fresh_actor(bc, cfg.seed) if cfg.fresh else bc,
         env,
-        critic_normalisation=critic_normalisation(cfg, bc.spec.inputs) if bc.spec.inputs != "full" else None,
+        critic_normalisation=critic_normalisation(cfg, bc.spec.inputs),
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,
@@ -313,16 +312,12 @@ def weights_digest(policy: Path) -> str:
 
 
 def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and std (floored as the actor's) of the full observation in the BC checkpoint's data: what the
-    critic of an actor on `inputs` "proprio" normalises its privileged input with; for "odometry" and "pending",
-    of the observation and what the environment appends (`OdometryObservation`, `PendingObservation`)."""
+    """Mean and std (floored as the actor's) of what the critic reads, the whole PPO observation: the gymnasium
+    observation, then the actor's `inputs` (`InputObservation`), in the BC checkpoint's data. The critic keeps
+    what the actor knows that the simulator's state does not say, such as the command in flight under latency."""
     dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
     observations = load_demonstrations(dataset, env).inputs
-    if inputs in ("odometry", "pending"):
-        estimated = load_demonstrations(dataset, env, inputs=inputs).inputs
-        estimate_size = input_features(inputs, env.unwrapped.model).estimate_size
-        observations = torch.cat([observations, estimated[:, -estimate_size:]], dim=1)
-    return normalisation(observations)
+    return normalisation(torch.cat([observations, load_demonstrations(dataset, env, inputs=inputs).inputs], dim=1))
 
 
 def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, Any] | None:

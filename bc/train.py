@@ -39,7 +39,7 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
-from humanoid.inputs import INPUT_COLUMNS, INPUTS
+from humanoid.inputs import INPUTS, input_set
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, TENSORBOARD_DIR
@@ -66,10 +66,10 @@ class TrainConfig:
     policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
     inputs: str = setting(
         "full",
-        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), that and the leg "
-        "odometry computed from it (odometry), or that and its command in flight under latency with the delay "
-        "(pending: record with LATENCY; humanoid/inputs.py); full by measurement, see docs/concepts/inputs.md",
-        choices=INPUTS,
+        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), or the leg "
+        "odometry computed from that with its command in flight under latency and the delay (pending: record with "
+        "LATENCY; humanoid/inputs.py); full by measurement, see docs/concepts/inputs.md",
+        metavar="{" + ",".join(INPUTS) + "}",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
     hidden: int = setting(256, "width of each hidden layer")
@@ -172,6 +172,7 @@ class TrainResult:
 
 def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
+    input_set(cfg.inputs)
     for name in ("hidden", "layers", "batch_size", "epochs", "lr", "std_floor"):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
@@ -314,7 +315,7 @@ def fit_demonstrations(
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
     spec = MLPSpec(
-        input_keys=INPUT_COLUMNS[cfg.inputs],
+        input_keys=input_set(cfg.inputs).columns,
         inputs=cfg.inputs,
         input_dim=demos.inputs.shape[1],
         action_dim=demos.actions.shape[1],

@@ -39,7 +39,7 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
-from humanoid.inputs import INPUT_COLUMNS
+from humanoid.inputs import FullInputs
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
@@ -176,7 +176,7 @@ class PreferredActionLearner:
     def policy(self) -> MLPPolicy:
         """The constant mean action as an `MLPPolicy` on the full observation: zero weights, the action in the
         last bias (through the inverse of its tanh scaling), so every tool that runs a checkpoint runs it."""
-        spec = MLPSpec(INPUT_COLUMNS["full"], 348, len(self.mean), hidden=(1,), inputs="full")
+        spec = MLPSpec(FullInputs.columns, 348, len(self.mean), hidden=(1,), inputs=FullInputs.name)
         policy = MLPPolicy(spec, self.low, self.high)
         mid, half = (self.high + self.low) / 2, (self.high - self.low) / 2
         unit = np.clip((self.mean - mid) / half, -1 + 1e-6, 1 - 1e-6)

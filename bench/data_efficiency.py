@@ -1,7 +1,7 @@
 """Behaviour cloning's data efficiency: how many demonstrations it takes to stand, full or sensed inputs.
 
     .venv/bin/python -m bench.data_efficiency [--demos 5 10 20 50] [--first-seeds 0 10000 20000]
-        [--inputs full proprio odometry] [--work FOLDER] [--json bench/results/data_efficiency.json]
+        [--inputs full proprio pending] [--work FOLDER] [--json bench/results/data_efficiency.json]
 
 Why: the DART table (`bench/bc_benchmark.py`) trains on 50 demonstrations only, from one seed
 range; it does not say whether 5 would do, nor how much that depends on which seeds were
@@ -10,7 +10,7 @@ features of observation.state, humanoid/sensors.py) stands at all.
 
 What: for each first seed (disjoint seed ranges) and each N, record N episodes of each input's
 teacher (TEACHERS: the expert with the recorder's DART noise 0.05 for full and proprio, the expert on
-leg odometry with the same noise for odometry, whose inputs it alone explains) on seeds FIRST..FIRST+N-1 into
+leg odometry with the same noise for pending, whose inputs it alone explains) on seeds FIRST..FIRST+N-1 into
 their own dataset folder, so N=5 is the first 5 seeds of the range, N=10 the first 10, and so on;
 train `bc.train` with its defaults once per INPUTS setting; evaluate the policy on the
 unseen seeds 1000..1019, which no recording or selection uses. The expert on the same seeds is the
@@ -46,7 +46,7 @@ FIRST_SEEDS = (0, 10_000, 20_000)
 TEACHERS = {
     "full": ("expert", DEFAULT_NOISE),
     "proprio": ("expert", DEFAULT_NOISE),
-    "odometry": ("expert-sensed", DEFAULT_NOISE),
+    "pending": ("expert-sensed", DEFAULT_NOISE),
 }
 """Who records each input's demonstrations, and with what DART noise. The expert on leg odometry records with the
 expert's noise here, not the pipeline's lower SENSED_NOISE: from 5 and 10 demonstrations without latency, the
@@ -224,7 +224,7 @@ def notes(cells: Sequence[Cell], eval_seed: int, eval_episodes: int) -> str:
     return (
         f"Survived / {eval_episodes} unseen seeds ({eval_seed}..{eval_seed + eval_episodes - 1}), mean return. "
         "Each N-episode dataset is the first N seeds of its range, recorded by the input's teacher (the expert "
-        f"with DART noise {TEACHERS['full'][1]}, the expert on leg odometry with {TEACHERS['odometry'][1]}); "
+        f"with DART noise {TEACHERS['full'][1]}, the expert on leg odometry with {TEACHERS['pending'][1]}); "
         f"`bc.train` defaults (at least {defaults.epochs} epochs and {defaults.min_updates:,} Adam steps, learning "
         f"rate {defaults.lr:g} on a {defaults.lr_schedule} schedule, the last kept), split by "
         "episode with 10 % held out for "

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from humanoid.conditions import action_delay
@@ -23,12 +24,17 @@ from policies.folder import checkpoint_problem, is_sb3_policy  # torch-free: pol
 class Controller(Protocol):
     """Maps a gymnasium observation to an action within the action bounds.
 
-    One that can act through action latency also has `set_delay(steps)`: the rollout calls it before each
-    `reset` with that episode's delay (`humanoid.episode.tell_delay`). A privileged teacher that can use the
-    episode's drawn body has `set_body(model)`, called likewise (`humanoid.episode.tell_body`).
+    Before each `reset` the rollout tells it the episode's action latency (`set_delay`, `humanoid.episode.tell_delay`)
+    and drawn body (`set_body`, `humanoid.episode.tell_body`); one that has no use for them ignores them.
     """
 
     name: str
+
+    def set_delay(self, steps: int) -> None:
+        """The action latency, in steps, of the episodes from the next `reset` on."""
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """The body (masses, friction, motors as drawn) of the episodes from the next `reset` on."""
 
     def reset(self, seed: int | None = None) -> None:
         """Start a new episode; stochastic controllers reseed from `seed`."""
@@ -46,6 +52,12 @@ class RandomController:
         self.low = action_space.low.astype(np.float32)
         self.high = action_space.high.astype(np.float32)
         self.rng = np.random.default_rng()
+
+    def set_delay(self, steps: int) -> None:
+        """Random actions whatever the delay."""
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """Random actions whatever the body."""
 
     def reset(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)

@@ -219,19 +219,15 @@ def run_episode(
 
 
 def tell_delay(controller: Controller, env: gym.Env) -> None:
-    """Tell a controller that can use it (one with `set_delay`: the experts, a policy on the "pending" inputs) the
-    action latency of the episode `env` was just reset to, as a robot knows its actuation delay."""
-    set_delay = getattr(controller, "set_delay", None)
-    if set_delay is not None:
-        set_delay(action_delay(env))
+    """Tell a controller the action latency of the episode `env` was just reset to, as a robot knows its actuation
+    delay (the experts and a policy on the "pending" inputs use it)."""
+    controller.set_delay(action_delay(env))
 
 
 def tell_body(controller: Controller, env: gym.Env) -> None:
-    """Tell a controller that can use it (one with `set_body`: the expert, a privileged teacher) the body the
-    episode `env` was just reset to: its masses, friction and motors as drawn (`humanoid.conditions`)."""
-    set_body = getattr(controller, "set_body", None)
-    if set_body is not None:
-        set_body(model_and_data(env)[0])
+    """Tell a controller the body the episode `env` was just reset to: its masses, friction and motors as drawn
+    (`humanoid.conditions`; the privileged expert uses it)."""
+    controller.set_body(model_and_data(env)[0])
 
 
 def check_action(action: np.ndarray, controller: Controller, t: int, seed: int) -> None:

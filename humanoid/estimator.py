@@ -25,14 +25,11 @@ is set to zero: an IMU does not keep it, and standing does not depend on it.
 from __future__ import annotations
 
 import copy
-from typing import Any
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.env import humanoid_model
 from humanoid.lqr import LQRDesign
 from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names, force_names
 
@@ -146,12 +143,12 @@ class LegOdometry:
 
 
 def read_sensed(names: list[str]) -> np.ndarray:
-    """Where the sensed features an odometry policy reads sit among `names` (the sensed features'): all but
+    """Where the sensed features a policy on the leg odometry reads sit among `names` (the sensed features'): all but
     the feet's forces, which reach it through the estimate only.
 
     Why not the forces: at the end of a step they are what the step's executed action did, so a
     student reading them can copy the previous action instead of acting on the state, and it falls
-    (docs/log.md, "An expert that acts on what it senses", its student on `INPUTS=odometry`).
+    (docs/log.md, "An expert that acts on what it senses", its student on the leg odometry).
     """
     forces = set(force_names())
     return np.array([i for i, name in enumerate(names) if name not in forces])
@@ -173,14 +170,13 @@ class OdometryFeatures:
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/log.md, "The deployable
-    observation"). Stateful like the estimator: `reset` at every episode's start.
+    observation"). Stateful like the estimator: `reset` at every episode's start. The "pending" inputs
+    (`humanoid.inputs.PendingInputs`) begin with these.
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
-        self.sensed = Proprioception(model)
-        self.read = read_sensed(self.sensed.names)
+        self.read = read_sensed(Proprioception(model).names)
         self.odometry = LegOdometry(model)
-        self.size = len(odometry_names(model))
 
     def reset(self) -> None:
         self.odometry.reset()
@@ -189,55 +185,3 @@ class OdometryFeatures:
         """This step's input from this step's sensed features (float64)."""
         qpos, qvel = self.odometry(sensed)
         return np.concatenate([sensed[self.read], [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return self.from_sensed(self.sensed(obs))
-
-    @property
-    def estimate_size(self) -> int:
-        """Entries after the sensed features: what the estimator adds."""
-        return self.size - self.read.size
-
-    def episodes(self, sensed: np.ndarray, episode_index: np.ndarray) -> np.ndarray:
-        """The inputs of recorded frames (rows of sensed features in frame order), each episode from a reset."""
-        out = np.empty((len(sensed), self.size), dtype=np.float64)
-        for row in range(len(sensed)):
-            if row == 0 or episode_index[row] != episode_index[row - 1]:
-                self.reset()
-            out[row] = self.from_sensed(sensed[row].astype(np.float64))
-        return out
-
-
-class OdometryObservation(gym.Wrapper):
-    """The env's observation with `OdometryFeatures`' estimate (height, velocity, nominal inertias) appended.
-
-    PPO's policy is stateless, and the estimator has memory: run in the env, where each episode's steps
-    arrive in order and a reset starts it afresh, the estimate becomes part of the observation, and an
-    odometry actor computes the sensed features from the observation and reads the estimate beside them
-    (`bc.ppo.features.EstimatedFeatures`). The estimator runs on the nominal model, whatever body the env
-    has drawn (its inner wrappers may randomise it).
-    """
-
-    def __init__(self, env: gym.Env, features: OdometryFeatures | None = None) -> None:
-        """`features`: what computes the appended entries (after its first `read.size`) from each observation;
-        default `OdometryFeatures` of the nominal model."""
-        super().__init__(env)
-        self.features = OdometryFeatures(humanoid_model()) if features is None else features
-        space = env.observation_space
-        extra = np.full(self.features.estimate_size, np.inf)
-        self.observation_space = gym.spaces.Box(
-            np.concatenate([space.low, -extra]), np.concatenate([space.high, extra]), dtype=space.dtype
-        )
-
-    def _with_estimate(self, obs: np.ndarray) -> np.ndarray:
-        estimate = self.features(obs)[self.features.read.size :]
-        return np.concatenate([obs, estimate]).astype(obs.dtype)
-
-    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
-        obs, info = self.env.reset(**kwargs)
-        self.features.reset()
-        return self._with_estimate(obs), info
-
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        return self._with_estimate(obs), reward, terminated, truncated, info

@@ -221,6 +221,9 @@ class SensedExpert:
     def set_delay(self, steps: int) -> None:
         self.expert.set_delay(steps)
 
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""
+
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)
         self.estimator.reset()

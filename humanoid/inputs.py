@@ -2,26 +2,37 @@
 
     full      the gymnasium observation (348 floats), as is
     proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
-    odometry  the sensed features but the feet's forces, then what `humanoid.estimator` computes from the
-              sensed features alone: the torso's height and linear velocity (leg odometry fused with the
-              forces) and the nominal model's body inertias (176)
-    pending   odometry's, then the command sent but not yet executed under one step of action latency
-              (zeros without latency) and that latency in steps (176 + 17 + 1): what a robot knows of
-              its own actuation delay (docs/decisions/pending-inputs.md)
+    pending   the sensed features but the feet's forces, then what `humanoid.estimator` computes from the sensed
+              features alone (the torso's height and linear velocity, the nominal model's body inertias), then
+              the command sent but not yet executed under one step of action latency (zeros without latency)
+              and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
+              delay (docs/decisions/pending-inputs.md)
 
-Each is built from the dataset columns `INPUT_COLUMNS[kind]`; `odometry` runs the estimator along
-each recorded episode in training (`episode_inputs`) and along the live one at run time
-(`input_features`, reset at every episode's start). `pending` also reads the previous frame's action
-label and the episode's recorded delay (`make record LATENCY=`), and at run time remembers the
-policy's last command (`PendingInputs.commanded`) and is told the episode's delay (`set_delay`).
+Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set` looks one up): its names,
+the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
+the same way: the live controller (`humanoid.learned.PolicyController`), the offline loader along each
+recorded episode (`episode_inputs`, used by `bc.data`), and PPO's environments (`InputObservation`, whose
+appended entries PPO's actor reads). Per episode:
+
+    set_delay(steps)   the episode's action latency in steps (`make record LATENCY=`), told before `reset`
+    reset()            the episode starts
+    observe(obs)       a gymnasium observation -> the frame: the entries `observed_names` a recording holds
+    __call__(frame)    the frame -> the policy's inputs
+    commanded(action)  the command sent from this frame (offline: the frame's recorded action label)
+
+Live and in PPO the frames are the observations' (float64), offline the recorded ones (float32): the same code,
+so a policy trains on what it reads when deployed, to the recording's float32 rounding. Every set implements
+every call (no-ops where it has no use), so no caller asks what a set can do. A per-frame input besides the
+observation (an operator's command, which the rollout passes in) joins a set's frame as the entries of its
+recorded column (`observed_columns`), given to `observe` live and decoded with the frame offline.
 """
 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable
+from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
@@ -32,98 +43,109 @@ from common.keys import ACTION, OBS_ENV_STATE, OBS_STATE
 from humanoid import estimator, sensors
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, humanoid_model, observation_names
-from humanoid.estimator import OdometryFeatures, OdometryObservation, odometry_names
+from humanoid.estimator import OdometryFeatures, odometry_names
 from humanoid.sensors import Proprioception, proprioception_names
 
-INPUT_COLUMNS: dict[str, tuple[str, ...]] = {
-    "full": (OBS_STATE, OBS_ENV_STATE),
-    "proprio": (OBS_STATE,),
-    "odometry": (OBS_STATE,),
-    "pending": (OBS_STATE, ACTION),
-}
-INPUTS = tuple(INPUT_COLUMNS)
 
+class InputSet(ABC):
+    """One input set: its names, its columns, and its computation along one episode (see the module's sketch)."""
 
-def input_names(inputs: str, model: mujoco.MjModel) -> list[str]:
-    """The names of a policy's input entries, in order."""
-    if inputs == "full":
-        return observation_names(model)
-    if inputs == "pending":
-        return [*odometry_names(model), *(f"pending.{name}" for name in actuator_names(model)), LATENCY_PARAMETER]
-    return proprioception_names(model) if inputs == "proprio" else odometry_names(model)
-
-
-def recorded_names(inputs: str, model: mujoco.MjModel) -> list[str]:
-    """The recorded entries an input is computed from (the gymnasium observation's, or the sensed ones, and for
-    "pending" the action label's)."""
-    if inputs == "full":
-        return observation_names(model)
-    return [*proprioception_names(model), *(actuator_names(model) if inputs == "pending" else ())]
-
-
-def input_features(inputs: str, model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
-    """The function from gymnasium observations to a policy's input, for `model`'s environment; a stateful
-    one (`odometry`, `pending`) has a `reset` to call at every episode's start, and `pending`'s also takes the
-    episode's delay and each command sent (`PendingInputs`)."""
-    if inputs == "full":
-        return lambda obs: obs
-    if inputs == "pending":
-        return PendingInputs(model)
-    return Proprioception(model) if inputs == "proprio" else OdometryFeatures(model)
-
-
-def computation_digest(inputs: str) -> str | None:
-    """A digest of the code that computes `inputs` from recorded frames (`odometry`: the estimator and the
-    sensed features), so that inputs an earlier version computed and cached are not reused; None for
-    inputs read as recorded."""
-    if inputs not in ("odometry", "pending"):
-        return None
-    source = b"".join(Path(module.__file__).read_bytes() for module in (estimator, sensors))
-    return hashlib.sha256(source).hexdigest()[:16]
-
-
-def episode_inputs(
-    inputs: str,
-    recorded: np.ndarray,
-    episode_index: np.ndarray,
-    model: mujoco.MjModel,
-    delays: np.ndarray | None = None,
-) -> np.ndarray:
-    """A policy's inputs for recorded frames (`recorded_names` entries, rows in frame order); `delays` (per
-    frame, the episode's recorded latency in steps; zeros if None) for "pending"."""
-    if inputs not in ("odometry", "pending"):
-        return recorded
-    sensed = recorded[:, : len(proprioception_names(model))]
-    odometry = OdometryFeatures(model).episodes(sensed, episode_index).astype(recorded.dtype)
-    if inputs == "odometry":
-        return odometry
-    delays = np.zeros(len(recorded)) if delays is None else np.asarray(delays)
-    labels = recorded[:, sensed.shape[1] :]
-    pending = np.zeros_like(labels)
-    # The previous frame's label, where it is of the same episode and that episode was delayed.
-    carried = np.flatnonzero((episode_index[1:] == episode_index[:-1]) & (delays[1:] > 0)) + 1
-    pending[carried] = labels[carried - 1]
-    return np.concatenate([odometry, pending, delays[:, None].astype(recorded.dtype)], axis=1)
-
-
-class PendingInputs:
-    """The "pending" inputs of one live episode: `OdometryFeatures`, the policy's command still in flight, the delay.
-
-    Why: one step of action latency topples a policy that acts as if its command ran at once; told the
-    delay and what it sent, a student learns to act through it (docs/decisions/pending-inputs.md).
-    The rollout tells the episode's delay before `reset` (`humanoid.episode.tell_delay`); the policy
-    reports each command it sends (`commanded`).
-    """
-
-    MAX_DELAY = 1  # the command in flight is one action: one step of latency
+    name: ClassVar[str]
+    columns: ClassVar[tuple[str, ...]]
+    """The dataset columns the inputs are computed from (`MLPSpec.input_keys`)."""
+    observed_columns: ClassVar[tuple[str, ...]]
+    """Those whose entries make up a frame (`observed_names`); the others are told (`commanded`)."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
+        """For `model`'s environment (its observation layout; a stateful set computes on this nominal body)."""
+        self.size = len(self.input_names(model))
+
+    @staticmethod
+    @abstractmethod
+    def input_names(model: mujoco.MjModel) -> list[str]:
+        """The names of the policy's input entries, in order."""
+
+    @staticmethod
+    @abstractmethod
+    def observed_names(model: mujoco.MjModel) -> list[str]:
+        """The names of a frame's entries, in order: where they sit among `observed_columns`' recorded names."""
+
+    @abstractmethod
+    def observe(self, obs: np.ndarray) -> np.ndarray:
+        """The frames (..., len(observed_names)) of gymnasium observations (..., 348): the entries the recorder
+        stores."""
+
+    @abstractmethod
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        """This frame's inputs."""
+
+    def set_delay(self, steps: int) -> None:  # noqa: B027 - a no-op where a set does not read the delay
+        """The action latency, in steps, of the episodes from the next `reset` on."""
+
+    def reset(self) -> None:  # noqa: B027 - a no-op where a set has no memory
+        """An episode starts."""
+
+    def commanded(self, action: np.ndarray) -> None:  # noqa: B027 - a no-op where a set does not read commands
+        """The command sent from this frame."""
+
+
+class FullInputs(InputSet):
+    """The gymnasium observation as it is: the privileged state, which no robot measures."""
+
+    name = "full"
+    columns = observed_columns = (OBS_STATE, OBS_ENV_STATE)
+    input_names = observed_names = staticmethod(observation_names)
+
+    def observe(self, obs: np.ndarray) -> np.ndarray:
+        return obs
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        return frame
+
+
+class ProprioInputs(InputSet):
+    """What a robot senses (`humanoid.sensors`), read as it is."""
+
+    name = "proprio"
+    columns = observed_columns = (OBS_STATE,)
+    input_names = observed_names = staticmethod(proprioception_names)
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        super().__init__(model)
+        self.sensed = Proprioception(model)
+
+    def observe(self, obs: np.ndarray) -> np.ndarray:
+        return self.sensed(obs)
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        return frame
+
+
+class PendingInputs(InputSet):
+    """`OdometryFeatures` of the sensed features, the policy's command still in flight, the delay.
+
+    Why: a student on the sensed features alone does not stand, one that also reads the estimator's does
+    (docs/log.md, "The deployable observation"); and one step of action latency topples a policy that
+    acts as if its command ran at once, while told the delay and what it sent, a student learns to act
+    through it (docs/decisions/pending-inputs.md).
+    """
+
+    name = "pending"
+    columns = (OBS_STATE, ACTION)
+    observed_columns = (OBS_STATE,)
+    observed_names = staticmethod(proprioception_names)
+    MAX_DELAY = 1  # the command in flight is one action: one step of latency
+
+    @staticmethod
+    def input_names(model: mujoco.MjModel) -> list[str]:
+        return [*odometry_names(model), *(f"pending.{name}" for name in actuator_names(model)), LATENCY_PARAMETER]
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        super().__init__(model)
+        self.sensed = Proprioception(model)
         self.odometry = OdometryFeatures(model)
-        self.read = self.odometry.read  # the sensed features read as they are; the rest is computed
         self.delay = 0
         self.pending = np.zeros(model.nu)
-        self.size = self.odometry.size + model.nu + 1
-        self.estimate_size = self.size - self.read.size
 
     def set_delay(self, steps: int) -> None:
         if not 0 <= steps <= self.MAX_DELAY:
@@ -138,31 +160,93 @@ class PendingInputs:
         self.pending[:] = 0.0  # as ActionLatency does: the first step executes zeros
 
     def commanded(self, action: np.ndarray) -> None:
-        """The command the policy sent this step: in flight until the next one, if the episode is delayed."""
+        """In flight until the next frame's command, if the episode is delayed."""
         if self.delay:
             self.pending[:] = action
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return np.concatenate([self.odometry(obs), self.pending, [float(self.delay)]])
+    def observe(self, obs: np.ndarray) -> np.ndarray:
+        return self.sensed(obs)
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        # float64 whatever the frame's type: the estimator's trigonometry in float32 would not be the live one's.
+        odometry = self.odometry.from_sensed(np.asarray(frame, np.float64))
+        return np.concatenate([odometry, self.pending, [float(self.delay)]])
 
 
-class PendingObservation(OdometryObservation):
-    """The env's observation with the "pending" inputs' computed entries appended: the odometry estimate, the
-    command in flight (the last action stepped, in a delayed episode) and the episode's delay.
+INPUT_SETS: dict[str, type[InputSet]] = {kind.name: kind for kind in (FullInputs, ProprioInputs, PendingInputs)}
+INPUTS = tuple(INPUT_SETS)
+REMOVED = {"odometry": "pending, odometry's inputs plus the command in flight and the delay"}
+"""Input sets this version no longer computes, and what to use instead."""
 
-    PPO's actor on the "pending" inputs reads them there (`bc.ppo.features.EstimatedFeatures`), as
-    `OdometryObservation` carries the estimate; the delay is the one the inner `ActionLatency` drew at reset.
+
+def input_set(inputs: str) -> type[InputSet]:
+    """The input set named `inputs`; UserError in one line for a name it is not (saying what replaced a removed one)."""
+    if inputs in REMOVED:
+        raise UserError(f"INPUTS={inputs} was removed: use INPUTS={REMOVED[inputs]}")
+    if inputs not in INPUT_SETS:
+        raise UserError(f"unknown inputs {inputs!r}; known: {', '.join(INPUTS)}")
+    return INPUT_SETS[inputs]
+
+
+def computation_digest() -> str:
+    """A digest of the code that computes every input set from recorded frames, so that inputs an earlier
+    version computed and cached are not reused."""
+    source = b"".join(Path(module.__file__).read_bytes() for module in (estimator, sensors))
+    return hashlib.sha256(Path(__file__).read_bytes() + source).hexdigest()[:16]
+
+
+def episode_inputs(
+    inputs: str,
+    frames: np.ndarray,
+    commands: np.ndarray,
+    episode_index: np.ndarray,
+    delays: np.ndarray,
+    model: mujoco.MjModel,
+) -> np.ndarray:
+    """A policy's inputs for recorded frames (rows of `observed_names` entries in frame order), of `frames`' type:
+    the set's computation run along each episode as a rollout runs it, told each episode's delay (`delays`, per
+    frame) and each frame's command (`commands`, the recorded action labels)."""
+    features = INPUT_SETS[inputs](model)
+    out = np.empty((len(frames), features.size), frames.dtype)
+    for row, frame in enumerate(frames):
+        if row == 0 or episode_index[row] != episode_index[row - 1]:
+            features.set_delay(int(delays[row]))
+            features.reset()
+        out[row] = features(frame)
+        features.commanded(commands[row])
+    return out
+
+
+class InputObservation(gym.Wrapper):
+    """The env's observation with the inputs of a policy on `inputs` appended: what PPO's actor reads.
+
+    PPO's policy is stateless and an input set may have memory (the estimator, the command in flight): run in
+    the env, where each episode's steps arrive in order, a reset starts it afresh and each action stepped is the
+    command sent, the inputs become part of the observation, computed by the code the live controller runs
+    (train = deploy). The critic reads the observation too (`policies.actor_critic`). The set computes on the
+    nominal model, whatever body the env has drawn (its inner wrappers may randomise it), and is told the delay
+    the inner `ActionLatency` drew at each reset.
     """
 
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env, PendingInputs(humanoid_model()))
+    def __init__(self, env: gym.Env, inputs: str) -> None:
+        super().__init__(env)
+        self.features = INPUT_SETS[inputs](humanoid_model())
+        space = env.observation_space
+        extra = np.full(self.features.size, np.inf)
+        self.observation_space = gym.spaces.Box(
+            np.concatenate([space.low, -extra]), np.concatenate([space.high, extra]), dtype=space.dtype
+        )
+
+    def _with_inputs(self, obs: np.ndarray) -> np.ndarray:
+        return np.concatenate([obs, self.features(self.features.observe(obs))]).astype(obs.dtype)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self.features.set_delay(action_delay(self.env))
         self.features.reset()
-        return self._with_estimate(obs), info
+        return self._with_inputs(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.features.commanded(action)
-        return super().step(action)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self._with_inputs(obs), reward, terminated, truncated, info

@@ -14,11 +14,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import torch
 
 from humanoid.env import make_env
-from humanoid.inputs import INPUT_COLUMNS, input_features, input_names
+from humanoid.inputs import INPUT_SETS, REMOVED, InputSet
 from policies.checkpoint import CheckpointError, load
 from policies.folder import SB3_FILE
 from policies.mlp import MLPPolicy
@@ -34,7 +35,7 @@ class PolicyController:
         env = make_env() if env is None else env
         try:
             check_fits(policy, env, name)
-            self.features = input_features(policy.spec.inputs, env.unwrapped.model)
+            self.features: InputSet = INPUT_SETS[policy.spec.inputs](env.unwrapped.model)
         finally:
             if own:
                 env.close()
@@ -47,33 +48,38 @@ class PolicyController:
         return cls(load(path), str(path), env)
 
     def reset(self, seed: int | None = None) -> None:
-        """The policy is deterministic and has no memory; its inputs may (`odometry`'s estimator)."""
-        if hasattr(self.features, "reset"):
-            self.features.reset()
+        """The policy is deterministic and has no memory; its inputs may (the "pending" inputs' estimator)."""
+        self.features.reset()
 
     def set_delay(self, steps: int) -> None:
-        """The episode's action latency, told by the rollout: read by a policy on the "pending" inputs only."""
-        if hasattr(self.features, "set_delay"):
-            self.features.set_delay(steps)
+        """The episode's action latency, told by the rollout (`humanoid.episode.tell_delay`) to the inputs."""
+        self.features.set_delay(steps)
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """A policy acts on what it reads, whatever the body."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            action = self.policy(torch.from_numpy(self.features(obs)).float()).numpy()
-        if hasattr(self.features, "commanded"):
-            self.features.commanded(action)
+            action = self.policy(torch.from_numpy(self.features(self.features.observe(obs))).float()).numpy()
+        self.features.commanded(action)
         return action
 
 
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
     """CheckpointError in one line unless `env` can give `policy` its inputs and take its actions."""
     spec = policy.spec
-    if spec.inputs not in INPUT_COLUMNS or spec.input_keys != INPUT_COLUMNS[spec.inputs]:
+    if spec.inputs in REMOVED:
+        raise CheckpointError(
+            f"{name} reads INPUTS={spec.inputs}, which this version removed: "
+            f"retrain it with INPUTS={REMOVED[spec.inputs]}"
+        )
+    if spec.inputs not in INPUT_SETS or spec.input_keys != INPUT_SETS[spec.inputs].columns:
         # e.g. a policy conditioned on a command needs a command source besides the observation.
         raise CheckpointError(
             f"{name} reads {spec.inputs!r} from {list(spec.input_keys)}; a controller computes only "
-            + ", ".join(f"{kind!r} from {list(columns)}" for kind, columns in INPUT_COLUMNS.items())
+            + ", ".join(f"{kind!r} from {list(inputs.columns)}" for kind, inputs in INPUT_SETS.items())
         )
-    inputs, action_dim = len(input_names(spec.inputs, env.unwrapped.model)), env.action_space.shape[0]
+    inputs, action_dim = len(INPUT_SETS[spec.inputs].input_names(env.unwrapped.model)), env.action_space.shape[0]
     if (spec.input_dim, spec.action_dim) != (inputs, action_dim):
         raise CheckpointError(
             f"{name} maps {spec.input_dim} {spec.inputs} inputs to {spec.action_dim} actions; "
@@ -98,6 +104,12 @@ class SB3Controller:
 
     def reset(self, seed: int | None = None) -> None:
         """Nothing to reset: deterministic, no memory."""
+
+    def set_delay(self, steps: int) -> None:
+        """It acts on the observation alone, whatever the delay."""
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """It acts on the observation alone, whatever the body."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action, _ = self.model.predict(obs, deterministic=True)

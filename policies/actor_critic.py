@@ -3,10 +3,12 @@
 SB3's `ActorCriticPolicy` maps observations through an "mlp_extractor" to a latent, then a linear
 `action_net` to the mean action, with a state-independent log std. Here the extractor's actor
 branch is the BC policy (normalisation, MLP, tanh scaling included) and `action_net` is the
-identity, so the Gaussian's mean is exactly the BC policy's action; the critic is a separate MLP
-on the same normalised inputs. Orthogonal initialisation is off: it would overwrite the loaded
-weights. The log std starts small (`log_std_init`): SB3's default std of 1 puts most samples far
-outside the ±0.4 action bounds.
+identity, so the Gaussian's mean is exactly the BC policy's action; the critic is a separate MLP on the
+gymnasium observation, normalised. The environment appends the actor's inputs to that observation
+(`humanoid.inputs.InputObservation`), computed as the live controller computes them: the actor reads
+those, the critic all of it, the privileged observation included (an asymmetric actor-critic). Orthogonal
+initialisation is off: it would overwrite the loaded weights. The log std starts small (`log_std_init`):
+SB3's default std of 1 puts most samples far outside the ±0.4 action bounds.
 """
 
 from __future__ import annotations
@@ -25,25 +27,16 @@ from policies.mlp import ACTIVATIONS, MLPPolicy, MLPSpec
 class ActorCriticExtractor(nn.Module):
     """SB3's `mlp_extractor` contract (`forward_actor`, `forward_critic`, latent sizes) around an `MLPPolicy`.
 
-    With `actor_inputs` (a module from the observation to what the actor reads, e.g. the sensed features
-    of `bc.ppo.features`) the actor reads those and the critic the whole observation, normalised with
-    `critic_normalisation` (mean, std): an asymmetric actor-critic. Without, both read the observation,
-    the critic normalised like the actor.
+    PPO's observation is the gymnasium observation, then the actor's inputs: the actor reads its last
+    `input_dim` entries, the critic as many as `critic_normalisation` (mean, std) normalises: all of them.
     """
 
     def __init__(
-        self,
-        actor: MLPPolicy,
-        critic_hidden: tuple[int, ...],
-        actor_inputs: nn.Module | None = None,
-        critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
+        self, actor: MLPPolicy, critic_hidden: tuple[int, ...], critic_normalisation: tuple[torch.Tensor, torch.Tensor]
     ) -> None:
         super().__init__()
         self.actor = actor
-        self.actor_inputs = actor_inputs
-        if (actor_inputs is None) != (critic_normalisation is None):
-            raise ValueError("an actor on its own inputs needs the critic's normalisation, and only it")
-        mean, std = critic_normalisation or (actor.input_mean, actor.input_std)
+        mean, std = critic_normalisation
         # Buffers, not trained: saved and restored with the policy (resume), copied to the samplers.
         self.register_buffer("critic_mean", mean.detach().clone().float())
         self.register_buffer("critic_std", std.detach().clone().float())
@@ -61,13 +54,13 @@ class ActorCriticExtractor(nn.Module):
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         """The mean action: the BC policy's output."""
-        return self.actor(features if self.actor_inputs is None else self.actor_inputs(features))
+        return self.actor(features[..., -self.actor.spec.input_dim :])
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         # The critic sees normalised inputs (the demonstrations' mean and std, not trained), clipped: a fall
         # or a push takes some of them hundreds of standard deviations from the demonstrations', and the
         # critic's outputs and value loss with them.
-        normalised = (features - self.critic_mean) / self.critic_std
+        normalised = (features[..., : len(self.critic_mean)] - self.critic_mean) / self.critic_std
         return self.critic(normalised.clamp(-CRITIC_INPUT_CLIP, CRITIC_INPUT_CLIP))
 
 
@@ -92,20 +85,20 @@ class BCActorCriticPolicy(ActorCriticPolicy):
         actor_state: dict[str, torch.Tensor],
         critic_hidden: tuple[int, ...] = (256, 256),
         critic_lr_scale: float = 1.0,
-        actor_inputs: nn.Module | None = None,
-        critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
+        *,
+        critic_normalisation: tuple[torch.Tensor, torch.Tensor],
         **kwargs: Any,
     ) -> None:
         # Plain data, set before nn.Module.__init__: `_build` (called by the parent) needs them.
         self.actor_spec, self.actor_state, self.critic_hidden = actor_spec, actor_state, critic_hidden
         self.critic_lr_scale = critic_lr_scale
-        self.asymmetric = (actor_inputs, critic_normalisation)
+        self.critic_normalisation = critic_normalisation
         super().__init__(observation_space, action_space, lr_schedule, ortho_init=False, **kwargs)
 
     def _build_mlp_extractor(self) -> None:
         actor = MLPPolicy(self.actor_spec)
         actor.load_state_dict(self.actor_state)
-        self.mlp_extractor = ActorCriticExtractor(actor, self.critic_hidden, *self.asymmetric)
+        self.mlp_extractor = ActorCriticExtractor(actor, self.critic_hidden, self.critic_normalisation)
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)

@@ -40,9 +40,9 @@ class MLPSpec:
     """Hidden units (ACTIVATIONS). `make train-bc` writes ELU networks (its `--activation` says why); this
     default stays the ReLU that spec had before, so a spec built without the field means what it meant."""
     inputs: str = "full"
-    """What the policy reads (humanoid.inputs.INPUTS): "full", the gymnasium observation; "proprio", what a
-    robot senses; or "odometry", that and the leg odometry computed from it. Checkpoints written before
-    this field read "full"."""
+    """What the policy reads (humanoid.inputs.INPUT_SETS): "full", the gymnasium observation; "proprio", what a
+    robot senses; or "pending", the leg odometry computed from that, the command in flight and the delay.
+    Checkpoints written before this field read "full"."""
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:

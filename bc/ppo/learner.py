@@ -16,15 +16,12 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
-from bc.ppo.features import EstimatedFeatures, SensedFeatures
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
-from humanoid.env import humanoid_model, make_env, observation_names
-from humanoid.estimator import OdometryObservation
-from humanoid.inputs import PendingObservation
+from humanoid.env import make_env
+from humanoid.inputs import InputObservation
 from humanoid.perturbations import TorsoPushes
-from humanoid.sensors import Proprioception
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
 
@@ -46,8 +43,7 @@ def training_env(
     does; with `latency` (a share of the episodes, 0 included) that share runs with the suite's step of
     action latency, and with `obs_noise` that share with its sensor noise on what the actor reads (and
     the estimator with it). A curriculum (`bc.ppo.curriculum`) changes all four from an episode to the
-    next. For an actor on `inputs` "odometry" the observation also carries the leg-odometry estimate
-    (`OdometryObservation`), on "pending" also the command in flight and the delay (`PendingObservation`).
+    next. The observation is the environment's, then what an actor on `inputs` reads (`InputObservation`).
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
     reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
@@ -60,8 +56,7 @@ def training_env(
         env = ActionLatency(env, SUITE["latency"].latency, share=latency)
     if obs_noise is not None:
         env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
-    wrapper = {"odometry": OdometryObservation, "pending": PendingObservation}.get(inputs)
-    return Monitor(env if wrapper is None else wrapper(env))
+    return Monitor(InputObservation(env, inputs))
 
 
 def make_vec_env(
@@ -97,16 +92,6 @@ def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
     return fresh
 
 
-def actor_inputs(inputs: str) -> torch.nn.Module | None:
-    """What an actor on `inputs` computes from its environment's observation (None: it reads the observation)."""
-    model = humanoid_model()  # Humanoid-v5's observation layout (the same for every drawn body)
-    if inputs == "proprio":
-        return SensedFeatures(Proprioception(model))
-    if inputs in ("odometry", "pending"):
-        return EstimatedFeatures(Proprioception(model), len(observation_names(model)))
-    return None
-
-
 def build_model(
     actor: MLPPolicy,
     env: VecEnv,
@@ -125,20 +110,18 @@ def build_model(
     seed: int,
     update_threads: int = 0,
     tensorboard: Path | None = None,
-    critic_normalisation: tuple[torch.Tensor, torch.Tensor] | None = None,
+    critic_normalisation: tuple[torch.Tensor, torch.Tensor],
 ) -> WorkerRolloutPPO:
     """The PPO learner around `actor` (its weights are copied); nothing is trained yet.
 
-    `update_threads` 0 means one per core: the workers are idle during updates. An actor on the sensed
-    features (`inputs` "proprio", "odometry") computes them from the observation (`actor_inputs`) and the
-    critic reads the whole observation, normalised with `critic_normalisation` (the demonstrations' mean
-    and std of it).
+    `update_threads` 0 means one per core: the workers are idle during updates. `env`'s observation is
+    Humanoid-v5's, then the actor's inputs (`training_env`): the actor reads those, the critic all
+    of it, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
     """
     policy_kwargs = {
         "actor_spec": actor.spec,
         "actor_state": actor.state_dict(),
-        "actor_inputs": actor_inputs(actor.spec.inputs),
-        "critic_normalisation": critic_normalisation,  # the extractor refuses it without actor_inputs, and vice versa
+        "critic_normalisation": critic_normalisation,
         "critic_hidden": actor.spec.hidden,
         "log_std_init": log_std_init,
         "critic_lr_scale": critic_learning_rate / learning_rate,

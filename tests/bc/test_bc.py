@@ -31,7 +31,7 @@ from common import keys
 from common.cli import UserError, config_dict
 from humanoid.controllers import make_controller
 from humanoid.env import observation_names
-from humanoid.inputs import INPUT_COLUMNS
+from humanoid.inputs import FullInputs
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
@@ -158,7 +158,7 @@ def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, reco
     """config.json has the resolved settings, dataset.json the data's identity; curve and logs are there."""
     folder = trained.policy_dir
     config = json.loads((folder / policy_files.CONFIG_FILE).read_text())
-    assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(INPUT_COLUMNS["full"])
+    assert config["policy"]["hidden"] == [32, 32] and config["policy"]["input_keys"] == list(FullInputs.columns)
     assert config["training"]["dataset"] == str(recorded) and config["training"]["lr"] == 1e-3
     dataset = json.loads((folder / policy_files.DATASET_FILE).read_text())
     assert dataset["path"] == str(recorded.resolve()) and dataset["episodes"] == 3
@@ -299,36 +299,39 @@ def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult,
     controller = make_controller(str(proprio.policy_dir), env)
     with torch.no_grad():
         expected = proprio.policy(torch.from_numpy(frames[keys.OBS_STATE]).float()).numpy()
-    np.testing.assert_array_equal(np.array([controller.features(obs) for obs in observations]), frames[keys.OBS_STATE])
+    sensed = np.array([controller.features(controller.features.observe(obs)) for obs in observations])
+    np.testing.assert_array_equal(sensed, frames[keys.OBS_STATE])
     # One row at a time against a batch: float32 matmuls may differ in the last bits.
     actions = np.array([controller.act(obs) for obs in observations[::20]])
     np.testing.assert_allclose(actions, expected[::20], rtol=0, atol=1e-6)
 
 
 @pytest.fixture(scope="module")
-def odometry(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
-    """A small MLP trained on the sensed features and the leg-odometry estimate of the 3-episode recording."""
-    folder = tmp_path_factory.mktemp("policies") / "odometry"
-    return main(TrainConfig(dataset=recorded, policy=folder, inputs="odometry", **TINY))
+def pending(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
+    """A small MLP trained on the "pending" inputs (leg odometry, the command in flight, the delay) of the 3-episode
+    recording (undelayed: no command in flight)."""
+    folder = tmp_path_factory.mktemp("policies") / "pending"
+    return main(TrainConfig(dataset=recorded, policy=folder, inputs="pending", **TINY))
 
 
-def test_odometry_inputs_in_training_are_what_the_controller_computes_live(
-    odometry: TrainResult, recorded: Path, env: gym.Env
+def test_pending_inputs_in_training_are_what_the_controller_computes_live(
+    pending: TrainResult, recorded: Path, env: gym.Env
 ) -> None:
     """The estimator run along each recorded episode gives the inputs the controller computes step by step,
     from a reset at each episode's start, out of the gymnasium observations (float32 rows against float64)."""
-    config = json.loads((odometry.policy_dir / policy_files.CONFIG_FILE).read_text())
-    # The sensed features but the forces (42), the estimated height and velocity (4), the inertias (130).
-    assert config["policy"]["inputs"] == "odometry" and config["policy"]["input_dim"] == 42 + 4 + 130
+    config = json.loads((pending.policy_dir / policy_files.CONFIG_FILE).read_text())
+    # The sensed features but the forces (42), the estimated height and velocity (4), the inertias (130), the command
+    # in flight (17), the delay (1).
+    assert config["policy"]["inputs"] == "pending" and config["policy"]["input_dim"] == 42 + 4 + 130 + 17 + 1
     frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE, "episode_index"])
     observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
-    trained = load_demonstrations(recorded, env, cache=False, inputs="odometry").inputs.numpy()
-    controller = make_controller(str(odometry.policy_dir), env)
+    trained = load_demonstrations(recorded, env, cache=False, inputs="pending").inputs.numpy()
+    controller = make_controller(str(pending.policy_dir), env)
     live = []
     for row, obs in enumerate(observations):
         if row == 0 or frames["episode_index"][row] != frames["episode_index"][row - 1]:
             controller.reset()
-        live.append(controller.features(obs))
+        live.append(controller.features(controller.features.observe(obs)))
     np.testing.assert_allclose(trained, np.array(live), rtol=0, atol=1e-4)
     assert np.abs(trained[:, 42 + 1 : 42 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
 

@@ -104,8 +104,8 @@ def sensed_run(dataset: Path, folder: Path, inputs: str) -> DaggerConfig:
 
 @pytest.fixture(scope="module")
 def sensed_dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One round of 2 episodes labelled by the expert on leg odometry, an odometry student: the aggregate."""
-    config = sensed_run(recorded, tmp_path_factory.mktemp("sensed_dagger"), "odometry")
+    """One round of 2 episodes labelled by the expert on leg odometry, a "pending" student: the aggregate."""
+    config = sensed_run(recorded, tmp_path_factory.mktemp("sensed_dagger"), "pending")
     main(config)
     return config.output
 

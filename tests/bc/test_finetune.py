@@ -25,9 +25,7 @@ from bc.train import main as train_bc
 from common import paths
 from common.cli import config_dict
 from humanoid.env import make_env
-from humanoid.expert import LQRExpert
 from humanoid.learned import PolicyController
-from humanoid.sensors import Proprioception
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
@@ -376,74 +374,32 @@ def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> 
     return folder
 
 
-def observations(count: int) -> np.ndarray:
-    """`count` gymnasium observations of a body falling under random actions (seeded)."""
-    env, rng, seen = make_env(), np.random.default_rng(0), []
+def test_a_proprioceptive_actor_reads_the_sensed_features_its_env_appends(proprio_policy: Path) -> None:
+    """Asymmetric actor-critic: the training env appends the sensed features to the observation; the actor's actions
+    are the proprio BC policy's and change with no entry of the observation before them, the critic's value does."""
+    config = FinetuneConfig(bc_policy=proprio_policy, **TINY_PPO)
+    proprio_env = functools.partial(training_env, None, inputs="proprio")
+    policy = learner(config, WorkerGroupVecEnv([proprio_env], workers=1)).policy
+    bc = PolicyController(checkpoint.load(proprio_policy), "bc")
+    env, rng, seen = proprio_env(), np.random.default_rng(0), []
     obs, _ = env.reset(seed=0)
-    for _ in range(count):
+    for _ in range(50):  # a body falling under random actions
         seen.append(obs)
         obs, _, terminated, _, _ = env.step(rng.uniform(-0.4, 0.4, 17))
         if terminated:
             obs, _ = env.reset()
-    return np.array(seen, np.float32)
-
-
-def test_a_proprioceptive_actor_reads_exactly_the_sensed_features(proprio_policy: Path) -> None:
-    """Asymmetric actor-critic: the actor's actions are the proprio BC policy's, and change with no entry of the
-    observation that the sensed features are not computed from; the critic's value changes with those entries."""
-    config = FinetuneConfig(bc_policy=proprio_policy, **TINY_PPO)
-    policy = learner(config, WorkerGroupVecEnv([make_env], workers=1)).policy
-    bc = PolicyController(checkpoint.load(proprio_policy), "bc")
-    obs = observations(50)
-    sensed = Proprioception(make_env().unwrapped.model)
-    unread = np.setdiff1d(np.arange(obs.shape[1]), np.r_[sensed.copied, sensed.quaternion, sensed.feet.ravel()])
-    assert (
-        len(unread) == 348 - 37 - 4 - 12
-    )  # height, linear velocity, cinert, cvel, qfrc_actuator, other bodies' wrenches
-    changed = obs.copy()
-    changed[:, unread] += np.random.default_rng(1).normal(0, 5, (len(obs), len(unread)))
-    with torch.no_grad():
-        actions = policy.get_distribution(torch.as_tensor(obs)).distribution.mean.numpy()
-        actions_changed = policy.get_distribution(torch.as_tensor(changed)).distribution.mean.numpy()
-        values = policy.predict_values(torch.as_tensor(obs)).numpy()
-        values_changed = policy.predict_values(torch.as_tensor(changed)).numpy()
-    np.testing.assert_array_equal(actions, actions_changed)
-    np.testing.assert_allclose(actions, np.array([bc.act(o.astype(np.float64)) for o in obs]), atol=1e-5)
-    assert np.abs(values - values_changed).min() > 0
-
-
-@pytest.fixture(scope="module")
-def odometry_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small BC checkpoint on the sensed features and leg odometry (INPUTS=odometry) of the 3-episode recording."""
-    folder = tmp_path_factory.mktemp("bc_odometry") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="odometry", **SMALL_BC))
-    return folder
-
-
-def test_an_odometry_actor_reads_the_sensed_features_and_the_envs_estimate(odometry_policy: Path) -> None:
-    """The training env appends the leg-odometry estimate to the observation; along an episode the actor's actions
-    are the odometry BC policy's (which runs its own estimator), and change with no privileged entry."""
-    config = FinetuneConfig(bc_policy=odometry_policy, **TINY_PPO)
-    odometry_env = functools.partial(training_env, None, inputs="odometry")
-    policy = learner(config, WorkerGroupVecEnv([odometry_env], workers=1)).policy
-    bc = PolicyController(checkpoint.load(odometry_policy), "bc")
-    env, expert, seen, expected = odometry_env(), LQRExpert(), [], []
-    obs, _ = env.reset(seed=0)
-    bc.reset(0)
-    for _ in range(60):  # the drop from the reset, the landing (about step 27), then standing on both feet
-        seen.append(obs)
-        expected.append(bc.act(obs[:348]))
-        obs, *_ = env.step(expert.act(obs[:348]))
     seen = np.array(seen, np.float32)
-    sensed = Proprioception(make_env().unwrapped.model)
-    unread = np.setdiff1d(np.arange(348), np.r_[sensed.copied, sensed.quaternion, sensed.feet.ravel()])
+    assert seen.shape[1] == 348 + 48
     changed = seen.copy()
-    changed[:, unread] += np.random.default_rng(1).normal(0, 5, (len(seen), len(unread)))
+    changed[:, :348] += np.random.default_rng(1).normal(0, 5, (len(seen), 348))
     with torch.no_grad():
         actions = policy.get_distribution(torch.as_tensor(seen)).distribution.mean.numpy()
         actions_changed = policy.get_distribution(torch.as_tensor(changed)).distribution.mean.numpy()
+        values = policy.predict_values(torch.as_tensor(seen)).numpy()
+        values_changed = policy.predict_values(torch.as_tensor(changed)).numpy()
     np.testing.assert_array_equal(actions, actions_changed)
-    np.testing.assert_allclose(actions, np.array(expected), atol=1e-5)
+    np.testing.assert_allclose(actions, np.array([bc.act(o[:348].astype(np.float64)) for o in seen]), atol=1e-6)
+    assert np.abs(values - values_changed).min() > 0
 
 
 @pytest.fixture(scope="module")
@@ -479,11 +435,11 @@ def test_a_pending_actor_reads_its_command_in_flight_and_the_delay(pending_polic
     assert np.array(seen)[1:, -1].min() == 1.0 and np.abs(np.array(seen)[1:, -18:-1]).max() > 0
 
 
-@pytest.mark.parametrize("bc_folder", ["proprio_policy", "odometry_policy", "pending_policy"])
+@pytest.mark.parametrize("bc_folder", ["proprio_policy", "pending_policy"])
 def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
     bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
 ) -> None:
-    """Fine-tuning a proprio, odometry or pending BC checkpoint ends with a checkpoint that reads what it read, which
+    """Fine-tuning a proprio or pending BC checkpoint ends with a checkpoint that reads what it read, which
     make eval runs."""
     bc_policy = request.getfixturevalue(bc_folder)
     result = main(FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO))
@@ -583,12 +539,12 @@ def kill_after_snapshots(command: list[str], policy: Path, snapshots: int, delay
     return err
 
 
-@pytest.mark.parametrize("bc_folder", ["bc_policy", "odometry_policy"])
+@pytest.mark.parametrize("bc_folder", ["bc_policy", "pending_policy"])
 def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
     bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
 ) -> None:
     """kill -9 mid-rollout or mid-update (twice, at different moments), then the same command: the final actor,
-    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit; with an odometry
+    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit; with a "pending"
     actor too, whose environments' estimators are rebuilt by replaying the episodes in progress."""
     bc_policy = request.getfixturevalue(bc_folder)
     reference = tmp_path / "reference"

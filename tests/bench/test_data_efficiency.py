@@ -45,7 +45,7 @@ def test_table_has_a_row_per_n_a_column_per_inputs_then_range_and_the_expert_las
 def test_notes_count_each_teachers_falls_apart() -> None:
     """The expert and the expert on leg odometry record different datasets: their falls are reported apart."""
     cells = [cell(0, 5, "full", survived=0, fallen=1), cell(0, 5, "proprio", survived=0, fallen=1)]
-    sensed = cell(0, 5, "odometry", survived=3, fallen=2)
+    sensed = cell(0, 5, "pending", survived=3, fallen=2)
     sensed.teacher = "expert-sensed"
     said = notes([*cells, sensed], 1000, 20)
-    assert "expert (full, proprio): seeds from 0: 1 of 5. expert-sensed (odometry): seeds from 0: 2 of 5." in said
+    assert "expert (full, proprio): seeds from 0: 1 of 5. expert-sensed (pending): seeds from 0: 2 of 5." in said

@@ -15,8 +15,6 @@ from humanoid.episode import injected_noise, run_episode
 from humanoid.estimator import (
     GRAVITY,
     LegOdometry,
-    OdometryFeatures,
-    OdometryObservation,
     level_quaternion,
     odometry_names,
 )
@@ -153,20 +151,6 @@ def test_sensed_expert_built_for_a_delayed_env_knows_the_delay() -> None:
     """As the privileged expert: the registry passes the env's action latency on."""
     env = ActionLatency(gym.make("Humanoid-v5"), steps=1)
     assert make_controller("expert-sensed", env).expert.delay == 1
-
-
-def test_odometry_observation_appends_the_estimate_of_each_episode_from_its_start() -> None:
-    """The wrapped env's observation is the env's, then what `OdometryFeatures` (reset with the env) adds; two
-    episodes in a row give what two fresh estimators give."""
-    env, expert, features = OdometryObservation(make_env()), LQRExpert(), OdometryFeatures(humanoid_model())
-    assert env.observation_space.shape == (348 + features.estimate_size,)
-    for seed in (3, 4):
-        obs, _ = env.reset(seed=seed)
-        np.testing.assert_array_equal(obs[:348], make_env().reset(seed=seed)[0])
-        features.reset()
-        for _ in range(40):
-            np.testing.assert_array_equal(obs[348:], features(obs[:348])[features.read.size :])
-            obs, *_ = env.step(expert.act(obs[:348]))
 
 
 def test_an_odometry_policy_reads_the_sensed_features_but_the_forces() -> None:

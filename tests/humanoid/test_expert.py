@@ -160,11 +160,17 @@ def test_prediction_of_the_pending_action_is_where_the_env_goes(model: mujoco.Mj
 
 
 class Untold:
-    """`expert` without `set_delay` or `set_body`: the rollout cannot tell it the delay or the body, so it acts as if
-    there were no delay, on the body it was designed on."""
+    """`expert` deaf to `set_delay` and `set_body`: the rollout tells it the delay and the body in vain, so it acts as
+    if there were no delay, on the body it was designed on."""
 
     def __init__(self, expert: LQRExpert) -> None:
         self.expert, self.name = expert, "untold"
+
+    def set_delay(self, steps: int) -> None:
+        """Ignored."""
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        """Ignored."""
 
     def reset(self, seed: int | None = None) -> None:
         self.expert.set_delay(0)

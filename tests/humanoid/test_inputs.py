@@ -1,21 +1,84 @@
-"""The "pending" inputs: odometry's, the command in flight under one step of latency, and the delay."""
+"""The input sets (humanoid.inputs): one computation, the same features live, offline and in PPO's environments."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import gymnasium as gym
 import numpy as np
 import pytest
 
+from bc import dagger
+from bc import train as bc_train
+from bc.data import load_demonstrations
+from bc.ppo.learner import training_env
+from common import keys
 from common.cli import UserError
-from humanoid.conditions import ActionLatency
+from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
 from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_COLUMNS, PendingInputs, episode_inputs, input_names
+from humanoid.inputs import INPUT_SETS, INPUTS, PendingInputs, episode_inputs
 from humanoid.learned import PolicyController
-from humanoid.sensors import Proprioception
 from policies.mlp import MLPPolicy, MLPSpec
+from support import record_short
+from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 
-STEPS = 50
+STEPS = 40
+OBSERVATION = 348
+
+
+def tiny_policy(inputs: str, env: gym.Env) -> PolicyController:
+    """A live controller of an untrained policy on `inputs`: what it reads is all that matters here."""
+    kind = INPUT_SETS[inputs]
+    spec = MLPSpec(kind.columns, len(kind.input_names(humanoid_model())), 17, (8,), inputs=inputs)
+    return PolicyController(MLPPolicy(spec, env.action_space.low, env.action_space.high), inputs, env)
+
+
+@pytest.fixture(scope="module")
+def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two short expert episodes recorded by the real recorder, each with one step of action latency and no action
+    noise (so the executed actions, replayed, are the commands the recording labels)."""
+    root = tmp_path_factory.mktemp("inputs") / "dataset"
+    record_short(root, episodes=2, max_steps=STEPS, latency=1.0, noise=0.0)
+    return root
+
+
+@pytest.mark.parametrize("inputs", INPUTS)
+def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: Path) -> None:
+    """Each recorded episode replayed in PPO's training env (its seed, its executed actions): the inputs the env
+    appends to its observation equal, bit for bit, those the live controller's computation gives on the same
+    observations and commands; the offline loader's equal, bit for bit, that computation run on the frames as
+    recorded (float32), and the live ones to the recording's float32 rounding (carried through the estimator's
+    memory for "pending", hence the tolerance)."""
+    offline = load_demonstrations(delayed, make_env(), cache=False, inputs=inputs).inputs.numpy()
+    frames = read_frames(delayed, [keys.EXECUTED_ACTION, keys.ACTION, "episode_index"])
+    seeds = read_episodes(delayed, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+    assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(delayed)] == [1, 1]
+    env = training_env(None, inputs=inputs, latency=1.0)
+    live = tiny_policy(inputs, env).features
+    appended, computed, observed = [], [], []
+    for episode, seed in enumerate(seeds):
+        rows = frames["episode_index"] == episode
+        obs, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs[:OBSERVATION], make_env().reset(seed=seed)[0])  # the env's, as it is
+        live.set_delay(1)
+        live.reset()
+        for executed, label in zip(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows], strict=True):
+            np.testing.assert_array_equal(executed, label)  # no noise: the command sent is the one executed
+            frame = live.observe(obs[:OBSERVATION])
+            observed.append(frame)
+            computed.append(live(frame))
+            appended.append(obs[OBSERVATION:])
+            live.commanded(label)
+            obs, *_ = env.step(executed)
+    np.testing.assert_array_equal(np.array(appended), np.array(computed))
+    recorded = np.array(observed, np.float32)
+    delays = np.ones(len(recorded), np.int64)
+    replayed = episode_inputs(inputs, recorded, frames[keys.ACTION], frames["episode_index"], delays, humanoid_model())
+    np.testing.assert_array_equal(offline, replayed)
+    np.testing.assert_allclose(offline, np.array(computed), rtol=0, atol=1e-4)
+    assert offline.shape == (2 * STEPS, len(INPUT_SETS[inputs].input_names(humanoid_model())))
 
 
 def expert_episode(delay: int, seed: int) -> Episode:
@@ -23,48 +86,25 @@ def expert_episode(delay: int, seed: int) -> Episode:
     return run_episode(env, LQRExpert(delay=delay), seed, noise_std=0.05)
 
 
-def test_training_inputs_are_what_the_live_policy_reads() -> None:
-    """A delayed episode then an undelayed one: the inputs computed from their recorded frames equal, row for row,
-    those `PendingInputs` gives live along the same observations and commands."""
-    model = humanoid_model()
-    sensed = Proprioception(model)
-    episodes = [expert_episode(1, seed=0), expert_episode(0, seed=1)]
-    recorded = np.concatenate([np.column_stack([[sensed(o) for o in e.observation], e.action]) for e in episodes])
-    index = np.repeat([0, 1], [e.length for e in episodes])
-    delays = np.repeat([1, 0], [e.length for e in episodes])
-    trained = episode_inputs("pending", recorded, index, model, delays)
-    live = PendingInputs(model)
-    rows = []
-    for delay, episode in zip((1, 0), episodes, strict=True):
-        live.set_delay(delay)
-        live.reset()
-        for obs, action in zip(episode.observation, episode.action, strict=True):
-            rows.append(live(obs))
-            live.commanded(action)
-    np.testing.assert_allclose(trained, np.array(rows), rtol=0, atol=1e-12)
-    assert trained.shape[1] == len(input_names("pending", model))
-
-
 def test_the_pending_command_is_the_previous_label_in_a_delayed_episode_only() -> None:
     """Known answer: zeros at the first step (the env executes zeros then) and throughout an undelayed episode."""
     model = humanoid_model()
     episode = expert_episode(1, seed=0)
-    recorded = np.column_stack([[Proprioception(model)(o) for o in episode.observation], episode.action])
+    frames = PendingInputs(model).observe(episode.observation)
     index = np.zeros(episode.length, np.int64)
     pending = slice(-1 - model.nu, -1)
-    delayed = episode_inputs("pending", recorded, index, model, np.ones(episode.length))
+    delayed = episode_inputs("pending", frames, episode.action, index, np.ones(episode.length), model)
     np.testing.assert_array_equal(delayed[0, pending], 0.0)
     np.testing.assert_array_equal(delayed[1:, pending], episode.action[:-1])
     np.testing.assert_array_equal(delayed[:, -1], 1.0)
-    undelayed = episode_inputs("pending", recorded, index, model, np.zeros(episode.length))
+    undelayed = episode_inputs("pending", frames, episode.action, index, np.zeros(episode.length), model)
     np.testing.assert_array_equal(undelayed[:, pending.start :], 0.0)
 
 
 @pytest.mark.parametrize("delay", [0, 1])
 def test_a_policy_on_pending_inputs_is_told_the_delay_and_remembers_its_command(delay: int) -> None:
     env = ActionLatency(make_env(20), 1) if delay else make_env(20)
-    spec = MLPSpec(INPUT_COLUMNS["pending"], len(input_names("pending", humanoid_model())), 17, (8,), inputs="pending")
-    controller = PolicyController(MLPPolicy(spec, env.action_space.low, env.action_space.high), "pending", env)
+    controller = tiny_policy("pending", env)
     episode = run_episode(env, controller, seed=0)
     assert controller.features.delay == delay
     np.testing.assert_array_equal(controller.features.pending, episode.action[-1] if delay else 0.0)
@@ -77,3 +117,18 @@ def test_a_delay_beyond_one_step_is_refused_in_one_line() -> None:
         r"latency; this episode delays its actions by 2$",
     ):
         PendingInputs(humanoid_model()).set_delay(2)
+
+
+@pytest.mark.parametrize("cli", [bc_train.cli, dagger.cli])
+def test_the_removed_odometry_inputs_are_refused_naming_pending(
+    cli: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`make train-bc INPUTS=odometry` and `make dagger INPUTS=odometry`: one line naming INPUTS=pending, exit 1,
+    nothing written (the dataset is not even looked at)."""
+    folders = ["--dataset", str(tmp_path / "data"), "--policy", str(tmp_path / "policy")]
+    if cli is dagger.cli:
+        folders += ["--output", str(tmp_path / "aggregate")]
+    assert cli([*folders, "--inputs", "odometry"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: INPUTS=odometry was removed: use INPUTS=pending")
+    assert list(tmp_path.iterdir()) == []
