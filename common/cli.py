@@ -29,6 +29,12 @@ class DatasetError(UserError):
     """A dataset folder that cannot be used as asked (missing, incompatible, locked, unwritable)."""
 
 
+def one_line(error: BaseException) -> str:
+    """An exception as one line of a message: its type and the first line of its text."""
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+
+
 def setting(default: Any, help: str, **kwargs: Any) -> Any:
     """A config field with its `--help` text."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})

@@ -148,6 +148,20 @@ def test_dataset_with_other_features_is_refused(tmp_path: Path, capsys: pytest.C
     assert snapshot(root) == before
 
 
+def test_dataset_with_a_truncated_data_file_is_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A data parquet cut short (a copy interrupted): one line naming it, before anything is written."""
+    root = tmp_path / "truncated"
+    shutil.copytree(recorded, root)
+    path = root / "data/chunk-000/file-001.parquet"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    before = snapshot(root)
+    code, err = run_cli(["--dataset", str(root)], capsys)
+    assert code != 0 and len(err) == 1 and f"{path} is not a readable parquet file" in err[0]
+    assert snapshot(root) == before
+
+
 def test_folder_that_is_not_a_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A non-empty folder without meta/info.json is not written into."""
     root = tmp_path / "photos"
