@@ -2,7 +2,8 @@
 
 The folder holds a LeRobot v3.0 dataset and one MCAP file per episode (`teleop.store`). Episodes
 are appended, never overwritten: the first new one uses SEED, or one past the largest seed already
-recorded, so that running the recorder again adds new episodes instead of repeating old ones.
+recorded, so that running the recorder again adds new episodes; a SEED whose episodes would repeat
+seeds the dataset holds is refused (`teleop.seeds`: a dataset's seeds identify its episodes).
 
 Noise-injected demonstrations (DART): with `--noise σ` the environment receives the controller's
 action plus Gaussian noise, clipped to the bounds, while the `action` label stays the clean
@@ -39,7 +40,7 @@ import numpy as np
 from tqdm import tqdm
 
 from common import keys, paths
-from common.cli import UserError, check_share, config_dict, flag, run_cli, setting
+from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from humanoid.conditions import (
     LATENCY_PARAMETER,
@@ -56,13 +57,13 @@ from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 from teleop import recordings
 from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
+from teleop.seeds import next_free, seed_clash
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
     from teleop.ray_recording import RayRollouts
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
-log = logging.getLogger(__name__)
 
 # Measured (docs/learning.md, "Choosing the noise: DART"): at 0.05 the expert still stands on most seeds and behaviour
 # cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
@@ -284,14 +285,18 @@ def _record(
     try:
         controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
         sink.wait_ready()
-        if made_by is not None:
-            seeds = partial(_seeds, cfg.dataset)
-            recordings.take_over(cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, seeds, _logged_ranges(cfg))
-            summary.marked = True
-        first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
-        if first_seed < sink.next_seed():
-            log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
+        recorded = sink.seeds()
+        first_seed = next_free(recorded) if cfg.seed is None else cfg.seed
         seeds = range(first_seed, first_seed + cfg.episodes)
+        clash = seed_clash(seeds, recorded, str(cfg.dataset))
+        if clash:
+            raise DatasetError(f"--seed {cfg.seed}: {clash} (leave --seed unset to start there)")
+        if made_by is not None:
+            recorded_seeds = partial(_seeds, cfg.dataset)
+            recordings.take_over(
+                cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, recorded_seeds, _logged_ranges(cfg)
+            )
+            summary.marked = True
         if interactive:
             from teleop.keyboard import run_session  # noqa: PLC0415
 
