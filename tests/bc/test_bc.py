@@ -358,6 +358,17 @@ def test_unknown_inputs_are_refused_in_one_line(
     assert not (tmp_path / "policy").exists()
 
 
+def test_pending_inputs_on_a_dataset_without_latency_are_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """INPUTS=pending on episodes none of which was delayed: one line saying to record with latency, no checkpoint."""
+    code, err = train_cli(
+        ["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "pending"], capsys
+    )
+    assert code == 1 and len(err) == 1 and "LATENCY>0" in err[0]
+    assert not (tmp_path / "policy").exists()
+
+
 def small_demos() -> Demonstrations:
     """Episodes 0 and 2, two frames each, row r holding the value r."""
     rows = torch.arange(4, dtype=torch.float32)[:, None]
