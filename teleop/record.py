@@ -42,6 +42,7 @@ from tqdm import tqdm
 from common import keys, paths
 from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
+from common.workers import default_workers
 from humanoid.conditions import (
     LATENCY_PARAMETER,
     NO_RANDOMIZATION,
@@ -78,6 +79,11 @@ SENSED_NOISE = 0.03
 SENSED_LATENCY = 0.5
 
 
+# Past about 6.6 simulation workers the one writer is the limit (docs/scaling.md, "Throughput against the number of
+# nodes"): more only wait for it.
+MOST_WORKERS = 7
+
+
 @dataclass
 class RecordConfig:
     """Settings of one recording session."""
@@ -108,10 +114,11 @@ class RecordConfig:
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
-    workers: int = setting(
-        1,
+    workers: int | None = setting(
+        None,
         "simulation processes; with 2 or more (or --backend ray) the recorder's own process writes, "
-        "committing episodes in seed order (the dataset is the one a single process records)",
+        "committing episodes in seed order (the dataset is the one a single process records); default: the "
+        f"machine's cores, at most {MOST_WORKERS}, and 1 with --live, a keyboard controller or --writer inline",
     )
     backend: str = setting(
         "local",
@@ -175,20 +182,20 @@ def validate(cfg: RecordConfig) -> None:
     except ValueError as error:
         raise UserError(str(error)) from None
     for name in ("episodes", "max_steps", "workers"):
-        if getattr(cfg, name) <= 0:
+        if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     if not cfg.noise >= 0:  # also rejects NaN
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
-    if cfg.live and (cfg.workers != 1 or cfg.backend != "local"):
+    if cfg.live and (workers(cfg) != 1 or cfg.backend != "local"):
         raise UserError(
             f"--live shows one simulation here: --workers must be 1 and --backend local, "
-            f"got {cfg.workers} and {cfg.backend}"
+            f"got {workers(cfg)} and {cfg.backend}"
         )
     check_port(cfg.live_port)
-    if cfg.controller in INTERACTIVE and (cfg.workers != 1 or cfg.backend != "local"):
+    if cfg.controller in INTERACTIVE and (workers(cfg) != 1 or cfg.backend != "local"):
         raise UserError(
             f"--controller {cfg.controller} records in one process here: --workers must be 1 and --backend local"
         )
@@ -205,12 +212,21 @@ def validate(cfg: RecordConfig) -> None:
     check_destination(cfg.dataset)
 
 
+def workers(cfg: RecordConfig) -> int:
+    """The simulation processes `cfg` asks for: --workers, else the machine's cores (`common.workers`), but one for
+    what runs in one process (the live view, keyboard teleoperation, the inline writer)."""
+    if cfg.workers is not None:
+        return cfg.workers
+    single = cfg.live or cfg.controller in INTERACTIVE or cfg.writer == "inline"
+    return 1 if single else default_workers(MOST_WORKERS)
+
+
 def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str | None = None) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given).
     `made_by`: the session logs itself (`record`), so it marks the dataset while it writes."""
     validate(cfg)
     summary = RecordSummary(cfg.dataset) if summary is None else summary
-    if cfg.workers == 1 and cfg.backend == "local":
+    if workers(cfg) == 1 and cfg.backend == "local":
         return _record(cfg, None, summary, made_by)
     # Workers start first: their start-up overlaps with opening the dataset.
     with _start_workers(cfg) as rollouts:
@@ -326,12 +342,12 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     settings = RolloutSettings(
         cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize), cfg.latency
     )
-    workers = min(cfg.workers, cfg.episodes)
+    count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":
         from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend
 
-        return RayRollouts(settings, cfg.dataset, workers, cfg.ray_address)
-    return ParallelRollouts(settings, cfg.dataset, workers)
+        return RayRollouts(settings, cfg.dataset, count, cfg.ray_address)
+    return ParallelRollouts(settings, cfg.dataset, count)
 
 
 def _record_in_parallel(

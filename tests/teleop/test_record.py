@@ -90,7 +90,8 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The command line records through the writer process and ends with a one-line summary."""
-    code = cli(["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--progress", "false"])
+    args = ["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--workers", "1"]
+    code = cli([*args, "--progress", "false"])
     out = capsys.readouterr().out.strip().splitlines()
     assert code == 0
     assert "added 2 episodes (seeds 0..1), 60 frames" in out[-1]
