@@ -130,6 +130,7 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 55 minutes)
 	$(PY) -m bench.ppo_throughput
 	$(PY) -m bench.ray_backend
 	$(PY) -m bench.shard_merge
+	$(PY) -m bench.worker_overhead
 
 # The flag reference is generated from the stages' configs, as `make help` is; tests/test_docs.py checks it is current.
 .PHONY: docs

@@ -24,6 +24,7 @@ default is what it is: docs/how-to/finetune-ppo.md; what was tried and removed: 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -50,6 +51,7 @@ from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
+from common.workers import default_workers
 from humanoid.conditions import Randomization, parse_randomization
 from humanoid.env import make_env
 from humanoid.learned import PolicyController
@@ -76,6 +78,15 @@ evaluation during training: they choose the actor kept with it (`selection_score
 and the actor kept"), and go to the learning curve's survival panel and TensorBoard."""
 
 
+# Sampling peaked at 14 workers on a 16-core machine (5.1x one worker): the learner's serial update and the
+# rollout's transfer take the rest (docs/decisions/worker-counts.md).
+MOST_WORKERS = 14
+# Workers that each hold this many environments or more end the same run as one worker (docs/log.md,
+# "Environments and workers"), so the default changes no result: more workers only where each gets as many,
+# and 2 otherwise, which every 2-core machine used before.
+ENVS_PER_WORKER = 4
+
+
 @dataclass
 class FinetuneConfig:
     """Settings of one PPO run: fine-tuning the BC actor (`make finetune-rl`)."""
@@ -88,10 +99,11 @@ class FinetuneConfig:
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
-    workers: int = setting(
-        2,
+    workers: int | None = setting(
+        None,
         "processes the environments are spread over (1: in the learner's own process); "
-        "changes the speed, not the result, while each holds 4 or more environments",
+        "changes the speed, not the result, while each holds 4 or more environments; default: the machine's cores, "
+        f"at most {MOST_WORKERS} and at most one per {ENVS_PER_WORKER} environments (but 2 where cores allow)",
     )
     backend: str = setting(
         "local",
@@ -178,12 +190,19 @@ class FinetuneConfig:
     """Initial log std of the exploration noise: std 0.05, the DART noise the BC data was recorded with."""
 
 
+def workers(cfg: FinetuneConfig) -> int:
+    """The worker processes `cfg` asks for: --workers, else the machine's cores (`common.workers`) as far as the
+    result stays the one 2 workers give (`ENVS_PER_WORKER`)."""
+    if cfg.workers is not None:
+        return cfg.workers
+    return min(default_workers(MOST_WORKERS), max(2, cfg.envs // ENVS_PER_WORKER), cfg.envs)
+
+
 def validate(cfg: FinetuneConfig) -> None:
     """Reject bad settings before anything is read or written; messages name the flags."""
     for name in (
         "timesteps",
         "envs",
-        "workers",
         "rollout_steps",
         "batch_size",
         "epochs",
@@ -195,6 +214,8 @@ def validate(cfg: FinetuneConfig) -> None:
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"{flag(name)} must be positive, got {value}")
+    if workers(cfg) <= 0:
+        raise UserError(f"--workers must be positive, got {workers(cfg)}")
     for name in (
         "push",
         "target_kl",
@@ -207,8 +228,8 @@ def validate(cfg: FinetuneConfig) -> None:
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
     check_backend(cfg.backend, cfg.ray_address)
-    if cfg.workers > cfg.envs:
-        raise UserError(f"--workers ({cfg.workers}) must not exceed --envs ({cfg.envs})")
+    if workers(cfg) > cfg.envs:
+        raise UserError(f"--workers ({workers(cfg)}) must not exceed --envs ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"--rollout-steps ({cfg.rollout_steps}) must be a multiple of --envs ({cfg.envs})")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
@@ -264,7 +285,7 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
     inputs = checkpoint.load(cfg.bc_policy).spec.inputs
     return make_vec_env(
         cfg.envs,
-        cfg.workers,
+        workers(cfg),
         training_push(cfg),
         cfg.seed,
         cfg.backend,
@@ -338,6 +359,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
     """
     validate(cfg)
+    cfg = dataclasses.replace(cfg, workers=workers(cfg))  # saved as a number: a resume must split as this run did
     if cfg.bc_policy == paths.ODOMETRY_POLICY and not cfg.bc_policy.exists():
         raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {ODOMETRY_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.

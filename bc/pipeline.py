@@ -126,7 +126,8 @@ class PipelineConfig:
     noise: float = _like(RecordConfig, "noise")
     max_steps: int = _like(RecordConfig, "max_steps")
     workers: int | None = setting(
-        None, "simulation processes of the recording and of both PPO stages; default: each stage's (record 1, PPO 2)"
+        None,
+        "simulation processes of the recording and of both PPO stages; default: each stage's (the machine's cores)",
     )
     backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
     ray_address: str | None = _like(FinetuneConfig, "ray_address")

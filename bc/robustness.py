@@ -25,6 +25,7 @@ from tqdm import tqdm
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.workers import default_workers
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
 
@@ -34,6 +35,11 @@ RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
 CONTROLLER_FOLDER = Path("policies")
 """Where a registered controller's results go (`policies/expert/`): it has no checkpoint folder of its own."""
+
+
+# The episodes of each condition run in two chunks (`run_suite`), independent of each other: more workers than the
+# full suite's chunks would wait.
+MOST_WORKERS = 2 * len(SUITE)
 
 
 @dataclass
@@ -47,7 +53,9 @@ class RobustnessConfig:
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
-    workers: int = setting(2, "processes the episodes are spread over")
+    workers: int | None = setting(
+        None, f"processes the episodes are spread over; default: the machine's cores, at most {MOST_WORKERS}"
+    )
     output: Path | None = setting(None, f"folder for {RESULT_FILE} and {FIGURE_FILE} (default: POLICY's folder)")
     progress: bool = setting(True, "show a progress bar")
 
@@ -67,7 +75,7 @@ def selected(cfg: RobustnessConfig) -> list[str]:
 def validate(cfg: RobustnessConfig) -> list[str]:
     """Reject bad settings before anything runs; returns the conditions to run."""
     for name in ("episodes", "workers"):
-        if getattr(cfg, name) <= 0:
+        if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     if cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
@@ -201,7 +209,8 @@ def main(cfg: RobustnessConfig) -> dict[str, Any]:
     names = validate(cfg)
     folder = output_folder(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
-    conditions = run_suite(cfg.policy, names, seeds, cfg.workers, cfg.progress)
+    workers = default_workers(MOST_WORKERS) if cfg.workers is None else cfg.workers
+    conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress)
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         folder.mkdir(parents=True, exist_ok=True)

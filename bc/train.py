@@ -34,7 +34,7 @@ from torch.nn import functional as F
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from bc.data import Demonstrations, load_demonstrations, split_by_episode
+from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
@@ -302,7 +302,19 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
         demos = load_demonstrations(cfg.dataset, env, cache=cfg.cache, inputs=cfg.inputs)
     finally:
         env.close()
+    check_taught(cfg)
     return train_and_save(demos, cfg, env.action_space, made_by, context)
+
+
+def check_taught(cfg: TrainConfig) -> None:
+    """UserError in one line if `cfg.dataset` cannot teach `cfg.inputs`: the "pending" inputs teach acting through
+    a step of action latency, which a dataset without a delayed episode never shows
+    (docs/decisions/pending-inputs.md)."""
+    if cfg.inputs == "pending" and not episode_delays(cfg.dataset).any():
+        raise UserError(
+            f"--inputs pending learns to act through action latency, and no episode of {cfg.dataset} was recorded "
+            "with it: record the dataset with LATENCY>0 (make record LATENCY=0.5), or train on other --inputs"
+        )
 
 
 def fit_demonstrations(

@@ -115,6 +115,12 @@ def check_removed(config_class: type, argv: Sequence[str]) -> None:
             raise UserError(REMOVED_VALUES[name, value].message())
 
 
+def one_line(error: BaseException) -> str:
+    """An exception as one line of a message: its type and the first line of its text."""
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+
+
 def setting(default: Any, help: str, **kwargs: Any) -> Any:
     """A config field with its `--help` text."""
     return dataclasses.field(default=default, metadata={"help": help, **kwargs})

@@ -190,6 +190,13 @@ def _context(preload: Iterable[str]) -> Any:
     return context
 
 
+def default_workers(most: int) -> int:
+    """The worker count of recording, PPO and the robustness suite unless told: one per core this process may run on
+    (its CPU affinity, which a container or `taskset` narrows), at most `most`, past which more do not help (each
+    command says why its `most`: docs/decisions/worker-counts.md)."""
+    return max(1, min(most, len(os.sched_getaffinity(0))))
+
+
 def describe_exit(code: int | None) -> str:
     """`exit code 1`, `exit code -9, SIGKILL` for a child killed by a signal, or `still running`."""
     if code is None:

@@ -6,14 +6,18 @@
       dataset.json        the dataset's identity: path, episodes, frames, the split
 
 A checkpoint is written into a hidden sibling folder and renamed into place only once complete,
-so an interrupted or failed run never leaves a half-written checkpoint nor destroys the old one.
+so an interrupted or failed run never leaves a half-written checkpoint nor destroys the old one; the
+folder a killed run leaves is removed by the next run for the same checkpoint.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
+import os
 import shutil
+import socket
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -30,6 +34,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 
 FORMAT = "humanoid-bc/policy"
 FORMAT_VERSION = 1
+STAGING_SUFFIX = ".partial"
 POLICY_CLASSES = {"MLPPolicy": (MLPPolicy, MLPSpec)}
 
 
@@ -132,14 +137,42 @@ def _publish(folder: Path, path: Path, overwrite: bool) -> None:
         folder.rename(path)
 
 
+def _owner() -> str:
+    """Who stages a checkpoint: this machine and process, so that a later run can tell an abandoned folder."""
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _remove_abandoned(path: Path) -> None:
+    """Remove the staging folders of `path` (`staged`) whose run is gone (killed before it could clean up): those of
+    a process of this machine that no longer runs. Another machine's, a live run's, or an unnamed one stays."""
+    prefix, host = f".{path.name}.", socket.gethostname()
+    for folder in path.parent.glob(f"{glob.escape(prefix)}*{STAGING_SUFFIX}"):
+        owner = folder.name.removeprefix(prefix).removesuffix(STAGING_SUFFIX).rpartition(".")[0]
+        owner_host, _, pid = owner.rpartition("-")
+        if owner_host == host and pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 @contextmanager
 def staged(path: Path, overwrite: bool) -> Iterator[Path]:
-    """A fresh hidden folder beside `path` to write into; it becomes `path` when the block succeeds."""
+    """A fresh hidden folder beside `path` to write into (named after its owner: `_remove_abandoned`); it becomes
+    `path` when the block succeeds."""
     check_replaceable(path, overwrite)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        _remove_abandoned(path)
         # Not tempfile.mkdtemp: its 0700 mode would stay on the published checkpoint.
-        staging = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.partial"
+        staging = path.parent / f".{path.name}.{_owner()}.{uuid.uuid4().hex[:8]}{STAGING_SUFFIX}"
         staging.mkdir()
     except OSError as error:
         raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None

@@ -38,11 +38,11 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
 from common import keys, paths
-from common.cli import DatasetError, run_cli, setting
+from common.cli import DatasetError, one_line, run_cli, setting
 from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
-from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH
+from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH, read_footer
 from teleop.mcap_io.writer import FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOL_DIR
 from teleop.store import MCAP_DIR, mcap_name
@@ -314,7 +314,7 @@ def _open(root: Path) -> dict:
     try:
         info = read_info(root)
     except (OSError, ValueError) as error:
-        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({_one_line(error)})") from None
+        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
     if not isinstance(info, dict):
         raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
     if info.get("codebase_version") != CODEBASE_VERSION:
@@ -345,17 +345,12 @@ def _open(root: Path) -> dict:
     return info
 
 
-def _one_line(error: BaseException) -> str:
-    text = str(error).strip().splitlines()
-    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
-
-
 def _read(root: Path, info: dict) -> Dataset:
     """Read the metadata, the frames and the MCAP summaries; what makes reading impossible is a DatasetError."""
     try:
         table = read_episodes(root)
     except (OSError, pa.ArrowException, KeyError) as error:
-        raise DatasetError(f"cannot read the episode metadata in {root / EPISODES_DIR}: {_one_line(error)}") from None
+        raise DatasetError(f"cannot read the episode metadata in {root / EPISODES_DIR}: {one_line(error)}") from None
     for column in ("length", "dataset_from_index", "dataset_to_index", "data/chunk_index", "data/file_index"):
         if column not in table.column_names:
             raise DatasetError(f"{root / EPISODES_DIR}: no {column!r} column")
@@ -370,7 +365,7 @@ def _read(root: Path, info: dict) -> Dataset:
     try:
         frames = read_frames(root)
     except (OSError, pa.ArrowException, KeyError, ValueError) as error:
-        raise DatasetError(f"cannot read the frames in {root / 'data'}: {_one_line(error)}") from None
+        raise DatasetError(f"cannot read the frames in {root / 'data'}: {one_line(error)}") from None
     tasks = _read_tasks(root, info)
     mcap_paths = [
         root / path if path else root / MCAP_DIR / mcap_name(index)
@@ -400,11 +395,11 @@ def _check_data_files(root: Path, info: dict, paths: list[Path]) -> int:
         where = path.relative_to(root)
         if not path.is_file():
             raise DatasetError(f"{where} is missing (meta/episodes points to it)")
+        metadata = read_footer(path)
         try:
-            metadata = pq.read_metadata(path)
             schema = metadata.schema.to_arrow_schema()
         except (OSError, pa.ArrowException) as error:
-            raise DatasetError(f"{where} is not a readable parquet file ({_one_line(error)})") from None
+            raise DatasetError(f"{where} is not a readable parquet file ({one_line(error)})") from None
         rows += metadata.num_rows
         for name, feature in info["features"].items():
             if feature["dtype"] == "video":  # LeRobot keeps videos in mp4 files, not in the frames table
@@ -447,7 +442,7 @@ def _read_tasks(root: Path, info: dict) -> list[str]:
     try:
         table = pq.read_table(root / TASKS_PATH)
     except (OSError, pa.ArrowException) as error:
-        raise DatasetError(f"{TASKS_PATH} is not readable ({_one_line(error)})") from None
+        raise DatasetError(f"{TASKS_PATH} is not readable ({one_line(error)})") from None
     if "task_index" not in table.column_names or keys.TASK not in table.column_names:
         raise DatasetError(f"{TASKS_PATH} has no 'task' and 'task_index' columns")
     indices, names = table["task_index"].to_pylist(), table[keys.TASK].to_pylist()
@@ -472,7 +467,7 @@ def _mcap_file(path: Path) -> McapFile:
             stream.seek(0)
             summary = make_reader(stream).get_summary()
     except Exception as error:
-        return McapFile(path, f"is unreadable ({_one_line(error)})", {})
+        return McapFile(path, f"is unreadable ({one_line(error)})", {})
     if summary is None or summary.statistics is None:
         return McapFile(path, "has no summary statistics (written without an index?)", {})
     counts: Counter[str] = Counter()
@@ -709,7 +704,7 @@ def _verify_stats(dataset: Dataset) -> None:
     try:
         stats = json.loads(path.read_text())
     except (OSError, ValueError) as error:
-        raise DatasetError(f"{STATS_PATH} is not readable JSON ({_one_line(error)})") from None
+        raise DatasetError(f"{STATS_PATH} is not readable JSON ({one_line(error)})") from None
     for name, feature in dataset.info["features"].items():
         if feature["dtype"] in ("video", "image", "string"):
             continue  # LeRobot keeps no statistics, or per-channel image ones computed otherwise
@@ -802,7 +797,7 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
     try:
         steps = read_steps(path)
     except Exception as error:
-        return f"has unreadable {STEP_TOPIC} messages ({_one_line(error)})"
+        return f"has unreadable {STEP_TOPIC} messages ({one_line(error)})"
     frames, rows = dataset.frames, dataset.rows(episode)
     length = rows.stop - rows.start
     if len(steps["task"]) != length:
@@ -832,7 +827,7 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
         try:
             final = read_mcap_final(path)
         except Exception as error:
-            return f"has no readable {FINAL_TOPIC} message ({_one_line(error)})"
+            return f"has no readable {FINAL_TOPIC} message ({one_line(error)})"
         if final["frame_index"] != length or not np.array_equal(final["state"], final_state[episode]):
             return f"{FINAL_TOPIC} differs from the episode's {keys.EPISODE_FINAL_STATE}"
     task_names = [dataset.tasks[i] for i in frames["task_index"][rows].tolist()]

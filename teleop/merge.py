@@ -33,6 +33,7 @@ from humanoid.episode import Episode
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.mcap_io.writer import TF_TOPIC
+from teleop.seeds import seed_clash
 from teleop.store import DatasetSpec, EpisodeStore
 
 
@@ -40,7 +41,9 @@ from teleop.store import DatasetSpec, EpisodeStore
 class MergeConfig:
     """Settings of one merge."""
 
-    shards: str = setting("", "the datasets to merge, separated by spaces or commas; their seeds must not overlap")
+    shards: str = setting(
+        "", "the datasets to merge, separated by spaces or commas; their seeds must not overlap (teleop/seeds.py)"
+    )
     dataset: Path = setting(paths.DATASET, "the merged dataset: created if missing, else continued (same seeds)")
     progress: bool = setting(True, "show a progress bar")
 
@@ -97,7 +100,7 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
     if not shards:
         raise UserError("--shards names no dataset")
     episodes, features, parameters = [], None, None
-    for shard in shards:
+    for number, shard in enumerate(shards):
         if not (shard / "meta/info.json").is_file():
             raise UserError(f"{shard} is not a dataset (no meta/info.json)")
         info = read_info(shard)
@@ -110,12 +113,12 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
         if drawn is not None and parameters is not None and set(drawn) != set(parameters):
             raise UserError(f"{shard} draws other physical parameters than {shards[0]}")
         parameters = parameters if drawn is None else drawn
+        earlier = ", ".join(map(str, shards[:number])) or str(shard)
+        clash = seed_clash([row[keys.EPISODE_SEED] for row in rows], [seed for seed, _, _ in episodes], earlier)
+        if clash:
+            raise UserError(f"shard {shard}: {clash}; record it again from there")
         episodes += [(row[keys.EPISODE_SEED], shard, row) for row in rows]
     episodes.sort(key=lambda episode: episode[0])
-    seeds = [seed for seed, _, _ in episodes]
-    repeated = sorted({seed for seed in seeds if seeds.count(seed) > 1})
-    if repeated:
-        raise UserError(f"seeds {repeated[:5]} are in more than one shard (or twice in one): record disjoint seeds")
     return episodes, parameters or (), features or {}
 
 

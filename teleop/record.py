@@ -2,7 +2,8 @@
 
 The folder holds a LeRobot v3.0 dataset and one MCAP file per episode (`teleop.store`). Episodes
 are appended, never overwritten: the first new one uses SEED, or one past the largest seed already
-recorded, so that running the recorder again adds new episodes instead of repeating old ones.
+recorded, so that running the recorder again adds new episodes; a SEED whose episodes would repeat
+seeds the dataset holds is refused (`teleop.seeds`: a dataset's seeds identify its episodes).
 
 Noise-injected demonstrations (DART): with `--noise σ` the environment receives the controller's
 action plus Gaussian noise, clipped to the bounds, while the `action` label stays the clean
@@ -39,8 +40,9 @@ import numpy as np
 from tqdm import tqdm
 
 from common import keys, paths
-from common.cli import UserError, check_share, config_dict, flag, run_cli, setting
+from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
+from common.workers import default_workers
 from humanoid.conditions import (
     LATENCY_PARAMETER,
     NO_RANDOMIZATION,
@@ -56,13 +58,13 @@ from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 from teleop import recordings
 from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
+from teleop.seeds import next_free, seed_clash
 
 if TYPE_CHECKING:
     from teleop.parallel import ParallelRollouts
     from teleop.ray_recording import RayRollouts
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
-log = logging.getLogger(__name__)
 
 # Measured (docs/decisions/dart-noise.md): at 0.05 the expert still stands on most seeds and behaviour
 # cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
@@ -75,6 +77,11 @@ SENSED_NOISE = 0.03
 # learns to act through the delay from them, and the undelayed half keeps it standing without
 # (docs/decisions/latency-share.md).
 SENSED_LATENCY = 0.5
+
+
+# Past about 6.6 simulation workers the one writer is the limit (docs/concepts/ray.md, "Throughput against the number
+# of nodes"): more only wait for it.
+MOST_WORKERS = 7
 
 
 @dataclass
@@ -108,10 +115,11 @@ class RecordConfig:
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
-    workers: int = setting(
-        1,
+    workers: int | None = setting(
+        None,
         "simulation processes; with 2 or more (or --backend ray) the recorder's own process writes, "
-        "committing episodes in seed order (the dataset is the one a single process records)",
+        "committing episodes in seed order (the dataset is the one a single process records); default: the "
+        f"machine's cores, at most {MOST_WORKERS}, and 1 with --live, a keyboard controller or --writer inline",
     )
     backend: str = setting(
         "local",
@@ -175,20 +183,20 @@ def validate(cfg: RecordConfig) -> None:
     except ValueError as error:
         raise UserError(str(error)) from None
     for name in ("episodes", "max_steps", "workers"):
-        if getattr(cfg, name) <= 0:
+        if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     if not cfg.noise >= 0:  # also rejects NaN
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
-    if cfg.live and (cfg.workers != 1 or cfg.backend != "local"):
+    if cfg.live and (workers(cfg) != 1 or cfg.backend != "local"):
         raise UserError(
             f"--live shows one simulation here: --workers must be 1 and --backend local, "
-            f"got {cfg.workers} and {cfg.backend}"
+            f"got {workers(cfg)} and {cfg.backend}"
         )
     check_port(cfg.live_port)
-    if cfg.controller in INTERACTIVE and (cfg.workers != 1 or cfg.backend != "local"):
+    if cfg.controller in INTERACTIVE and (workers(cfg) != 1 or cfg.backend != "local"):
         raise UserError(
             f"--controller {cfg.controller} records in one process here: --workers must be 1 and --backend local"
         )
@@ -205,12 +213,21 @@ def validate(cfg: RecordConfig) -> None:
     check_destination(cfg.dataset)
 
 
+def workers(cfg: RecordConfig) -> int:
+    """The simulation processes `cfg` asks for: --workers, else the machine's cores (`common.workers`), but one for
+    what runs in one process (the live view, keyboard teleoperation, the inline writer)."""
+    if cfg.workers is not None:
+        return cfg.workers
+    single = cfg.live or cfg.controller in INTERACTIVE or cfg.writer == "inline"
+    return 1 if single else default_workers(MOST_WORKERS)
+
+
 def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str | None = None) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given).
     `made_by`: the session logs itself (`record`), so it marks the dataset while it writes."""
     validate(cfg)
     summary = RecordSummary(cfg.dataset) if summary is None else summary
-    if cfg.workers == 1 and cfg.backend == "local":
+    if workers(cfg) == 1 and cfg.backend == "local":
         return _record(cfg, None, summary, made_by)
     # Workers start first: their start-up overlaps with opening the dataset.
     with _start_workers(cfg) as rollouts:
@@ -285,14 +302,18 @@ def _record(
     try:
         controller = make_controller(cfg.controller, env) if rollouts is None and not interactive else None
         sink.wait_ready()
-        if made_by is not None:
-            seeds = partial(_seeds, cfg.dataset)
-            recordings.take_over(cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, seeds, _logged_ranges(cfg))
-            summary.marked = True
-        first_seed = sink.next_seed() if cfg.seed is None else cfg.seed
-        if first_seed < sink.next_seed():
-            log.warning("seeds from %d are already in %s: the new episodes repeat them", first_seed, cfg.dataset)
+        recorded = sink.seeds()
+        first_seed = next_free(recorded) if cfg.seed is None else cfg.seed
         seeds = range(first_seed, first_seed + cfg.episodes)
+        clash = seed_clash(seeds, recorded, str(cfg.dataset))
+        if clash:
+            raise DatasetError(f"--seed {cfg.seed}: {clash} (leave --seed unset to start there)")
+        if made_by is not None:
+            recorded_seeds = partial(_seeds, cfg.dataset)
+            recordings.take_over(
+                cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, recorded_seeds, _logged_ranges(cfg)
+            )
+            summary.marked = True
         if interactive:
             from teleop.keyboard import run_session  # noqa: PLC0415
 
@@ -322,12 +343,12 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     settings = RolloutSettings(
         cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize), cfg.latency
     )
-    workers = min(cfg.workers, cfg.episodes)
+    count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":
         from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend
 
-        return RayRollouts(settings, cfg.dataset, workers, cfg.ray_address)
-    return ParallelRollouts(settings, cfg.dataset, workers)
+        return RayRollouts(settings, cfg.dataset, count, cfg.ray_address)
+    return ParallelRollouts(settings, cfg.dataset, count)
 
 
 def _record_in_parallel(

@@ -46,6 +46,7 @@ from humanoid.sensors import ObservationSplit, privileged_names, proprioception_
 from teleop.lerobot_io.format import check_destination
 from teleop.lerobot_io.writer import LeRobotWriter
 from teleop.mcap_io.writer import scene_update, write_episode_mcap
+from teleop.seeds import next_free
 from teleop.spool import Spool
 
 log = logging.getLogger(__name__)
@@ -116,7 +117,7 @@ class EpisodeSink(Protocol):
     num_episodes: int
 
     def wait_ready(self) -> None: ...
-    def next_seed(self) -> int: ...
+    def seeds(self) -> list[int]: ...
     def submit(self, episode: Episode) -> list[CommittedEpisode]: ...
     def close(self) -> list[CommittedEpisode]: ...
 
@@ -182,10 +183,13 @@ class EpisodeStore:
     def num_episodes(self) -> int:
         return self.lerobot.total_episodes
 
+    def seeds(self) -> list[int]:
+        """The seeds of the committed episodes, in episode order."""
+        return list(self.lerobot.episode_column(keys.EPISODE_SEED))
+
     def next_seed(self) -> int:
         """One past the largest seed recorded so far (0 for a new dataset): appending never repeats one."""
-        seeds = self.lerobot.episode_column(keys.EPISODE_SEED)
-        return max(seeds) + 1 if seeds else 0
+        return next_free(self.seeds())
 
     def prepare(self) -> None:
         """Do the first episode's one-time set-up now, while the recorder waits for that episode."""

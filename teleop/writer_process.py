@@ -38,16 +38,17 @@ class WriterProcess:
             _serve, root, parameters, name=f"the writer process of {root}", preload=WRITER_MODULES, outlives_parent=True
         )
         self.num_episodes = -1
-        self._next_seed = -1
+        self._seeds: list[int] = []
         self._ready = False
 
     def wait_ready(self) -> None:
         """Block until the child has opened the dataset; DatasetError (or WorkerError) if it could not."""
-        self.num_episodes, self._next_seed = self._worker.recv()
+        self.num_episodes, self._seeds = self._worker.recv()
         self._ready = True
 
-    def next_seed(self) -> int:
-        return self._next_seed
+    def seeds(self) -> list[int]:
+        """The seeds of the dataset's episodes when it opened (`wait_ready`)."""
+        return self._seeds
 
     def submit(self, episode: Episode) -> list[CommittedEpisode]:
         """Hand `episode` over (blocks while the child is still writing the previous one)."""
@@ -82,7 +83,7 @@ def _serve(channel: Channel, root: Path, parameters: tuple[str, ...]) -> None:
 
     store = EpisodeStore(root, DatasetSpec.from_env(make_env(), parameters))
     try:
-        channel.send((store.num_episodes, store.next_seed()))
+        channel.send((store.num_episodes, store.seeds()))
         store.prepare()  # while the recorder simulates the first episode
         for episode in channel:  # until the recorder closes the channel, finished or killed (mid-send too)
             channel.send(store.append(episode))

@@ -169,7 +169,8 @@ def scalars(folder: Path, tag: str) -> list[tuple[int, float]]:
 
 
 def start_recording(root: Path, episodes: int, *flags: str) -> subprocess.Popen:
-    """`python -m teleop.record` (writer process included) of 150-step episodes in a process group of its own."""
+    """`python -m teleop.record` (one worker and the writer process, unless `flags` say otherwise) of 150-step
+    episodes in a process group of its own."""
     return subprocess.Popen(
         [
             sys.executable,
@@ -183,6 +184,8 @@ def start_recording(root: Path, episodes: int, *flags: str) -> subprocess.Popen:
             "150",
             "--progress",
             "false",
+            "--workers",
+            "1",
             *flags,
         ],
         start_new_session=True,

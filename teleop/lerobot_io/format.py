@@ -13,9 +13,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from common.cli import DatasetError
+from common.cli import DatasetError, one_line
 
 if TYPE_CHECKING:
+    import pyarrow.parquet as pq
+
     import datasets
 
 CODEBASE_VERSION = "v3.0"
@@ -44,15 +46,37 @@ Stats = dict[str, dict[str, np.ndarray]]
 
 
 def check_destination(root: Path) -> None:
-    """DatasetError unless `root` is missing, an empty folder (hidden files aside) or holds a dataset: what opening it
-    for writing refuses, found by reading only, before a recording starts (here rather than in the writer, so
-    that the recorder's validation imports no pandas or pyarrow)."""
+    """DatasetError unless `root` is missing, an empty folder (hidden files aside) or holds a dataset whose parquet
+    files are whole: what opening it for writing refuses, found by reading only, before a recording starts (here
+    rather than in the writer, so that the recorder's validation of a new dataset imports no pandas or pyarrow)."""
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root} is a file, not a dataset folder")
-    if root.is_dir() and not (root / INFO_PATH).exists() and any(not p.name.startswith(".") for p in root.iterdir()):
+    if not root.is_dir():
+        return
+    if not (root / INFO_PATH).exists():
+        if any(not p.name.startswith(".") for p in root.iterdir()):
+            raise DatasetError(
+                f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); choose an empty or new folder"
+            )
+        return
+    # Appending to a dataset that LeRobot and training cannot read would only add episodes nobody can use.
+    for path in sorted([*(root / DATA_DIR).glob("*/*.parquet"), *(root / "meta").rglob("*.parquet")]):
+        read_footer(path)
+
+
+def read_footer(path: Path) -> pq.FileMetaData:
+    """The footer of parquet file `path` (its schema and row counts, not its data: cheap); DatasetError naming the
+    file if it has none a reader accepts (truncated by a copy cut short, or damaged)."""
+    import pyarrow as pa  # noqa: PLC0415 - only where a dataset holds parquet files
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    try:
+        return pq.read_metadata(path)
+    except (OSError, pa.ArrowException) as error:
         raise DatasetError(
-            f"{root} is not empty and holds no LeRobot dataset (no {INFO_PATH}); choose an empty or new folder"
-        )
+            f"{path} is not a readable parquet file ({one_line(error)}): truncated or damaged; restore it from a copy "
+            "or use another dataset folder"
+        ) from None
 
 
 def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import socket
+import subprocess
 import textwrap
 from collections.abc import Callable
 from itertools import pairwise
@@ -208,6 +211,28 @@ def test_failed_save_keeps_the_old_checkpoint(trained: TrainResult, tmp_path: Pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
 
 
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The hidden folder a run killed mid-save leaves goes with the next run for the same checkpoint; a live run's,
+    another machine's and another checkpoint's stay."""
+    ended = subprocess.Popen(["true"])
+    ended.wait()  # a process of this machine that no longer runs
+    host = socket.gethostname()
+    abandoned = tmp_path / f".policy.{host}-{ended.pid}.0badf00d.partial"
+    kept = [
+        tmp_path / f".policy.{host}-{os.getpid()}.0badf00d.partial",  # a live run
+        tmp_path / f".policy.elsewhere-{ended.pid}.0badf00d.partial",  # another machine's
+        tmp_path / f".policy.b.{host}-{ended.pid}.0badf00d.partial",  # checkpoint policy.b's
+    ]
+    for folder in [abandoned, *kept]:
+        folder.mkdir()
+        (folder / "model.safetensors").write_bytes(b"half")
+    code, _ = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "policy")], capsys)
+    assert code == 0 and (tmp_path / "policy").is_dir() and not abandoned.exists()
+    assert all((folder / "model.safetensors").read_bytes() == b"half" for folder in kept)
+
+
 def test_existing_checkpoint_is_kept_without_overwrite(
     trained: TrainResult, recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -358,6 +383,17 @@ def test_unknown_inputs_are_refused_in_one_line(
         cli(["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "camera"])
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_info.value.code == 2 and len(err) == 1 and "'camera'" in err[0]
+    assert not (tmp_path / "policy").exists()
+
+
+def test_pending_inputs_on_a_dataset_without_latency_are_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """INPUTS=pending on episodes none of which was delayed: one line saying to record with latency, no checkpoint."""
+    code, err = train_cli(
+        ["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "pending"], capsys
+    )
+    assert code == 1 and len(err) == 1 and "LATENCY>0" in err[0]
     assert not (tmp_path / "policy").exists()
 
 

@@ -24,7 +24,6 @@ from bc.train import TrainConfig
 from bc.train import main as train_bc
 from common import paths
 from common.cli import config_dict
-from humanoid.env import make_env
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
@@ -36,6 +35,8 @@ from teleop.record import RecordConfig, record
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
 # The plumbing tests run on the nominal task, unpushed (the curriculum and the randomisation have tests of their own).
+PPO_ENV = functools.partial(training_env, None)  # a full actor's PPO environment: the observation, then its inputs
+
 TINY_PPO = {
     "curriculum": "",
     "randomize": "none",
@@ -73,15 +74,15 @@ def ppo_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, l
 def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
     """Before any update, PPO's deterministic actions are the BC policy's, bit for bit."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
-    env = WorkerGroupVecEnv([make_env], workers=1)
+    env = WorkerGroupVecEnv([PPO_ENV], workers=1)
     model = learner(config, env)
     bc = PolicyController(checkpoint.load(bc_policy), "bc")
-    probe = make_env()
+    probe = PPO_ENV()  # the observation, then the actor's inputs: here the observation again
     for seed in range(3):
         obs, _ = probe.reset(seed=seed)
         for _ in range(20):
             action, _ = model.predict(obs, deterministic=True)
-            np.testing.assert_array_equal(action, bc.act(obs))
+            np.testing.assert_array_equal(action, bc.act(obs[:348]))
             obs, *_ = probe.step(action)
     assert torch.exp(model.policy.log_std).allclose(torch.tensor(0.05))
 
@@ -134,7 +135,7 @@ def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path)
 def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
     """The critic's parameters are updated at CRITIC_LEARNING_RATE, the actor's and log std's at LEARNING_RATE."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=2e-5, critic_learning_rate=1e-3, **TINY_PPO)
-    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
+    model = learner(config, WorkerGroupVecEnv([PPO_ENV], workers=1))
     model._update_learning_rate(model.policy.optimizer)  # what every PPO update starts with
     rates = {id(p): group["lr"] for group in model.policy.optimizer.param_groups for p in group["params"]}
     actor = {id(p) for p in model.policy.actor_parameters()}
@@ -145,13 +146,14 @@ def test_critic_learns_at_its_own_rate(bc_policy: Path) -> None:
 
 
 def test_critic_clips_inputs_far_from_the_demonstrations(bc_policy: Path) -> None:
-    """Observations 20 and 1,000 standard deviations from the demonstrations' mean get the same value."""
+    """Observations 20 and 1,000 standard deviations from the demonstrations' mean get the same value (a full
+    actor's PPO observation is the observation twice: the privileged one, then the actor's inputs)."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
-    policy = learner(config, WorkerGroupVecEnv([make_env], workers=1)).policy
+    policy = learner(config, WorkerGroupVecEnv([PPO_ENV], workers=1)).policy
     actor = policy.actor
     with torch.no_grad():
         mean, far, farther = (
-            float(policy.predict_values((actor.input_mean + distance * actor.input_std)[None]))
+            float(policy.predict_values(torch.cat([actor.input_mean + distance * actor.input_std] * 2)[None]))
             for distance in (0, 20, 1000)
         )
     assert far == pytest.approx(farther, rel=1e-6)
@@ -161,7 +163,7 @@ def test_critic_clips_inputs_far_from_the_demonstrations(bc_policy: Path) -> Non
 def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
     """During the warm-up PPO updates the critic and leaves the actor's weights and log std as they were."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
-    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
+    model = learner(config, WorkerGroupVecEnv([PPO_ENV], workers=1))
     actor_before = {k: v.clone() for k, v in model.policy.actor.state_dict().items()}
     log_std_before = model.policy.log_std.detach().clone()
     critic_before = [p.detach().clone() for p in model.policy.mlp_extractor.critic.parameters()]
@@ -178,7 +180,7 @@ def test_critic_warmup_leaves_the_actor_unchanged(bc_policy: Path) -> None:
 def test_actor_learns_once_the_warmup_is_over(bc_policy: Path) -> None:
     """With no warm-up the same updates do change the actor (the previous test is not vacuous)."""
     config = FinetuneConfig(bc_policy=bc_policy, learning_rate=1e-3, **TINY_PPO)
-    model = learner(config, WorkerGroupVecEnv([make_env], workers=1))
+    model = learner(config, WorkerGroupVecEnv([PPO_ENV], workers=1))
     before = model.policy.actor.net[0].weight.detach().clone()
     model.learn(total_timesteps=512, callback=Guards(warmup=0))
     assert not torch.equal(model.policy.actor.net[0].weight, before)
@@ -456,8 +458,6 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--envs", "0"], "--envs must be positive"),
         (["--envs", "4", "--workers", "5"], "--workers (5) must not exceed --envs (4)"),
         (["--critic-learning-rate", "0"], "--critic-learning-rate must be positive"),
-        (["--reward-scale", "-1"], "--reward-scale must be positive"),
-        (["--eval-conditions", "push20,gravity"], "unknown --eval-conditions gravity"),
         (["--backend", "ray", "--ray-address", "6379"], "--ray-address must be HOST:PORT"),
         (["--curriculum", "20,10"], "forces must not decrease"),
         (["--curriculum", "10,x"], "give push forces in newtons"),

@@ -205,3 +205,28 @@ def test_a_child_that_exits_when_its_input_ends_does_so_after_a_kill_9_of_its_pa
     while not ended(child) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert ended(child)
+
+
+DEFAULTS = """
+import os, sys
+os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: int(sys.argv[1])])
+from bc import finetune, robustness
+from common.workers import default_workers
+from teleop import record
+print(default_workers(14), default_workers(1))
+print(finetune.workers(finetune.FinetuneConfig()), finetune.workers(finetune.FinetuneConfig(envs=8)))
+print(robustness.RobustnessConfig().workers is None and default_workers(robustness.MOST_WORKERS))
+print(record.workers(record.RecordConfig()), record.workers(record.RecordConfig(live=True)))
+print(record.workers(record.RecordConfig(writer="inline")), record.workers(record.RecordConfig(workers=3)))
+"""
+
+
+@pytest.mark.parametrize("cores", [1, 2])
+def test_worker_counts_default_to_the_cores_this_process_may_use(cores: int) -> None:
+    """On 1 and 2 cores (this process's affinity narrowed): one worker per core, as PPO and the suite used on 2 before;
+    recording in one process where it must (live view, keyboard, inline writer), and an explicit count as given."""
+    if len(os.sched_getaffinity(0)) < cores:
+        pytest.skip(f"needs {cores} cores")
+    run = subprocess.run([sys.executable, "-c", DEFAULTS, str(cores)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == [str(cores), "1", str(cores), str(cores), str(cores), str(cores), "1", "1", "3"]

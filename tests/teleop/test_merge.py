@@ -77,7 +77,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
 @pytest.mark.parametrize(
     ("which", "message"),
     [
-        ("overlapping", "are in more than one shard"),
+        ("overlapping", "are already in"),
         ("not a dataset", "is not a dataset"),
         ("other episodes", "holds other episodes than the first"),
         ("itself", "a shard cannot be merged into itself"),

@@ -19,6 +19,7 @@ from support import SHORT_EPISODE, assert_consistent, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
 from teleop.record import RecordConfig, cli
+from teleop.seeds import seed_clash
 from teleop.store import DatasetSpec, EpisodeStore
 
 
@@ -89,7 +90,8 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The command line records through the writer process and ends with a one-line summary."""
-    code = cli(["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--progress", "false"])
+    args = ["--dataset", str(tmp_path / "cli"), "--episodes", "2", "--max-steps", "30", "--workers", "1"]
+    code = cli([*args, "--progress", "false"])
     out = capsys.readouterr().out.strip().splitlines()
     assert code == 0
     assert "added 2 episodes (seeds 0..1), 60 frames" in out[-1]
@@ -146,6 +148,42 @@ def test_dataset_with_other_features_is_refused(tmp_path: Path, capsys: pytest.C
     code, err = run_cli(["--dataset", str(root)], capsys)
     assert code != 0 and len(err) == 1 and "other features" in err[0]
     assert snapshot(root) == before
+
+
+def test_dataset_with_a_truncated_data_file_is_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A data parquet cut short (a copy interrupted): one line naming it, before anything is written."""
+    root = tmp_path / "truncated"
+    shutil.copytree(recorded, root)
+    path = root / "data/chunk-000/file-001.parquet"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    before = snapshot(root)
+    code, err = run_cli(["--dataset", str(root)], capsys)
+    assert code != 0 and len(err) == 1 and f"{path} is not a readable parquet file" in err[0]
+    assert snapshot(root) == before
+
+
+@pytest.mark.parametrize(("seed", "repeated"), [(0, "seeds 0..1"), (2, "seeds 2")])
+def test_a_seed_the_dataset_holds_is_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], seed: int, repeated: str
+) -> None:
+    """SEED whose episodes would repeat the dataset's seeds (0..2): one line naming them and the next free seed, as
+    `make merge` refuses overlapping shards; nothing written."""
+    root = tmp_path / "again"
+    shutil.copytree(recorded, root)
+    before = snapshot(root)
+    code, err = run_cli(["--dataset", str(root), "--seed", str(seed), "--episodes", "2"], capsys)
+    assert code != 0 and len(err) == 1
+    assert f"{repeated} are already in {root}" in err[0] and "the next free seed is 3" in err[0]
+    assert snapshot(root) == before
+
+
+def test_seed_clash_names_the_repeated_runs_and_the_next_free_seed() -> None:
+    assert seed_clash(range(5, 9), [0, 1, 2, 10], "d") is None  # a gap is free
+    clash = seed_clash([1, 2, 3, 10, 11, 20, 40, 40], [0, 1, 2, 3, 10, 11, 20, 30], "d")
+    assert clash is not None and clash.startswith("seeds 1..3, 10..11, 20 and 1 more runs are already in d")
+    assert clash.endswith("the next free seed is 31")
 
 
 def test_folder_that_is_not_a_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
