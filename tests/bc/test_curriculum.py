@@ -62,6 +62,7 @@ def test_a_new_force_applies_from_the_next_episode() -> None:
     assert push_size() == pytest.approx(30.0)
 
 
+@pytest.mark.slow  # worker processes: seconds
 def test_randomised_training_environments_differ_and_repeat_with_the_seed() -> None:
     """Each training environment draws its own body; the same seed draws the same bodies again."""
 
@@ -100,6 +101,7 @@ def test_a_new_width_applies_from_the_next_draw() -> None:
     np.testing.assert_allclose(model.body_mass, nominal)
 
 
+@pytest.mark.slow  # worker processes: seconds
 def test_the_stage_sets_the_widened_shares_of_every_training_environment() -> None:
     """Each method the curriculum widens gets the stage's width times its value at the last stage, in every
     environment: at stage 1 of 3 half the latency and sensor-noise shares and half the randomisation."""

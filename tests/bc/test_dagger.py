@@ -335,15 +335,25 @@ def kill_in_round_one(config: DaggerConfig) -> None:
         process.wait()
 
 
-def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(recorded: Path, tmp_path: Path) -> None:
+def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """kill -9 once the first round's first episode is on disk, then the same command: the aggregate holds the same
-    episodes, frame for frame, and the final policy has the same weights as a run never interrupted."""
+    episodes, frame for frame, and the final policy has the same weights as a run never interrupted. Run again with
+    another NOISE first: one line naming the killed run's, exit != 0, OUTPUT as it was."""
     unbroken = DaggerConfig(dataset=recorded, output=tmp_path / "unbroken", policy=tmp_path / "p1", **TWO_ROUNDS)
     expected = main(unbroken).final.policy.state_dict()
     broken = dataclasses.replace(unbroken, output=tmp_path / "broken", policy=tmp_path / "p2")
     kill_in_round_one(broken)
     killed_at = committed_episodes(broken.output)
     assert killed_at < 3 + 2 * 3 and not broken.policy.exists()  # killed mid-way
+
+    before = snapshot(broken.output)
+    capsys.readouterr()
+    code = cli([*as_flags(broken), "--noise", "0.05"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "killed with --noise 0.0" in err[0]
+    assert snapshot(broken.output) == before
 
     resumed = main(broken).final.policy.state_dict()
     killed, finishing = recordings.read(broken.output)  # the killed run's episodes get their line too
@@ -355,17 +365,3 @@ def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(recorded: 
         np.testing.assert_array_equal(read_frames(broken.output)[key], read_frames(unbroken.output)[key])
     for name, weights in expected.items():
         torch.testing.assert_close(resumed[name], weights, rtol=0, atol=0)
-
-
-def test_a_killed_run_is_resumed_only_with_its_settings(
-    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """Another NOISE on the OUTPUT of a run killed mid-way: one line naming the killed run's, exit != 0, OUTPUT as it
-    was."""
-    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", **TWO_ROUNDS)
-    kill_in_round_one(config)
-    before = snapshot(config.output)
-    code = cli([*as_flags(config), "--noise", "0.05"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code != 0 and len(err) == 1 and "killed with --noise 0.0" in err[0]
-    assert snapshot(config.output) == before

@@ -539,44 +539,44 @@ def kill_after_snapshots(command: list[str], policy: Path, snapshots: int, delay
     return err
 
 
-@pytest.mark.parametrize("bc_folder", ["bc_policy", "pending_policy"])
+@pytest.fixture(scope="module")
+def resumable_reference(pending_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[FinetuneConfig, dict]:
+    """The RESUMABLE run never interrupted, of the pending actor (whose environments carry an estimator, the last
+    actions and the delay along each episode: what a resume has to rebuild): what the resumed runs must equal."""
+    config = FinetuneConfig(
+        bc_policy=pending_policy, policy=tmp_path_factory.mktemp("resumable") / "reference", **RESUMABLE
+    )
+    return config, main(config)
+
+
 def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
-    bc_folder: str, request: pytest.FixtureRequest, tmp_path: Path
+    resumable_reference: tuple[FinetuneConfig, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """kill -9 mid-rollout or mid-update (twice, at different moments), then the same command: the final actor,
-    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit; with a "pending"
-    actor too, whose environments' estimators are rebuilt by replaying the episodes in progress."""
-    bc_policy = request.getfixturevalue(bc_folder)
-    reference = tmp_path / "reference"
-    main(FinetuneConfig(bc_policy=bc_policy, policy=reference, **RESUMABLE))
+    """kill -9 mid-rollout or mid-update (twice, at different moments), then the same settings: the final actor,
+    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit, with the
+    environments' estimators rebuilt by replaying the episodes in progress. Resuming with other settings is refused
+    in one line and leaves the saved run as it was."""
+    reference, bc_policy = resumable_reference[0].policy, resumable_reference[0].bc_policy
     broken = tmp_path / "broken"
     command = resumable_command(bc_policy, broken)
     kill_after_snapshots(command, broken, snapshots=2, delay=0.02)
-    err = kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
-    assert "resuming" in err
-    finished = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
-    assert finished.returncode == 0, finished.stderr[-2000:]
-    assert "resuming" in finished.stderr
+    saved = snapshot(checkpoint.running_folder(broken))
+    code, err = ppo_cli(resumable_command(bc_policy, broken, learning_rate=1e-3)[3:], capsys)
+    assert code == 1 and len(err) == 1 and "interrupted run with other settings" in err[0] and "learning_rate" in err[0]
+    assert snapshot(checkpoint.running_folder(broken)) == saved and not broken.exists()
+    assert "resuming" in kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
+    # The last resume in this process: the command's own code path, without paying for its imports once more.
+    main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
+    assert "resuming" in capsys.readouterr().err
     for name in (policy_files.WEIGHTS_FILE, CURVE_FILE):
         assert (broken / name).read_bytes() == (reference / name).read_bytes(), name
     assert not checkpoint.running_folder(broken).exists() and not (broken / "resume.pt").exists()
 
 
-def test_resuming_with_other_settings_is_refused_and_the_saved_run_kept(
-    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_a_finished_run_is_not_run_again(
+    resumable_reference: tuple[FinetuneConfig, dict], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    policy = tmp_path / "run"
-    kill_after_snapshots(resumable_command(bc_policy, policy), policy, snapshots=1, delay=0.0)
-    saved = snapshot(checkpoint.running_folder(policy))
-    args = resumable_command(bc_policy, policy, learning_rate=1e-3)[3:]
-    code, err = ppo_cli(args, capsys)
-    assert code == 1 and len(err) == 1 and "interrupted run with other settings" in err[0] and "learning_rate" in err[0]
-    assert snapshot(checkpoint.running_folder(policy)) == saved and not policy.exists()
-
-
-def test_a_finished_run_is_not_run_again(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    config = FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "done", **RESUMABLE)
-    first = main(config)
+    config, first = resumable_reference
     before = snapshot(config.policy)
     assert main(config) == first and snapshot(config.policy) == before
     assert "not run again" in capsys.readouterr().err
@@ -589,11 +589,12 @@ def test_ray_workers_give_the_local_weights(bc_policy: Path, tmp_path: Path, ray
     assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
 
 
-def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(bc_policy: Path, tmp_path: Path) -> None:
+def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(
+    resumable_reference: tuple[FinetuneConfig, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The worker node dies after the first snapshot: one line, exit 1; the same settings on local workers resume
     from the snapshot and end with an uninterrupted run's weights."""
-    reference = tmp_path / "reference"
-    main(FinetuneConfig(bc_policy=bc_policy, policy=reference, **RESUMABLE))
+    reference, bc_policy = resumable_reference[0].policy, resumable_reference[0].bc_policy
     broken = tmp_path / "broken"
     cluster = RayCluster()
     try:
@@ -610,7 +611,6 @@ def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(bc_policy: Path,
     lines = err.strip().splitlines()
     assert process.returncode == 1 and lines[-1].startswith("error: environment worker "), err[-2000:]
     assert "was lost" in lines[-1]
-    finished = subprocess.run(resumable_command(bc_policy, broken), capture_output=True, text=True)
-    assert finished.returncode == 0, finished.stderr[-2000:]
-    assert "resuming" in finished.stderr
+    main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
+    assert "resuming" in capsys.readouterr().err
     assert (broken / policy_files.WEIGHTS_FILE).read_bytes() == (reference / policy_files.WEIGHTS_FILE).read_bytes()
