@@ -19,7 +19,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from bc.data import Demonstrations, load_demonstrations, split_by_episode
+from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import evaluate
 from bc.train import (
     LEARNING_CURVE_FILE,
@@ -332,32 +332,47 @@ def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult,
 
 
 @pytest.fixture(scope="module")
-def pending(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
-    """A small MLP trained on the "pending" inputs (leg odometry, the command in flight, the delay) of the 3-episode
-    recording (undelayed: no command in flight)."""
+def delayed_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """3 short expert episodes, every one under a step of action latency: what the "pending" inputs learn from."""
+    root = tmp_path_factory.mktemp("delayed") / "dataset"
+    record(RecordConfig(dataset=root, episodes=3, max_steps=60, latency=1.0, writer="inline", progress=False))
+    return root
+
+
+@pytest.fixture(scope="module")
+def pending(delayed_recording: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
+    """A small MLP trained on the "pending" inputs (leg odometry, the command in flight, the delay) of the delayed
+    recording."""
     folder = tmp_path_factory.mktemp("policies") / "pending"
-    return main(TrainConfig(dataset=recorded, policy=folder, inputs="pending", **TINY))
+    return main(TrainConfig(dataset=delayed_recording, policy=folder, inputs="pending", **TINY))
 
 
 def test_pending_inputs_in_training_are_what_the_controller_computes_live(
-    pending: TrainResult, recorded: Path, env: gym.Env
+    pending: TrainResult, delayed_recording: Path, env: gym.Env
 ) -> None:
-    """The estimator run along each recorded episode gives the inputs the controller computes step by step,
-    from a reset at each episode's start, out of the gymnasium observations (float32 rows against float64)."""
+    """The inputs training loads are the ones the saved policy's controller computes step by step out of the
+    gymnasium observations, told each episode's delay and each command sent (float32 rows against float64)."""
     config = json.loads((pending.policy_dir / policy_files.CONFIG_FILE).read_text())
     # The sensed features but the forces (42), the estimated height and velocity (4), the inertias (130), the command
     # in flight (17), the delay (1).
     assert config["policy"]["inputs"] == "pending" and config["policy"]["input_dim"] == 42 + 4 + 130 + 17 + 1
-    frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE, "episode_index"])
+    frames = read_frames(delayed_recording, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, "episode_index"])
     observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
-    trained = load_demonstrations(recorded, env, cache=False, inputs="pending").inputs.numpy()
+    delays = episode_delays(delayed_recording)
+    assert delays.tolist() == [1, 1, 1]
+    trained = load_demonstrations(delayed_recording, env, cache=False, inputs="pending").inputs.numpy()
     controller = make_controller(str(pending.policy_dir), env)
     live = []
     for row, obs in enumerate(observations):
-        if row == 0 or frames["episode_index"][row] != frames["episode_index"][row - 1]:
+        episode = frames["episode_index"][row]
+        if row == 0 or episode != frames["episode_index"][row - 1]:
+            controller.set_delay(int(delays[episode]))
             controller.reset()
         live.append(controller.features(controller.features.observe(obs)))
-    np.testing.assert_allclose(trained, np.array(live), rtol=0, atol=1e-4)
+        controller.features.commanded(frames[keys.ACTION][row])
+    live = np.array(live)
+    assert np.abs(live[:, -18:-1]).max() > 0  # the command in flight is there, not zeros
+    np.testing.assert_allclose(trained, live, rtol=0, atol=1e-4)
     assert np.abs(trained[:, 42 + 1 : 42 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
 
 
@@ -379,10 +394,10 @@ def test_dataset_recorded_before_the_sensed_state_is_refused_for_proprio(
 def test_unknown_inputs_are_refused_in_one_line(
     recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with pytest.raises(SystemExit) as exit_info:
-        cli(["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "camera"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert exit_info.value.code == 2 and len(err) == 1 and "'camera'" in err[0]
+    code, err = train_cli(
+        ["--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "camera"], capsys
+    )
+    assert code == 1 and len(err) == 1 and "'camera'" in err[0]
     assert not (tmp_path / "policy").exists()
 
 

@@ -333,10 +333,15 @@ def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path)
     assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
 
 
-def test_update_threads_change_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
-    """PPO's updates on 1 or 2 torch threads end with the same weights, bit for bit."""
+def test_update_threads_change_nothing_but_float_rounding(bc_policy: Path, tmp_path: Path) -> None:
+    """PPO's updates on 1 or 2 torch threads end with the same weights to float rounding: how torch splits a
+    product over threads may change its summation order on some processors (bit for bit on others)."""
     settings = [{"batch_size": 256, "update_threads": threads, "critic_warmup": 0} for threads in (1, 2)]
-    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
+    one, two = final_actors(bc_policy, tmp_path, settings)
+    assert one.keys() == two.keys()
+    for name, value in one.items():
+        torch.testing.assert_close(two[name], value, rtol=1e-4, atol=1e-6, msg=name)
+    assert not torch.equal(one["net.0.weight"], checkpoint.load(bc_policy).state_dict()["net.0.weight"])
 
 
 def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
