@@ -127,7 +127,8 @@ class PipelineConfig:
     max_steps: int = _like(RecordConfig, "max_steps")
     workers: int | None = setting(
         None,
-        "simulation processes of the recording and of both PPO stages; default: each stage's (the machine's cores)",
+        "simulation processes of the recording, both PPO stages and the robustness suite; default: each stage's "
+        "(the machine's cores)",
     )
     backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
     ray_address: str | None = _like(FinetuneConfig, "ray_address")
@@ -528,7 +529,7 @@ def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -
 
     def measure(names: list[str]) -> None:
         if robustness_episodes:
-            results.update((name, suite(name, robustness_episodes)) for name in names)
+            results.update((name, suite(name, robustness_episodes, stages.finetune.workers)) for name in names)
 
     try:
         policies = run_stages(stages, overwrite)
@@ -632,10 +633,11 @@ def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
         print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
 
 
-def suite(policy: str, episodes: int) -> dict[str, Any]:
+def suite(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:
     """The robustness suite's results for `policy`: its robustness.json if made after the policy with the same
-    episodes and conditions (a registered controller's always), else a new run."""
-    cfg = RobustnessConfig(policy=policy, episodes=episodes, progress=False)
+    episodes and conditions (a registered controller's always), else a new run on `workers` processes (None: the
+    suite's default; the results do not depend on it)."""
+    cfg = RobustnessConfig(policy=policy, episodes=episodes, workers=workers, progress=False)
     saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
     weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
     if saved.is_file() and (policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):

@@ -36,8 +36,8 @@ import torch
 
 from bc.finetune import FinetuneConfig
 from bc.ppo.learner import build_model, make_vec_env
-from humanoid.env import model_and_data
-from humanoid.inputs import INPUT_COLUMNS
+from humanoid.env import humanoid_model, model_and_data
+from humanoid.inputs import FullInputs
 from policies.mlp import MLPPolicy, MLPSpec
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import DEFAULT_NOISE
@@ -124,12 +124,13 @@ def sampling(envs: int, steps: int) -> dict[str, float]:
     rollouts of `steps` steps with an actor of `make train-bc`'s shape (random weights: the cost is the same)."""
     cfg = FinetuneConfig()
     torch.manual_seed(0)
-    observation_size = make_vec_env(1, 1, None, 0).observation_space.shape[0]
-    actor = MLPPolicy(MLPSpec(INPUT_COLUMNS["full"], observation_size, 17, (256, 256), activation="elu"))
-    env = make_vec_env(envs, 1, None, cfg.seed)
+    observation_size = len(FullInputs.input_names(humanoid_model()))
+    actor = MLPPolicy(MLPSpec(FullInputs.columns, observation_size, 17, (256, 256), activation="elu"))
+    env = make_vec_env(envs, 1, None, cfg.seed)  # the observation, then the full actor's inputs: the same again
     model = build_model(
         actor,
         env,
+        critic_normalisation=(torch.zeros(2 * observation_size), torch.ones(2 * observation_size)),
         learning_rate=cfg.learning_rate,
         critic_learning_rate=cfg.critic_learning_rate,
         reward_scale=cfg.reward_scale,

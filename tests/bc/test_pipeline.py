@@ -540,8 +540,8 @@ def test_args_may_not_repeat_a_pipeline_setting() -> None:
 def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The closing suite table: a row per policy with its clean return and survivors under every condition;
     a second pipeline run reuses the results made after the policy."""
-    first = suite("bc", 1)
-    assert suite("bc", 1) == first and "reusing" in capsys.readouterr().out
+    first = suite("bc", 1, workers=1)
+    assert suite("bc", 1, workers=1) == first and "reusing" in capsys.readouterr().out
     table = report.suite_table({"bc": first}).splitlines()
     assert table[0] == "| policy | clean return | suite mean return | " + " | ".join(SUITE) + " |"
     survivors = [f"{round(c['survival_rate'])}/1" for c in first["conditions"].values()]
