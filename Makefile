@@ -27,13 +27,14 @@ export PYTHONUNBUFFERED := 1
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
 # REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
 # line saying what to use instead (common/cli.py's REMOVED_FLAGS) rather than make ignoring them.
-VARS.record := DATASET EPISODES SEED CONTROLLER NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
+VARS.record := DATASET EPISODES SEED CONTROLLER SCHEDULES NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
 VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES OVERWRITE
-VARS.eval := POLICY EPISODES SEED PUSH NOISE CONDITION VIDEO LIVE LIVE_PORT LIVE_HOST
-VARS.robustness := POLICY EPISODES SEED CONDITIONS WORKERS
+VARS.eval := POLICY EPISODES SEED SCHEDULES PUSH NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
+VARS.play := POLICY DATASET EPISODES FRONT_END LIVE LIVE_PORT LIVE_HOST
+VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
@@ -45,7 +46,7 @@ REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record play merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 
 # The variables come from the stages' configs (bc/targets.py), so they need .venv.
 help:  ## list the targets and their variables
@@ -68,6 +69,10 @@ venv: $(STAMP)  ## build .venv and install the project
 
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
+
+# The keys command a learned policy (one that takes a command); its episodes go to DATASET (datasets/play unless set).
+play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
+	$(PY) -m teleop.record --controller keyboard --dataset datasets/play $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
 	$(PY) -m teleop.merge $(flags)

@@ -269,7 +269,15 @@ class DAggerTrainer:
         )
         try:
             for seed in bar:
-                episode = run_episode(self.env, controller, seed, noise, self._buffer, labeller=self.expert)
+                episode = run_episode(
+                    self.env,
+                    controller,
+                    seed,
+                    noise,
+                    self._buffer,
+                    labeller=self.expert,
+                    schedules=controller.takes_command,
+                )
                 episode.dagger_round = round_index
                 committed = store.append(episode)
                 added.append(committed)

@@ -260,7 +260,7 @@ def episode_rows(episode: Episode, inputs: str, model: mujoco.MjModel) -> tuple[
     """(inputs, label actions) of a rolled-out episode, float32, equal bit for bit to the rows `load_demonstrations`
     reads once `teleop.store` has recorded it: DAgger trains on its rounds without reading them back."""
     # The frames as the store records them: split from the whole episode's observations, in float32.
-    frames = INPUT_SETS[inputs](model).observe(episode.observation).astype(np.float32)
+    frames = INPUT_SETS[inputs](model).observe(episode.observation, episode.command).astype(np.float32)
     actions = episode.action.astype(np.float32)
     delays = np.full(episode.length, episode.parameters.get(LATENCY_PARAMETER, 0), np.int64)
     return episode_inputs(inputs, frames, actions, np.zeros(episode.length, np.int64), delays, model), actions

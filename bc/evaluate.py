@@ -12,6 +12,10 @@ them) to callers such as `bc.train`.
                masses, friction, motor strength, latency, sensor noise, pushes; docs/concepts/robustness-suite.md)
     VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
                (docs/how-to/evaluate.md); use a few episodes
+    SCHEDULES=1  the operator's command follows the schedule drawn from each seed (held out: seeds from 1000 are
+               never recorded); the JSON adds "tracking": per command field the error once settled, and the time
+               to settle (`humanoid.commands`; docs/how-to/follow-commands.md)
+    PLOT=f.png commanded against achieved posture over the first episode, a panel per field
 """
 
 from __future__ import annotations
@@ -29,10 +33,11 @@ from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, run_cli, setting
+from humanoid.commands import COMMAND_SIZE, Tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
 from humanoid.video import CAMERA, VideoRecorder
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
@@ -56,6 +61,12 @@ class EvalConfig:
         "clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/concepts/robustness-suite.md)"
     )
     video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
+    schedules: bool = setting(
+        False,
+        "the operator's command follows the schedule drawn from each episode's seed; the JSON adds the tracking "
+        "error per command field (a policy that takes no command is run blind to it)",
+    )
+    plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
     progress: bool = setting(True, "show a progress bar")
     live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")
     live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
@@ -79,6 +90,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError("--condition brings its own perturbation: leave --push and --noise at 0 with it")
     if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
         raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
+    if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
+        raise UserError(f"--plot must be a .png path, got {cfg.plot}")
 
 
 def evaluate(
@@ -91,11 +104,15 @@ def evaluate(
     progress: bool = False,
     condition: str = "clean",
     live: tuple[str, int] | None = None,
+    schedules: bool = False,
+    plot: Path | None = None,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
     `push` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
-    publishes every step to a Foxglove WebSocket server there (`teleop.live`).
+    publishes every step to a Foxglove WebSocket server there (`teleop.live`). With `schedules` the operator's
+    command follows each seed's schedule and the summary adds "tracking" (`tracking`); `plot` draws the first
+    episode's commanded and achieved posture.
     """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
     suite_condition = SUITE[condition]
@@ -118,7 +135,7 @@ def evaluate(
         pusher = torso_pushes(env)
         results, directions, toppled = [], [], []
         for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
-            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher))
+            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules))
             if pusher is not None:
                 directions += [direction for _, direction in pusher.pushes]
                 toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
@@ -126,6 +143,9 @@ def evaluate(
         if publisher is not None:
             publisher.close()
         env.close()
+    model = env.unwrapped.model
+    if plot is not None:
+        plot_tracking(results[0], Tracking(model), env.unwrapped.dt, plot)
     returns = np.array([episode.episode_return for episode in results])
     lengths = np.array([episode.length for episode in results])
     survived = [episode.length == EPISODE_STEPS and not episode.fell for episode in results]
@@ -150,7 +170,43 @@ def evaluate(
         # Each episode's drawn body (scale factors, `humanoid.conditions.DomainRandomization`), to see which draws fell.
         "parameters": [episode.parameters for episode in results],
         "video": None if video is None else str(video),
+        "takes_command": controller.takes_command,
+        "tracking": tracking(results, Tracking(model), env.unwrapped.dt) if schedules else None,
     }
+
+
+def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str, Any]:
+    """Over `episodes` (until each ends): per command field the mean error once settled, the mean time to settle
+    (`humanoid.commands.tracking_summary`), and each episode's."""
+    each = [tracking_summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
+    fields = each[0]["settled_error"].keys()
+    return {
+        "settled_error": {name: float(np.nanmean([e["settled_error"][name] for e in each])) for name in fields},
+        "settle_seconds": float(np.nanmean([e["settle_seconds"] for e in each])),
+        "episodes": each,
+    }
+
+
+def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) -> None:
+    """A PNG of `episode`'s commanded (and the setpoint toward it) against achieved posture, a panel per field."""
+    from matplotlib.figure import Figure  # noqa: PLC0415 - the object API draws to files without a GUI backend
+
+    achieved = measure.achieved(episode.observation)
+    arms_error = measure.errors(episode.observation, episode.command)[:, -1]
+    time = np.arange(episode.length) * dt
+    figure = Figure(figsize=(8, 9), layout="constrained")
+    axes = figure.subplots(COMMAND_SIZE, 1, sharex=True)
+    names = ("lean forward (rad)", "lean left (rad)", "height (m)", "twist (rad)", "arms: preset; error (rad)")
+    for field, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        ax.step(time, episode.command[:, field], where="post", label="commanded", color="C0")
+        ax.plot(time, episode.setpoint[:, field], label="setpoint", color="C0", alpha=0.4, linestyle="--")
+        ax.plot(time, achieved[:, field] if field < 4 else arms_error, label="achieved", color="C1")
+        ax.set_ylabel(name, fontsize=8)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].set_title(f"{episode.controller}, seed {episode.seed}: commanded and achieved posture")
+    axes[-1].set_xlabel("time (s)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=100)
 
 
 def main(cfg: EvalConfig) -> dict[str, Any]:
@@ -166,6 +222,8 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         cfg.progress,
         condition=cfg.condition,
         live=(cfg.live_host, cfg.live_port) if cfg.live else None,
+        schedules=cfg.schedules,
+        plot=cfg.plot,
     )
     return {**result, "config": config_dict(cfg)}
 

@@ -25,6 +25,7 @@ from tqdm import tqdm
 from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.keys import COMMAND_NAMES
 from common.workers import default_workers
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
@@ -53,6 +54,9 @@ class RobustnessConfig:
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
+    schedules: bool = setting(
+        False, "the operator's command follows each seed's schedule (bc.evaluate --schedules): rows add tracking"
+    )
     workers: int | None = setting(
         None, f"processes the episodes are spread over; default: the machine's cores, at most {MOST_WORKERS}"
     )
@@ -92,9 +96,10 @@ def output_folder(cfg: RobustnessConfig) -> Path:
     return CONTROLLER_FOLDER / cfg.policy if cfg.policy in CONTROLLERS else Path(cfg.policy)
 
 
-def run_chunk(policy: str, name: str, seeds: range) -> tuple[str, dict[str, Any]]:
-    """`bc.evaluate.evaluate` of `policy` under condition `name` on the consecutive `seeds`, in a worker."""
-    return name, evaluate(policy, len(seeds), seeds.start, condition=name)
+def run_chunk(policy: str, name: str, seeds: range, schedules: bool = False) -> tuple[str, dict[str, Any]]:
+    """`bc.evaluate.evaluate` of `policy` under condition `name` on the consecutive `seeds` (under command
+    `schedules`), in a worker."""
+    return name, evaluate(policy, len(seeds), seeds.start, condition=name, schedules=schedules)
 
 
 def _init_worker() -> None:
@@ -121,6 +126,13 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     directions = [d for chunk in chunks for d in chunk["pushes"]["direction"]]
     toppled = [t for chunk in chunks for t in chunk["pushes"]["toppled"]]
     pushed = {"push_sectors": push_sectors(directions, toppled)} if directions else {}
+    if chunks[0]["tracking"] is not None:
+        each = [episode for chunk in chunks for episode in chunk["tracking"]["episodes"]]
+        fields = each[0]["settled_error"]
+        pushed["tracking"] = {
+            "settled_error": {name: float(np.nanmean([e["settled_error"][name] for e in each])) for name in fields},
+            "settle_seconds": float(np.nanmean([e["settle_seconds"] for e in each])),
+        }
     return {
         "survival_rate": float(np.mean([s for chunk in chunks for s in chunk["survivals"]])),
         "mean_return": float(returns.mean()),
@@ -133,8 +145,11 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def run_suite(policy: str, names: list[str], seeds: range, workers: int, progress: bool = False) -> dict:
-    """Every condition in `names` on `seeds`, in chunks over `workers` processes; results per condition."""
+def run_suite(
+    policy: str, names: list[str], seeds: range, workers: int, progress: bool = False, schedules: bool = False
+) -> dict:
+    """Every condition in `names` on `seeds` (under command `schedules`), in chunks over `workers` processes; results
+    per condition."""
     chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
     tasks = [(name, seeds[i : i + chunk]) for name in names for i in range(0, len(seeds), chunk)]
     rows: dict[str, list] = {name: [] for name in names}
@@ -142,12 +157,12 @@ def run_suite(policy: str, names: list[str], seeds: range, workers: int, progres
     if workers == 1:
         _init_worker()
         for name, chunk_seeds in tasks:
-            rows[name].append(run_chunk(policy, name, chunk_seeds)[1])
+            rows[name].append(run_chunk(policy, name, chunk_seeds, schedules)[1])
             bar.update(len(chunk_seeds))
     else:
         context = mp.get_context("forkserver")
         with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
-            futures = [pool.submit(run_chunk, policy, name, chunk_seeds) for name, chunk_seeds in tasks]
+            futures = [pool.submit(run_chunk, policy, name, chunk_seeds, schedules) for name, chunk_seeds in tasks]
             for future in futures:
                 name, evaluation = future.result()
                 rows[name].append(evaluation)
@@ -192,9 +207,11 @@ def plot(result: dict[str, Any], path: Path) -> None:
 
 
 def table(result: dict[str, Any]) -> str:
-    lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}"]
+    tracked = [name for name in COMMAND_NAMES if all("tracking" in row for row in result["conditions"].values())]
+    lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}" + "".join(f" {name:>12}" for name in tracked)]
     for name, row in result["conditions"].items():
-        lines.append(f"{name:<10} {row['survival_rate']:>8.0%} {row['mean_return']:>12.1f}")
+        errors = "".join(f" {row['tracking']['settled_error'][field]:>12.3f}" for field in tracked)
+        lines.append(f"{name:<10} {row['survival_rate']:>8.0%} {row['mean_return']:>12.1f}{errors}")
     for name, row in result["conditions"].items():
         if "push_sectors" in row:
             sectors = row["push_sectors"]
@@ -210,7 +227,7 @@ def main(cfg: RobustnessConfig) -> dict[str, Any]:
     folder = output_folder(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
     workers = default_workers(MOST_WORKERS) if cfg.workers is None else cfg.workers
-    conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress)
+    conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress, cfg.schedules)
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -225,7 +242,8 @@ def _main_and_print(cfg: RobustnessConfig) -> None:
     result = main(cfg)
     print(table(result))
     brief = {
-        k: {m: v[m] for m in ("survival_rate", "mean_return", "episodes")} for k, v in result["conditions"].items()
+        k: {m: v[m] for m in ("survival_rate", "mean_return", "episodes", "tracking") if m in v}
+        for k, v in result["conditions"].items()
     }
     print(json.dumps({"policy": result["policy"], "seeds": result["seeds"], "conditions": brief}))
 

@@ -77,16 +77,34 @@ TARGETS: dict[str, Target] = {
     "record": Target(
         "teleop.record",
         RecordConfig,
-        ("dataset", "episodes", "seed", "controller", "noise", "randomize", "latency", "max_steps", *_BACKEND, *_LIVE),
+        (
+            "dataset",
+            "episodes",
+            "seed",
+            "controller",
+            "schedules",
+            "noise",
+            "randomize",
+            "latency",
+            "max_steps",
+            *_BACKEND,
+            *_LIVE,
+        ),
     ),
+    # `make record CONTROLLER=keyboard` with a learned policy instead of the expert (its Makefile rule sets those).
+    "play": Target("teleop.record", RecordConfig, ("policy", "dataset", "episodes", "front_end", *_LIVE)),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target("bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "min_updates", "overwrite")),
     "eval": Target(
-        "bc.evaluate", EvalConfig, ("policy", "episodes", "seed", "push", "noise", "condition", "video", *_LIVE)
+        "bc.evaluate",
+        EvalConfig,
+        ("policy", "episodes", "seed", "schedules", "push", "noise", "condition", "video", "plot", *_LIVE),
     ),
-    "robustness": Target("bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "workers")),
+    "robustness": Target(
+        "bc.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "schedules", "workers")
+    ),
     "dagger": Target(
         "bc.dagger",
         DaggerConfig,

@@ -36,14 +36,15 @@ from tqdm import tqdm
 
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate
-from common import paths
-from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
+from common import keys, paths
+from common.cli import DatasetError, UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, TENSORBOARD_DIR
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
+from teleop.dataset_reader import read_frames
 
 LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
     "mse": F.mse_loss,
@@ -167,6 +168,11 @@ class TrainResult:
                 f"; evaluation on seeds {ev['seeds'][0]}..{ev['seeds'][-1]}: survival {ev['survival_rate']:.0%}, "
                 f"return {ev['mean_return']:.1f} ± {ev['std_return']:.1f} (expert {ev['expert_mean_return']:.1f})"
             )
+            if ev["tracking"] is not None:
+                line += "; settled error " + ", ".join(
+                    f"{name} {error:.3f} (expert {ev['expert_tracking']['settled_error'][name]:.3f})"
+                    for name, error in ev["tracking"]["settled_error"].items()
+                )
         return line
 
 
@@ -309,12 +315,24 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
 def check_taught(cfg: TrainConfig) -> None:
     """UserError in one line if `cfg.dataset` cannot teach `cfg.inputs`: the "pending" inputs teach acting through
     a step of action latency, which a dataset without a delayed episode never shows
-    (docs/decisions/pending-inputs.md)."""
-    if cfg.inputs == "pending" and not episode_delays(cfg.dataset).any():
+    (docs/decisions/pending-inputs.md); a commanded set teaches following the command, which a dataset whose
+    command never changes never shows."""
+    kind = input_set(cfg.inputs)
+    if kind.reads_latency and not episode_delays(cfg.dataset).any():
         raise UserError(
-            f"--inputs pending learns to act through action latency, and no episode of {cfg.dataset} was recorded "
-            "with it: record the dataset with LATENCY>0 (make record LATENCY=0.5), or train on other --inputs"
+            f"--inputs {cfg.inputs} learns to act through action latency, and no episode of {cfg.dataset} was "
+            "recorded with it: record the dataset with LATENCY>0 (make record LATENCY=0.5), or train on other --inputs"
         )
+    if kind.takes_command:
+        try:
+            commands = read_frames(cfg.dataset, [keys.OBS_COMMAND])[keys.OBS_COMMAND]
+        except (OSError, KeyError, ValueError) as error:
+            raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
+        if len(np.unique(commands, axis=0)) < 2:
+            raise UserError(
+                f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
+                "record commanded demonstrations (make record CONTROLLER=operator, or CONTROLLER=keyboard)"
+            )
 
 
 def fit_demonstrations(
@@ -395,11 +413,14 @@ def train_and_save(
         plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
 
     if cfg.eval_episodes:
+        # A policy that takes a command is evaluated on held-out schedules (their seeds never recorded).
+        schedules = input_set(cfg.inputs).takes_command
         settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "progress": cfg.progress}
-        evaluation = evaluate(PolicyController(result.policy, str(cfg.policy)), **settings)
-        expert = evaluate("expert", **settings)  # the reference on the same seeds
+        evaluation = evaluate(PolicyController(result.policy, str(cfg.policy)), schedules=schedules, **settings)
+        expert = evaluate("expert", schedules=schedules, **settings)  # the reference on the same seeds
         evaluation["expert_mean_return"] = expert["mean_return"]
         evaluation["expert_survival_rate"] = expert["survival_rate"]
+        evaluation["expert_tracking"] = expert["tracking"]
         evaluation["return_vs_expert"] = evaluation["mean_return"] / expert["mean_return"]
         checkpoint.write_json(cfg.policy / EVAL_FILE, evaluation)
         result.evaluation = evaluation

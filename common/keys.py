@@ -27,11 +27,18 @@ EXECUTED_ACTION = "executed_action"
 TERMINATED = "next.terminated"
 TASK = "task"
 
-# The command in force at each step (keyboard teleoperation; all zeros for the plain expert): the
-# posture the expert is asked to hold (humanoid.posture.Posture's fields, in this order) and the push
-# applied to the torso at that step (N, world frame). An observation, so a policy can be conditioned on it.
+# The operator's command in force at each step: the posture an operator asks for (humanoid.posture.Posture's
+# fields, in this order; all zeros for the plain expert: standing is the zero command). An observation, so a
+# policy can be conditioned on it (INPUTS=...+command, humanoid.inputs).
 OBS_COMMAND = "observation.command"
-COMMAND_NAMES = ("lean_forward", "lean_left", "height", "twist", "arms", "push_x", "push_y")
+COMMAND_NAMES = ("lean_forward", "lean_left", "height", "twist", "arms")
+# Where the expert's setpoint is at each step on its way to the commanded posture (the same fields): the teacher's
+# internal state, not an input a deployed policy gets. A controller without a setpoint of its own records the command.
+SETPOINT = "setpoint"
+# The push applied to the torso at each step (N, world frame; the keyboard's `p`): a perturbation, not a command (a
+# deployed policy cannot know it), so neither `observation.*` nor `action*`, which LeRobot would read.
+PUSH = "push"
+PUSH_NAMES = ("push_x", "push_y")
 
 # Columns of meta/episodes/*.parquet that this project adds beside LeRobot's own.
 EPISODE_SEED = "seed"

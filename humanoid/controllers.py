@@ -25,10 +25,13 @@ class Controller(Protocol):
     """Maps a gymnasium observation to an action within the action bounds.
 
     Before each `reset` the rollout tells it the episode's action latency (`set_delay`, `humanoid.episode.tell_delay`)
-    and drawn body (`set_body`, `humanoid.episode.tell_body`); one that has no use for them ignores them.
+    and drawn body (`set_body`, `humanoid.episode.tell_body`), and after it, at each change, the operator's command
+    (`set_command`; zeros: stand still); one that has no use for them ignores them.
     """
 
     name: str
+    takes_command: bool
+    """Whether it follows the operator's command (the experts; a policy on commanded inputs)."""
 
     def set_delay(self, steps: int) -> None:
         """The action latency, in steps, of the episodes from the next `reset` on."""
@@ -39,6 +42,12 @@ class Controller(Protocol):
     def reset(self, seed: int | None = None) -> None:
         """Start a new episode; stochastic controllers reseed from `seed`."""
 
+    def set_command(self, command: np.ndarray) -> None:
+        """The operator's command (`common.keys.COMMAND_NAMES`) from this step on, until the next."""
+
+    def setpoint(self) -> np.ndarray | None:
+        """Where it steers now on its way to the command (the expert's setpoint), or None without one of its own."""
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         """A float32 action of shape (17,) for one 348-dim observation."""
 
@@ -47,6 +56,7 @@ class RandomController:
     """Uniform random actions: the baseline that falls within a few dozen steps."""
 
     name = "random"
+    takes_command = False
 
     def __init__(self, action_space: gym.spaces.Box) -> None:
         self.low = action_space.low.astype(np.float32)
@@ -58,6 +68,12 @@ class RandomController:
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """Random actions whatever the body."""
+
+    def set_command(self, command: np.ndarray) -> None:
+        """Random actions whatever the command."""
+
+    def setpoint(self) -> None:
+        return None
 
     def reset(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
@@ -74,6 +90,13 @@ def _expert(env: gym.Env) -> Controller:
     return LQRExpert(delay=action_delay(env))
 
 
+def _operator(env: gym.Env) -> Controller:
+    from humanoid.expert import LQRExpert  # noqa: PLC0415 - as _expert
+
+    # The expert under scripted command schedules: the rollout draws them (`run_episode(schedules=True)`).
+    return LQRExpert(delay=action_delay(env), name=OPERATOR)
+
+
 def _sensed_expert(env: gym.Env) -> Controller:
     from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
 
@@ -81,8 +104,12 @@ def _sensed_expert(env: gym.Env) -> Controller:
     return SensedExpert(delay=action_delay(env))
 
 
+OPERATOR = "operator"
+"""The expert driven by seeded command schedules (`humanoid.commands.command_schedule`): a scripted operator."""
+
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
+    OPERATOR: _operator,
     "expert-sensed": _sensed_expert,
     "random": lambda env: RandomController(env.action_space),
 }

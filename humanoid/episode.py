@@ -14,12 +14,11 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.keys import COMMAND_NAMES
+from common.keys import COMMAND_NAMES, PUSH_NAMES
+from humanoid.commands import DEFAULT_TASK, command_posture, command_schedule, task_for
 from humanoid.conditions import action_delay
 from humanoid.controllers import Controller
 from humanoid.env import body_poses, model_and_data
-
-DEFAULT_TASK = "Stand still on both feet."
 
 
 @dataclass
@@ -45,7 +44,9 @@ class Episode:
     truncated: np.ndarray  # (T,) bool
     body_position: np.ndarray  # (T, 13, 3) float64, world frame
     body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
-    command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the command in force (keys.OBS_COMMAND)
+    command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the operator's command in force (keys.OBS_COMMAND)
+    setpoint: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the expert's setpoint toward it (keys.SETPOINT)
+    push: np.ndarray  # (T, len(PUSH_NAMES)) float32: the push applied to the torso (keys.PUSH)
     tasks: np.ndarray  # (T,) str: the task string in force, which names the command
     final_observation: np.ndarray  # (348,) float64: o_T, after the last step
     dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger
@@ -107,6 +108,8 @@ class EpisodeBuffer:
         self.body_position = np.empty((max_steps, bodies, 3), np.float64)
         self.body_orientation = np.empty((max_steps, bodies, 4), np.float64)
         self.command = np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
+        self.setpoint = np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
+        self.push = np.zeros((max_steps, len(PUSH_NAMES)), np.float32)
         self.tasks = np.empty(max_steps, object)
 
     def record(
@@ -116,15 +119,20 @@ class EpisodeBuffer:
         data: mujoco.MjData,
         action: np.ndarray,
         executed: np.ndarray,
-        command: np.ndarray | None,
+        command: np.ndarray,
         task: str,
+        setpoint: np.ndarray | None = None,
+        push: np.ndarray | None = None,
     ) -> None:
-        """Row t before the step: observation o_t, body poses, label and executed action, command and task."""
+        """Row t before the step: observation o_t, body poses, label and executed action, the command in force and
+        the task naming it, the setpoint toward it (the command itself where None) and the push (None: none)."""
         self.observation[t] = obs
         self.body_position[t], self.body_orientation[t] = body_poses(data)
         self.action[t] = action
         self.executed_action[t] = executed
-        self.command[t] = 0.0 if command is None else command
+        self.command[t] = command
+        self.setpoint[t] = command if setpoint is None else setpoint
+        self.push[t] = 0.0 if push is None else push
         self.tasks[t] = task
 
     def outcome(self, t: int, reward: float, terminated: bool, truncated: bool) -> None:
@@ -154,6 +162,8 @@ ARRAY_FIELDS = (
     "body_position",
     "body_orientation",
     "command",
+    "setpoint",
+    "push",
     "tasks",
 )
 
@@ -172,6 +182,7 @@ def run_episode(
     task: str = DEFAULT_TASK,
     labeller: Controller | None = None,
     observer: StepObserver | None = None,
+    schedules: bool = False,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
@@ -179,27 +190,41 @@ def run_episode(
     labeller's action in the state the controller led to. Perturbations, domain randomisation and
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
-    An `observer` sees every step as it completes.
+    An `observer` sees every step as it completes. With `schedules` the operator's command follows the schedule
+    drawn from `seed` (`humanoid.commands.command_schedule`; the task string then names each command), told to the
+    controller and the labeller at each change; without, it is zero (stand still).
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
+    commands = (
+        command_schedule(seed, max_steps, env.unwrapped.dt)
+        if schedules
+        else np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
+    )
+    acting = [controller] if labeller is None else [controller, labeller]
+    teacher = acting[-1]  # whose setpoint is recorded: the labeller's, whose actions are the labels
 
     obs, info = env.reset(seed=seed)
-    for acting in (controller, labeller):
-        if acting is not None:
-            tell_delay(acting, env)
-            tell_body(acting, env)
-            acting.reset(seed)
+    for each in acting:
+        tell_delay(each, env)
+        tell_body(each, env)
+        each.reset(seed)
     if observer is not None:
         observer.episode_started(seed)
     t = 0
     while True:
+        if t == 0 or (commands[t] != commands[t - 1]).any():
+            for each in acting:
+                each.set_command(commands[t])
+            if schedules:
+                task = task_for(command_posture(commands[t]))
         action = controller.act(obs)
         check_action(action, controller, t, seed)
         executed = executed_action(action, noise, t, env.action_space)
-        buffer.record(t, obs, data, action if labeller is None else labeller.act(obs), executed, None, task)
+        label = action if labeller is None else labeller.act(obs)
+        buffer.record(t, obs, data, label, executed, commands[t], task, teacher.setpoint())
         obs, reward, terminated, truncated, _ = env.step(executed)
         buffer.outcome(t, reward, terminated, truncated)
         if observer is not None:

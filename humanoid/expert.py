@@ -14,6 +14,7 @@ from collections import deque
 import mujoco
 import numpy as np
 
+from humanoid.commands import command_posture, command_vector
 from humanoid.env import humanoid_model
 from humanoid.estimator import LegOdometry
 from humanoid.landing import Landing, load_or_design_landing
@@ -41,9 +42,15 @@ class LQRExpert:
     """
 
     name = "expert"
+    takes_command = True
 
     def __init__(
-        self, model: mujoco.MjModel | None = None, design: LQRDesign = LQRDesign(), delay: int = 0, landing: bool = True
+        self,
+        model: mujoco.MjModel | None = None,
+        design: LQRDesign = LQRDesign(),
+        delay: int = 0,
+        landing: bool = True,
+        name: str = "expert",
     ) -> None:
         """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's.
 
@@ -59,6 +66,7 @@ class LQRExpert:
         Without it one step of latency topples the expert at once (docs/log.md, "A sturdier
         expert").
         """
+        self.name = name
         self.model = humanoid_model() if model is None else model
         self.design = design
         self._key = cache_key(self.model, design)  # the body the gains are designed on, as it is now
@@ -139,6 +147,17 @@ class LQRExpert:
         self._ramp.hold(posture, clip)
         self._moving = self._ramp.moving
 
+    def set_command(self, command: np.ndarray) -> None:
+        """Hold the commanded posture (`hold`), unless it is the one held already: the zero command of a fresh
+        episode keeps the planned landing."""
+        posture = command_posture(command)
+        if posture.clipped() != self.target:
+            self.hold(posture)
+
+    def setpoint(self) -> np.ndarray:
+        """The posture the setpoint is at now, as a command vector."""
+        return command_vector(self.posture)
+
     @property
     def moving(self) -> bool:
         """True while the setpoint is still on its way to the commanded posture."""
@@ -208,6 +227,7 @@ class SensedExpert:
     """
 
     name = "expert-sensed"
+    takes_command = True
 
     def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
         """The expert designed on `model` (like `LQRExpert`), without the planned landing: on the estimate it
@@ -227,6 +247,12 @@ class SensedExpert:
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)
         self.estimator.reset()
+
+    def set_command(self, command: np.ndarray) -> None:
+        self.expert.set_command(command)
+
+    def setpoint(self) -> np.ndarray:
+        return self.expert.setpoint()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return self.expert.act_on_state(*self.estimator(self.sensed(obs)))

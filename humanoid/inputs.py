@@ -4,9 +4,11 @@
     proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
     pending   the sensed features but the feet's forces, then what `humanoid.estimator` computes from the sensed
               features alone (the torso's height and linear velocity, the nominal model's body inertias), then
-              the command sent but not yet executed under one step of action latency (zeros without latency)
+              the action sent but not yet executed under one step of action latency (zeros without latency)
               and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
               delay (docs/decisions/pending-inputs.md)
+    SET+command  any of them, then the operator's command (`observation.command`, 5: humanoid.commands): a policy
+              that follows posture commands; standing still is the zero command (docs/concepts/commands.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -16,15 +18,16 @@ appended entries PPO's actor reads). Per episode:
 
     set_delay(steps)   the episode's action latency in steps (`make record LATENCY=`), told before `reset`
     reset()            the episode starts
-    observe(obs)       a gymnasium observation -> the frame: the entries `observed_names` a recording holds
+    observe(obs, cmd)  a gymnasium observation and the command in force -> the frame: the entries `observed_names`
+                       a recording holds
     __call__(frame)    the frame -> the policy's inputs
-    commanded(action)  the command sent from this frame (offline: the frame's recorded action label)
+    sent(action)       the action sent from this frame (offline: the frame's recorded action label)
 
 Live and in PPO the frames are the observations' (float64), offline the recorded ones (float32): the same code,
 so a policy trains on what it reads when deployed, to the recording's float32 rounding. Every set implements
-every call (no-ops where it has no use), so no caller asks what a set can do. A per-frame input besides the
-observation (an operator's command, which the rollout passes in) joins a set's frame as the entries of its
-recorded column (`observed_columns`), given to `observe` live and decoded with the frame offline.
+every call (no-ops where it has no use), so no caller asks what a set can do. The operator's command, which the
+rollout passes in, joins a commanded set's frame as the entries of its recorded column (`observed_columns`), given
+to `observe` live and decoded with the frame offline; a set without it ignores the command.
 """
 
 from __future__ import annotations
@@ -39,8 +42,9 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.keys import ACTION, OBS_ENV_STATE, OBS_STATE
-from humanoid import estimator, sensors
+from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
+from humanoid import commands, estimator, sensors
+from humanoid.commands import COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, humanoid_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
@@ -54,7 +58,11 @@ class InputSet(ABC):
     columns: ClassVar[tuple[str, ...]]
     """The dataset columns the inputs are computed from (`MLPSpec.input_keys`)."""
     observed_columns: ClassVar[tuple[str, ...]]
-    """Those whose entries make up a frame (`observed_names`); the others are told (`commanded`)."""
+    """Those whose entries make up a frame (`observed_names`); the others are told (`sent`)."""
+    takes_command: ClassVar[bool] = False
+    """Whether the operator's command is among the inputs (a `commanded_set`)."""
+    reads_latency: ClassVar[bool] = False
+    """Whether the inputs carry the action latency, which only delayed episodes teach."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         """For `model`'s environment (its observation layout; a stateful set computes on this nominal body)."""
@@ -71,9 +79,9 @@ class InputSet(ABC):
         """The names of a frame's entries, in order: where they sit among `observed_columns`' recorded names."""
 
     @abstractmethod
-    def observe(self, obs: np.ndarray) -> np.ndarray:
-        """The frames (..., len(observed_names)) of gymnasium observations (..., 348): the entries the recorder
-        stores."""
+    def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
+        """The frames (..., len(observed_names)) of gymnasium observations (..., 348) under the commands (..., 5) in
+        force: the entries the recorder stores."""
 
     @abstractmethod
     def __call__(self, frame: np.ndarray) -> np.ndarray:
@@ -85,8 +93,8 @@ class InputSet(ABC):
     def reset(self) -> None:  # noqa: B027 - a no-op where a set has no memory
         """An episode starts."""
 
-    def commanded(self, action: np.ndarray) -> None:  # noqa: B027 - a no-op where a set does not read commands
-        """The command sent from this frame."""
+    def sent(self, action: np.ndarray) -> None:  # noqa: B027 - a no-op where a set does not read its actions
+        """The action sent from this frame."""
 
 
 class FullInputs(InputSet):
@@ -96,7 +104,7 @@ class FullInputs(InputSet):
     columns = observed_columns = (OBS_STATE, OBS_ENV_STATE)
     input_names = observed_names = staticmethod(observation_names)
 
-    def observe(self, obs: np.ndarray) -> np.ndarray:
+    def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
         return obs
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
@@ -114,7 +122,7 @@ class ProprioInputs(InputSet):
         super().__init__(model)
         self.sensed = Proprioception(model)
 
-    def observe(self, obs: np.ndarray) -> np.ndarray:
+    def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
         return self.sensed(obs)
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
@@ -122,11 +130,11 @@ class ProprioInputs(InputSet):
 
 
 class PendingInputs(InputSet):
-    """`OdometryFeatures` of the sensed features, the policy's command still in flight, the delay.
+    """`OdometryFeatures` of the sensed features, the action still in flight, the delay.
 
     Why: a student on the sensed features alone does not stand, one that also reads the estimator's does
     (docs/log.md, "The deployable observation"); and one step of action latency topples a policy that
-    acts as if its command ran at once, while told the delay and what it sent, a student learns to act
+    acts as if its action ran at once, while told the delay and what it sent, a student learns to act
     through it (docs/decisions/pending-inputs.md).
     """
 
@@ -134,7 +142,8 @@ class PendingInputs(InputSet):
     columns = (OBS_STATE, ACTION)
     observed_columns = (OBS_STATE,)
     observed_names = staticmethod(proprioception_names)
-    MAX_DELAY = 1  # the command in flight is one action: one step of latency
+    reads_latency = True
+    MAX_DELAY = 1  # the action in flight is one: one step of latency
 
     @staticmethod
     def input_names(model: mujoco.MjModel) -> list[str]:
@@ -159,12 +168,12 @@ class PendingInputs(InputSet):
         self.odometry.reset()
         self.pending[:] = 0.0  # as ActionLatency does: the first step executes zeros
 
-    def commanded(self, action: np.ndarray) -> None:
-        """In flight until the next frame's command, if the episode is delayed."""
+    def sent(self, action: np.ndarray) -> None:
+        """In flight until the next frame's action, if the episode is delayed."""
         if self.delay:
             self.pending[:] = action
 
-    def observe(self, obs: np.ndarray) -> np.ndarray:
+    def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
         return self.sensed(obs)
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
@@ -173,7 +182,39 @@ class PendingInputs(InputSet):
         return np.concatenate([odometry, self.pending, [float(self.delay)]])
 
 
-INPUT_SETS: dict[str, type[InputSet]] = {kind.name: kind for kind in (FullInputs, ProprioInputs, PendingInputs)}
+def commanded_set(base: type[InputSet]) -> type[InputSet]:
+    """`base`'s inputs, then the operator's command as it is (`observation.command`): the set named "BASE+command"."""
+
+    class CommandedInputs(base):
+        name = f"{base.name}+command"
+        columns = (*base.columns, OBS_COMMAND)
+        observed_columns = (*base.observed_columns, OBS_COMMAND)
+        takes_command = True
+        __doc__ = f"{base.__name__}'s inputs, then the operator's command."
+
+        @staticmethod
+        def input_names(model: mujoco.MjModel) -> list[str]:
+            return [*base.input_names(model), *(f"command.{name}" for name in COMMAND_NAMES)]
+
+        @staticmethod
+        def observed_names(model: mujoco.MjModel) -> list[str]:
+            return [*base.observed_names(model), *COMMAND_NAMES]
+
+        def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
+            frame = base.observe(self, obs, command)
+            return np.concatenate([frame, np.broadcast_to(command, (*frame.shape[:-1], COMMAND_SIZE))], axis=-1)
+
+        def __call__(self, frame: np.ndarray) -> np.ndarray:
+            return np.concatenate([base.__call__(self, frame[..., :-COMMAND_SIZE]), frame[..., -COMMAND_SIZE:]], -1)
+
+    CommandedInputs.__name__ = CommandedInputs.__qualname__ = f"Commanded{base.__name__}"
+    return CommandedInputs
+
+
+_BASES = (FullInputs, ProprioInputs, PendingInputs)
+INPUT_SETS: dict[str, type[InputSet]] = {
+    kind.name: kind for kind in (*_BASES, *(commanded_set(base) for base in _BASES))
+}
 INPUTS = tuple(INPUT_SETS)
 REMOVED = {"odometry": "pending, odometry's inputs plus the command in flight and the delay"}
 """Input sets this version no longer computes, and what to use instead."""
@@ -191,21 +232,21 @@ def input_set(inputs: str) -> type[InputSet]:
 def computation_digest() -> str:
     """A digest of the code that computes every input set from recorded frames, so that inputs an earlier
     version computed and cached are not reused."""
-    source = b"".join(Path(module.__file__).read_bytes() for module in (estimator, sensors))
+    source = b"".join(Path(module.__file__).read_bytes() for module in (commands, estimator, sensors))
     return hashlib.sha256(Path(__file__).read_bytes() + source).hexdigest()[:16]
 
 
 def episode_inputs(
     inputs: str,
     frames: np.ndarray,
-    commands: np.ndarray,
+    actions: np.ndarray,
     episode_index: np.ndarray,
     delays: np.ndarray,
     model: mujoco.MjModel,
 ) -> np.ndarray:
     """A policy's inputs for recorded frames (rows of `observed_names` entries in frame order), of `frames`' type:
     the set's computation run along each episode as a rollout runs it, told each episode's delay (`delays`, per
-    frame) and each frame's command (`commands`, the recorded action labels)."""
+    frame) and each frame's action sent (`actions`, the recorded action labels)."""
     features = INPUT_SETS[inputs](model)
     out = np.empty((len(frames), features.size), frames.dtype)
     for row, frame in enumerate(frames):
@@ -213,14 +254,14 @@ def episode_inputs(
             features.set_delay(int(delays[row]))
             features.reset()
         out[row] = features(frame)
-        features.commanded(commands[row])
+        features.sent(actions[row])
     return out
 
 
 class InputObservation(gym.Wrapper):
     """The env's observation with the inputs of a policy on `inputs` appended: what PPO's actor reads.
 
-    PPO's policy is stateless and an input set may have memory (the estimator, the command in flight): run in
+    PPO's policy is stateless and an input set may have memory (the estimator, the action in flight): run in
     the env, where each episode's steps arrive in order, a reset starts it afresh and each action stepped is the
     command sent, the inputs become part of the observation, computed by the code the live controller runs
     (train = deploy). The critic reads the observation too (`policies.actor_critic`). The set computes on the
@@ -231,6 +272,8 @@ class InputObservation(gym.Wrapper):
     def __init__(self, env: gym.Env, inputs: str) -> None:
         super().__init__(env)
         self.features = INPUT_SETS[inputs](humanoid_model())
+        self.command = np.zeros(COMMAND_SIZE, np.float32)
+        """The operator's command the inputs carry (a commanded set's): zero, standing still, unless set."""
         space = env.observation_space
         extra = np.full(self.features.size, np.inf)
         self.observation_space = gym.spaces.Box(
@@ -238,7 +281,7 @@ class InputObservation(gym.Wrapper):
         )
 
     def _with_inputs(self, obs: np.ndarray) -> np.ndarray:
-        return np.concatenate([obs, self.features(self.features.observe(obs))]).astype(obs.dtype)
+        return np.concatenate([obs, self.features(self.features.observe(obs, self.command))]).astype(obs.dtype)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
@@ -247,6 +290,6 @@ class InputObservation(gym.Wrapper):
         return self._with_inputs(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        self.features.commanded(action)
+        self.features.sent(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
         return self._with_inputs(obs), reward, terminated, truncated, info

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 import torch
 
+from humanoid.commands import COMMAND_SIZE
 from humanoid.env import make_env
 from humanoid.inputs import INPUT_SETS, REMOVED, InputSet
 from policies.checkpoint import CheckpointError, load
@@ -41,6 +42,8 @@ class PolicyController:
                 env.close()
         self.policy = policy.eval()
         self.name = name
+        self.takes_command = self.features.takes_command
+        self.command = np.zeros(COMMAND_SIZE, np.float32)
 
     @classmethod
     def load(cls, path: Path, env: gym.Env) -> PolicyController:
@@ -58,10 +61,18 @@ class PolicyController:
     def set_body(self, model: mujoco.MjModel) -> None:
         """A policy acts on what it reads, whatever the body."""
 
+    def set_command(self, command: np.ndarray) -> None:
+        """The command its inputs carry from now on (a policy on inputs without one acts as if standing)."""
+        self.command[:] = command
+
+    def setpoint(self) -> None:
+        return None
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            action = self.policy(torch.from_numpy(self.features(self.features.observe(obs))).float()).numpy()
-        self.features.commanded(action)
+            inputs = self.features(self.features.observe(obs, self.command))
+            action = self.policy(torch.from_numpy(inputs).float()).numpy()
+        self.features.sent(action)
         return action
 
 
@@ -87,6 +98,12 @@ def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
         )
 
 
+def takes_command(folder: Path) -> bool:
+    """Whether the policy checkpoint in `folder` reads the operator's command (a commanded input set)."""
+    spec = load(folder).spec
+    return spec.inputs in INPUT_SETS and INPUT_SETS[spec.inputs].takes_command
+
+
 class SB3Controller:
     """The deterministic actions of a policy stable-baselines3 saved (`SB3_FILE` in `folder`), on the
     gymnasium observation as it is: SB3 clips them to the action bounds, as its `predict` does."""
@@ -101,6 +118,14 @@ class SB3Controller:
                 f"{folder / SB3_FILE} is not a readable stable-baselines3 PPO model: {error}"
             ) from None
         self.name = str(folder)
+
+    takes_command = False
+
+    def set_command(self, command: np.ndarray) -> None:
+        """It acts on the observation alone, whatever the command."""
+
+    def setpoint(self) -> None:
+        return None
 
     def reset(self, seed: int | None = None) -> None:
         """Nothing to reset: deterministic, no memory."""

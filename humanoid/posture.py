@@ -86,6 +86,16 @@ class Posture:
         "arms": 3.0,
     }
 
+    STEP: ClassVar[dict[str, float]] = {
+        "lean_forward": 0.05,
+        "lean_left": 0.05,
+        "height": 0.02,
+        "twist": 0.1,
+        "arms": 1.0,
+    }
+    """One key press's change of each field (`teleop.keyboard`: four to six presses reach the limits), and the grid
+    that scripted schedules draw from (`humanoid.commands`), so both ask for the same postures."""
+
     def clipped(self) -> Posture:
         """This posture with every field inside [MIN, MAX] (and ``arms`` rounded to a preset)."""
         values = {name: min(max(getattr(self, name), self.MIN[name]), self.MAX[name]) for name in self.MIN}
@@ -389,6 +399,15 @@ def _path_gain(
     return _read_only(design_gain(model, pose, feed_forward(model, pose), design, GAIN_DISCOUNT))
 
 
+def move_seconds(start: Posture, target: Posture, start_arms: np.ndarray | None = None) -> float:
+    """Seconds the expert's setpoint takes from ``start`` (arms at ``start_arms``, if not a preset) to ``target``,
+    at ``RATES`` and ``ARM_RATE``."""
+    times = [abs(getattr(target, name) - getattr(start, name)) / rate for name, rate in RATES.items()]
+    arms_from = arm_angles(start.arms) if start_arms is None else start_arms
+    times.append(float(np.abs(arm_angles(target.arms) - arms_from).max()) / ARM_RATE)
+    return max(times)
+
+
 class PostureRamp:
     """Moves an expert's ``qpos_ref``, ``ctrl_ff`` and ``gain`` (written in place) to a posture's, gradually.
 
@@ -438,13 +457,6 @@ class PostureRamp:
         """Where the setpoint is now, fieldwise between ``start`` and ``target`` (``arms``: the fraction of the way)."""
         return blend(self.start, self.target, _smoothstep(self.progress))
 
-    def duration(self, start: Posture, target: Posture, start_arms: np.ndarray | None = None) -> float:
-        """Seconds to move from ``start`` to ``target`` at ``RATES`` and ``ARM_RATE``."""
-        times = [abs(getattr(target, name) - getattr(start, name)) / rate for name, rate in RATES.items()]
-        arms_from = arm_angles(start.arms) if start_arms is None else start_arms
-        times.append(float(np.abs(arm_angles(target.arms) - arms_from).max()) / ARM_RATE)
-        return max(times)
-
     def hold(self, posture: Posture, clip: bool = True) -> None:
         """Plan a move to ``posture.clipped()`` from wherever the setpoint is now.
 
@@ -460,7 +472,7 @@ class PostureRamp:
         start = self.posture
         self._from_arms[:] = self._current_arms()
         self.start, self.target = start, target
-        duration = self.duration(start, target, self._from_arms)
+        duration = move_seconds(start, target, self._from_arms)
         steps = max(1, int(np.ceil(duration / self.dt)))
         arm_change = float(np.abs(arm_angles(target.arms) - self._from_arms).max())
         n = _pieces(start, target, arm_change, WAYPOINT_STEP)

@@ -1,9 +1,11 @@
-"""Keyboard teleoperation (`make record CONTROLLER=keyboard`): keys change what the expert holds.
+"""Keyboard teleoperation (`make record CONTROLLER=keyboard`, `make play POLICY=...`): keys set the command.
 
-Balancing 17 motors by hand is impossible, so a key changes the posture the LQR expert holds
-(`humanoid.posture`) and the expert keeps the body up; one key pushes the torso, a perturbation to
-recover from. Every step of an episode is recorded as with the expert, plus the command in force
-(`observation.command`, the `/command` MCAP channel) and a task string that names it.
+Balancing 17 motors by hand is impossible, so a key changes the operator's command, a posture
+(`humanoid.posture`, `humanoid.commands`), and the controller keeps the body up while it follows it: the
+LQR expert, or with `--policy` a learned policy that takes a command (`make play`). One key pushes the
+torso, a perturbation to recover from. Every step of an episode is recorded as with the expert, plus the
+command in force (`observation.command`, the `/command` MCAP channel), the task string that names it, the
+controller's setpoint and the push.
 
 Two front ends drive the same `TeleopSession`, in real time (one env step per 15 ms):
 - `terminal`: raw key reads from the TTY (works over SSH, no display), a live status line;
@@ -27,10 +29,10 @@ import gymnasium as gym
 import numpy as np
 
 from common.cli import UserError
-from common.keys import COMMAND_NAMES
+from humanoid.commands import ARM_NAMES, command_vector, task_for
+from humanoid.controllers import Controller
 from humanoid.env import model_and_data
 from humanoid.episode import (
-    DEFAULT_TASK,
     EpisodeBuffer,
     StepObserver,
     check_action,
@@ -41,16 +43,11 @@ from humanoid.physics import TORSO_BODY, torso_height
 from humanoid.posture import NEUTRAL, Posture
 
 if TYPE_CHECKING:
-    from humanoid.expert import LQRExpert
     from teleop.store import CommittedEpisode, EpisodeSink
 
 CONTROLLER_NAME = "keyboard"
-LEAN_STEP = 0.05  # rad per key press: four to six presses reach the limits (Posture.MIN, Posture.MAX)
-HEIGHT_STEP = 0.02  # m per key press
-TWIST_STEP = 0.1  # rad per key press
 PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
 PUSH_SECONDS = 0.1
-ARM_NAMES = ("neutral", "forward", "up", "out")
 STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
 
 
@@ -63,7 +60,8 @@ class Binding:
     effect: Callable[[TeleopSession], None]
 
 
-def _nudge(field: str, step: float) -> Callable[[TeleopSession], None]:
+def _nudge(field: str, presses: int) -> Callable[[TeleopSession], None]:
+    step = presses * Posture.STEP[field]
     return lambda session: session.command_posture(
         dataclasses.replace(session.target, **{field: getattr(session.target, field) + step})
     )
@@ -77,14 +75,14 @@ KEY_MAP: tuple[Binding, ...] = (
     Binding(("enter",), "start an episode / end it and save it", lambda s: s.start_or_end()),
     Binding(("backspace",), "discard the episode in progress", lambda s: s.discard()),
     Binding(("esc",), "quit (an episode in progress is saved; Ctrl-C too)", lambda s: s.quit()),
-    Binding(("w", "up"), "lean forward", _nudge("lean_forward", LEAN_STEP)),
-    Binding(("s", "down"), "lean back", _nudge("lean_forward", -LEAN_STEP)),
-    Binding(("a", "left"), "lean left", _nudge("lean_left", LEAN_STEP)),
-    Binding(("d", "right"), "lean right", _nudge("lean_left", -LEAN_STEP)),
-    Binding(("f",), "crouch (lower the torso)", _nudge("height", -HEIGHT_STEP)),
-    Binding(("r",), "rise", _nudge("height", HEIGHT_STEP)),
-    Binding(("q",), "twist the torso left", _nudge("twist", TWIST_STEP)),
-    Binding(("e",), "twist the torso right", _nudge("twist", -TWIST_STEP)),
+    Binding(("w", "up"), "lean forward", _nudge("lean_forward", 1)),
+    Binding(("s", "down"), "lean back", _nudge("lean_forward", -1)),
+    Binding(("a", "left"), "lean left", _nudge("lean_left", 1)),
+    Binding(("d", "right"), "lean right", _nudge("lean_left", -1)),
+    Binding(("f",), "crouch (lower the torso)", _nudge("height", -1)),
+    Binding(("r",), "rise", _nudge("height", 1)),
+    Binding(("q",), "twist the torso left", _nudge("twist", 1)),
+    Binding(("e",), "twist the torso right", _nudge("twist", -1)),
     *(Binding((str(i),), f"arms {name}", _arms(i)) for i, name in enumerate(ARM_NAMES)),
     Binding(("space",), "back to the neutral stand", lambda s: s.command_posture(NEUTRAL)),
     Binding(("p",), f"push the torso forward ({PUSH_FORCE:g} N for {PUSH_SECONDS:g} s)", lambda s: s.push()),
@@ -97,35 +95,18 @@ def key_help() -> str:
     return "\n".join(f"  {' / '.join(binding.keys):<12} {binding.help}" for binding in KEY_MAP)
 
 
-def task_for(posture: Posture) -> str:
-    """The task string naming a commanded posture: one phrase per field away from neutral."""
-    phrases = []
-    if posture.lean_forward:
-        phrases.append("lean forward" if posture.lean_forward > 0 else "lean back")
-    if posture.lean_left:
-        phrases.append("lean left" if posture.lean_left > 0 else "lean right")
-    if posture.height:
-        phrases.append("crouch" if posture.height < 0 else "rise")
-    if posture.twist:
-        phrases.append("twist left" if posture.twist > 0 else "twist right")
-    if posture.arms:
-        phrases.append(f"arms {ARM_NAMES[round(posture.arms)]}")
-    if not phrases:
-        return DEFAULT_TASK
-    return (", ".join(phrases) + " while standing.").capitalize()
-
-
 class TeleopSession:
     """The state of a teleoperation session: the command in force, the episode being recorded.
 
     Front ends call `press(key)` for each key and `tick()` once per env step; `tick` advances
-    the simulation only while an episode is being recorded.
+    the simulation only while an episode is being recorded. `controller` follows the command: the expert, or a
+    learned policy that takes one.
     """
 
     def __init__(
         self,
         env: gym.Env,
-        expert: LQRExpert,
+        controller: Controller,
         sink: EpisodeSink,
         first_seed: int,
         episodes: int,
@@ -135,7 +116,9 @@ class TeleopSession:
     ) -> None:
         self.env = env
         self.observer = observer
-        self.expert = expert
+        self.controller = controller
+        self.target = NEUTRAL
+        """The command in force (clipped to the posture's limits)."""
         self.sink = sink
         self.next_seed = first_seed
         self.episodes_left = episodes
@@ -160,10 +143,6 @@ class TeleopSession:
         self.obs: np.ndarray | None = None
         self.noise: np.ndarray | None = None
 
-    @property
-    def target(self) -> Posture:
-        return self.expert.target
-
     # Key effects.
     def press(self, key: str) -> None:
         effect = KEY_ACTIONS.get(key)
@@ -171,7 +150,8 @@ class TeleopSession:
             effect(self)
 
     def command_posture(self, posture: Posture) -> None:
-        self.expert.hold(posture)
+        self.target = posture.clipped()
+        self.controller.set_command(command_vector(self.target))
 
     def push(self) -> None:
         if self.recording:
@@ -196,7 +176,9 @@ class TeleopSession:
     def _start(self) -> None:
         seed = self.next_seed
         # Every episode starts from the neutral stand: the body drops 12 cm from the reset pose.
-        self.expert.reset(seed)
+        self.controller.reset(seed)
+        self.target = NEUTRAL
+        self.controller.set_command(command_vector(NEUTRAL))
         self._reset_episode_state()
         self.obs, _ = self.env.reset(seed=seed)
         if self.noise_std > 0:
@@ -216,8 +198,8 @@ class TeleopSession:
                 self.t,
                 self.obs,
                 seed=seed,
-                controller=CONTROLLER_NAME,
-                labeller=CONTROLLER_NAME,
+                controller=self.name,
+                labeller=self.name,
                 noise_std=self.noise_std,
             )
             self.report(self.sink.submit(episode))
@@ -229,21 +211,31 @@ class TeleopSession:
             self.discarded += 1
         self.message = f"episode {why} after {self.t} steps (return {self.episode_return:.1f}); Enter starts the next"
 
-    def command_vector(self) -> np.ndarray:
-        push = self.data.xfrc_applied[self.torso, :2] if self.pushing_left else (0.0, 0.0)
-        target = self.target
-        return np.array([*(getattr(target, name) for name in COMMAND_NAMES[:5]), *push], np.float32)
+    @property
+    def name(self) -> str:
+        """Who acts, as the episodes record it: `keyboard`, or `keyboard:POLICY` when the keys drive a policy."""
+        return CONTROLLER_NAME if self.controller.name == "expert" else f"{CONTROLLER_NAME}:{self.controller.name}"
 
     def tick(self) -> None:
         """One env step of the episode in progress (nothing while idle)."""
         if not self.recording:
             return
         t = self.t
-        action = self.expert.act(self.obs)
-        check_action(action, self.expert, t, self.next_seed)
+        action = self.controller.act(self.obs)
+        check_action(action, self.controller, t, self.next_seed)
         executed = executed_action(action, self.noise, t, self.env.action_space)
         self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
-        self.buffer.record(t, self.obs, self.data, action, executed, self.command_vector(), task_for(self.target))
+        self.buffer.record(
+            t,
+            self.obs,
+            self.data,
+            action,
+            executed,
+            command_vector(self.target),
+            task_for(self.target),
+            self.controller.setpoint(),
+            self.data.xfrc_applied[self.torso, :2],
+        )
         self.obs, reward, terminated, truncated, _ = self.env.step(executed)
         self.pushing_left = max(0, self.pushing_left - 1)
         self.buffer.outcome(t, reward, terminated, truncated)
@@ -414,8 +406,10 @@ def run_session(
     front_end: str,
     report: Callable[[list[CommittedEpisode]], None],
     observer: StepObserver | None = None,
+    controller: Controller | None = None,
 ) -> None:
-    """Teleoperate until the user quits or `episodes` episodes are saved; `observer` (a live view) sees every step."""
+    """Teleoperate until the user quits or `episodes` episodes are saved; `observer` (a live view) sees every step.
+    The keys command `controller` (a policy that takes a command: `make play`), by default the expert."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
     from humanoid.expert import LQRExpert  # noqa: PLC0415
@@ -424,8 +418,8 @@ def run_session(
         front_end = "viewer" if has_display() else "terminal"
     if front_end == "viewer" and not has_display():
         raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
-    expert = LQRExpert(model_and_data(env)[0])
-    session = TeleopSession(env, expert, sink, first_seed, episodes, noise_std, report, observer)
+    controller = LQRExpert(model_and_data(env)[0]) if controller is None else controller
+    session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer)
     if front_end == "viewer":
         run_viewer(session, sys.stderr)
     else:

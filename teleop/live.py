@@ -26,11 +26,11 @@ from google.protobuf.message import Message
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from common.cli import UserError
-from common.keys import COMMAND_NAMES
-from humanoid.env import body_names, model_and_data, step_duration_ns
+from humanoid.commands import Tracking
+from humanoid.env import body_names, humanoid_model, model_and_data, step_duration_ns
 from humanoid.episode import EpisodeBuffer
 from humanoid.sensors import Proprioception
-from teleop.mcap_io.schema import Command, Step
+from teleop.mcap_io.schema import COMMAND_VALUES, Command, Step, command_values
 from teleop.mcap_io.wire import FrameTransformsEncoder
 from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, WORLD_FRAME, scene_update
 
@@ -67,6 +67,7 @@ class LivePublisher:
         frames = body_names(model)
         self._scene = scene_update(model, frames).SerializeToString()
         self._proprioception = Proprioception(model)
+        self._tracking = Tracking(humanoid_model())
         self._step_ns = step_duration_ns(env)
         self._transforms = FrameTransformsEncoder(WORLD_FRAME, frames)
         self.episode = -1
@@ -108,9 +109,9 @@ class LivePublisher:
             message = self._transforms.encode_one(log_time, buffer.body_position[t], buffer.body_orientation[t])
             self.channels[TF_TOPIC].log(message, log_time=log_time)
         if self.channels[COMMAND_TOPIC].has_sinks():
-            command = Command(
-                task=str(buffer.tasks[t]), **dict(zip(COMMAND_NAMES, buffer.command[t].tolist(), strict=True))
-            )
+            achieved = self._tracking.achieved(buffer.observation[t : t + 1])[0]
+            values = command_values(buffer.command[t], buffer.push[t], buffer.setpoint[t], achieved)
+            command = Command(task=str(buffer.tasks[t]), **dict(zip(COMMAND_VALUES, values.tolist(), strict=True)))
             command.timestamp.FromNanoseconds(log_time)
             self.channels[COMMAND_TOPIC].log(command.SerializeToString(), log_time=log_time)
 

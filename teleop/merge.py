@@ -64,8 +64,13 @@ def read_body_poses(path: Path, body_frames: list[str]) -> tuple[np.ndarray, np.
     return np.array(positions, np.float64), np.array(orientations, np.float64)
 
 
-def read_episode(root: Path, row: dict, command: np.ndarray, body_frames: list[str]) -> Episode:
-    """The episode of `row` (its episode columns) as the recorder had it; `command` holds its frames' commands."""
+FRAME_COLUMNS = (keys.OBS_COMMAND, keys.SETPOINT, keys.PUSH)
+"""The per-frame columns that only the dataset holds (the MCAP files hold the rest of an episode)."""
+
+
+def read_episode(root: Path, row: dict, columns: dict[str, np.ndarray], body_frames: list[str]) -> Episode:
+    """The episode of `row` (its episode columns) as the recorder had it; `columns` holds its frames' commands,
+    setpoints and pushes (`FRAME_COLUMNS`)."""
     path = root / row[keys.EPISODE_MCAP]
     steps = read_steps(path)
     body_position, body_orientation = read_body_poses(path, body_frames)
@@ -83,7 +88,9 @@ def read_episode(root: Path, row: dict, command: np.ndarray, body_frames: list[s
         truncated=steps["truncated"],
         body_position=body_position,
         body_orientation=body_orientation,
-        command=command,
+        command=columns[keys.OBS_COMMAND],
+        setpoint=columns[keys.SETPOINT],
+        push=columns[keys.PUSH],
         tasks=steps["task"],
         final_observation=read_mcap_final(path)["observation"],
         dagger_round=row[keys.EPISODE_DAGGER_ROUND],
@@ -136,14 +143,15 @@ def main(cfg: MergeConfig) -> int:
         have = read_episodes(cfg.dataset)[keys.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
             raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
-        commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's frames' commands, read once
+        commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's FRAME_COLUMNS, read once
         with recordings.logged(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions) as added:
             for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
                 if shard not in commands:
-                    commands[shard] = read_frames(shard, [keys.OBS_COMMAND, "episode_index"])
+                    commands[shard] = read_frames(shard, [*FRAME_COLUMNS, "episode_index"])
                 frames = commands[shard]
-                command = frames[keys.OBS_COMMAND][frames["episode_index"] == row["episode_index"]]
-                added.append(store.append(read_episode(shard, row, command, store.spec.body_frames)))
+                mine = frames["episode_index"] == row["episode_index"]
+                columns = {key: frames[key][mine] for key in FRAME_COLUMNS}
+                added.append(store.append(read_episode(shard, row, columns, store.spec.body_frames)))
     finally:
         store.close()
     return len(added)

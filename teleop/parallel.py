@@ -39,6 +39,7 @@ class RolloutSettings:
     task: str
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
     latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
+    schedules: bool = False  # the operator's command follows the schedule drawn from each seed
 
 
 class Simulator:
@@ -55,7 +56,10 @@ class Simulator:
         self.buffer = EpisodeBuffer(self.env, settings.max_steps)
 
     def run(self, seed: int) -> Episode:
-        return run_episode(self.env, self.controller, seed, self.settings.noise, self.buffer, self.settings.task)
+        settings = self.settings
+        return run_episode(
+            self.env, self.controller, seed, settings.noise, self.buffer, settings.task, schedules=settings.schedules
+        )
 
 
 def _work(channel: Channel, settings: RolloutSettings, dataset: Path) -> None:

@@ -52,7 +52,7 @@ from humanoid.conditions import (
     recorded_parameters,
     recording_env,
 )
-from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
+from humanoid.controllers import CONTROLLERS, INTERACTIVE, OPERATOR, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
 from teleop import recordings
@@ -114,7 +114,19 @@ class RecordConfig:
         f"is stored with the episode ({keys.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
-    task: str = setting(DEFAULT_TASK, "the task string stored with every frame (keyboard: the task names the command)")
+    task: str = setting(
+        DEFAULT_TASK, "the task string stored with every frame (under schedules or keys: the task names the command)"
+    )
+    schedules: bool = setting(
+        False,
+        "the operator's command follows a schedule drawn from each episode's seed (humanoid.commands; "
+        f"--controller {OPERATOR} implies it): the controller is told each command, the dataset records it",
+    )
+    policy: str | None = setting(
+        None,
+        "with --controller keyboard: the keys command this policy (a checkpoint folder of a policy that takes a "
+        "command) instead of the expert; `make play`",
+    )
     workers: int | None = setting(
         None,
         "simulation processes; with 2 or more (or --backend ray) the recorder's own process writes, "
@@ -210,7 +222,32 @@ def validate(cfg: RecordConfig) -> None:
     check_share(cfg, "latency")
     if cfg.controller in INTERACTIVE and cfg.latency > 0:
         raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
+    if cfg.controller in INTERACTIVE and cfg.schedules:
+        raise UserError(f"--controller {cfg.controller}: the keys set the command, --schedules cannot")
+    if cfg.policy is not None:
+        check_played(cfg)
     check_destination(cfg.dataset)
+
+
+def schedules(cfg: RecordConfig) -> bool:
+    """Whether the command follows seeded schedules: asked for, or the scripted operator."""
+    return cfg.schedules or cfg.controller == OPERATOR
+
+
+def check_played(cfg: RecordConfig) -> None:
+    """UserError in one line unless --policy names a policy the keys can command (`make play`)."""
+    if cfg.controller not in INTERACTIVE:
+        raise UserError(f"--policy is driven by the keys: it needs --controller keyboard, got {cfg.controller}")
+    try:
+        check_controller(cfg.policy, interactive=False)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    from humanoid.learned import takes_command  # noqa: PLC0415 - reads the checkpoint (torch)
+
+    if not takes_command(Path(cfg.policy)):
+        raise UserError(
+            f"{cfg.policy} takes no command: the keys would change nothing (train one with INPUTS=...+command)"
+        )
 
 
 def workers(cfg: RecordConfig) -> int:
@@ -317,11 +354,14 @@ def _record(
         if interactive:
             from teleop.keyboard import run_session  # noqa: PLC0415
 
-            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live)
+            played = None if cfg.policy is None else make_controller(cfg.policy, env)
+            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live, played)
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
-                episode = run_episode(env, controller, seed, cfg.noise, buffer, cfg.task, observer=live)
+                episode = run_episode(
+                    env, controller, seed, cfg.noise, buffer, cfg.task, observer=live, schedules=schedules(cfg)
+                )
                 report(sink.submit(episode))
         else:
             _record_in_parallel(rollouts, seeds, sink, report)
@@ -341,7 +381,13 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
     settings = RolloutSettings(
-        cfg.controller, cfg.noise, cfg.max_steps, cfg.task, parse_randomization(cfg.randomize), cfg.latency
+        cfg.controller,
+        cfg.noise,
+        cfg.max_steps,
+        cfg.task,
+        parse_randomization(cfg.randomize),
+        cfg.latency,
+        schedules(cfg),
     )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":

@@ -78,17 +78,16 @@ class DatasetSpec:
         model, _ = model_and_data(env)
         sensed, privileged = proprioception_names(model), privileged_names(model)
         actions = actuator_names(model)
+        commands = list(keys.COMMAND_NAMES)
         flag = {"dtype": "bool", "shape": (1,), "names": None}
         features = {
             keys.OBS_STATE: {"dtype": "float64", "shape": (len(sensed),), "names": sensed},
             keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(privileged),), "names": privileged},
             keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
             keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
-            keys.OBS_COMMAND: {
-                "dtype": "float32",
-                "shape": (len(keys.COMMAND_NAMES),),
-                "names": list(keys.COMMAND_NAMES),
-            },
+            keys.OBS_COMMAND: {"dtype": "float32", "shape": (len(commands),), "names": commands},
+            keys.SETPOINT: {"dtype": "float32", "shape": (len(commands),), "names": commands},
+            keys.PUSH: {"dtype": "float32", "shape": (len(keys.PUSH_NAMES),), "names": list(keys.PUSH_NAMES)},
             keys.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
             keys.DONE: flag,
             keys.TERMINATED: flag,
@@ -205,6 +204,8 @@ class EpisodeStore:
             keys.ACTION: episode.action,
             keys.EXECUTED_ACTION: episode.executed_action,
             keys.OBS_COMMAND: episode.command,
+            keys.SETPOINT: episode.setpoint,
+            keys.PUSH: episode.push,
             keys.REWARD: episode.reward,
             keys.DONE: episode.terminated | episode.truncated,
             keys.TERMINATED: episode.terminated,

@@ -19,7 +19,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from common import keys
-from common.keys import COMMAND_NAMES
+from common.keys import COMMAND_NAMES, PUSH_NAMES
 from humanoid.conditions import ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
@@ -58,6 +58,7 @@ class McapEpisode:
     tasks: list[str]  # the /step messages' task strings
     command_times_ns: np.ndarray  # (T,) log times of the /command messages
     command: np.ndarray  # (T, len(COMMAND_NAMES)) float64
+    push: np.ndarray  # (T, len(PUSH_NAMES)) float64
     command_tasks: list[str]  # the /command messages' task strings
 
 
@@ -68,7 +69,7 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
         attachments = {record.name: bytes(record.data) for record in reader.iter_attachments()}
         step_times, tf_times, steps, positions, orientations, frames, entities = [], [], [], [], [], [], []
-        tasks, command_times, commands, command_tasks = [], [], [], []
+        tasks, command_times, commands, pushes, command_tasks = [], [], [], [], []
         topics = [STEP_TOPIC, TF_TOPIC, SCENE_TOPIC, COMMAND_TOPIC]
         for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
             if channel.topic == STEP_TOPIC:
@@ -78,6 +79,7 @@ def read_mcap_episode(path: Path) -> McapEpisode:
             elif channel.topic == COMMAND_TOPIC:
                 command_times.append(message.log_time)
                 commands.append([getattr(decoded, name) for name in COMMAND_NAMES])
+                pushes.append([getattr(decoded, name) for name in PUSH_NAMES])
                 command_tasks.append(decoded.task)
             elif channel.topic == TF_TOPIC:
                 tf_times.append(message.log_time)
@@ -101,6 +103,7 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         tasks=tasks,
         command_times_ns=np.array(command_times, np.int64),
         command=np.array(commands, np.float64).reshape(-1, len(COMMAND_NAMES)),
+        push=np.array(pushes, np.float64).reshape(-1, len(PUSH_NAMES)),
         command_tasks=command_tasks,
     )
 

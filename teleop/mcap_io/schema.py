@@ -3,7 +3,8 @@
 - `humanoid_bc.Step` (`/step`): one step's observation (the gymnasium one, and the sensed part of it as
   `state`, named by the metadata record's `state_names`), actions, reward and outcome.
 - `humanoid_bc.Command` (`/command`): the command in force at that step, one field per entry of
-  the dataset's `observation.command` (so Foxglove plots each by name), and the task that names it.
+  the dataset's `observation.command` (so Foxglove plots each by name), the push, the task that names it,
+  the expert's setpoint toward it (`setpoint_*`) and the posture achieved (`achieved_*`: lean, height, twist).
 
 Defining the schema from a `FileDescriptorProto` keeps it independent of the protoc version the
 installed protobuf runtime expects; MCAP files embed the schema, so readers need nothing from here.
@@ -11,9 +12,10 @@ installed protobuf runtime expects; MCAP files embed the schema, so readers need
 
 from __future__ import annotations
 
+import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from common.keys import COMMAND_NAMES
+from common.keys import COMMAND_NAMES, PUSH_NAMES
 
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"
@@ -34,10 +36,24 @@ _STEP_FIELDS = (
     ("task", 10, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
     ("state", 11, _F.TYPE_DOUBLE, _F.LABEL_REPEATED, None),  # observation.state: what a robot senses
 )
+ACHIEVED_NAMES = COMMAND_NAMES[:4]
+"""The achieved posture's fields on `/command` (`humanoid.commands.Tracking.achieved`; the arms show in 3D)."""
+COMMAND_VALUES = (
+    *COMMAND_NAMES,
+    *PUSH_NAMES,
+    *(f"setpoint_{name}" for name in COMMAND_NAMES),
+    *(f"achieved_{name}" for name in ACHIEVED_NAMES),
+)
+"""The number fields of `Command`, in the order `command_values` gives them."""
+# The command's and the push's numbers are those of the first version, whose command held the push.
+_NUMBERS = [*range(2, 9), *range(10, 10 + len(COMMAND_VALUES) - 7)]
 _COMMAND_FIELDS = (
     ("timestamp", 1, _F.TYPE_MESSAGE, _F.LABEL_OPTIONAL, ".google.protobuf.Timestamp"),
-    *((name, 2 + i, _F.TYPE_DOUBLE, _F.LABEL_OPTIONAL, None) for i, name in enumerate(COMMAND_NAMES)),
-    ("task", 2 + len(COMMAND_NAMES), _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
+    *(
+        (name, number, _F.TYPE_DOUBLE, _F.LABEL_OPTIONAL, None)
+        for name, number in zip(COMMAND_VALUES, _NUMBERS, strict=True)
+    ),
+    ("task", 9, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
 )
 _MESSAGES = {"Step": _STEP_FIELDS, "Command": _COMMAND_FIELDS}
 
@@ -67,3 +83,8 @@ def _build_classes() -> tuple[type, type]:
 
 
 Step, Command = _build_classes()
+
+
+def command_values(command: np.ndarray, push: np.ndarray, setpoint: np.ndarray, achieved: np.ndarray) -> np.ndarray:
+    """(T, len(COMMAND_VALUES)) the numbers of `Command` messages, from an episode's (T, ...) columns."""
+    return np.concatenate([command, push, setpoint, achieved], axis=-1)

@@ -27,8 +27,7 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.message import Message
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from common.keys import COMMAND_NAMES
-from teleop.mcap_io.schema import Command, Step
+from teleop.mcap_io.schema import COMMAND_VALUES, Command, Step
 
 _VARINT = 0
 _FIXED64 = 1
@@ -236,12 +235,13 @@ class CommandEncoder:
         self._task_key = tag(Command, "task", _LENGTH_DELIMITED)
         self._timestamp_key = tag(Command, "timestamp", _LENGTH_DELIMITED)
 
-    def encode(self, times_ns: np.ndarray, commands: np.ndarray, tasks: np.ndarray) -> list[bytes]:
-        """Messages for (T,) times, (T, len(COMMAND_NAMES)) commands and (T,) task strings."""
+    def encode(self, times_ns: np.ndarray, values: np.ndarray, tasks: np.ndarray) -> list[bytes]:
+        """Messages for (T,) times, (T, len(COMMAND_VALUES)) numbers (`schema.command_values`) and (T,) task
+        strings."""
         parts: list[bytes | np.ndarray] = []
-        for column, name in enumerate(COMMAND_NAMES):
-            parts += [tag(Command, name, _FIXED64), _number_bytes(commands[:, column], "<f8")]
-        rows = _byte_rows(len(commands), parts)
+        for column, name in enumerate(COMMAND_VALUES):
+            parts += [tag(Command, name, _FIXED64), _number_bytes(values[:, column], "<f8")]
+        rows = _byte_rows(len(values), parts)
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
             stamp + row.tobytes() + task_fields[task]

@@ -7,7 +7,8 @@ Topics (log and publish times are integer nanoseconds of simulated time, frame_i
 - `/final_observation`  humanoid_bc.Step, once, at time T: the observation and state the last action led
   to (o_T; frame index T, no action or reward), with the episode's terminated / truncated flags.
 - `/tf`    foxglove.FrameTransforms: the world pose of each of the 13 bodies, every step.
-- `/command` humanoid_bc.Command: the command in force (posture held, push) and the task naming it.
+- `/command` humanoid_bc.Command: the command in force, the push, the task naming the command, the expert's
+  setpoint and the posture achieved.
 - `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
   attached to its body's frame, and the floor.
 Plus an `episode` metadata record and the MJCF model as an attachment.
@@ -33,9 +34,11 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
+from humanoid.commands import Tracking
+from humanoid.env import humanoid_model
 from humanoid.episode import Episode
 from teleop.mcap_io.bulk import BulkMcapWriter
-from teleop.mcap_io.schema import Command, Step
+from teleop.mcap_io.schema import Command, Step, command_values
 from teleop.mcap_io.wire import CommandEncoder, FrameTransformsEncoder, StepEncoder
 
 STEP_TOPIC = "/step"
@@ -122,7 +125,9 @@ def write_episode_mcap(
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
         times_ns, episode.body_position, episode.body_orientation
     )
-    commands = CommandEncoder().encode(times_ns, episode.command, episode.tasks)
+    achieved = Tracking(humanoid_model()).achieved(episode.observation)
+    values = command_values(episode.command, episode.push, episode.setpoint, achieved)
+    commands = CommandEncoder().encode(times_ns, values, episode.tasks)
     steps = StepEncoder().encode(
         times_ns,
         episode_index,

@@ -163,8 +163,16 @@ class Untold:
     """`expert` deaf to `set_delay` and `set_body`: the rollout tells it the delay and the body in vain, so it acts as
     if there were no delay, on the body it was designed on."""
 
+    takes_command = False
+
     def __init__(self, expert: LQRExpert) -> None:
         self.expert, self.name = expert, "untold"
+
+    def set_command(self, command: np.ndarray) -> None:
+        """Standing: the rollout's command is zero."""
+
+    def setpoint(self) -> None:
+        return None
 
     def set_delay(self, steps: int) -> None:
         """Ignored."""

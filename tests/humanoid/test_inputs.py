@@ -14,6 +14,7 @@ from bc.data import load_demonstrations
 from bc.ppo.learner import training_env
 from common import keys
 from common.cli import UserError
+from humanoid.commands import FIRST_NEUTRAL_SECONDS
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
@@ -25,6 +26,7 @@ from support import record_short
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 
 STEPS = 40
+SCHEDULED_STEPS = round(FIRST_NEUTRAL_SECONDS / 0.015) + 30  # the first command of a schedule, and 30 steps of it
 OBSERVATION = 348
 
 
@@ -37,10 +39,11 @@ def tiny_policy(inputs: str, env: gym.Env) -> PolicyController:
 
 @pytest.fixture(scope="module")
 def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two short expert episodes recorded by the real recorder, each with one step of action latency and no action
-    noise (so the executed actions, replayed, are the commands the recording labels)."""
+    """Two short episodes of the scripted operator recorded by the real recorder, each with one step of action
+    latency and no action noise (so the executed actions, replayed, are the ones the recording labels), long
+    enough for the schedule's first command."""
     root = tmp_path_factory.mktemp("inputs") / "dataset"
-    record_short(root, episodes=2, max_steps=STEPS, latency=1.0, noise=0.0)
+    record_short(root, episodes=2, max_steps=SCHEDULED_STEPS, latency=1.0, noise=0.0, controller="operator")
     return root
 
 
@@ -48,29 +51,35 @@ def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: Path) -> None:
     """Each recorded episode replayed in PPO's training env (its seed, its executed actions): the inputs the env
     appends to its observation equal, bit for bit, those the live controller's computation gives on the same
-    observations and commands; the offline loader's equal, bit for bit, that computation run on the frames as
-    recorded (float32), and the live ones to the recording's float32 rounding (carried through the estimator's
-    memory for "pending", hence the tolerance)."""
+    observations and operator's commands (the env's command set as the recording's); the offline loader's equal,
+    bit for bit, that computation run on the frames as recorded (float32), and the live ones to the recording's
+    float32 rounding (carried through the estimator's memory for "pending", hence the tolerance)."""
     offline = load_demonstrations(delayed, make_env(), cache=False, inputs=inputs).inputs.numpy()
-    frames = read_frames(delayed, [keys.EXECUTED_ACTION, keys.ACTION, "episode_index"])
+    frames = read_frames(delayed, [keys.EXECUTED_ACTION, keys.ACTION, keys.OBS_COMMAND, "episode_index"])
+    assert len(np.unique(frames[keys.OBS_COMMAND], axis=0)) > 1  # the command changes within the recording
     seeds = read_episodes(delayed, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
     assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(delayed)] == [1, 1]
     env = training_env(None, inputs=inputs, latency=1.0)
+    command = env.get_wrapper_attr("command")  # the array PPO's environment appends the inputs under
     live = tiny_policy(inputs, env).features
     appended, computed, observed = [], [], []
     for episode, seed in enumerate(seeds):
         rows = frames["episode_index"] == episode
+        commands = frames[keys.OBS_COMMAND][rows]
+        command[:] = commands[0]
         obs, _ = env.reset(seed=seed)
         np.testing.assert_array_equal(obs[:OBSERVATION], make_env().reset(seed=seed)[0])  # the env's, as it is
         live.set_delay(1)
         live.reset()
-        for executed, label in zip(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows], strict=True):
-            np.testing.assert_array_equal(executed, label)  # no noise: the command sent is the one executed
-            frame = live.observe(obs[:OBSERVATION])
+        steps = zip(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows], commands, strict=True)
+        for t, (executed, label, now) in enumerate(steps):
+            np.testing.assert_array_equal(executed, label)  # no noise: the action sent is the one executed
+            frame = live.observe(obs[:OBSERVATION], now)
             observed.append(frame)
             computed.append(live(frame))
             appended.append(obs[OBSERVATION:])
-            live.commanded(label)
+            live.sent(label)
+            command[:] = commands[min(t + 1, len(commands) - 1)]
             obs, *_ = env.step(executed)
     np.testing.assert_array_equal(np.array(appended), np.array(computed))
     recorded = np.array(observed, np.float32)
@@ -78,7 +87,7 @@ def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: P
     replayed = episode_inputs(inputs, recorded, frames[keys.ACTION], frames["episode_index"], delays, humanoid_model())
     np.testing.assert_array_equal(offline, replayed)
     np.testing.assert_allclose(offline, np.array(computed), rtol=0, atol=1e-4)
-    assert offline.shape == (2 * STEPS, len(INPUT_SETS[inputs].input_names(humanoid_model())))
+    assert offline.shape == (2 * SCHEDULED_STEPS, len(INPUT_SETS[inputs].input_names(humanoid_model())))
 
 
 def expert_episode(delay: int, seed: int) -> Episode:
@@ -90,7 +99,7 @@ def test_the_pending_command_is_the_previous_label_in_a_delayed_episode_only() -
     """Known answer: zeros at the first step (the env executes zeros then) and throughout an undelayed episode."""
     model = humanoid_model()
     episode = expert_episode(1, seed=0)
-    frames = PendingInputs(model).observe(episode.observation)
+    frames = PendingInputs(model).observe(episode.observation, episode.command)
     index = np.zeros(episode.length, np.int64)
     pending = slice(-1 - model.nu, -1)
     delayed = episode_inputs("pending", frames, episode.action, index, np.ones(episode.length), model)
@@ -132,3 +141,18 @@ def test_the_removed_odometry_inputs_are_refused_naming_pending(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: INPUTS=odometry was removed: use INPUTS=pending")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
+    """Known answer: "pending+command" is "pending"'s inputs, then the five command fields, whatever they are."""
+    model = humanoid_model()
+    episode = expert_episode(0, seed=0)
+    command = np.array([0.1, -0.05, -0.04, 0.2, 3.0], np.float32)
+    base, commanded = INPUT_SETS["pending"](model), INPUT_SETS["pending+command"](model)
+    frame = commanded.observe(episode.observation[5], command)
+    np.testing.assert_array_equal(frame[-5:], command)
+    inputs = commanded(frame)
+    np.testing.assert_array_equal(inputs[:-5], base(base.observe(episode.observation[5], command)))
+    np.testing.assert_array_equal(inputs[-5:], command)
+    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in keys.COMMAND_NAMES]
+    assert commanded.takes_command and not base.takes_command

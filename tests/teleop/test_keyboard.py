@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 
 from common import keys
+from humanoid.commands import task_for
 from humanoid.episode import DEFAULT_TASK
 from humanoid.posture import Posture
 from support import join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.keyboard import KEY_MAP, key_help, parse_keys, task_for
+from teleop.keyboard import KEY_MAP, key_help, parse_keys
 from teleop.record import cli
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -92,7 +93,7 @@ def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return root, terminal.output.decode(errors="replace")
 
 
-POSTURE = slice(0, keys.COMMAND_NAMES.index("arms") + 1)  # the command's posture fields, without the push
+POSTURE = slice(None)  # the command is the posture (the push has its own column)
 
 
 def phases(command: np.ndarray) -> list[int]:
@@ -103,9 +104,8 @@ def phases(command: np.ndarray) -> list[int]:
 def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -> None:
     """observation.command steps through crouch, lean, arms up and neutral, then records the push."""
     root, _ = teleoperated
-    frames = read_frames(root, [keys.OBS_COMMAND, "episode_index"])
+    frames = read_frames(root, [keys.OBS_COMMAND, keys.PUSH, keys.SETPOINT, "episode_index"])
     command = frames[keys.OBS_COMMAND]
-    names = list(keys.COMMAND_NAMES)
     held = command[phases(command)][:, POSTURE]
     # Two presses that arrive together both act before the next step: the command jumps two notches.
     np.testing.assert_allclose(
@@ -113,7 +113,13 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
         [(0, 0, 0, 0, 0), (0, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 2), (0, 0, 0, 0, 0)],
         atol=1e-6,
     )
-    pushed = np.flatnonzero(command[:, names.index("push_x")] > 0)
+    # The expert's setpoint starts where the command does, moves toward each command and gets there.
+    setpoint = frames[keys.SETPOINT]
+    np.testing.assert_array_equal(setpoint[0], command[0])
+    changes = phases(command)
+    assert any((setpoint[start] != command[start]).any() for start in changes[1:])  # on its way
+    np.testing.assert_allclose(setpoint[changes[2] - 1], command[changes[2] - 1], atol=1e-6)  # there
+    pushed = np.flatnonzero(frames[keys.PUSH][:, 0] > 0)
     assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[4]
     assert np.all(frames["episode_index"] == 0)  # the discarded episode left nothing
 

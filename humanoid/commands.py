@@ -1,0 +1,217 @@
+"""Operator commands: the posture an operator asks for, as a policy reads it, as a script draws it, and how
+well a controller tracks it (docs/concepts/commands.md).
+
+A command is a `humanoid.posture.Posture` (lean forward, lean left, height, twist, arms), carried as a vector
+of `common.keys.COMMAND_NAMES` (the dataset's `observation.command`, a commanded policy's last inputs).
+Standing still is the zero command.
+
+- `command_schedule(seed, steps)`: a scripted operator (`make record CONTROLLER=operator`, and the held-out
+  schedules of `make eval SCHEDULES=1`): after a neutral start, targets on the keyboard's grid
+  (`Posture.STEP`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
+  `HOLD_SECONDS` once the expert's setpoint has got there; drawn from the seed alone, so reproducible.
+- `Tracking`: the error between commanded and achieved posture per field, from the observation alone
+  (root orientation, height and the joint angles a recorded frame holds), and `tracking_summary` over an
+  episode: the error once settled and the time to settle (defined under `SETTLED_SECONDS`, `TOLERANCE`).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from common.cli import UserError
+from common.keys import COMMAND_NAMES
+from humanoid.posture import ARM_JOINTS, NEUTRAL, Posture, move_seconds, posture_reference
+
+COMMAND_SIZE = len(COMMAND_NAMES)
+DEFAULT_TASK = "Stand still on both feet."
+"""The task string of the zero command."""
+
+# A scripted schedule. The first stretch is neutral: the body drops about 12 cm after reset and the expert's planned
+# landing holds the neutral stance (humanoid.landing) for its first 3 s. Then each target is held HOLD_SECONDS once
+# the setpoint has got there (move_seconds). Docs: docs/decisions/command-schedules.md.
+FIRST_NEUTRAL_SECONDS = 3.0
+HOLD_SECONDS = (2.0, 4.0)
+NEUTRAL_SHARE = 0.2
+"""Share of the targets after the first that are the neutral stand: standing stays in the data and the tests."""
+FIELDS_AT_ONCE = (0.5, 0.35, 0.15)
+"""Probabilities that a target moves 1, 2 or 3 fields away from neutral."""
+SCALE = 0.7
+"""Targets stay within this share of each limit (`Posture.MIN`, `Posture.MAX`): every field at 70 % of its limit at
+once stays up, every field at its limit falls (bench/posture_ranges.py)."""
+
+
+def command_vector(posture: Posture) -> np.ndarray:
+    """The command `posture` as a policy reads it: float32, `COMMAND_NAMES` order."""
+    return np.array([getattr(posture, name) for name in COMMAND_NAMES], np.float32)
+
+
+def command_posture(command: np.ndarray) -> Posture:
+    """The posture a command vector asks for (as given: the expert clips what it holds)."""
+    return Posture(**{name: float(value) for name, value in zip(COMMAND_NAMES, command, strict=True)})
+
+
+def check_command(command: np.ndarray) -> None:
+    """UserError in one line unless every field of `command` is finite and within the posture's limits."""
+    for name, value in zip(COMMAND_NAMES, command, strict=True):
+        if not Posture.MIN[name] <= value <= Posture.MAX[name]:
+            raise UserError(
+                f"command field {name}={value:g} is outside its range [{Posture.MIN[name]:g}, {Posture.MAX[name]:g}]"
+            )
+
+
+def _grid(name: str) -> np.ndarray:
+    """The nonzero values of `name` on the keyboard's grid within SCALE of its limits."""
+    step = Posture.STEP[name]
+    if name == "arms":
+        return np.arange(1.0, Posture.MAX["arms"] + 1.0)  # a preset: no fraction of one
+    low, high = (int(SCALE * Posture.MIN[name] / step), int(SCALE * Posture.MAX[name] / step))
+    return np.array([round(k * step, 6) for k in range(low, high + 1) if k != 0])
+
+
+def schedule_targets(seed: int, seconds: float) -> list[tuple[float, Posture]]:
+    """(start time in s, target) of each command of the schedule drawn from `seed`, covering `seconds`."""
+    if seed < 0:
+        raise UserError(f"a schedule's seed must be >= 0, got {seed}")
+    rng = np.random.default_rng((seed, 2))  # its own stream: the seed's noise and randomisation use others
+    targets = [(0.0, NEUTRAL)]
+    now, previous = FIRST_NEUTRAL_SECONDS, NEUTRAL
+    while now < seconds:
+        if rng.random() < NEUTRAL_SHARE:
+            target = NEUTRAL
+        else:
+            count = 1 + int(rng.choice(len(FIELDS_AT_ONCE), p=FIELDS_AT_ONCE))
+            fields = rng.choice(COMMAND_NAMES, size=count, replace=False)
+            target = Posture(**{str(name): float(rng.choice(_grid(str(name)))) for name in fields})
+        if target == previous:
+            target = NEUTRAL if previous != NEUTRAL else Posture(lean_forward=Posture.STEP["lean_forward"])
+        targets.append((now, target))
+        now += move_seconds(previous, target) + float(rng.uniform(*HOLD_SECONDS))
+        previous = target
+    return targets
+
+
+def command_schedule(seed: int, steps: int, dt: float) -> np.ndarray:
+    """The commands (steps, COMMAND_SIZE) float32 of the schedule drawn from `seed`, one row per env step of `dt` s."""
+    commands = np.empty((steps, COMMAND_SIZE), np.float32)
+    targets = schedule_targets(seed, steps * dt)
+    for (start, target), (end, _) in zip(targets, [*targets[1:], (np.inf, NEUTRAL)], strict=True):
+        commands[int(round(start / dt)) : int(min(round(end / dt), steps)) if np.isfinite(end) else steps] = (
+            command_vector(target)
+        )
+    return commands
+
+
+def task_for(posture: Posture) -> str:
+    """The task string naming a commanded posture: one phrase per field away from neutral."""
+    phrases = []
+    if posture.lean_forward:
+        phrases.append("lean forward" if posture.lean_forward > 0 else "lean back")
+    if posture.lean_left:
+        phrases.append("lean left" if posture.lean_left > 0 else "lean right")
+    if posture.height:
+        phrases.append("crouch" if posture.height < 0 else "rise")
+    if posture.twist:
+        phrases.append("twist left" if posture.twist > 0 else "twist right")
+    if posture.arms:
+        phrases.append(f"arms {ARM_NAMES[round(posture.arms)]}")
+    if not phrases:
+        return DEFAULT_TASK
+    return (", ".join(phrases) + " while standing.").capitalize()
+
+
+ARM_NAMES = ("neutral", "forward", "up", "out")
+"""`Posture.arms` presets by name (`humanoid.posture.ARM_POSES`)."""
+
+
+# Tracking. The achieved posture is read from the observation's first 22 entries (qpos without root x, y): the
+# root's height and orientation and the joint angles, in both the full observation and a recorded frame.
+QPOS_IN_OBS = slice(0, 22)
+TOLERANCE = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
+"""Settled means every field's error within this (rad; height m; arms: mean over the arm joints, rad): about one
+key press (`Posture.STEP`), half of one for the twist."""
+SETTLED_SECONDS = 1.0
+"""The error once settled is the mean over the last this-many seconds of each command held at least twice as long."""
+
+
+def _rotation(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) (w, x, y, z)."""
+    w, x, y, z = np.moveaxis(quat, -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+class Tracking:
+    """Commanded against achieved posture, per field, for observations of `model`'s Humanoid-v5.
+
+    Achieved: the trunk's pitch and sideways lean are those of the torso with its twist undone (the root's
+    orientation times the abdomen_z rotation, as Euler angles z-y-x: pitch, then roll = -lean_left), the height
+    is the root's, the twist is -abdomen_z, the arms their six joint angles. Commanded: the same coordinates of
+    the balanced pose that realises the command (`posture_reference`), so a body held exactly there has no error.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.twist_at = int(model.joint("abdomen_z").qposadr[0]) - 2
+        self.arms_at = [int(model.joint(name).qposadr[0]) - 2 for name in ARM_JOINTS]
+        self._targets: dict[tuple[float, ...], np.ndarray] = {}
+
+    def coordinates(self, qpos: np.ndarray) -> np.ndarray:
+        """(..., 10): pitch, lean_left, height, twist, then the six arm angles, of (..., 22) qpos without x and y."""
+        abdomen_z = qpos[..., self.twist_at]
+        half = abdomen_z / 2
+        unyaw = np.stack([np.cos(half), np.zeros_like(half), np.zeros_like(half), np.sin(half)], -1)
+        frame = _rotation(qpos[..., 1:5]) @ _rotation(unyaw)
+        pitch = np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))
+        lean_left = -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])
+        return np.concatenate([np.stack([pitch, lean_left, qpos[..., 0], -abdomen_z], -1), qpos[..., self.arms_at]], -1)
+
+    def target(self, command: np.ndarray) -> np.ndarray:
+        """The coordinates (10,) of the balanced pose that realises `command` (clipped as the expert clips it)."""
+        key = tuple(float(v) for v in command)
+        if key not in self._targets:
+            posture = command_posture(np.asarray(command)).clipped()
+            self._targets[key] = self.coordinates(posture_reference(self.model, posture)[0][2:])
+        return self._targets[key]
+
+    def achieved(self, observations: np.ndarray) -> np.ndarray:
+        """(T, 4) the achieved lean_forward, lean_left, height (from the neutral pose's) and twist of observations
+        (T, >=22): what Foxglove plots beside the command (the `/command` channel)."""
+        coordinates = self.coordinates(np.asarray(observations[:, QPOS_IN_OBS], np.float64))[:, :4]
+        return coordinates - [0.0, 0.0, self.target(np.zeros(COMMAND_SIZE))[2], 0.0]
+
+    def errors(self, observations: np.ndarray, commands: np.ndarray) -> np.ndarray:
+        """|commanded - achieved| (T, COMMAND_SIZE) of observations (T, >=22) under commands (T, COMMAND_SIZE)."""
+        targets = np.empty((len(commands), 10))
+        changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
+        for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
+            targets[start:end] = self.target(commands[start])
+        gap = np.abs(self.coordinates(np.asarray(observations[:, QPOS_IN_OBS], np.float64)) - targets)
+        return np.concatenate([gap[:, :4], gap[:, 4:].mean(axis=1, keepdims=True)], axis=1)
+
+
+def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
+    """An episode's tracking: per field the mean error once settled (over the last SETTLED_SECONDS of each command
+    held at least twice that), and the mean time from a command's change until every field stays within TOLERANCE
+    (a command never settled counts its whole duration). NaN where no command was held long enough."""
+    window = round(SETTLED_SECONDS / dt)
+    tolerance = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
+    changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
+    settled, times = [], []
+    for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
+        inside = (errors[start:end] <= tolerance).all(axis=1)
+        outside = np.flatnonzero(~inside)
+        times.append((outside[-1] + 1 if len(outside) else 0) * dt)
+        if end - start >= 2 * window:
+            settled.append(errors[end - window : end])
+    mean = np.concatenate(settled).mean(axis=0) if settled else np.full(COMMAND_SIZE, np.nan)
+    return {
+        "settled_error": dict(zip(COMMAND_NAMES, map(float, mean), strict=True)),
+        "settle_seconds": float(np.mean(times)) if times else float("nan"),
+    }
