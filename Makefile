@@ -33,7 +33,7 @@ VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES OVERWRITE
 VARS.eval := POLICY EPISODES SEED SCHEDULES PUSH NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
-VARS.play := POLICY DATASET EPISODES FRONT_END LIVE LIVE_PORT LIVE_HOST
+VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
@@ -70,9 +70,9 @@ venv: $(STAMP)  ## build .venv and install the project
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
 
-# The keys command a learned policy (one that takes a command); its episodes go to DATASET (datasets/play unless set).
+# The keys command a learned policy (one that takes a command): bc/targets.py's preset flags, then the variables.
 play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
-	$(PY) -m teleop.record --controller keyboard --dataset datasets/play $(flags)
+	$(PY) -m teleop.record --controller=keyboard --dataset=datasets/play --noise=0 $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
 	$(PY) -m teleop.merge $(flags)

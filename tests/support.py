@@ -6,6 +6,9 @@ Importable as `support` because pytest puts `tests/` on the path (its conftest l
 from __future__ import annotations
 
 import json
+import os
+import pty
+import select
 import subprocess
 import sys
 import time
@@ -106,6 +109,35 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         push=np.array(pushes, np.float64).reshape(-1, len(PUSH_NAMES)),
         command_tasks=command_tasks,
     )
+
+
+class Terminal:
+    """A command behind a pseudo-terminal, as a person at a TTY would run it (the recorder in keyboard mode)."""
+
+    def __init__(self, command: list[str]) -> None:
+        self.master, slave = pty.openpty()
+        self.process = subprocess.Popen(command, stdin=slave, stdout=slave, stderr=slave, close_fds=True)
+        os.close(slave)
+        self.output = b""
+
+    def read_for(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if select.select([self.master], [], [], 0.05)[0]:
+                try:
+                    self.output += os.read(self.master, 1 << 16)
+                except OSError:  # the command exited and closed the terminal
+                    return
+
+    def wait_for(self, text: bytes, timeout: float = 60) -> None:
+        deadline = time.monotonic() + timeout
+        while text not in self.output:
+            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
+            self.read_for(0.1)
+
+    def press(self, keys_: str, then_wait: float) -> None:
+        os.write(self.master, keys_.encode())
+        self.read_for(then_wait)
 
 
 def record_short(root: Path, **settings: object) -> None:
