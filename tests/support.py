@@ -140,6 +140,49 @@ class Terminal:
         self.read_for(then_wait)
 
 
+def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: int) -> list[str]:
+    """A CPU run of a small ACT for `steps` steps; nothing from the Hub, no wandb, a checkpoint at the last step."""
+    return [
+        str(Path(sys.executable).parent / "lerobot-train"),
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={dataset}",
+        "--policy.type=act",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        "--wandb.enable=false",
+        f"--output_dir={output_dir}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+        "--log_freq=1",
+        "--batch_size=2",
+        "--num_workers=0",
+        # Small enough to train in a fraction of a second; ACT with no camera builds no ResNet.
+        "--policy.chunk_size=10",
+        "--policy.n_action_steps=10",
+        "--policy.dim_model=64",
+        "--policy.n_heads=2",
+        "--policy.dim_feedforward=128",
+        "--policy.n_encoder_layers=1",
+        "--policy.n_vae_encoder_layers=1",
+    ]
+
+
+def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int) -> subprocess.CompletedProcess:
+    """`lerobot-train` (`lerobot_train_command`) in a subprocess in `work`, every cache under it, the checkpoint in
+    `work`/outputs (which must not exist yet: lerobot-train refuses an existing one unless resuming)."""
+    env = {
+        **os.environ,
+        "HF_HUB_OFFLINE": "1",
+        "HF_DATASETS_OFFLINE": "1",
+        "HF_HOME": str(work / "hf"),
+        "HF_DATASETS_CACHE": str(work / "hf-datasets"),
+        "HF_LEROBOT_HOME": str(work / "lerobot"),
+        "WANDB_MODE": "disabled",
+    }
+    command = lerobot_train_command(dataset, work / "outputs", repo_id, steps)
+    return subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=300)
+
+
 def record_short(root: Path, **settings: object) -> None:
     """`make record`'s recording (no recordings.jsonl line) into `root` in this process, with the writer inline and
     no progress bar, unless `settings` say otherwise."""
