@@ -33,7 +33,7 @@ VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES OVERWRITE
 VARS.eval := POLICY EPISODES SEED SCHEDULES PUSH NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
-VARS.play := POLICY DATASET EPISODES FRONT_END LIVE LIVE_PORT LIVE_HOST
+VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
@@ -56,12 +56,14 @@ help:  ## list the targets and their variables
 	else echo "Each target's variables are listed here once .venv exists (make venv)."; fi
 
 # Installed from the lock (exact versions and hashes), never by resolving pyproject.toml afresh;
-# `make lock` re-resolves it. uv installs (pinned to the lock's own uv); pip only bootstraps it.
+# `make lock` re-resolves it. uv installs (pinned to the lock's own uv); pip only bootstraps it. torchcodec is
+# left out of the lock (pyproject.toml's [tool.uv]), and removed from a .venv built before that.
 $(STAMP): $(LOCK) pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: no Python >= 3.12 found (set PYTHON312=/path/to/python3.12)" >&2; exit 1; }
 	@test -x $(PY) || $(PYTHON312) -m venv $(VENV)
 	$(PY) -m pip install --quiet uv==$(UV_VERSION)
 	$(UV) pip install --quiet --python $(PY) --require-hashes -r $(LOCK)
+	$(UV) pip uninstall --quiet --python $(PY) torchcodec
 	$(UV) pip install --quiet --python $(PY) --no-deps -e .
 	@touch $@
 
@@ -70,9 +72,9 @@ venv: $(STAMP)  ## build .venv and install the project
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
 
-# The keys command a learned policy (one that takes a command); its episodes go to DATASET (datasets/play unless set).
+# The keys command a learned policy (one that takes a command): bc/targets.py's preset flags, then the variables.
 play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
-	$(PY) -m teleop.record --controller keyboard --dataset datasets/play $(flags)
+	$(PY) -m teleop.record --controller=keyboard --dataset=datasets/play --noise=0 $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
 	$(PY) -m teleop.merge $(flags)

@@ -13,7 +13,8 @@ tests/test_makefile.py holds the Makefile to this table: every variable of a tar
 flag with its value, an unset one passes nothing, and the Makefile passes no variable the table
 does not list. A target's removed variables (`Target.removed`) are still passed, so that the stage
 refuses them in one line naming what to use instead (`common.cli.REMOVED_FLAGS`) rather than make
-ignoring them.
+ignoring them. A target that is a special case of another's stage (`make play`: the recorder with the
+keyboard) passes its `Target.preset` flags first; a variable of the same field comes after, and wins.
 """
 
 from __future__ import annotations
@@ -54,6 +55,9 @@ class Target:
     passes_args: bool = False  # ARGS is appended as it is (further flags)
     removed: tuple[str, ...] = ()
     """Fields an earlier version had (keys of `common.cli.REMOVED_FLAGS`): passed when set, for the stage to refuse."""
+    preset: tuple[tuple[str, str], ...] = ()
+    """(field, value) pairs the recipe passes before the variables, as `--field=value`: what makes the target a
+    special case of its stage, its own defaults (a variable of the same field overrides it)."""
 
     @property
     def variables(self) -> dict[str, str]:
@@ -65,8 +69,17 @@ class Target:
         """Removed Make variable -> the removed flag's field name."""
         return {name.upper(): name for name in self.removed}
 
+    @property
+    def preset_flags(self) -> list[str]:
+        """The words the recipe passes before `$(flags)`."""
+        return [f"{flag(name)}={value}" for name, value in self.preset]
+
     def field(self, name: str) -> dataclasses.Field[Any]:
         return next(f for f in dataclasses.fields(self.config) if f.name == name)
+
+    def default(self, name: str) -> object:
+        """The value field `name` has when its variable is unset: the preset's, else the stage config's default."""
+        return dict(self.preset).get(name, self.field(name).default)
 
 
 _LIVE = ("live", "live_port", "live_host")
@@ -91,8 +104,14 @@ TARGETS: dict[str, Target] = {
             *_LIVE,
         ),
     ),
-    # `make record CONTROLLER=keyboard` with a learned policy instead of the expert (its Makefile rule sets those).
-    "play": Target("teleop.record", RecordConfig, ("policy", "dataset", "episodes", "front_end", *_LIVE)),
+    # `make record CONTROLLER=keyboard` with a learned policy instead of the expert, into its own dataset, and no DART
+    # noise: the keys drive the policy as it is (noise is for demonstrations a student learns from).
+    "play": Target(
+        "teleop.record",
+        RecordConfig,
+        ("policy", "dataset", "episodes", "noise", "front_end", *_LIVE),
+        preset=(("controller", "keyboard"), ("dataset", "datasets/play"), ("noise", "0")),
+    ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
@@ -143,12 +162,11 @@ def help_text(width: int = 120) -> str:
     flag_width = max(len(flag(field)) for target in TARGETS.values() for field in target.fields) + 2
     indent = " " * (4 + name_width + flag_width)
     for name, target in TARGETS.items():
-        lines.append(f"  make {name} (python -m {target.module}):")
+        lines.append(f"  make {name} ({' '.join([f'python -m {target.module}', *target.preset_flags])}):")
         for var, field_name in target.variables.items():
-            field = target.field(field_name)
-            text = field.metadata.get("help", "")
-            if "default:" not in text:  # the help says it itself when the default is not one value
-                text += f" (default: {field.default})"
+            text = target.field(field_name).metadata.get("help", "")
+            if "default:" not in text or field_name in dict(target.preset):  # else the help says it itself
+                text += f" (default: {target.default(field_name)})"
             head = f"    {var:<{name_width}}{flag(field_name):<{flag_width}}"
             lines += textwrap.wrap(
                 text, width=max(width, len(indent) + 40), initial_indent=head, subsequent_indent=indent
@@ -181,14 +199,15 @@ def markdown_text() -> str:
     ]
     for name, target in TARGETS.items():
         summary = (importlib.import_module(target.module).__doc__ or "").strip().split("\n\n")[0]
-        lines += ["", f"## make {name}", "", f"`python -m {target.module}`: {_cell(summary)}", ""]
+        command = " ".join([f"python -m {target.module}", *target.preset_flags])
+        lines += ["", f"## make {name}", "", f"`{command}`: {_cell(summary)}", ""]
         lines += ["| Make variable | flag | default | what it sets |", "|---|---|---|---|"]
         variables = {field_name: var for var, field_name in target.variables.items()}
         for field in dataclasses.fields(target.config):
             var = f"`{variables[field.name]}`" if field.name in variables else ""
             text = field.metadata.get("help", "")
-            default = f"`{field.default}`" if field.default != "" else '`""`'
-            if "default:" in text:  # the help says it itself when the default is not one value
+            default = f"`{target.default(field.name)}`" if target.default(field.name) != "" else '`""`'
+            if "default:" in text and field.name not in dict(target.preset):  # the help says it itself
                 default = "(in the help)"
             lines.append(f"| {var} | `{flag(field.name)}` | {_cell(default)} | {_cell(text)} |")
         if target.passes_args:

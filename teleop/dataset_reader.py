@@ -209,11 +209,13 @@ class Transitions:
     rewards: np.ndarray  # (T,) float64
     terminated: np.ndarray  # (T,) bool
     truncated: np.ndarray  # (T,) bool
+    commands: np.ndarray  # (T+1, 5) float32, the operator's command in force at each observation (o_T: the last's)
 
 
 def read_transitions(root: Path) -> list[Transitions]:
     """Every committed episode's transitions, in episode order: the frames' observations joined by name into the
-    gymnasium one, then the final observation the episode columns keep (`keys.EPISODE_FINAL_STATE`)."""
+    gymnasium one, then the final observation the episode columns keep (`keys.EPISODE_FINAL_STATE`), each with the
+    command in force (the final one under the last frame's: no key acts after the last step)."""
     final_columns = [keys.EPISODE_FINAL_STATE, keys.EPISODE_FINAL_ENV_STATE]
     episodes = read_episodes(root)
     if not set(final_columns) <= set(episodes.column_names):
@@ -222,7 +224,15 @@ def read_transitions(root: Path) -> list[Transitions]:
     index = observation_index(names[0] + names[1])
     if index is None:
         raise DatasetError(f"{root}'s observation features do not name every gymnasium observation entry")
-    columns = [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.TERMINATED, keys.TRUNCATED]
+    columns = [
+        keys.OBS_STATE,
+        keys.OBS_ENV_STATE,
+        keys.OBS_COMMAND,
+        keys.ACTION,
+        keys.REWARD,
+        keys.TERMINATED,
+        keys.TRUNCATED,
+    ]
     frames = read_frames(root, [*columns, "episode_index"])
     observations = np.concatenate([frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE]], axis=1)[:, index]
     finals = episodes.select(final_columns).to_pylist()
@@ -237,6 +247,7 @@ def read_transitions(root: Path) -> list[Transitions]:
                 rewards=frames[keys.REWARD][rows].reshape(-1),
                 terminated=frames[keys.TERMINATED][rows].reshape(-1),
                 truncated=frames[keys.TRUNCATED][rows].reshape(-1),
+                commands=np.vstack([frames[keys.OBS_COMMAND][rows], frames[keys.OBS_COMMAND][rows][-1:]]),
             )
         )
     return result

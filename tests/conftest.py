@@ -44,6 +44,14 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dataset of 2 scripted-operator episodes (seeds 0..1) of 300 steps: neutral for 3 s, then a command."""
+    root = tmp_path_factory.mktemp("operated") / "dataset"
+    main(RecordConfig(dataset=root, episodes=2, max_steps=300, controller="operator", writer="inline", progress=False))
+    return root
+
+
+@pytest.fixture(scope="session")
 def ray_cluster() -> Iterator[RayCluster]:
     """A Ray cluster of two 1-CPU nodes on loopback: a head and one worker node (Ray's own cluster utility)."""
     cluster = RayCluster()

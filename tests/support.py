@@ -6,6 +6,9 @@ Importable as `support` because pytest puts `tests/` on the path (its conftest l
 from __future__ import annotations
 
 import json
+import os
+import pty
+import select
 import subprocess
 import sys
 import time
@@ -106,6 +109,78 @@ def read_mcap_episode(path: Path) -> McapEpisode:
         push=np.array(pushes, np.float64).reshape(-1, len(PUSH_NAMES)),
         command_tasks=command_tasks,
     )
+
+
+class Terminal:
+    """A command behind a pseudo-terminal, as a person at a TTY would run it (the recorder in keyboard mode)."""
+
+    def __init__(self, command: list[str]) -> None:
+        self.master, slave = pty.openpty()
+        self.process = subprocess.Popen(command, stdin=slave, stdout=slave, stderr=slave, close_fds=True)
+        os.close(slave)
+        self.output = b""
+
+    def read_for(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if select.select([self.master], [], [], 0.05)[0]:
+                try:
+                    self.output += os.read(self.master, 1 << 16)
+                except OSError:  # the command exited and closed the terminal
+                    return
+
+    def wait_for(self, text: bytes, timeout: float = 60) -> None:
+        deadline = time.monotonic() + timeout
+        while text not in self.output:
+            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
+            self.read_for(0.1)
+
+    def press(self, keys_: str, then_wait: float) -> None:
+        os.write(self.master, keys_.encode())
+        self.read_for(then_wait)
+
+
+def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: int) -> list[str]:
+    """A CPU run of a small ACT for `steps` steps; nothing from the Hub, no wandb, a checkpoint at the last step."""
+    return [
+        str(Path(sys.executable).parent / "lerobot-train"),
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={dataset}",
+        "--policy.type=act",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        "--wandb.enable=false",
+        f"--output_dir={output_dir}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+        "--log_freq=1",
+        "--batch_size=2",
+        "--num_workers=0",
+        # Small enough to train in a fraction of a second; ACT with no camera builds no ResNet.
+        "--policy.chunk_size=10",
+        "--policy.n_action_steps=10",
+        "--policy.dim_model=64",
+        "--policy.n_heads=2",
+        "--policy.dim_feedforward=128",
+        "--policy.n_encoder_layers=1",
+        "--policy.n_vae_encoder_layers=1",
+    ]
+
+
+def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int) -> subprocess.CompletedProcess:
+    """`lerobot-train` (`lerobot_train_command`) in a subprocess in `work`, every cache under it, the checkpoint in
+    `work`/outputs (which must not exist yet: lerobot-train refuses an existing one unless resuming)."""
+    env = {
+        **os.environ,
+        "HF_HUB_OFFLINE": "1",
+        "HF_DATASETS_OFFLINE": "1",
+        "HF_HOME": str(work / "hf"),
+        "HF_DATASETS_CACHE": str(work / "hf-datasets"),
+        "HF_LEROBOT_HOME": str(work / "lerobot"),
+        "WANDB_MODE": "disabled",
+    }
+    command = lerobot_train_command(dataset, work / "outputs", repo_id, steps)
+    return subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=300)
 
 
 def record_short(root: Path, **settings: object) -> None:

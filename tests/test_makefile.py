@@ -52,13 +52,22 @@ def make(*args: str) -> list[str]:
 
 
 def stage_command(target: str, stamp: Path, **variables: str) -> list[str]:
-    """The words after `python -m <module>` in what `make -n <target> VAR=value ...` would run."""
+    """The words after `python -m <module>` and the target's preset flags in what `make -n <target> VAR=value ...`
+    would run (they come first)."""
+    return full_command(target, stamp, **variables)[len(TARGETS[target].preset) :]
+
+
+def full_command(target: str, stamp: Path, **variables: str) -> list[str]:
+    """The words after `python -m <module>` in what `make -n <target> VAR=value ...` would run: the preset flags
+    first."""
     module = TARGETS[target].module
     lines = make("-n", target, f"STAMP={stamp}", *(f"{name}={value}" for name, value in variables.items()))
     commands = [shlex.split(line) for line in lines if f" -m {module}" in line]
     assert len(commands) == 1, lines
     words = commands[0]
     assert words[0].endswith("/bin/python") and words[1:3] == ["-m", module], words
+    preset = TARGETS[target].preset_flags
+    assert words[3 : 3 + len(preset)] == preset, words
     return words[3:]
 
 
@@ -125,7 +134,8 @@ def test_the_recipe_passes_only_its_variables(target: str) -> None:
     recipe = re.search(rf"^{re.escape(target)}: .*\n\t(.*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
     assert recipe, f"no recipe for {target}"
     extra = " $(ARGS)" if TARGETS[target].passes_args else ""
-    assert recipe.group(1) == f"$(PY) -m {TARGETS[target].module} $(flags){extra}"
+    preset = "".join(f"{word} " for word in TARGETS[target].preset_flags)
+    assert recipe.group(1) == f"$(PY) -m {TARGETS[target].module} {preset}$(flags){extra}"
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -170,6 +180,21 @@ def test_make_command_parses_into_the_stage_config(target: str, stamp: Path) -> 
             assert getattr(config, field) != getattr(spec.config(), field), field
 
 
+@pytest.mark.parametrize("target", [name for name, target in TARGETS.items() if target.preset])
+def test_a_preset_is_the_default_and_a_variable_overrides_it(target: str, stamp: Path) -> None:
+    """`make play` is the recorder with its preset (the keyboard, datasets/play, no noise); DATASET=x still wins."""
+    spec = TARGETS[target]
+    bare = parse_config(spec.config, full_command(target, stamp), description="")
+    preset = parse_config(spec.config, spec.preset_flags, description="")
+    for field, _ in spec.preset:
+        assert getattr(bare, field) == getattr(preset, field) != spec.field(field).default, field
+    for var, field in spec.variables.items():
+        if field in dict(spec.preset):
+            value = typed_value(spec, field)
+            given = parse_config(spec.config, full_command(target, stamp, **{var: value}), description="")
+            assert getattr(given, field) == getattr(parse_config(spec.config, [f"{flag(field)}={value}"], ""), field)
+
+
 @pytest.mark.parametrize("target", ["finetune-rl", "baseline-rl"])
 def test_args_reach_the_ppo_stages_as_typed(target: str, stamp: Path) -> None:
     """ARGS are appended word for word: any other flag of the PPO stage."""
@@ -186,12 +211,13 @@ def test_help_lists_each_targets_variables_with_flag_help_and_default() -> None:
     """`make help`'s table names, for every target, each variable's flag, its help and the config's default."""
     text = help_text(width=1000)  # unwrapped: one line per variable
     for name, target in TARGETS.items():
-        section = text.split(f"  make {name} (python -m {target.module}):\n")[1].split("\n  make ")[0]
+        command = " ".join([f"python -m {target.module}", *target.preset_flags])
+        section = text.split(f"  make {name} ({command}):\n")[1].split("\n  make ")[0]
         for var, field_name in target.variables.items():
             field = next(f for f in dataclasses.fields(target.config) if f.name == field_name)
             line = next(line for line in section.splitlines() if line.split()[0] == var)
             assert line.split()[1] == flag(field_name) and field.metadata["help"] in line
-            assert f"(default: {field.default})" in line or "default:" in field.metadata["help"]
+            assert f"(default: {target.default(field_name)})" in line or "default:" in field.metadata["help"]
 
 
 def test_make_help_prints_the_table(stamp: Path) -> None:

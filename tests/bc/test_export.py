@@ -1,4 +1,5 @@
-"""`make export FORMAT=minari`: Minari's own loader reads the dataset, every transition equal to the LeRobot frames."""
+"""`make export FORMAT=minari`: Minari's own loader reads the dataset, every transition equal to the LeRobot frames,
+the operator's command beside each observation where one was commanded."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import gymnasium as gym
 import minari
 import numpy as np
 import pytest
@@ -15,6 +17,8 @@ import pytest
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.export import ExportConfig, dataset_id, main
 from common import keys
+from common.keys import COMMAND_NAMES
+from humanoid.posture import Posture
 from support import snapshot
 from teleop.dataset_reader import read_frames
 
@@ -31,14 +35,46 @@ def exported(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         yield minari.load_dataset(name)
 
 
+@pytest.fixture(scope="module")
+def exported_commands(operated: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[minari.MinariDataset]:
+    """The scripted operator's recording, exported and loaded back the same way."""
+    out = tmp_path_factory.mktemp("minari-command") / "root"
+    name = main(ExportConfig(dataset=operated, out=out, reference_episodes=1))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(out))
+        yield minari.load_dataset(name)
+
+
 def test_each_episode_has_t_plus_one_observations_for_t_actions(exported: minari.MinariDataset, recorded: Path) -> None:
-    """Minari serves T+1 observations and all T actions (given T observations it would silently drop an action)."""
+    """Minari serves T+1 observations and all T actions (given T observations it would silently drop an action).
+    Nothing was commanded (standing is the zero command), so the observation is the gymnasium one, a Box."""
     frames = read_frames(recorded, ["episode_index"])
     lengths = np.bincount(frames["episode_index"])
     episodes = list(exported.iterate_episodes())
     assert [len(e.actions) for e in episodes] == lengths.tolist()
     assert all(e.observations.shape == (len(e.actions) + 1, 348) for e in episodes)
     assert exported.total_steps == lengths.sum()
+    assert exported.observation_space == exported.recover_environment().observation_space
+
+
+def test_a_commanded_observation_holds_the_command_in_force(
+    exported_commands: minari.MinariDataset, operated: Path
+) -> None:
+    """Where an operator commanded, each observation is a Dict: the gymnasium observation, and the command in force
+    at it (the final observation under the last frame's), within the posture's limits; the actions are the frames'."""
+    space = exported_commands.observation_space
+    assert isinstance(space, gym.spaces.Dict) and set(space) == {"observation", "command"}
+    assert space["observation"] == exported_commands.recover_environment().observation_space
+    for bounds, limits in ((space["command"].low, Posture.MIN), (space["command"].high, Posture.MAX)):
+        np.testing.assert_array_equal(bounds, np.array([limits[name] for name in COMMAND_NAMES], np.float32))
+    frames = read_frames(operated, [keys.OBS_COMMAND, keys.ACTION, "episode_index"])
+    for episode in exported_commands.iterate_episodes():
+        rows = frames["episode_index"] == episode.id
+        command = frames[keys.OBS_COMMAND][rows]
+        np.testing.assert_array_equal(episode.observations["command"], np.vstack([command, command[-1:]]))
+        assert episode.observations["observation"].shape == (rows.sum() + 1, 348)
+        np.testing.assert_array_equal(episode.actions, frames[keys.ACTION][rows])
+        assert command.any()  # the schedule commanded something after its neutral start
 
 
 def test_steps_equal_the_lerobot_frames(exported: minari.MinariDataset, recorded: Path) -> None:

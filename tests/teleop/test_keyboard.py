@@ -2,12 +2,8 @@
 
 from __future__ import annotations
 
-import os
-import pty
-import select
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +13,7 @@ from common import keys
 from humanoid.commands import task_for
 from humanoid.episode import DEFAULT_TASK
 from humanoid.posture import Posture
-from support import join_observation, read_mcap_episode
+from support import Terminal, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, key_help, parse_keys
 from teleop.record import cli
@@ -29,54 +25,11 @@ HOLD = 2.5  # s each command is held, so that the body has moved when the next o
 KEYBOARD_RECORDER = [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "terminal"]
 
 
-class Terminal:
-    """The recorder in keyboard mode behind a pseudo-terminal, as a person at a TTY would run it."""
-
-    def __init__(self, root: Path) -> None:
-        self.master, slave = pty.openpty()
-        self.process = subprocess.Popen(
-            [
-                *KEYBOARD_RECORDER,
-                "--dataset",
-                str(root),
-                "--noise",
-                "0",
-                "--max-steps",
-                "5000",
-            ],
-            stdin=slave,
-            stdout=slave,
-            stderr=slave,
-            close_fds=True,
-        )
-        os.close(slave)
-        self.output = b""
-
-    def read_for(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            if select.select([self.master], [], [], 0.05)[0]:
-                try:
-                    self.output += os.read(self.master, 1 << 16)
-                except OSError:  # the recorder exited and closed the terminal
-                    return
-
-    def wait_for(self, text: bytes, timeout: float = 60) -> None:
-        deadline = time.monotonic() + timeout
-        while text not in self.output:
-            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
-            self.read_for(0.1)
-
-    def press(self, keys_: str, then_wait: float) -> None:
-        os.write(self.master, keys_.encode())
-        self.read_for(then_wait)
-
-
 @pytest.fixture(scope="module")
 def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """One episode driven by keys (crouch, lean forward, arms up, neutral, push), one discarded, then quit."""
     root = tmp_path_factory.mktemp("keyboard") / "dataset"
-    terminal = Terminal(root)
+    terminal = Terminal([*KEYBOARD_RECORDER, "--dataset", str(root), "--noise", "0", "--max-steps", "5000"])
     terminal.wait_for(b"keys:")
     terminal.press("\r", SETTLE)  # start
     terminal.press("ff", HOLD)  # crouch 4 cm

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import subprocess
 import sys
@@ -18,7 +17,7 @@ from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.policies.factory import make_pre_post_processors
 
 from common import keys
-from support import snapshot
+from support import run_lerobot_train, snapshot
 from teleop.lerobot_io import format as lerobot_format
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -37,57 +36,46 @@ class TrainRun:
     dataset_after: dict[str, bytes]
 
 
-def train_command(dataset: Path, output_dir: Path) -> list[str]:
-    """A CPU run of a small ACT for a few steps; nothing from the Hub, no wandb, a checkpoint at the last step."""
-    return [
-        str(Path(sys.executable).parent / "lerobot-train"),
-        f"--dataset.repo_id={REPO_ID}",
-        f"--dataset.root={dataset}",
-        "--policy.type=act",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        "--wandb.enable=false",
-        f"--output_dir={output_dir}",
-        f"--steps={STEPS}",
-        f"--save_freq={STEPS}",
-        "--log_freq=1",
-        "--batch_size=2",
-        "--num_workers=0",
-        # Small enough to train in a fraction of a second; ACT with no camera builds no ResNet.
-        "--policy.chunk_size=10",
-        "--policy.n_action_steps=10",
-        "--policy.dim_model=64",
-        "--policy.n_heads=2",
-        "--policy.dim_feedforward=128",
-        "--policy.n_encoder_layers=1",
-        "--policy.n_vae_encoder_layers=1",
-    ]
-
-
 @pytest.fixture(scope="module")
 def train_run(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> TrainRun:
     """`lerobot-train` run once, in a subprocess, on the shared recording; every cache in a temporary folder."""
     work = tmp_path_factory.mktemp("lerobot-train")
-    output_dir = work / "outputs"  # must not exist yet: lerobot-train refuses an existing one unless resuming
-    env = {
-        **os.environ,
-        "HF_HUB_OFFLINE": "1",
-        "HF_DATASETS_OFFLINE": "1",
-        "HF_HOME": str(work / "hf"),
-        "HF_DATASETS_CACHE": str(work / "hf-datasets"),
-        "HF_LEROBOT_HOME": str(work / "lerobot"),
-        "WANDB_MODE": "disabled",
-    }
     before = snapshot(recorded)
-    result = subprocess.run(
-        train_command(recorded, output_dir), cwd=work, env=env, capture_output=True, text=True, timeout=300
-    )
-    return TrainRun(result.returncode, result.stdout + result.stderr, output_dir, before, snapshot(recorded))
+    result = run_lerobot_train(recorded, work, REPO_ID, STEPS)
+    return TrainRun(result.returncode, result.stdout + result.stderr, work / "outputs", before, snapshot(recorded))
 
 
 def test_lerobot_train_exits_cleanly(train_run: TrainRun) -> None:
     """lerobot-train accepts the recording as it is and finishes with exit code 0."""
     assert train_run.returncode == 0, train_run.output[-4000:]
+
+
+def test_lerobot_train_prints_no_traceback(train_run: TrainRun) -> None:
+    """No page-long torchcodec traceback before LeRobot falls back to pyav: torchcodec is left out of the lock
+    (these datasets hold no video; docs/how-to/lerobot-train.md#no-torchcodec)."""
+    assert "Traceback" not in train_run.output, train_run.output[:4000]
+
+
+def test_loading_with_lerobot_prints_no_traceback(recorded: Path) -> None:
+    """`LeRobotDataset(...)` in a process of its own (this project's `teleop` package quiets LeRobot's logger; a user's
+    script does not): with `video_backend="pyav"` nothing on stderr at all, without it no traceback (one line saying
+    LeRobot decodes with pyav)."""
+    script = (
+        "import sys\n"
+        "from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
+        f"print(len(LeRobotDataset({REPO_ID!r}, root={str(recorded)!r}, video_backend='pyav')))\n"
+        "print('--- default backend', file=sys.stderr, flush=True)\n"
+        f"print(len(LeRobotDataset({REPO_ID!r}, root={str(recorded)!r})))"
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0 and result.stdout.split() == [str(total_frames(recorded))] * 2, result.stderr
+    with_pyav, default = result.stderr.split("--- default backend\n")
+    assert with_pyav == ""
+    assert "Traceback" not in default and len(default.splitlines()) <= 1, default[:4000]
+
+
+def total_frames(root: Path) -> int:
+    return json.loads((root / lerobot_format.INFO_PATH).read_text())["total_frames"]
 
 
 def test_trainer_reads_every_frame_and_episode(recorded: Path, train_run: TrainRun) -> None:
