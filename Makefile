@@ -70,9 +70,10 @@ venv: $(STAMP)  ## build .venv and install the project
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
 
-# The keys command a learned policy (one that takes a command); its episodes go to DATASET (datasets/play unless set).
+# The keys command a learned policy (one that takes a command); its episodes go to DATASET (datasets/play unless set):
+# the words before $(flags) are bc/targets.py's preset of the target, which a variable overrides (the last flag wins).
 play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
-	$(PY) -m teleop.record --controller keyboard --dataset datasets/play $(flags)
+	$(PY) -m teleop.record --controller=keyboard --dataset=datasets/play $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
 	$(PY) -m teleop.merge $(flags)

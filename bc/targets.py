@@ -54,6 +54,14 @@ class Target:
     passes_args: bool = False  # ARGS is appended as it is (further flags)
     removed: tuple[str, ...] = ()
     """Fields an earlier version had (keys of `common.cli.REMOVED_FLAGS`): passed when set, for the stage to refuse."""
+    preset: tuple[str, ...] = ()
+    """`--flag=value` words the recipe passes before the variables' flags: a target that is another's stage with
+    settings of its own (`make play`). A variable of the same flag overrides its preset (the last flag wins)."""
+
+    @property
+    def command(self) -> str:
+        """The stage's command line without the variables' flags: `python -m <module>` and the preset."""
+        return " ".join(["python -m", self.module, *self.preset])
 
     @property
     def variables(self) -> dict[str, str]:
@@ -64,6 +72,11 @@ class Target:
     def removed_variables(self) -> dict[str, str]:
         """Removed Make variable -> the removed flag's field name."""
         return {name.upper(): name for name in self.removed}
+
+    def default(self, name: str) -> Any:
+        """The value of field `name` when its variable is unset: the preset's, else the config's default."""
+        preset = dict(word.removeprefix("--").split("=", 1) for word in self.preset)
+        return preset.get(flag(name).removeprefix("--"), self.field(name).default)
 
     def field(self, name: str) -> dataclasses.Field[Any]:
         return next(f for f in dataclasses.fields(self.config) if f.name == name)
@@ -91,8 +104,13 @@ TARGETS: dict[str, Target] = {
             *_LIVE,
         ),
     ),
-    # `make record CONTROLLER=keyboard` with a learned policy instead of the expert (its Makefile rule sets those).
-    "play": Target("teleop.record", RecordConfig, ("policy", "dataset", "episodes", "front_end", *_LIVE)),
+    # `make record CONTROLLER=keyboard` with a learned policy instead of the expert, into a dataset of its own.
+    "play": Target(
+        "teleop.record",
+        RecordConfig,
+        ("policy", "dataset", "episodes", "front_end", *_LIVE),
+        preset=("--controller=keyboard", "--dataset=datasets/play"),
+    ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("bc.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
@@ -143,12 +161,12 @@ def help_text(width: int = 120) -> str:
     flag_width = max(len(flag(field)) for target in TARGETS.values() for field in target.fields) + 2
     indent = " " * (4 + name_width + flag_width)
     for name, target in TARGETS.items():
-        lines.append(f"  make {name} (python -m {target.module}):")
+        lines.append(f"  make {name} ({target.command}):")
         for var, field_name in target.variables.items():
             field = target.field(field_name)
             text = field.metadata.get("help", "")
             if "default:" not in text:  # the help says it itself when the default is not one value
-                text += f" (default: {field.default})"
+                text += f" (default: {target.default(field_name)})"
             head = f"    {var:<{name_width}}{flag(field_name):<{flag_width}}"
             lines += textwrap.wrap(
                 text, width=max(width, len(indent) + 40), initial_indent=head, subsequent_indent=indent
@@ -181,13 +199,13 @@ def markdown_text() -> str:
     ]
     for name, target in TARGETS.items():
         summary = (importlib.import_module(target.module).__doc__ or "").strip().split("\n\n")[0]
-        lines += ["", f"## make {name}", "", f"`python -m {target.module}`: {_cell(summary)}", ""]
+        lines += ["", f"## make {name}", "", f"`{target.command}`: {_cell(summary)}", ""]
         lines += ["| Make variable | flag | default | what it sets |", "|---|---|---|---|"]
         variables = {field_name: var for var, field_name in target.variables.items()}
         for field in dataclasses.fields(target.config):
             var = f"`{variables[field.name]}`" if field.name in variables else ""
             text = field.metadata.get("help", "")
-            default = f"`{field.default}`" if field.default != "" else '`""`'
+            default = f"`{target.default(field.name)}`" if target.default(field.name) != "" else '`""`'
             if "default:" in text:  # the help says it itself when the default is not one value
                 default = "(in the help)"
             lines.append(f"| {var} | `{flag(field.name)}` | {_cell(default)} | {_cell(text)} |")

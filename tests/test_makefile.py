@@ -52,14 +52,16 @@ def make(*args: str) -> list[str]:
 
 
 def stage_command(target: str, stamp: Path, **variables: str) -> list[str]:
-    """The words after `python -m <module>` in what `make -n <target> VAR=value ...` would run."""
-    module = TARGETS[target].module
+    """The words after `python -m <module>` and the target's preset in what `make -n <target> VAR=value ...` would
+    run."""
+    module, preset = TARGETS[target].module, list(TARGETS[target].preset)
     lines = make("-n", target, f"STAMP={stamp}", *(f"{name}={value}" for name, value in variables.items()))
     commands = [shlex.split(line) for line in lines if f" -m {module}" in line]
     assert len(commands) == 1, lines
     words = commands[0]
     assert words[0].endswith("/bin/python") and words[1:3] == ["-m", module], words
-    return words[3:]
+    assert words[3 : 3 + len(preset)] == preset, words
+    return words[3 + len(preset) :]
 
 
 def flags_given(words: list[str]) -> dict[str, str]:
@@ -125,7 +127,8 @@ def test_the_recipe_passes_only_its_variables(target: str) -> None:
     recipe = re.search(rf"^{re.escape(target)}: .*\n\t(.*)$", MAKEFILE.read_text(), flags=re.MULTILINE)
     assert recipe, f"no recipe for {target}"
     extra = " $(ARGS)" if TARGETS[target].passes_args else ""
-    assert recipe.group(1) == f"$(PY) -m {TARGETS[target].module} $(flags){extra}"
+    preset = "".join(f"{word} " for word in TARGETS[target].preset)
+    assert recipe.group(1) == f"$(PY) -m {TARGETS[target].module} {preset}$(flags){extra}"
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -162,12 +165,24 @@ def test_make_command_parses_into_the_stage_config(target: str, stamp: Path) -> 
     module = importlib.import_module(spec.module)
     assert getattr(module, spec.config.__name__) is spec.config
     values = {var: typed_value(spec, field) for var, field in spec.variables.items()}
-    config = parse_config(spec.config, stage_command(target, stamp, **values), description="")
-    expected = parse_config(spec.config, [f"{flag(field)}={values[var]}" for var, field in spec.variables.items()], "")
+    config = parse_config(spec.config, [*spec.preset, *stage_command(target, stamp, **values)], description="")
+    given = [f"{flag(field)}={values[var]}" for var, field in spec.variables.items()]
+    expected = parse_config(spec.config, [*spec.preset, *given], "")
     for field in spec.fields:
         assert getattr(config, field) == getattr(expected, field), field
         if len(spec.field(field).metadata.get("choices") or "..") > 1:  # else no other value exists
             assert getattr(config, field) != getattr(spec.config(), field), field
+
+
+def test_play_is_the_keyboard_recorder_into_its_own_dataset(stamp: Path) -> None:
+    """`make play` runs the keyboard recorder into datasets/play; DATASET=... overrides that folder."""
+    spec = TARGETS["play"]
+    bare = parse_config(spec.config, [*spec.preset, *stage_command("play", stamp)], description="")
+    assert (bare.controller, bare.dataset, bare.policy) == ("keyboard", Path("datasets/play"), None)
+    words = [*spec.preset, *stage_command("play", stamp, DATASET="elsewhere", POLICY="policies/p")]
+    config = parse_config(spec.config, words, description="")
+    assert (config.controller, config.dataset, config.policy) == ("keyboard", Path("elsewhere"), "policies/p")
+    assert spec.default("dataset") == "datasets/play" and spec.default("episodes") == spec.field("episodes").default
 
 
 @pytest.mark.parametrize("target", ["finetune-rl", "baseline-rl"])
@@ -186,12 +201,12 @@ def test_help_lists_each_targets_variables_with_flag_help_and_default() -> None:
     """`make help`'s table names, for every target, each variable's flag, its help and the config's default."""
     text = help_text(width=1000)  # unwrapped: one line per variable
     for name, target in TARGETS.items():
-        section = text.split(f"  make {name} (python -m {target.module}):\n")[1].split("\n  make ")[0]
+        section = text.split(f"  make {name} ({target.command}):\n")[1].split("\n  make ")[0]
         for var, field_name in target.variables.items():
             field = next(f for f in dataclasses.fields(target.config) if f.name == field_name)
             line = next(line for line in section.splitlines() if line.split()[0] == var)
             assert line.split()[1] == flag(field_name) and field.metadata["help"] in line
-            assert f"(default: {field.default})" in line or "default:" in field.metadata["help"]
+            assert f"(default: {target.default(field_name)})" in line or "default:" in field.metadata["help"]
 
 
 def test_make_help_prints_the_table(stamp: Path) -> None:
