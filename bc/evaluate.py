@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, run_cli, setting
-from humanoid.commands import COMMAND_SIZE, Tracking, tracking_summary
+from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
@@ -179,12 +179,7 @@ def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str,
     """Over `episodes` (until each ends): per command field the mean error once settled, the mean time to settle
     (`humanoid.commands.tracking_summary`), and each episode's."""
     each = [tracking_summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
-    fields = each[0]["settled_error"].keys()
-    return {
-        "settled_error": {name: float(np.nanmean([e["settled_error"][name] for e in each])) for name in fields},
-        "settle_seconds": float(np.nanmean([e["settle_seconds"] for e in each])),
-        "episodes": each,
-    }
+    return {**combine_tracking(each), "episodes": each}
 
 
 def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) -> None:

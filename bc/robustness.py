@@ -27,6 +27,7 @@ from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.keys import COMMAND_NAMES
 from common.workers import default_workers
+from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
 
@@ -127,12 +128,7 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     toppled = [t for chunk in chunks for t in chunk["pushes"]["toppled"]]
     pushed = {"push_sectors": push_sectors(directions, toppled)} if directions else {}
     if chunks[0]["tracking"] is not None:
-        each = [episode for chunk in chunks for episode in chunk["tracking"]["episodes"]]
-        fields = each[0]["settled_error"]
-        pushed["tracking"] = {
-            "settled_error": {name: float(np.nanmean([e["settled_error"][name] for e in each])) for name in fields},
-            "settle_seconds": float(np.nanmean([e["settle_seconds"] for e in each])),
-        }
+        pushed["tracking"] = combine_tracking([e for chunk in chunks for e in chunk["tracking"]["episodes"]])
     return {
         "survival_rate": float(np.mean([s for chunk in chunks for s in chunk["survivals"]])),
         "mean_return": float(returns.mean()),

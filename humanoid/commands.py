@@ -131,7 +131,9 @@ TOLERANCE = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0
 """Settled means every field's error within this (rad; height m; arms: mean over the arm joints, rad): about one
 key press (`Posture.STEP`), half of one for the twist."""
 SETTLED_SECONDS = 1.0
-"""The error once settled is the mean over the last this-many seconds of each command held at least twice as long."""
+"""The error once settled is the mean over the last this-many seconds of each command held, after the setpoint's move
+to it (`move_seconds`), at least twice as long: as a schedule holds every command (`HOLD_SECONDS`) but the one the
+episode's end cuts short, which may still be on its way."""
 
 
 def _rotation(quat: np.ndarray) -> np.ndarray:
@@ -198,20 +200,38 @@ class Tracking:
 
 def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
     """An episode's tracking: per field the mean error once settled (over the last SETTLED_SECONDS of each command
-    held at least twice that), and the mean time from a command's change until every field stays within TOLERANCE
-    (a command never settled counts its whole duration). NaN where no command was held long enough."""
+    held at least twice that after the setpoint's move to it), and the mean time from a command's change until every
+    field stays within TOLERANCE (a command never settled counts its whole duration). NaN where no command was held
+    long enough."""
     window = round(SETTLED_SECONDS / dt)
     tolerance = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
-    settled, times = [], []
+    settled, times, previous = [], [], NEUTRAL
     for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
         inside = (errors[start:end] <= tolerance).all(axis=1)
         outside = np.flatnonzero(~inside)
         times.append((outside[-1] + 1 if len(outside) else 0) * dt)
-        if end - start >= 2 * window:
+        target = command_posture(commands[start]).clipped()
+        moving = int(np.ceil(move_seconds(previous, target) / dt - 1e-9))  # the expert's ramp: whole steps
+        if end - start >= moving + 2 * window:
             settled.append(errors[end - window : end])
+        previous = target
     mean = np.concatenate(settled).mean(axis=0) if settled else np.full(COMMAND_SIZE, np.nan)
     return {
         "settled_error": dict(zip(COMMAND_NAMES, map(float, mean), strict=True)),
         "settle_seconds": float(np.mean(times)) if times else float("nan"),
+    }
+
+
+def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | float]:
+    """The mean over episodes of their `tracking_summary`s, each field's over the episodes where it is a number: NaN
+    (without numpy's warning) where none is, as for a policy that falls before any command was held long enough."""
+
+    def mean(values: list[float]) -> float:
+        numbers = [value for value in values if not np.isnan(value)]
+        return float(np.mean(numbers)) if numbers else float("nan")
+
+    return {
+        "settled_error": {name: mean([s["settled_error"][name] for s in summaries]) for name in COMMAND_NAMES},
+        "settle_seconds": mean([s["settle_seconds"] for s in summaries]),
     }

@@ -25,6 +25,8 @@ USER_KEYS = [
     keys.OBS_STATE,
     keys.OBS_ENV_STATE,
     keys.OBS_COMMAND,
+    keys.SETPOINT,
+    keys.PUSH,
     keys.ACTION,
     keys.EXECUTED_ACTION,
     keys.REWARD,

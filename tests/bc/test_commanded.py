@@ -1,0 +1,236 @@
+"""Commanded policies through the stages (issue 42): bc.train refuses a command input the dataset cannot teach,
+trains one it can; bc.evaluate and bc.robustness report tracking under schedules and plot it; the bad input of the
+commands (one line, non-zero exit, nothing written)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from bc import evaluate as evaluate_stage
+from bc import robustness
+from bc import train as train_stage
+from bc.evaluate import plot_tracking, tracking
+from common.keys import COMMAND_NAMES
+from humanoid.commands import Tracking
+from humanoid.env import make_env
+from humanoid.episode import run_episode
+from humanoid.expert import LQRExpert
+from humanoid.learned import PolicyController, takes_command
+from policies import checkpoint
+from policies.mlp import MLPPolicy, MLPSpec
+from support import SHORT_EPISODE, record_short, snapshot
+from teleop import record as record_stage
+
+TRACKING_FIELDS = {"settled_error", "settle_seconds"}
+# Steps of a short operator episode: the neutral start (200 steps), then the first command, held long enough to settle
+# (seed 1007's: lean forward 0.1 and left 0.1 from step 200 to 350), then a few steps of the next.
+OPERATOR_STEPS = 360
+OPERATOR_SEED = 1007
+TINY = ["--hidden", "8", "--epochs", "1", "--min-updates", "0", "--eval-episodes", "0", "--progress", "false"]
+TINY += ["--tensorboard", "false"]
+
+
+def stage_cli(stage: object, args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], list[str]]:
+    """Exit code, stdout lines and stderr lines of `python -m <stage> ARGS`."""
+    code = stage.cli(args)
+    out, err = capsys.readouterr()
+    return code, out.strip().splitlines(), err.strip().splitlines()
+
+
+@pytest.fixture(scope="module")
+def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """2 short episodes of the scripted operator, each under a step of action latency: commands that change."""
+    root = tmp_path_factory.mktemp("operated") / "dataset"
+    record_short(root, controller="operator", episodes=2, max_steps=OPERATOR_STEPS, latency=1.0, noise=0.02)
+    return root
+
+
+@pytest.fixture(scope="module")
+def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """2 short plain expert episodes under a step of action latency: the command is zero throughout."""
+    root = tmp_path_factory.mktemp("delayed") / "dataset"
+    record_short(root, episodes=2, max_steps=SHORT_EPISODE, latency=1.0)
+    return root
+
+
+def full_checkpoint(folder: Path) -> Path:
+    """An untrained policy on the full observation, which takes no command."""
+    checkpoint.save(
+        MLPPolicy(MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,))), folder, {}, {}
+    )
+    return folder
+
+
+# bc.train
+
+
+@pytest.mark.parametrize("inputs", ["full+command", "proprio+command", "pending+command"])
+def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
+    delayed: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], inputs: str
+) -> None:
+    """INPUTS=...+command on plain expert episodes (delayed ones, so that the pending set's own check passes): one
+    line saying to record commanded demonstrations, no checkpoint, the dataset untouched."""
+    before = snapshot(delayed)
+    args = [*TINY, "--dataset", str(delayed), "--policy", str(tmp_path / "policy"), "--inputs", inputs]
+    code, out, err = stage_cli(train_stage, args, capsys)
+    assert code == 1 and out == [] and len(err) == 1
+    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "CONTROLLER=operator" in err[0]
+    assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
+
+
+def test_pending_command_inputs_without_latency_are_refused_for_the_latency(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = [*TINY, "--dataset", str(recorded), "--policy", str(tmp_path / "policy"), "--inputs", "pending+command"]
+    code, _, err = stage_cli(train_stage, args, capsys)
+    assert code == 1 and len(err) == 1 and "--inputs pending+command learns to act through action latency" in err[0]
+    assert not (tmp_path / "policy").exists()
+
+
+def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_takes_the_command(
+    operated: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The same settings on the operator's episodes train; the checkpoint says it takes a command, its controller
+    reads it, and it runs under schedules."""
+    folder = tmp_path / "policy"
+    args = [*TINY, "--dataset", str(operated), "--policy", str(folder), "--inputs", "pending+command"]
+    code, _, err = stage_cli(train_stage, args, capsys)
+    assert code == 0, err
+    assert takes_command(folder) and not takes_command(full_checkpoint(tmp_path / "full"))
+    env = make_env(SHORT_EPISODE)
+    try:
+        controller = PolicyController.load(folder, env)
+        assert controller.takes_command
+        episode = run_episode(env, controller, 0, schedules=True)
+    finally:
+        env.close()
+    assert episode.length >= 1 and np.isfinite(episode.action).all()
+
+
+# make play / teleop.record
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--controller", "keyboard", "--schedules", "true"], "--controller keyboard: the keys set the command"),
+        (["--policy", "policies/somewhere"], "--policy is driven by the keys: it needs --controller keyboard"),
+        (["--controller", "keyboard", "--policy", "nowhere/policy"], "no policy checkpoint at nowhere/policy"),
+    ],
+)
+def test_bad_command_settings_of_the_recorder_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    code, out, err = stage_cli(record_stage, ["--progress", "false", "--dataset", str(tmp_path / "new"), *args], capsys)
+    assert code == 1 and len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "new").exists()
+
+
+def test_play_refuses_a_policy_that_takes_no_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`make play POLICY=...` on a policy without the command: the keys would change nothing; one line."""
+    folder = full_checkpoint(tmp_path / "full")
+    args = [
+        "--progress",
+        "false",
+        "--dataset",
+        str(tmp_path / "new"),
+        "--controller",
+        "keyboard",
+        "--policy",
+        str(folder),
+    ]
+    code, _, err = stage_cli(record_stage, args, capsys)
+    assert code == 1 and len(err) == 1 and f"{folder} takes no command" in err[0]
+    assert not (tmp_path / "new").exists()
+
+
+# bc.evaluate
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--plot", "TMP/x.txt"], "--plot must be a .png path, got TMP/x.txt"),
+        (["--seed", "-1", "--schedules", "true"], "--seed must be >= 0, got -1"),  # a schedule's seed, too
+    ],
+)
+def test_bad_tracking_settings_of_eval_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    args = [arg.replace("TMP", str(tmp_path)) for arg in args]
+    code, out, err = stage_cli(evaluate_stage, ["--policy", "random", "--progress", "false", *args], capsys)
+    assert code == 1 and out == [] and len(err) == 1 and message.replace("TMP", str(tmp_path)) in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path) -> None:
+    """Over a short operator episode the expert leans as commanded, its settled error is well within the tolerance
+    on every field, and `plot_tracking` writes a PNG with a panel per field."""
+    env = make_env(OPERATOR_STEPS)
+    try:
+        episode = run_episode(env, LQRExpert(), OPERATOR_SEED, schedules=True)
+        measure = Tracking(env.unwrapped.model)
+        result = tracking([episode], measure, env.unwrapped.dt)
+        plot_tracking(episode, measure, env.unwrapped.dt, tmp_path / "tracking.png")
+    finally:
+        env.close()
+    assert episode.length == OPERATOR_STEPS and np.allclose(episode.command[200:350], [[0.1, 0.1, 0, 0, 0]])
+    np.testing.assert_allclose(measure.achieved(episode.observation[340:350]), [[0.1, 0.1, 0, 0]] * 10, atol=0.01)
+    assert set(result) == TRACKING_FIELDS | {"episodes"} and set(result["settled_error"]) == set(COMMAND_NAMES)
+    assert all(0 <= error < 0.02 for error in result["settled_error"].values()), result
+    assert 0 < result["settle_seconds"] < OPERATOR_STEPS * env.unwrapped.dt
+    image = matplotlib.image.imread(tmp_path / "tracking.png")
+    assert image.shape[:2] == (900, 800) and image.std() > 0  # 8 x 9 in at 100 dpi, not blank
+
+
+def test_eval_plots_the_first_episode_without_schedules(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--plot alone: the PNG of the (zero) command and what was achieved; no tracking in the JSON."""
+    path = tmp_path / "plots" / "random.png"
+    args = ["--policy", "random", "--episodes", "1", "--plot", str(path), "--progress", "false"]
+    code, out, _ = stage_cli(evaluate_stage, args, capsys)
+    result = json.loads(out[-1])
+    assert code == 0 and result["tracking"] is None and result["takes_command"] is False
+    assert matplotlib.image.imread(path).shape[:2] == (900, 800)
+
+
+def test_a_policy_that_falls_at_once_has_no_settled_error_and_no_warning(recwarn: pytest.WarningsRecorder) -> None:
+    """Random actions fall before any command is held long enough: NaN per field, quietly."""
+    result = evaluate_stage.evaluate("random", episodes=2, schedules=True)
+    assert all(np.isnan(error) for error in result["tracking"]["settled_error"].values())
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_eval_under_schedules_reports_tracking_and_plots_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`make eval POLICY=expert SCHEDULES=1 PLOT=...` for one whole episode: the expert survives it and tracks every
+    field within the tolerance; the PNG is written."""
+    path = tmp_path / "tracking.png"
+    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--schedules", "true", "--plot", str(path)]
+    code, out, _ = stage_cli(evaluate_stage, [*args, "--progress", "false"], capsys)
+    result = json.loads(out[-1])
+    assert code == 0 and result["survival_rate"] == 1.0 and result["takes_command"] is True
+    assert TRACKING_FIELDS <= set(result["tracking"]) and set(result["tracking"]["settled_error"]) == set(COMMAND_NAMES)
+    assert all(0 <= error < 0.02 for error in result["tracking"]["settled_error"].values())
+    assert matplotlib.image.imread(path).shape[:2] == (900, 800)
+
+
+# bc.robustness
+
+
+def test_robustness_under_schedules_adds_tracking_to_the_rows(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--conditions", "clean", "--schedules", "true"]
+    args += ["--workers", "1", "--output", str(tmp_path), "--progress", "0"]
+    code, out, _ = stage_cli(robustness, args, capsys)
+    summary = json.loads(out[-1])
+    row = summary["conditions"]["clean"]
+    assert code == 0 and row["survival_rate"] == 1.0 and TRACKING_FIELDS <= set(row["tracking"])
+    assert set(row["tracking"]["settled_error"]) == set(COMMAND_NAMES)
+    assert out[0].split() == ["condition", "survival", "mean", "return", *COMMAND_NAMES]  # the table's columns
+    saved = json.loads((tmp_path / robustness.RESULT_FILE).read_text())
+    assert saved["conditions"]["clean"]["tracking"] == row["tracking"]

@@ -1,0 +1,302 @@
+"""Operator commands (humanoid.commands): scripted schedules, the range check, tracking and its summary, and the
+expert under the zero command and under schedules (real MuJoCo; known answers)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from common import keys
+from common.cli import UserError
+from common.keys import COMMAND_NAMES
+from humanoid.commands import (
+    DEFAULT_TASK,
+    FIRST_NEUTRAL_SECONDS,
+    HOLD_SECONDS,
+    SCALE,
+    TOLERANCE,
+    Tracking,
+    check_command,
+    command_posture,
+    command_schedule,
+    command_vector,
+    schedule_targets,
+    task_for,
+    tracking_summary,
+)
+from humanoid.env import EPISODE_STEPS, humanoid_model, make_env
+from humanoid.episode import run_episode
+from humanoid.expert import LQRExpert
+from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
+from support import join_observation, read_mcap_episode, record_short
+from teleop.dataset_reader import read_episodes, read_frames
+from teleop.mcap_io.schema import ACHIEVED_NAMES
+from teleop.mcap_io.writer import COMMAND_TOPIC
+
+DT = 0.015  # Humanoid-v5's env step (s)
+SECONDS = EPISODE_STEPS * DT  # a whole episode's schedule
+# Past the neutral start (200 steps) by enough for the first command's move (0.3 s a key press) and part of its hold.
+SHORT = 300
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return humanoid_model()
+
+
+@pytest.fixture(scope="module")
+def tracking(model: mujoco.MjModel) -> Tracking:
+    return Tracking(model)
+
+
+def observation_of(qpos: np.ndarray) -> np.ndarray:
+    """A (1, 348) observation whose first 22 entries are `qpos` without root x and y, the rest zero."""
+    obs = np.zeros((1, 348))
+    obs[0, :22] = qpos[2:]
+    return obs
+
+
+def reference_observation(model: mujoco.MjModel, command: np.ndarray) -> np.ndarray:
+    """The observation of the balanced pose that realises `command`, at rest."""
+    return observation_of(np.array(posture_reference(model, command_posture(command).clipped())[0]))
+
+
+# Schedules.
+
+
+def test_a_schedule_is_reproducible_per_seed_and_differs_across_seeds() -> None:
+    first = command_schedule(7, EPISODE_STEPS, DT)
+    np.testing.assert_array_equal(first, command_schedule(7, EPISODE_STEPS, DT))
+    assert first.shape == (EPISODE_STEPS, len(COMMAND_NAMES)) and first.dtype == np.float32
+    others = [command_schedule(seed, EPISODE_STEPS, DT) for seed in (8, 9, 1000)]
+    assert all(not np.array_equal(first, other) for other in others)
+
+
+def test_targets_lie_on_the_keys_grid_within_scale_of_the_limits() -> None:
+    """Every target of 50 seeds is a whole number of key presses from neutral, inside SCALE of each limit (the arms:
+    a preset), moves one to three fields, and every field is commanded somewhere."""
+    commanded = set()
+    for seed in range(50):
+        for _, target in schedule_targets(seed, SECONDS)[1:]:
+            moved = [name for name in COMMAND_NAMES if getattr(target, name)]
+            assert len(moved) <= 3, target
+            commanded.update(moved)
+            for name in moved:
+                value = getattr(target, name)
+                presses = value / Posture.STEP[name]
+                assert presses == pytest.approx(round(presses), abs=1e-6), (seed, name, value)
+                if name == "arms":
+                    assert value in (1.0, 2.0, 3.0)
+                else:
+                    assert SCALE * Posture.MIN[name] - 1e-9 <= value <= SCALE * Posture.MAX[name] + 1e-9
+    assert commanded == set(COMMAND_NAMES)
+
+
+def test_a_schedule_starts_neutral_then_changes_and_holds_some_neutral_targets() -> None:
+    """Over 50 seeds: zero for the first FIRST_NEUTRAL_SECONDS and a command right after, consecutive targets
+    differ, each is held at least HOLD_SECONDS[0] once the setpoint can have got there, and some targets after the
+    first are the neutral stand."""
+    first = round(FIRST_NEUTRAL_SECONDS / DT)
+    neutral_later = 0
+    for seed in range(50):
+        commands = command_schedule(seed, EPISODE_STEPS, DT)
+        assert not commands[:first].any() and commands[first].any(), seed
+        targets = schedule_targets(seed, SECONDS)
+        assert targets[0] == (0.0, NEUTRAL) and targets[1][0] == FIRST_NEUTRAL_SECONDS
+        for (_, before), (start, target), (end, _) in zip(targets, targets[1:], targets[2:], strict=False):
+            assert target != before
+            assert end - start >= move_seconds(before, target) + HOLD_SECONDS[0], (seed, start)  # there, then held
+        assert targets[-1][0] < SECONDS
+        neutral_later += sum(target == NEUTRAL for _, target in targets[2:])
+    assert neutral_later >= 10
+
+
+def test_a_negative_seed_is_refused_in_one_line() -> None:
+    for schedule in (lambda: schedule_targets(-1, SECONDS), lambda: command_schedule(-1, EPISODE_STEPS, DT)):
+        with pytest.raises(UserError, match=r"^a schedule's seed must be >= 0, got -1$"):
+            schedule()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("lean_forward", 0.31), ("lean_left", -0.35), ("height", 0.01), ("twist", 0.6), ("arms", -1.0), ("arms", np.nan)],
+)
+def test_check_command_refuses_a_field_out_of_range(field: str, value: float) -> None:
+    command = command_vector(NEUTRAL)
+    command[COMMAND_NAMES.index(field)] = value
+    with pytest.raises(UserError, match=rf"^command field {field}=\S+ is outside its range \[\S+, \S+\]$"):
+        check_command(command)
+
+
+def test_check_command_accepts_the_limits_and_the_zero_command() -> None:
+    check_command(command_vector(NEUTRAL))
+    check_command(command_vector(Posture(**Posture.MIN)))
+    check_command(command_vector(Posture(**Posture.MAX)))
+
+
+def test_the_task_names_each_commanded_field() -> None:
+    assert task_for(NEUTRAL) == DEFAULT_TASK
+    assert task_for(Posture(lean_forward=-0.1, height=-0.04, arms=3.0)) == "Lean back, crouch, arms out while standing."
+    assert task_for(Posture(lean_left=-0.05, twist=0.2)) == "Lean right, twist left while standing."
+
+
+# Tracking.
+
+POSED = command_vector(Posture(lean_forward=0.1, lean_left=-0.05, height=-0.04, twist=0.2, arms=2.0))
+
+
+@pytest.mark.parametrize("command", [command_vector(NEUTRAL), POSED], ids=["neutral", "posed"])
+def test_the_balanced_pose_of_a_command_tracks_it_exactly(
+    model: mujoco.MjModel, tracking: Tracking, command: np.ndarray
+) -> None:
+    errors = tracking.errors(reference_observation(model, command), command[None])
+    np.testing.assert_allclose(errors, 0.0, atol=1e-9)
+
+
+def test_known_perturbations_give_known_errors(model: mujoco.MjModel, tracking: Tracking) -> None:
+    """From the neutral stand: the twist joint 0.1 rad off is a twist error of 0.1 and nothing else; the torso
+    pitched forward 0.1 rad (about the world y axis) leans forward 0.1; rolled 0.1 rad about x leans right 0.1;
+    2 cm lower is a height error of 0.02; one arm joint 0.06 rad off is an arms error of 0.01 (mean of six)."""
+    zero = command_vector(NEUTRAL)[None]
+    stand = reference_observation(model, zero[0])
+    assert np.array_equal(stand[0, 1:5], [1.0, 0.0, 0.0, 0.0])  # upright: the rotations below are the torso's
+    twisted, pitched, rolled, lowered, arm = (stand.copy() for _ in range(5))
+    twisted[0, model.joint("abdomen_z").qposadr[0] - 2] += 0.1
+    pitched[0, 1:5] = [np.cos(0.05), 0.0, np.sin(0.05), 0.0]
+    rolled[0, 1:5] = [np.cos(0.05), np.sin(0.05), 0.0, 0.0]
+    lowered[0, 0] -= 0.02
+    arm[0, model.joint("right_elbow").qposadr[0] - 2] += 0.06
+    expected = {
+        "twisted": (twisted, [0, 0, 0, 0.1, 0]),
+        "pitched": (pitched, [0.1, 0, 0, 0, 0]),
+        "rolled": (rolled, [0, 0.1, 0, 0, 0]),
+        "lowered": (lowered, [0, 0, 0.02, 0, 0]),
+        "arm": (arm, [0, 0, 0, 0, 0.01]),
+    }
+    for name, (obs, error) in expected.items():
+        np.testing.assert_allclose(tracking.errors(obs, zero)[0], error, atol=1e-9, err_msg=name)
+    achieved = np.concatenate([tracking.achieved(obs) for obs in (pitched, rolled, lowered, twisted)])
+    np.testing.assert_allclose(
+        achieved, [[0.1, 0, 0, 0], [0, -0.1, 0, 0], [0, 0, -0.02, 0], [0, 0, 0, -0.1]], atol=1e-9
+    )
+
+
+def test_tracking_summary_of_hand_made_errors() -> None:
+    """dt 0.1 s, so settled is the mean of a command's last 10 steps if held 20 or more. Command A (30 steps): out of
+    tolerance for 5 steps, in for 5, out once more (height 0.03 > 0.02) at step 10, then in: settles after 1.1 s;
+    its last 10 steps' errors are known. Command B (15 steps): never in tolerance, too short to count as settled:
+    its settle time is its whole 1.5 s. Mean settle time 1.3 s."""
+    commands = np.zeros((45, len(COMMAND_NAMES)), np.float32)
+    commands[30:, 0] = 0.1
+    inside = np.array([TOLERANCE[name] for name in COMMAND_NAMES]) / 2
+    errors = np.tile(inside, (45, 1))
+    errors[:5] = 1.0
+    errors[10, 2] = 0.03
+    errors[20:30] = np.linspace(0.0, 0.009, 10)[:, None]
+    errors[30:] = 1.0
+    summary = tracking_summary(errors, commands, 0.1)
+    assert summary["settle_seconds"] == pytest.approx((1.1 + 1.5) / 2)
+    assert summary["settled_error"] == pytest.approx(dict.fromkeys(COMMAND_NAMES, 0.0045))
+
+
+@pytest.mark.parametrize(("held", "settled"), [(35, 0.001), (36, (0.001 + 0.003) / 2)])
+def test_a_command_counts_as_settled_once_held_twice_the_window_after_its_move(held: int, settled: float) -> None:
+    """dt 0.1 s: a crouch of 4 cm takes the setpoint 1.6 s (16 steps) at 2.5 cm/s. Held 35 steps (more than twice
+    the 10-step window, but cut short 1 step before its move and twice the window are over, as the episode's end
+    cuts a schedule's last command) it is not settled: only the neutral start's window counts; held 36, it is."""
+    commands = np.zeros((30 + held, len(COMMAND_NAMES)), np.float32)
+    commands[30:, COMMAND_NAMES.index("height")] = -0.04
+    errors = np.full(commands.shape, 0.001)
+    errors[30:] = 0.003
+    summary = tracking_summary(errors, commands, 0.1)
+    assert summary["settled_error"] == pytest.approx(dict.fromkeys(COMMAND_NAMES, settled))
+
+
+def test_tracking_summary_without_a_command_held_long_enough_is_nan() -> None:
+    commands = np.zeros((15, len(COMMAND_NAMES)), np.float32)
+    summary = tracking_summary(np.zeros((15, len(COMMAND_NAMES))), commands, 0.1)
+    assert summary["settle_seconds"] == 0.0
+    assert all(np.isnan(error) for error in summary["settled_error"].values())
+
+
+# The expert.
+
+
+def command_extras(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The setpoint (T, 5) and achieved posture (T, 4) of an MCAP file's /command messages."""
+    setpoint, achieved = [], []
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, _, decoded in reader.iter_decoded_messages(topics=[COMMAND_TOPIC]):
+            setpoint.append([getattr(decoded, f"setpoint_{name}") for name in COMMAND_NAMES])
+            achieved.append([getattr(decoded, f"achieved_{name}") for name in ACHIEVED_NAMES])
+    return np.array(setpoint), np.array(achieved)
+
+
+@pytest.fixture(scope="module")
+def short_env() -> Iterator[gym.Env]:
+    env = make_env(SHORT)
+    yield env
+    env.close()
+
+
+def test_the_zero_command_leaves_the_plain_expert_as_it_was(short_env: gym.Env) -> None:
+    """run_episode without schedules tells the expert the zero command, which keeps its planned landing: the actions
+    equal, bit for bit, those of the expert's own loop, never told a command; and so after an episode under
+    schedules (the expert reused, as a recorder reuses it)."""
+    expert = LQRExpert()
+    obs, _ = short_env.reset(seed=3)
+    expert.reset(3)
+    actions, done = [], False
+    while not done:
+        actions.append(expert.act(obs))
+        obs, _, terminated, truncated, _ = short_env.step(actions[-1])
+        done = terminated or truncated
+    plain = run_episode(short_env, LQRExpert(), 3)
+    assert not plain.command.any() and not plain.setpoint.any() and set(plain.tasks) == {DEFAULT_TASK}
+    np.testing.assert_array_equal(plain.action, np.array(actions))
+    reused = LQRExpert()
+    run_episode(short_env, reused, 4, schedules=True)
+    np.testing.assert_array_equal(run_episode(short_env, reused, 3).action, plain.action)
+
+
+def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(tmp_path: Path) -> None:
+    """`make record CONTROLLER=operator`: the dataset's command is the seed's schedule, the task of each step names
+    it, and the setpoint starts each command where the last one was, moves steadily toward it and gets there within
+    its move time."""
+    seed = 5
+    record_short(tmp_path / "operator", controller="operator", episodes=1, seed=seed, max_steps=SHORT, noise=0.0)
+    root = tmp_path / "operator"
+    frames = read_frames(root, [keys.OBS_COMMAND, keys.SETPOINT, keys.TERMINATED])
+    command, setpoint = frames[keys.OBS_COMMAND], frames[keys.SETPOINT]
+    np.testing.assert_array_equal(command, command_schedule(seed, SHORT, DT))
+    assert command.any() and not frames[keys.TERMINATED].any()
+    episode = read_episodes(root).to_pylist()[0]
+    assert episode[keys.EPISODE_CONTROLLER] == "operator"
+    mcap = read_mcap_episode(root / episode[keys.EPISODE_MCAP])
+    assert mcap.command_tasks == [task_for(command_posture(row)) for row in command]
+    np.testing.assert_array_equal(mcap.command, command)
+    # /command also carries the setpoint and the achieved posture, which Foxglove plots beside the command.
+    mcap_setpoint, mcap_achieved = command_extras(root / episode[keys.EPISODE_MCAP])
+    np.testing.assert_array_equal(mcap_setpoint, setpoint)
+    observed = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE])
+    observation = join_observation(observed[keys.OBS_STATE], observed[keys.OBS_ENV_STATE])
+    np.testing.assert_allclose(mcap_achieved, Tracking(humanoid_model()).achieved(observation), atol=1e-12)
+    assert episode["tasks"][0] == DEFAULT_TASK and len(episode["tasks"]) >= 2
+    changes = np.flatnonzero(np.r_[True, (np.diff(command, axis=0) != 0).any(axis=1)])
+    for start, end in zip(changes, [*changes[1:], len(command)], strict=True):
+        gap = np.abs(setpoint[start:end] - command[start]).max(axis=1)
+        assert np.all(np.diff(gap) <= 1e-6), start  # never away from the command
+        previous = command_posture(command[start - 1]) if start else NEUTRAL
+        arrive = int(np.ceil(move_seconds(previous, command_posture(command[start])) / DT)) + 1
+        assert arrive < end - start and gap[arrive:].max() < 1e-6, start  # there, and held
+        if start:
+            np.testing.assert_allclose(setpoint[start - 1], command[start - 1], atol=1e-6)  # from the last one
+            assert gap[0] > 0
