@@ -16,7 +16,7 @@ from bc import robustness
 from bc import train as train_stage
 from bc.evaluate import plot_tracking, tracking
 from common.keys import COMMAND_NAMES
-from humanoid.commands import Tracking
+from humanoid.commands import Tracking, command_schedule
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert
@@ -179,8 +179,10 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
         plot_tracking(episode, measure, env.unwrapped.dt, tmp_path / "tracking.png")
     finally:
         env.close()
-    assert episode.length == OPERATOR_STEPS and np.allclose(episode.command[200:350], [[0.1, 0.1, 0, 0, 0]])
-    np.testing.assert_allclose(measure.achieved(episode.observation[340:350]), [[0.1, 0.1, 0, 0]] * 10, atol=0.01)
+    lean = command_schedule(OPERATOR_SEED, OPERATOR_STEPS, env.unwrapped.dt)[200]  # the seed's first command
+    assert lean[:2].all() and not lean[2:].any()  # a lean forward and to the side, held until step 343
+    assert episode.length == OPERATOR_STEPS and np.array_equal(episode.command[200:340], np.tile(lean, (140, 1)))
+    np.testing.assert_allclose(measure.achieved(episode.observation[330:340]), [[*lean[:2], 0, 0]] * 10, atol=0.01)
     assert set(result) == TRACKING_FIELDS | {"episodes"} and set(result["settled_error"]) == set(COMMAND_NAMES)
     assert all(0 <= error < 0.02 for error in result["settled_error"].values()), result
     assert 0 < result["settle_seconds"] < OPERATOR_STEPS * env.unwrapped.dt
