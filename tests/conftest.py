@@ -9,8 +9,11 @@ from pathlib import Path
 
 import pytest
 
+from common import workers
 from support import SHORT_EPISODE, RayCluster
+from teleop.parallel import WORKER_MODULES
 from teleop.record import RecordConfig, main
+from teleop.writer_process import WRITER_MODULES
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -24,6 +27,11 @@ os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 # environment, so every cluster and driver the tests start shares it and none is written to ~/.ray.
 os.environ.setdefault("RAY_AUTH_MODE", "token")
 os.environ.setdefault("RAY_AUTH_TOKEN", uuid.uuid4().hex)
+# Every worker process the tests start is a fork of this process's one forkserver, which imports only the modules
+# declared before it started (common.workers): declared here, before any test starts it, a recording, writer, PPO,
+# robustness-suite or tutorial worker starts in milliseconds whichever test started the server, instead of
+# importing torch, SB3 and MuJoCo anew (seconds each).
+workers._context([*WORKER_MODULES, *WRITER_MODULES, "bc.ppo.learner", "bc.ppo.vec_env", "bc.robustness", "bc.pipeline"])
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -32,6 +32,24 @@ from teleop.record import RecordConfig, main
 
 SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
 
+TINY_PPO = {
+    "curriculum": "",
+    "randomize": "none",
+    "latency_share": 0.0,
+    "obs_noise_share": 0.0,
+    "envs": 4,
+    "workers": 2,
+    "rollout_steps": 256,
+    "batch_size": 64,
+    "epochs": 2,
+    "eval_freq": 256,
+    "eval_episodes": 1,
+    "final_eval_episodes": 1,
+    "progress": False,
+}
+"""`FinetuneConfig` settings of the PPO tests' runs: 256-step rollouts over 2 worker processes, unpushed on the nominal
+task (the curriculum and the randomisation have tests of their own), an evaluation of one episode after each."""
+
 
 def snapshot(root: Path) -> dict[str, bytes]:
     """Every file under `root` with its content: equal snapshots mean nothing on disk changed."""

@@ -79,6 +79,7 @@ def make_vec_env(
         workers,
         backend=backend,
         ray_address=ray_address,
+        preload=(__name__,),  # training_env's modules
     )
     env.seed(seed)
     return env

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -220,6 +220,8 @@ class WorkerGroupVecEnv(VecEnv):
 
     `backend` "ray": the workers are Ray actors anywhere in the cluster at `ray_address` (or in a local
     Ray), one CPU and one core each (`common.ray_backend`); the groups, and so the results, are the same.
+    `preload`: the modules the factories' environments import, which the forkserver then imports once
+    (`common.workers`): without them each worker process imports them anew, seconds on these machines.
 
     One worker is the learner's own process (SB3's `DummyVecEnv`, minus its copies of the infos);
     more are that many processes, each pinned to a core of its own (unpinned, Linux woke a worker
@@ -235,6 +237,7 @@ class WorkerGroupVecEnv(VecEnv):
         pin: bool = True,
         backend: str = "local",
         ray_address: str | None = None,
+        preload: Iterable[str] = (),
     ):
         if not 1 <= workers <= len(factories):
             raise ValueError(f"need 1 <= workers <= environments, got {workers} workers for {len(factories)}")
@@ -264,6 +267,7 @@ class WorkerGroupVecEnv(VecEnv):
                             _serve,
                             CloudpickleWrapper([factories[i] for i in group]),
                             name=f"environment worker {index}",
+                            preload=(__name__, *preload),
                             cpu=cpus[index % len(cpus)] if cpus else None,
                             ignore_interrupt=False,  # Ctrl-C stops a worker mid-rollout, as it stops the learner
                         )

@@ -86,10 +86,15 @@ def test_tiny_training_lowers_the_validation_loss(trained: TrainResult) -> None:
 
 @pytest.mark.slow
 def test_default_recipe_clones_the_expert_from_five_demonstrations(tmp_path: Path) -> None:
-    """The recipe's known answer: with ReLU units this data stood on no unseen seed (docs/decisions/activation.md)."""
+    """The recipe's known answer: with ReLU units this data stood on no unseen seed (docs/decisions/activation.md).
+
+    Trained on one torch thread, a speed setting (`--threads`): two, beside the other test process on two cores,
+    made this test's 5,000 Adam steps several times slower."""
     data = tmp_path / "five"
     record(RecordConfig(dataset=data, episodes=5, seed=0, writer="inline", progress=False))
-    cfg = TrainConfig(dataset=data, policy=tmp_path / "policy", eval_episodes=0, tensorboard=False, progress=False)
+    cfg = TrainConfig(
+        dataset=data, policy=tmp_path / "policy", threads=1, eval_episodes=0, tensorboard=False, progress=False
+    )
     result = main(cfg)
     evaluation = evaluate(PolicyController(result.policy, "five"), episodes=5, seed=1000)
     assert evaluation["survivals"] == [True] * 5, evaluation["lengths"]

@@ -1,14 +1,14 @@
-"""`make finetune-rl`: PPO starts from the BC policy exactly, the warm-up spares the actor, bad input is refused."""
+"""`make finetune-rl`: PPO starts from the BC policy exactly, the warm-up spares the actor, bad input is refused.
+
+That a run ends with the same weights however it runs (workers, Ray, threads, kills, a lost worker):
+`test_finetune_resume.py`. The small BC checkpoints PPO starts from: `conftest.py`.
+"""
 
 from __future__ import annotations
 
 import functools
 import json
-import os
-import subprocess
-import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +16,10 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import CURVE_FILE, holds_floor, selection_score
+from bc.ppo.evaluator import holds_floor, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
-from bc.train import TrainConfig
-from bc.train import main as train_bc
 from common import paths
 from common.cli import config_dict
 from humanoid.learned import PolicyController
@@ -29,41 +27,12 @@ from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
-from support import RayCluster, snapshot, tensorboard_text
-from teleop.record import RecordConfig, record
+from support import TINY_PPO, snapshot, tensorboard_text
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
 # The plumbing tests run on the nominal task, unpushed (the curriculum and the randomisation have tests of their own).
 PPO_ENV = functools.partial(training_env, None)  # a full actor's PPO environment: the observation, then its inputs
-
-TINY_PPO = {
-    "curriculum": "",
-    "randomize": "none",
-    "latency_share": 0.0,
-    "obs_noise_share": 0.0,
-    "envs": 4,
-    "workers": 2,
-    "rollout_steps": 256,
-    "batch_size": 64,
-    "epochs": 2,
-    "eval_freq": 256,
-    "eval_episodes": 1,
-    "final_eval_episodes": 1,
-    "progress": False,
-}
-
-
-SMALL_BC = {"hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False, "tensorboard": False}
-"""A small BC training on the 3-episode recording: 5 passes exactly."""
-
-
-@pytest.fixture(scope="module")
-def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small BC checkpoint trained on the 3-episode recording."""
-    folder = tmp_path_factory.mktemp("bc") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, **SMALL_BC))
-    return folder
 
 
 def ppo_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
@@ -300,50 +269,6 @@ def test_the_selection_score_is_the_mean_return_over_the_evaluated_conditions() 
     assert selection_score({"timesteps": 0, "mean_return": 4944.0, "survival_rate": 1.0}) == 4944.0
 
 
-def final_actors(bc_policy: Path, tmp_path: Path, settings: list[dict]) -> list[dict[str, torch.Tensor]]:
-    """The last actors of 512-step TINY_PPO runs (their last periodic checkpoints), one per entry of `settings`.
-
-    Not the actor kept: that may be step 0's, the BC policy itself, which would prove nothing.
-    """
-    actors = []
-    for index, overrides in enumerate(settings):
-        main(
-            FinetuneConfig(
-                bc_policy=bc_policy,
-                policy=tmp_path / f"ppo_{index}",
-                timesteps=512,
-                **{**TINY_PPO, **overrides},
-            )
-        )
-        actors.append(checkpoint.load(tmp_path / f"ppo_{index}" / "checkpoints" / "step_00000512").state_dict())
-    return actors
-
-
-def assert_same_trained_actor(actors: list[dict[str, torch.Tensor]], bc_policy: Path) -> None:
-    """Bit-identical actors, which PPO did change (so their equality is not the BC policy's)."""
-    assert actors[0].keys() == actors[1].keys()
-    for name, value in actors[0].items():
-        assert torch.equal(value, actors[1][name]), name
-    assert not torch.equal(actors[0]["net.0.weight"], checkpoint.load(bc_policy).state_dict()["net.0.weight"])
-
-
-def test_worker_count_changes_nothing_but_speed(bc_policy: Path, tmp_path: Path) -> None:
-    """8 environments in 1 process or in 2 workers of 4 end the same run with the same weights, bit for bit."""
-    settings = [{"envs": 8, "workers": workers, "critic_warmup": 256} for workers in (1, 2)]
-    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
-
-
-def test_update_threads_change_nothing_but_float_rounding(bc_policy: Path, tmp_path: Path) -> None:
-    """PPO's updates on 1 or 2 torch threads end with the same weights to float rounding: how torch splits a
-    product over threads may change its summation order on some processors (bit for bit on others)."""
-    settings = [{"batch_size": 256, "update_threads": threads, "critic_warmup": 0} for threads in (1, 2)]
-    one, two = final_actors(bc_policy, tmp_path, settings)
-    assert one.keys() == two.keys()
-    for name, value in one.items():
-        torch.testing.assert_close(two[name], value, rtol=1e-4, atol=1e-6, msg=name)
-    assert not torch.equal(one["net.0.weight"], checkpoint.load(bc_policy).state_dict()["net.0.weight"])
-
-
 def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """BC_POLICY naming nothing fails in one line and writes nothing."""
     code, err = ppo_cli(["--bc-policy", str(tmp_path / "none"), "--policy", str(tmp_path / "ppo")], capsys)
@@ -373,14 +298,6 @@ def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "ppo").exists()
 
 
-@pytest.fixture(scope="module")
-def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
-    folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="proprio", **SMALL_BC))
-    return folder
-
-
 def test_a_proprioceptive_actor_reads_the_sensed_features_its_env_appends(proprio_policy: Path) -> None:
     """Asymmetric actor-critic: the training env appends the sensed features to the observation; the actor's actions
     are the proprio BC policy's and change with no entry of the observation before them, the critic's value does."""
@@ -407,16 +324,6 @@ def test_a_proprioceptive_actor_reads_the_sensed_features_its_env_appends(propri
     np.testing.assert_array_equal(actions, actions_changed)
     np.testing.assert_allclose(actions, np.array([bc.act(o[:348].astype(np.float64)) for o in seen]), atol=1e-6)
     assert np.abs(values - values_changed).min() > 0
-
-
-@pytest.fixture(scope="module")
-def pending_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small BC checkpoint on the "pending" inputs of 3 short noisy expert episodes, each delayed by one step."""
-    root = tmp_path_factory.mktemp("delayed") / "dataset"
-    record(RecordConfig(dataset=root, episodes=3, max_steps=60, latency=1.0, writer="inline", progress=False))
-    folder = tmp_path_factory.mktemp("bc_pending") / "policy"
-    train_bc(TrainConfig(dataset=root, policy=folder, inputs="pending", **SMALL_BC))
-    return folder
 
 
 def test_a_pending_actor_reads_its_command_in_flight_and_the_delay(pending_policy: Path) -> None:
@@ -501,121 +408,3 @@ def test_existing_checkpoint_is_not_overwritten(
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(target)], capsys)
     assert code == 1 and len(err) == 1 and "--overwrite" in err[0]
     assert snapshot(target) == existing and snapshot(bc_policy) == before
-
-
-# With a push curriculum that moves on after every rollout (the tiny BC policy falls often), randomised
-# bodies, and shares of the episodes delayed and noisy: the kills fall where episodes in progress began under
-# an earlier stage's force and shares.
-RESUMABLE = {
-    **TINY_PPO,
-    "timesteps": 256 * 8,
-    "envs": 8,
-    "eval_freq": 1024,
-    "curriculum": "0,10,20",
-    "curriculum_advance": 0.0,
-    "curriculum_episodes": 1,
-    "randomize": "suite",
-    "latency_share": 1.0,
-    "obs_noise_share": 1.0,
-}
-
-
-def resumable_command(bc_policy: Path, policy: Path, **changes: object) -> list[str]:
-    settings = {**RESUMABLE, **changes}
-    args = [f"--{name.replace('_', '-')}={value}" for name, value in settings.items()]
-    return [sys.executable, "-m", "bc.finetune", f"--bc-policy={bc_policy}", f"--policy={policy}", *args]
-
-
-def kill_after_snapshots(command: list[str], policy: Path, snapshots: int, delay: float) -> str:
-    """Run `command`, kill -9 it `delay` s after it has written `snapshots` more resume snapshots; its stderr."""
-    state = checkpoint.running_folder(policy) / "resume.pt"
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
-    seen, last = 0, state.stat().st_mtime_ns if state.exists() else None
-    deadline = time.monotonic() + 120
-    while seen < snapshots and process.poll() is None and time.monotonic() < deadline:
-        now = state.stat().st_mtime_ns if state.exists() else None
-        if now is not None and now != last:
-            seen, last = seen + 1, now
-        time.sleep(0.005)
-    time.sleep(delay)
-    process.kill()
-    _, err = process.communicate(timeout=60)
-    assert seen == snapshots, f"the run ended after {seen} snapshots: {err[-2000:]}"
-    return err
-
-
-@pytest.fixture(scope="module")
-def resumable_reference(pending_policy: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[FinetuneConfig, dict]:
-    """The RESUMABLE run never interrupted, of the pending actor (whose environments carry an estimator, the last
-    actions and the delay along each episode: what a resume has to rebuild): what the resumed runs must equal."""
-    config = FinetuneConfig(
-        bc_policy=pending_policy, policy=tmp_path_factory.mktemp("resumable") / "reference", **RESUMABLE
-    )
-    return config, main(config)
-
-
-def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
-    resumable_reference: tuple[FinetuneConfig, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """kill -9 mid-rollout or mid-update (twice, at different moments), then the same settings: the final actor,
-    the evaluation curve and the actor kept equal those of a run never interrupted, bit for bit, with the
-    environments' estimators rebuilt by replaying the episodes in progress. Resuming with other settings is refused
-    in one line and leaves the saved run as it was."""
-    reference, bc_policy = resumable_reference[0].policy, resumable_reference[0].bc_policy
-    broken = tmp_path / "broken"
-    command = resumable_command(bc_policy, broken)
-    kill_after_snapshots(command, broken, snapshots=2, delay=0.02)
-    saved = snapshot(checkpoint.running_folder(broken))
-    code, err = ppo_cli(resumable_command(bc_policy, broken, learning_rate=1e-3)[3:], capsys)
-    assert code == 1 and len(err) == 1 and "interrupted run with other settings" in err[0] and "learning_rate" in err[0]
-    assert snapshot(checkpoint.running_folder(broken)) == saved and not broken.exists()
-    assert "resuming" in kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
-    # The last resume in this process: the command's own code path, without paying for its imports once more.
-    main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
-    assert "resuming" in capsys.readouterr().err
-    for name in (policy_files.WEIGHTS_FILE, CURVE_FILE):
-        assert (broken / name).read_bytes() == (reference / name).read_bytes(), name
-    assert not checkpoint.running_folder(broken).exists() and not (broken / "resume.pt").exists()
-
-
-def test_a_finished_run_is_not_run_again(
-    resumable_reference: tuple[FinetuneConfig, dict], capsys: pytest.CaptureFixture[str]
-) -> None:
-    config, first = resumable_reference
-    before = snapshot(config.policy)
-    assert main(config) == first and snapshot(config.policy) == before
-    assert "not run again" in capsys.readouterr().err
-
-
-def test_ray_workers_give_the_local_weights(bc_policy: Path, tmp_path: Path, ray_cluster: RayCluster) -> None:
-    """BACKEND=ray: 2 actors on 2 nodes of 4 environments each end the run with the local workers' weights."""
-    local = {"envs": 8, "workers": 2, "critic_warmup": 256}
-    settings = [local, {**local, "backend": "ray", "ray_address": ray_cluster.address}]
-    assert_same_trained_actor(final_actors(bc_policy, tmp_path, settings), bc_policy)
-
-
-def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(
-    resumable_reference: tuple[FinetuneConfig, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """The worker node dies after the first snapshot: one line, exit 1; the same settings on local workers resume
-    from the snapshot and end with an uninterrupted run's weights."""
-    reference, bc_policy = resumable_reference[0].policy, resumable_reference[0].bc_policy
-    broken = tmp_path / "broken"
-    cluster = RayCluster()
-    try:
-        command = resumable_command(bc_policy, broken, backend="ray", ray_address=cluster.address)
-        process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-        state = checkpoint.running_folder(broken) / "resume.pt"
-        deadline = time.monotonic() + 120
-        while not state.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.005)
-        cluster.remove_worker_node()
-        _, err = process.communicate(timeout=120)
-    finally:
-        cluster.shutdown()
-    lines = err.strip().splitlines()
-    assert process.returncode == 1 and lines[-1].startswith("error: environment worker "), err[-2000:]
-    assert "was lost" in lines[-1]
-    main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
-    assert "resuming" in capsys.readouterr().err
-    assert (broken / policy_files.WEIGHTS_FILE).read_bytes() == (reference / policy_files.WEIGHTS_FILE).read_bytes()

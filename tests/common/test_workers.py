@@ -209,24 +209,38 @@ def test_a_child_that_exits_when_its_input_ends_does_so_after_a_kill_9_of_its_pa
 
 DEFAULTS = """
 import os, sys
-os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: int(sys.argv[1])])
+counts = [int(cores) for cores in sys.argv[1:]]
+os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: counts[0]])
 from bc import finetune, robustness
 from common.workers import default_workers
 from teleop import record
-print(default_workers(14), default_workers(1))
-print(finetune.workers(finetune.FinetuneConfig()), finetune.workers(finetune.FinetuneConfig(envs=8)))
-print(robustness.RobustnessConfig().workers is None and default_workers(robustness.MOST_WORKERS))
-print(record.workers(record.RecordConfig()), record.workers(record.RecordConfig(live=True)))
-print(record.workers(record.RecordConfig(writer="inline")), record.workers(record.RecordConfig(workers=3)))
+for cores in counts:
+    os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:cores])
+    print(cores, default_workers(14), default_workers(1), end=" ")
+    print(finetune.workers(finetune.FinetuneConfig()), finetune.workers(finetune.FinetuneConfig(envs=8)), end=" ")
+    print(robustness.RobustnessConfig().workers is None and default_workers(robustness.MOST_WORKERS), end=" ")
+    print(record.workers(record.RecordConfig()), record.workers(record.RecordConfig(live=True)), end=" ")
+    print(record.workers(record.RecordConfig(writer="inline")), record.workers(record.RecordConfig(workers=3)))
 """
+CORE_COUNTS = (2, 1)
 
 
-@pytest.mark.parametrize("cores", [1, 2])
-def test_worker_counts_default_to_the_cores_this_process_may_use(cores: int) -> None:
+@pytest.fixture(scope="module")
+def defaults_by_cores() -> dict[int, list[str]]:
+    """What DEFAULTS prints for each core count this machine has, from the most to the fewest, in one process (one
+    set of imports): narrowed before its imports, then again, so that a default frozen at import fails too."""
+    counts = [cores for cores in CORE_COUNTS if cores <= len(os.sched_getaffinity(0))]
+    run = subprocess.run(
+        [sys.executable, "-c", DEFAULTS, *map(str, counts)], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 0, run.stderr
+    return {int(line.split()[0]): line.split()[1:] for line in run.stdout.splitlines()}
+
+
+@pytest.mark.parametrize("cores", CORE_COUNTS)
+def test_worker_counts_default_to_the_cores_this_process_may_use(cores: int, defaults_by_cores: dict) -> None:
     """On 1 and 2 cores (this process's affinity narrowed): one worker per core, as PPO and the suite used on 2 before;
     recording in one process where it must (live view, keyboard, inline writer), and an explicit count as given."""
     if len(os.sched_getaffinity(0)) < cores:
         pytest.skip(f"needs {cores} cores")
-    run = subprocess.run([sys.executable, "-c", DEFAULTS, str(cores)], capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.split() == [str(cores), "1", str(cores), str(cores), str(cores), str(cores), "1", "1", "3"]
+    assert defaults_by_cores[cores] == [str(cores), "1", str(cores), str(cores), str(cores), str(cores), "1", "1", "3"]
