@@ -113,10 +113,10 @@ pipeline: $(STAMP)  ## record -> train-bc (and the sensed students) -> baseline-
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
 # on these 2-core machines 2 finish first (docs/benchmarks.md, "The test suite").
 TEST_WORKERS ?= 2
-test: $(STAMP)  ## run the whole test suite (about 10 minutes on 2 cores; TEST_WORKERS processes)
+test: $(STAMP)  ## run the whole test suite (about 6 minutes on 2 cores; TEST_WORKERS processes)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
-test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 2 minutes)
+test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 80 s)
 	$(PY) -m pytest -m "not slow"
 
 lint: $(STAMP)  ## ruff: lint and format check (configured in pyproject.toml)

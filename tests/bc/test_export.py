@@ -28,18 +28,18 @@ pytestmark = pytest.mark.slow  # reference episodes of the expert: seconds
 @pytest.fixture(scope="module")
 def exported(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[minari.MinariDataset]:
     """The 3-episode recording exported to a new Minari root, loaded back by Minari with its root set."""
-    out = tmp_path_factory.mktemp("minari") / "root"
-    name = main(ExportConfig(dataset=recorded, out=out, reference_episodes=2))
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("MINARI_DATASETS_PATH", str(out))
-        yield minari.load_dataset(name)
+    yield from export_and_load(recorded, tmp_path_factory.mktemp("minari") / "root", reference_episodes=2)
 
 
 @pytest.fixture(scope="module")
 def exported_commands(operated: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[minari.MinariDataset]:
     """The scripted operator's recording, exported and loaded back the same way."""
-    out = tmp_path_factory.mktemp("minari-command") / "root"
-    name = main(ExportConfig(dataset=operated, out=out, reference_episodes=1))
+    yield from export_and_load(operated, tmp_path_factory.mktemp("minari-command") / "root", reference_episodes=1)
+
+
+def export_and_load(dataset: Path, out: Path, reference_episodes: int) -> Iterator[minari.MinariDataset]:
+    """`dataset` exported to the new Minari root `out`, loaded back by Minari with its root set."""
+    name = main(ExportConfig(dataset=dataset, out=out, reference_episodes=reference_episodes))
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MINARI_DATASETS_PATH", str(out))
         yield minari.load_dataset(name)
