@@ -5,21 +5,25 @@ The LQR expert reads the torso's height and linear velocity, which no sensor mea
 (docs/log.md, "The deployable observation"). This estimator computes a full MuJoCo state
 (qpos, qvel) from the sensed features alone, on the nominal model:
 
-    sensed features (48) ──> orientation without heading, from the gravity direction
+    sensed features (48) ──> orientation: tilt from the gravity direction, heading integrated from the gyro
                          ──> joints, gyro: as measured
     feet's forces ─────────> predicted centre-of-mass velocity: the last one + dt (forces / mass - g)
        a foot down ────────> corrected towards the velocity that holds the touching feet's contact
                              points still (kinematics), by a fixed gain per axis
        landing ────────────> the first steps after a flight: on both feet the kinematic velocity as is,
                              on one the prediction
-       both feet down ─────> torso height: the lower foot's sphere resting on the floor (else integrated)
+       both feet down ─────> torso height: the lower foot's sphere resting where the balanced pose has it
+                             (1 mm up, inside the contacts' margin; else integrated)
     torso velocity = the centre of mass's velocity - its motion relative to the torso (kinematics)
 
 Why the forces: the kinematic velocity alone errs where a foot slips or rebounds, and the expert's
 gain amplifies that; the forces say how the body accelerates, and the feet correct their drift (a
-complementary filter; measured in docs/log.md). Its memory is the centre of mass's velocity
-and the height; `reset` starts them at rest, where gymnasium's reset puts the body. The heading (yaw)
-is set to zero: an IMU does not keep it, and standing does not depend on it.
+complementary filter; measured in docs/log.md). Its memory is the centre of mass's velocity, the heading
+and the height; `reset` starts them at rest, where gymnasium's reset puts the body, facing +x. The heading
+(yaw) is what the sensed features do not say and standing does not depend on, but a commanded twist turns
+the torso over the pelvis: the estimate integrates it from the gyro (`heading_rate`). Set to zero, it read
+a twist as a turn of the whole body and the expert fell on most command schedules
+(docs/decisions/estimator-heading.md).
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.lqr import LQRDesign
+from humanoid.lqr import LQRDesign, load_or_design
 from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names, force_names
 
 GRAVITY = 9.81
@@ -46,6 +50,15 @@ VERTICAL_GAIN = 0.1
 LANDING_STEPS = 5
 """Steps on both feet after a flight that take the kinematic velocity as is: a landing's impact is not
 in the one force sample per step the sensors give."""
+
+
+def heading_rate(gravity: np.ndarray, gyro: np.ndarray) -> float:
+    """The rate of change (rad/s) of the heading (yaw) of an orientation R = Rz(yaw) Ry(pitch) Rx(roll) whose body
+    frame sees `gravity` (the down direction) and turns at `gyro` (rad/s, body frame): (q sin roll + r cos roll) /
+    cos pitch, the z-y-x Euler angles' kinematics."""
+    pitch = np.arcsin(np.clip(gravity[0], -1.0, 1.0))
+    roll = np.arctan2(-gravity[1], -gravity[2])
+    return float((gyro[1] * np.sin(roll) + gyro[2] * np.cos(roll)) / np.cos(pitch))
 
 
 def level_quaternion(gravity: np.ndarray) -> np.ndarray:
@@ -82,14 +95,25 @@ class LegOdometry:
         self._foot_geoms = [model.geom(name).id for name in physics.FOOT_GEOMS]
         self._jac = np.zeros((3, model.nv))
         self._gains = np.array([HORIZONTAL_GAIN, HORIZONTAL_GAIN, VERTICAL_GAIN])
+        self._turned = np.zeros(4)
+        self.clearance = self._clearance(load_or_design(model).qpos_ref)
         self.reset()
 
     def reset(self) -> None:
         """At rest at the reset height: where gymnasium's reset puts the body."""
         self.com_velocity = np.zeros(3)
         self.height = START_HEIGHT
+        self.heading = 0.0  # where gymnasium's reset faces the torso (+x)
         self.steps_down = 0  # consecutive steps with a foot down
         self._first = True
+
+    def _clearance(self, qpos: np.ndarray) -> float:
+        """How high the feet's spheres rest above the floor in `qpos`, the design's balanced pose: inside the contacts'
+        margin, where their force carries the body (about 1 mm; taken as 0 the height estimate was that much low and
+        the expert leant to make up for it: docs/decisions/estimator-heading.md)."""
+        self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        return float(min(self.data.geom_xpos[g][2] - self.model.geom_size[g][0] for g in self._foot_geoms))
 
     def _feet(self) -> tuple[np.ndarray, np.ndarray]:
         """Per foot (rows): the torso's velocity that holds its sphere's lowest point still, and the torso's
@@ -113,6 +137,11 @@ class LegOdometry:
         data.qvel[:3] = 0.0  # so that velocities computed below are relative to the torso's translation
         data.qvel[3:6] = sensed[self._gyro]
         data.qvel[6:] = sensed[self._vel]
+        if not self._first:
+            self.heading += self.dt * heading_rate(sensed[self._gravity], sensed[self._gyro])
+        half = self.heading / 2
+        mujoco.mju_mulQuat(self._turned, np.array([np.cos(half), 0.0, 0.0, np.sin(half)]), data.qpos[3:7])
+        data.qpos[3:7] = self._turned
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
         mujoco.mj_fwdVelocity(model, data)
@@ -133,7 +162,7 @@ class LegOdometry:
                 self.com_velocity = predicted
         velocity = self.com_velocity - relative
         if down.all():
-            self.height = feet_height.max()
+            self.height = feet_height.max() + self.clearance
         elif not self._first:
             self.height = self.height + velocity[2] * self.dt
         self._first = False
