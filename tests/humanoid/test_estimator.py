@@ -20,7 +20,7 @@ from humanoid.estimator import (
 )
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.posture import axis_quaternion, multiply_quaternions
-from humanoid.sensors import Proprioception, body_axes, gravity_direction, in_body_frame
+from humanoid.sensors import Proprioception, gravity_direction
 
 
 @pytest.fixture(autouse=True)
