@@ -54,6 +54,7 @@ from common.ray_backend import BACKENDS, check_backend
 from common.workers import default_workers
 from humanoid.conditions import Randomization, parse_randomization
 from humanoid.env import make_env
+from humanoid.inputs import input_set
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DIR, WEIGHTS_FILE
@@ -143,6 +144,12 @@ class FinetuneConfig:
         "share of the training episodes with the suite's sensor noise on what the actor reads, growing as "
         "--latency-share does; 0 = none",
     )
+    tracking_weight: float = setting(
+        1.0,
+        "for a BC policy that takes a command: its training episodes follow the operator's command schedules, and "
+        "each step's reward adds this times the tracking term (the mean over the fields of exp(-(error/tolerance)²), "
+        "at most 1, beside standing's 5: humanoid.commands.CommandedTask); evaluations run held-out schedules",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
     critic_learning_rate: float = setting(
@@ -223,6 +230,7 @@ def validate(cfg: FinetuneConfig) -> None:
         "final_eval_episodes",
         "update_threads",
         "curriculum_episodes",
+        "tracking_weight",
     ):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
@@ -295,7 +303,13 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         inputs,
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
+        tracking=cfg.tracking_weight if input_set(inputs).takes_command else None,
     )
+
+
+def follows_commands(cfg: FinetuneConfig) -> bool:
+    """Whether the BC policy takes a command: the task is then following the operator's schedules."""
+    return input_set(checkpoint.load(cfg.bc_policy).spec.inputs).takes_command
 
 
 def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | None = None) -> WorkerRolloutPPO:
@@ -398,6 +412,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,
                 conditions=EVAL_CONDITIONS,
+                schedules=follows_commands(cfg),
                 settings=settings,
                 folder=folder,
                 bar=bar,
@@ -436,10 +451,17 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     finally:
         env.close()
 
-    result = evaluate(str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
+    schedules = follows_commands(cfg)
+    result = evaluate(
+        str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress, schedules=schedules
+    )
     if validation_push(cfg):
         result["pushed"] = evaluate(
-            str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, push=validation_push(cfg)
+            str(cfg.policy),
+            episodes=cfg.final_eval_episodes,
+            seed=EVAL_SEED,
+            push=validation_push(cfg),
+            schedules=schedules,
         )
     bc_eval = cfg.bc_policy / EVAL_FILE
     bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None

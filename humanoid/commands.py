@@ -9,6 +9,8 @@ Standing still is the zero command.
   schedules of `make eval SCHEDULES=1`): after a neutral start, targets on the keyboard's grid
   (`Posture.STEP`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
   `HOLD_SECONDS` once the expert's setpoint has got there; drawn from the seed alone, so reproducible.
+- `CommandedTask`: PPO's training episodes under schedules drawn from seeds no recording or evaluation uses, the
+  tracking rewarded with an exponential kernel on the error (`tracking_reward`).
 - `Tracking`: the error between commanded and achieved posture per field, from the observation alone
   (root orientation, height and the joint angles a recorded frame holds), and `tracking_summary` over an
   episode: the error once settled and the time to settle (defined under `SETTLED_SECONDS`, `TOLERANCE`).
@@ -16,6 +18,10 @@ Standing still is the zero command.
 
 from __future__ import annotations
 
+import copy
+from typing import Any
+
+import gymnasium as gym
 import mujoco
 import numpy as np
 
@@ -235,3 +241,71 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
         "settled_error": {name: mean([s["settled_error"][name] for s in summaries]) for name in COMMAND_NAMES},
         "settle_seconds": mean([s["settle_seconds"] for s in summaries]),
     }
+
+
+def tracking_reward(errors: np.ndarray) -> np.ndarray:
+    """The tracking term of PPO's reward for errors (..., COMMAND_SIZE): the mean over the fields of
+    exp(-(error / TOLERANCE)²), as the public humanoid stacks reward a command (1 on it, 0.37 one key press off)."""
+    width = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
+    return np.exp(-np.square(errors / width)).mean(axis=-1)
+
+
+def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
+    """`tracking_reward` of the settled errors of a `tracking_summary` (or `combine_tracking`): 1 for exact tracking,
+    0 where nothing was held long enough to measure."""
+    errors = np.array([summary["settled_error"][name] for name in COMMAND_NAMES])
+    return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors))
+
+
+COMMAND_INFO = "command"
+"""The info key under which `CommandedTask` gives the command in force (`humanoid.inputs.InputObservation` reads it)."""
+SCHEDULE_STREAM = 6  # random stream of the training schedules' seeds: (seed, 6); humanoid.conditions lists the others
+TRAINING_SEEDS = (1_000_000, 2**31 - 1)
+"""Training episodes draw their schedule's seed from here: never a recording's (0 on) or a held-out evaluation's
+(1000 on, 2000 on for PPO's validation)."""
+
+
+class CommandedTask(gym.Wrapper):
+    """PPO's task of following the operator (`make finetune-rl` from a student that takes a command).
+
+    Each episode follows a schedule (`command_schedule`: a neutral start, targets held a few seconds, some of them
+    the zero command) whose seed is drawn from the wrapper's stream, seeded by the reset's seed, so episodes repeat
+    exactly (and a resumed run replays them: `random_state`). The command in force goes out in `info[COMMAND_INFO]`
+    at the reset and after every step, for the actor's inputs; each step's reward adds `weight` ×
+    `tracking_reward` of the true posture reached against the command acted under (the simulator's, not the
+    possibly noisy observation's). With `weight` 0 the reward is the environment's alone.
+    """
+
+    def __init__(self, env: gym.Env, weight: float) -> None:
+        super().__init__(env)
+        self.weight = weight
+        self.tracking = Tracking(copy.copy(env.unwrapped.model))  # the nominal body's targets, whatever is drawn later
+        self._rng = np.random.default_rng()
+        self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
+        self.t = 0
+
+    def random_state(self) -> dict:
+        """The stream the next unseeded reset draws its schedule from (`bc.ppo.vec_env` saves it to resume)."""
+        return {"schedules": self._rng.bit_generator.state}
+
+    def set_random_state(self, state: dict) -> None:
+        self._rng.bit_generator.state = state["schedules"]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng((seed, SCHEDULE_STREAM))
+        obs, info = self.env.reset(seed=seed, options=options)
+        schedule = int(self._rng.integers(*TRAINING_SEEDS))
+        self.commands = command_schedule(schedule, self.env.spec.max_episode_steps, self.env.unwrapped.dt)
+        self.t = 0
+        info[COMMAND_INFO] = self.commands[0]
+        return obs, info
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        command = self.commands[self.t]
+        errors = self.tracking.errors(self.env.unwrapped.data.qpos[None, 2:], command[None])
+        reward += self.weight * float(tracking_reward(errors)[0])
+        self.t = min(self.t + 1, len(self.commands) - 1)
+        info[COMMAND_INFO] = self.commands[self.t]
+        return obs, reward, terminated, truncated, info

@@ -44,7 +44,7 @@ import numpy as np
 from common.cli import UserError
 from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, sensors
-from humanoid.commands import COMMAND_SIZE
+from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, humanoid_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
@@ -273,7 +273,8 @@ class InputObservation(gym.Wrapper):
         super().__init__(env)
         self.features = INPUT_SETS[inputs](humanoid_model())
         self.command = np.zeros(COMMAND_SIZE, np.float32)
-        """The operator's command the inputs carry (a commanded set's): zero, standing still, unless set."""
+        """The operator's command the inputs carry (a commanded set's): an inner `humanoid.commands.CommandedTask`'s,
+        which it gives in the info at the reset and after every step; without one, zero (standing still) unless set."""
         space = env.observation_space
         extra = np.full(self.features.size, np.inf)
         self.observation_space = gym.spaces.Box(
@@ -285,6 +286,7 @@ class InputObservation(gym.Wrapper):
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
+        self._told(info)
         self.features.set_delay(action_delay(self.env))
         self.features.reset()
         return self._with_inputs(obs), info
@@ -292,4 +294,10 @@ class InputObservation(gym.Wrapper):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.features.sent(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
+        self._told(info)
         return self._with_inputs(obs), reward, terminated, truncated, info
+
+    def _told(self, info: dict[str, Any]) -> None:
+        """Take the command in force from an inner `CommandedTask`'s info; without one it stays as set."""
+        if COMMAND_INFO in info:
+            self.command[:] = info[COMMAND_INFO]

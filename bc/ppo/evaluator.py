@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from bc.evaluate import evaluate
 from common.cli import config_text
+from humanoid.commands import tracking_score
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_TAG
@@ -31,15 +32,17 @@ def selection_score(point: dict[str, float]) -> float:
 
 
 CLEAN_FLOOR = 0.9
-"""Fine-tuning must never fall below this share of the BC policy's clean return (the RL issue's floor)."""
+"""Fine-tuning must never fall below this share of the BC policy's clean return, nor, on commands, of its tracking
+score (the RL issues' floor)."""
 
 
 def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -> bool:
-    """Whether the last evaluation's clean return (the validation return where `clean` is not evaluated) is at
-    least `floor` of step 0's: what a run asks of its last actor before keeping it, else it keeps the best
-    (docs/decisions/keep-policy.md)."""
-    key = "clean_mean_return" if "clean_mean_return" in curve[0] else "mean_return"
-    return curve[-1][key] >= floor * curve[0][key]
+    """Whether the last evaluation's clean return (the validation return where `clean` is not evaluated), and its
+    tracking score where commands are evaluated, are at least `floor` of step 0's: what a run asks of its last actor
+    before keeping it, else it keeps the best (docs/decisions/keep-policy.md)."""
+    keys = ["clean_mean_return" if "clean_mean_return" in curve[0] else "mean_return"]
+    keys += ["tracking_score"] if "tracking_score" in curve[0] else []
+    return all(curve[-1][key] >= floor * curve[0][key] for key in keys)
 
 
 class Evaluator(BaseCallback):
@@ -60,12 +63,14 @@ class Evaluator(BaseCallback):
         freq: int,
         settings: dict[str, Any],
         conditions: Sequence[str] = (),
+        schedules: bool = False,
         folder: Path,
         bar: tqdm,
     ) -> None:
         super().__init__()
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
+        self.schedules = schedules  # every evaluation under held-out command schedules, tracking scored
         self.settings, self.folder, self.bar = settings, folder, bar
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
@@ -74,7 +79,8 @@ class Evaluator(BaseCallback):
 
     def evaluate_now(self) -> None:
         actor = self.model.policy.actor
-        result = evaluate(PolicyController(actor, "ppo"), episodes=self.episodes, seed=self.seed, push=self.push)
+        settings = {"episodes": self.episodes, "seed": self.seed, "schedules": self.schedules}
+        result = evaluate(PolicyController(actor, "ppo"), push=self.push, **settings)
         actor.train()
         point = {
             "timesteps": self.num_timesteps,
@@ -82,7 +88,10 @@ class Evaluator(BaseCallback):
             "survival_rate": result["survival_rate"],
         }
         for name in self.conditions:  # beside the validation one: together they choose the actor kept
-            under = evaluate(PolicyController(actor, "ppo"), episodes=self.episodes, seed=self.seed, condition=name)
+            under = evaluate(PolicyController(actor, "ppo"), condition=name, **settings)
+            if name == "clean" and self.schedules:
+                point["tracking_score"] = tracking_score(under["tracking"])
+                self.logger.record("eval/clean/tracking_score", point["tracking_score"])
             actor.train()
             point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
             self.logger.record(f"eval/{name}/survival_rate", under["survival_rate"])

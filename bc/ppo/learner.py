@@ -18,6 +18,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
+from humanoid.commands import CommandedTask
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import make_env
 from humanoid.inputs import InputObservation
@@ -35,6 +36,7 @@ def training_env(
     inputs: str = "full",
     latency: float | None = None,
     obs_noise: float | None = None,
+    tracking: float | None = None,
 ) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
@@ -43,7 +45,9 @@ def training_env(
     does; with `latency` (a share of the episodes, 0 included) that share runs with the suite's step of
     action latency, and with `obs_noise` that share with its sensor noise on what the actor reads (and
     the estimator with it). A curriculum (`bc.ppo.curriculum`) changes all four from an episode to the
-    next. The observation is the environment's, then what an actor on `inputs` reads (`InputObservation`).
+    next. With `tracking` (a reward weight, 0 included) the episodes follow the operator's command schedules and
+    reward tracking them (`CommandedTask`), the actor told the command. The observation is the environment's,
+    then what an actor on `inputs` reads (`InputObservation`).
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
     reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
@@ -56,6 +60,8 @@ def training_env(
         env = ActionLatency(env, SUITE["latency"].latency, share=latency)
     if obs_noise is not None:
         env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
+    if tracking is not None:
+        env = CommandedTask(env, tracking)
     return Monitor(InputObservation(env, inputs))
 
 
@@ -71,11 +77,12 @@ def make_vec_env(
     inputs: str = "full",
     latency: float | None = None,
     obs_noise: float | None = None,
+    tracking: float | None = None,
 ) -> WorkerGroupVecEnv:
     """`envs` training environments (`training_env`) over `workers` processes (or Ray actors), seeded from
     `seed`, for an actor on `inputs`."""
     env = WorkerGroupVecEnv(
-        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise)] * envs,
+        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise, tracking)] * envs,
         workers,
         backend=backend,
         ray_address=ray_address,

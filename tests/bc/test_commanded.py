@@ -1,6 +1,6 @@
-"""Commanded policies through the stages (issue 42): bc.train refuses a command input the dataset cannot teach,
-trains one it can; bc.evaluate and bc.robustness report tracking under schedules and plot it; the bad input of the
-commands (one line, non-zero exit, nothing written)."""
+"""Commanded policies through the stages (issues 42, 43): bc.train refuses a command input the dataset cannot teach,
+trains one it can; bc.evaluate and bc.robustness report tracking under schedules and plot it; bc.finetune trains one
+on schedules; the bad input of the commands (one line, non-zero exit, nothing written)."""
 
 from __future__ import annotations
 
@@ -12,18 +12,19 @@ import numpy as np
 import pytest
 
 from bc import evaluate as evaluate_stage
-from bc import robustness
+from bc import finetune, robustness
 from bc import train as train_stage
 from bc.evaluate import plot_tracking, tracking
+from bc.ppo.learner import training_env
 from common.keys import COMMAND_NAMES
-from humanoid.commands import Tracking, command_schedule
+from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert
 from humanoid.learned import PolicyController, takes_command
 from policies import checkpoint
 from policies.mlp import MLPPolicy, MLPSpec
-from support import SHORT_EPISODE, record_short, snapshot
+from support import SHORT_EPISODE, TINY_PPO, record_short, snapshot
 from teleop import record as record_stage
 
 TRACKING_FIELDS = {"settled_error", "settle_seconds"}
@@ -236,3 +237,37 @@ def test_robustness_under_schedules_adds_tracking_to_the_rows(
     assert out[0].split() == ["condition", "survival", "mean", "return", *COMMAND_NAMES]  # the table's columns
     saved = json.loads((tmp_path / robustness.RESULT_FILE).read_text())
     assert saved["conditions"]["clean"]["tracking"] == row["tracking"]
+
+
+# bc.finetune
+
+
+def test_a_commanded_actor_reads_the_command_its_training_episode_follows() -> None:
+    """PPO's environment for an actor on `pending+command`: the inputs' last entries are the schedule's command in
+    force, zero at the neutral start and the schedule's first target after it."""
+    env = training_env(None, inputs="pending+command", tracking=1.0)
+    expert = LQRExpert()
+    obs, info = env.reset(seed=5)
+    commands = []
+    for _ in range(210):  # past the 3 s neutral start
+        np.testing.assert_array_equal(obs[-len(COMMAND_NAMES) :], info[COMMAND_INFO])
+        commands.append(info[COMMAND_INFO])
+        expert.set_command(info[COMMAND_INFO])
+        obs, _, terminated, _, info = env.step(expert.act(obs[:348]))
+        assert not terminated
+    assert not np.any(commands[0]) and np.any(commands[-1])
+
+
+def test_ppo_from_a_commanded_student_scores_tracking_on_held_out_schedules(
+    operated: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A student on `pending+command` fine-tuned for one rollout: every evaluation scores its tracking (what the
+    floor guards besides the clean return) and the final one runs held-out schedules."""
+    student = tmp_path / "student"
+    args = [*TINY, "--dataset", str(operated), "--policy", str(student), "--inputs", "pending+command"]
+    assert stage_cli(train_stage, args, capsys)[0] == 0
+    config = finetune.FinetuneConfig(bc_policy=student, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO)
+    result = finetune.main(config)
+    assert [p["timesteps"] for p in result["training_curve"]] == [0, 256]
+    assert all(0.0 <= p["tracking_score"] <= 1.0 for p in result["training_curve"])
+    assert result["takes_command"] and set(result["tracking"]) >= TRACKING_FIELDS

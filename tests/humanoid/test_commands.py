@@ -17,11 +17,15 @@ from common import keys
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
 from humanoid.commands import (
+    COMMAND_INFO,
     DEFAULT_TASK,
     FIRST_NEUTRAL_SECONDS,
     HOLD_SECONDS,
     SCALE,
+    SCHEDULE_STREAM,
     TOLERANCE,
+    TRAINING_SEEDS,
+    CommandedTask,
     Tracking,
     check_command,
     command_posture,
@@ -29,6 +33,8 @@ from humanoid.commands import (
     command_vector,
     schedule_targets,
     task_for,
+    tracking_reward,
+    tracking_score,
     tracking_summary,
 )
 from humanoid.env import EPISODE_STEPS, humanoid_model, make_env
@@ -300,3 +306,59 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
         if start:
             np.testing.assert_allclose(setpoint[start - 1], command[start - 1], atol=1e-6)  # from the last one
             assert gap[0] > 0
+
+
+# PPO's task
+
+
+def test_the_tracking_kernel_is_one_on_the_command_and_falls_with_the_error() -> None:
+    """exp(-(error / tolerance)²) per field, averaged: 1 on the command; one field one tolerance off: (4 + 1/e) / 5."""
+    assert tracking_reward(np.zeros(5)) == 1.0
+    one_off = np.array([TOLERANCE["lean_forward"], 0.0, 0.0, 0.0, 0.0])
+    assert tracking_reward(one_off) == pytest.approx((4 + np.exp(-1)) / 5)
+    assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, 0.0)}) == 1.0
+    assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, float("nan"))}) == 0.0
+
+
+def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracking() -> None:
+    """Under `CommandedTask` the info carries the schedule's command at the reset and after each step (a neutral
+    start, then a change), the same per reset seed, from a schedule seed past every evaluation's; the reward is the
+    environment's plus the weight times the tracking kernel of the true posture against the command."""
+    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0)
+    bare = make_env()
+    obs, info = task.reset(seed=11)
+    bare.reset(seed=11)
+    drawn = np.random.default_rng((11, SCHEDULE_STREAM)).integers(*TRAINING_SEEDS)  # the stream the reset seeds
+    assert drawn >= TRAINING_SEEDS[0] > 2000 + 1000  # past the held-out evaluations' and PPO's validation seeds
+    np.testing.assert_array_equal(task.commands, command_schedule(int(drawn), EPISODE_STEPS, bare.unwrapped.dt))
+    commands = task.commands.copy()
+    np.testing.assert_array_equal(info[COMMAND_INFO], np.zeros(len(COMMAND_NAMES)))
+    seen, extra = [info[COMMAND_INFO]], []
+    for t in range(int(FIRST_NEUTRAL_SECONDS / bare.unwrapped.dt) + 5):
+        expert.set_command(seen[-1])
+        action = expert.act(obs)
+        obs, reward, *_, info = task.step(action)
+        _, base, *_ = bare.step(action)
+        errors = task.tracking.errors(task.unwrapped.data.qpos[None, 2:], commands[t][None])
+        extra.append(reward - base)
+        assert reward - base == pytest.approx(2.0 * tracking_reward(errors)[0])
+        seen.append(info[COMMAND_INFO])
+    np.testing.assert_array_equal(np.array(seen), commands[: len(seen)])
+    assert (np.array(seen)[-1] != 0).any()  # past the neutral start, a command
+    assert all(0.0 < value <= 2.0 for value in extra)
+    task.reset(seed=11)
+    np.testing.assert_array_equal(task.commands, commands)
+    task.reset(seed=12)
+    assert not np.array_equal(task.commands, commands)
+
+
+def test_a_saved_stream_draws_the_same_next_schedule() -> None:
+    """`random_state` / `set_random_state` (what a resumed PPO run restores): the next unseeded reset repeats."""
+    task = CommandedTask(make_env(), weight=1.0)
+    task.reset(seed=3)
+    state = task.random_state()
+    task.reset()
+    first = task.commands.copy()
+    task.set_random_state(state)
+    task.reset()
+    np.testing.assert_array_equal(task.commands, first)
