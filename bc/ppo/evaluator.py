@@ -45,13 +45,20 @@ def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -
     return all(curve[-1][key] >= floor * curve[0][key] for key in keys)
 
 
+def better(point: dict[str, float], best: dict[str, float], start: dict[str, float]) -> bool:
+    """Whether `point` replaces `best` as the actor a run falls back on: it holds the floor against `start` (step 0)
+    and scores higher (`selection_score`; the first on ties)."""
+    return holds_floor([start, point]) and selection_score(point) > selection_score(best)
+
+
 class Evaluator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
     Each evaluation saves a checkpoint (with `settings` as its training record); `settings` also go to
     TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The evaluator also
-    remembers the best of them by `selection_score` (the first on ties), so that a run that ends worse than
-    it went, or worse than the BC policy it started from, can keep its best actor.
+    remembers the best of them by `selection_score` (the first on ties) among those that hold the floor
+    (`holds_floor`: step 0 does), so that a run that ends worse than it went, or worse than the BC policy it started
+    from, can keep its best actor without giving up the floor.
     """
 
     def __init__(
@@ -97,7 +104,7 @@ class Evaluator(BaseCallback):
             self.logger.record(f"eval/{name}/survival_rate", under["survival_rate"])
             self.logger.record(f"eval/{name}/mean_return", under["mean_return"])
         self.curve.append(point)
-        if self.best is None or selection_score(point) > selection_score(self.best):
+        if self.best is None or better(point, self.best, self.curve[0]):
             self.best, self.best_state = point, {k: v.detach().clone() for k, v in actor.state_dict().items()}
         self.logger.record("eval/mean_return", point["mean_return"])
         self.logger.record("eval/survival_rate", point["survival_rate"])

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import holds_floor, selection_score
+from bc.ppo.evaluator import better, holds_floor, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -257,6 +257,18 @@ def test_guarded_keeps_the_last_actor_unless_its_clean_return_fell_below_the_flo
     # Without a clean evaluation the validation return stands in for it.
     assert not holds_floor([{"mean_return": 1000.0}, {"mean_return": 899.0}])
     assert not holds_floor([{"mean_return": 1000.0}, {"mean_return": 800.0}], floor=0.85)
+    # On commands the tracking score is held to the floor too.
+    tracked = {**start, "tracking_score": 0.7}
+    assert holds_floor([tracked, {**held, "tracking_score": 0.63}])
+    assert not holds_floor([tracked, {**held, "tracking_score": 0.62}])
+
+
+def test_the_actor_fallen_back_on_holds_the_floor_too() -> None:
+    """A higher score that gave up the student's tracking (below 90 % of step 0's) does not replace the best."""
+    start = {"timesteps": 0, "mean_return": 1000.0, "clean_mean_return": 4000.0, "tracking_score": 0.7}
+    survives = {**start, "timesteps": 9, "mean_return": 1500.0, "clean_mean_return": 4900.0, "tracking_score": 0.5}
+    tracks = {**survives, "mean_return": 1200.0, "tracking_score": 0.65}
+    assert better(tracks, start, start) and not better(survives, start, start) and not better(survives, tracks, start)
 
 
 def test_the_selection_score_is_the_mean_return_over_the_evaluated_conditions() -> None:
