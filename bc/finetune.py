@@ -145,10 +145,11 @@ class FinetuneConfig:
         "--latency-share does; 0 = none",
     )
     tracking_weight: float = setting(
-        1.0,
+        5.0,
         "for a BC policy that takes a command: its training episodes follow the operator's command schedules, and "
         "each step's reward adds this times the tracking term (the mean over the fields of exp(-(error/tolerance)²), "
-        "at most 1, beside standing's 5: humanoid.commands.CommandedTask); evaluations run held-out schedules",
+        "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 5: docs/decisions/tracking-weight.md); "
+        "evaluations run held-out schedules",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
