@@ -304,7 +304,7 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         inputs,
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
-        tracking=cfg.tracking_weight if input_set(inputs).takes_command else None,
+        tracking=cfg.tracking_weight if follows_commands(cfg) else None,
     )
 
 
@@ -379,6 +379,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {ODOMETRY_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
+    schedules = follows_commands(cfg)
     settings = {
         **config_dict(cfg),
         # The fixed settings too, so that config.json still holds every setting the run used.
@@ -413,7 +414,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,
                 conditions=EVAL_CONDITIONS,
-                schedules=follows_commands(cfg),
+                schedules=schedules,
                 settings=settings,
                 folder=folder,
                 bar=bar,
@@ -452,7 +453,6 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     finally:
         env.close()
 
-    schedules = follows_commands(cfg)
     result = evaluate(
         str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress, schedules=schedules
     )

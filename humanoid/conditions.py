@@ -31,6 +31,7 @@ from humanoid.perturbations import TorsoPushes
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
 OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
 LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training, recording): (seed, 5)
+# (seed, 6): the schedules of PPO's training episodes on commands (humanoid.commands.SCHEDULE_STREAM)
 LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
 # Where the sensed parts sit in the 348-dim observation: qpos[2:] (22) then qvel (23). The rest
