@@ -39,10 +39,11 @@ VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUND
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
-VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY EPOCHS SCRATCH_POLICY \
-	PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES TUTORIAL \
-	PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY
-REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS
+VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY \
+	BLIND_POLICY EPOCHS SCRATCH_POLICY PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE \
+	ROBUSTNESS_EPISODES CONDITIONS
+REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY SENSED_DATASET SENSED_NOISE \
+	SENSED_LATENCY ODOMETRY_POLICY
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
@@ -107,7 +108,7 @@ tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PP
 	$(PY) -m bc.tutorial $(flags)
 
 # Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
-pipeline: $(STAMP)  ## record -> train-bc (and the sensed students) -> baseline-rl -> finetune-rl, tutorial-rl beside them, then the tables
+pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command) -> baseline-rl, finetune-rl -> the table
 	$(PY) -m bc.pipeline $(flags)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);

@@ -61,11 +61,10 @@ from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DI
 from policies.mlp import normalisation
 from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
-ODOMETRY_RECIPE = (
-    f"`make pipeline` makes the odometry student, or `make record CONTROLLER=expert-sensed NOISE={SENSED_NOISE} "
-    f"LATENCY={SENSED_LATENCY} DATASET={paths.SENSED_DATASET}` then `make train-bc INPUTS=pending "
-    f"DATASET={paths.SENSED_DATASET} POLICY={paths.ODOMETRY_POLICY}`; BC_POLICY={paths.BC_POLICY} starts from the "
-    "full-observation student"
+STUDENT_RECIPE = (
+    f"`make pipeline` makes the command-conditioned student, or `make record CONTROLLER=expert-sensed SCHEDULES=1 "
+    f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make train-bc "
+    f"INPUTS=pending+command DATASET={paths.OPERATOR_DATASET} POLICY={paths.STUDENT_POLICY}`"
 )
 """How to make the default BC checkpoint, said when it is missing."""
 
@@ -93,9 +92,10 @@ class FinetuneConfig:
     """Settings of one PPO run: fine-tuning the BC actor (`make finetune-rl`)."""
 
     bc_policy: Path = setting(
-        paths.ODOMETRY_POLICY,
-        "BC checkpoint: the actor to refine (`make baseline-rl`: only its shape and normalisation); by default the "
-        "odometry student, an actor on what a robot senses (`make pipeline` makes it)",
+        paths.STUDENT_POLICY,
+        "BC checkpoint: the actor to refine (`make baseline-rl`: only its shape and normalisation, and its inputs); "
+        "by default the student that follows the operator's command on what a robot senses (`make pipeline` makes "
+        "it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
@@ -375,8 +375,8 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """
     validate(cfg)
     cfg = dataclasses.replace(cfg, workers=workers(cfg))  # saved as a number: a resume must split as this run did
-    if cfg.bc_policy == paths.ODOMETRY_POLICY and not cfg.bc_policy.exists():
-        raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {ODOMETRY_RECIPE}")
+    if cfg.bc_policy == paths.STUDENT_POLICY and not cfg.bc_policy.exists():
+        raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {STUDENT_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
     schedules = follows_commands(cfg)

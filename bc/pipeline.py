@@ -1,24 +1,22 @@
-"""`make pipeline`: record -> train-bc -> baseline-rl -> finetune-rl -> tutorial-rl, then the tables of
-`bc.report`: the clean evaluations, and the robustness suite (`bc.robustness`) on the experts and every policy.
+"""`make pipeline`: the operator-following task end to end. The expert on leg odometry follows the scripted
+operator's command schedules (record), students clone it on what a robot senses with and without the command
+(train-bc), PPO refines the commanded one and PPO from scratch gets the same task and budget (finetune-rl,
+baseline-rl); then one table: survival and tracking per command field on held-out schedules, clean and under every
+condition of the robustness suite, and survival with the command zero (standing), for the experts and every policy.
 
-    DATASET (expert, NOISE) ----------> BC_POLICY (full)
-       '------------------------------> PROPRIO_POLICY (proprio)   } what a robot senses
-    SENSED_DATASET (expert-sensed, ---> ODOMETRY_POLICY (pending)  } ------------------------> SCRATCH_POLICY,
-      SENSED_LATENCY delayed)                                                                  PPO_POLICY
-    tutorial-rl (reads neither; a worker process from the start, beside the rest)
+    DATASET (CONTROLLER under schedules, NOISE, ---> BC_POLICY (pending+command) ---> PPO_POLICY, SCRATCH_POLICY
+      LATENCY of the episodes delayed)         '--> BLIND_POLICY (pending: no command)
 
-The deployable students read only the sensed features: one from the same data (which shows what the
-privileged inputs did), and one from demonstrations of the expert on leg odometry, half of them under
-one step of action latency, with that odometry, the command in flight and the delay as input (inputs
-`pending`: the student that stands, also under latency; docs/decisions/pending-inputs.md). Both PPO stages start
-from that student (the stages' own default), so the fine-tuned actor reads what a robot senses
-(docs/decisions/ppo-start.md says why; `make finetune-rl BC_POLICY=...` starts from another).
+The students read the sensed features, leg odometry, the command in flight and the delay (`pending`:
+docs/decisions/pending-inputs.md); BC_POLICY also the operator's command. Both PPO stages start from it (their
+own default), so they train on command schedules with the tracking reward (docs/how-to/finetune-ppo.md). The seed
+tutorial's learners are not part of it: `make tutorial-rl` (docs/decisions/pipeline-task.md says what the
+pipeline dropped to stay within its budget, and the commands that make the rest).
 
-Each stage runs in this process through its own `main` (the tutorial's learners in a worker process, since
-they use one core and the PPO stages two), with the config `make <stage>` would use
-for the same variables: what the pipeline does not set keeps the stage's default, every field of
-`PipelineConfig` takes its default from the stage it feeds, and ARGS holds further flags of both
-PPO stages. Every stage's checks run before the first one starts.
+Each stage runs in this process through its own `main`, with the config `make <stage>` would use for the same
+variables: what the pipeline does not set keeps the stage's default, every field of `PipelineConfig` takes its
+default from the stage it feeds, and ARGS holds further flags of both PPO stages. Every stage's checks run before
+the first one starts.
 
 A stage is skipped only if its output exists and was made from the same inputs:
 
@@ -26,8 +24,9 @@ A stage is skipped only if its output exists and was made from the same inputs:
   those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
 - a checkpoint: its config.json holds the same settings and its eval.json exists, and it was made
   from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json) or the BC
-  weights' digest (PPO: `bc_policy_sha256` in config.json). The tutorial's learners read neither:
-  `bc.tutorial` itself reuses a finished run with the same settings.
+  weights' digest (PPO: `bc_policy_sha256` in config.json);
+- the table's evaluations: a policy's robustness_schedules.json, if written after its weights with the same
+  seeds and conditions (a registered controller's always).
 
 Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
 counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
@@ -60,19 +59,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bc import report, robustness, tutorial
+from bc import report, robustness
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.data import MIN_EPISODES
+from bc.evaluate import EVAL_SEED
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
 from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
-from bc.tutorial import TutorialConfig
 from common import keys, paths
-from common.cli import Config, UserError, check_share, config_dict, flag, parse_config, run_cli, setting
-from common.workers import Channel, Worker
+from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
+from common.workers import default_workers
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import humanoid_model
@@ -103,58 +102,66 @@ NOT_COMPARED = frozenset(
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
 
-ODOMETRY_INPUTS = "pending"
-"""What ODOMETRY_POLICY reads (humanoid/inputs.py): the student that stands, also under latency
-(docs/decisions/ppo-start.md)."""
+STUDENT_INPUTS = "pending+command"
+"""What BC_POLICY reads (humanoid/inputs.py): what a robot senses, leg odometry, its command in flight and the delay,
+and the operator's command (docs/decisions/pending-inputs.md, docs/concepts/commands.md)."""
+BLIND_INPUTS = "pending"
+"""What BLIND_POLICY reads: the same without the operator's command."""
+EXPERTS = ("expert", SensedExpert.name)
+"""The registered controllers the table measures beside the policies: the expert told the simulator's state, and
+the one on leg odometry that records the demonstrations."""
 
 
-def _like(config_class: type, name: str, help: str | None = None) -> Any:
+def _like(config_class: type, name: str, help: str | None = None, default: Any = dataclasses.MISSING) -> Any:
     """A pipeline setting with the default (and, unless given, the help) of `config_class`'s field `name`."""
     field = next(f for f in dataclasses.fields(config_class) if f.name == name)
     metadata = {key: value for key, value in field.metadata.items() if key != "help"}
-    return setting(field.default, help or field.metadata["help"], **metadata)
+    default = field.default if default is dataclasses.MISSING else default
+    return setting(default, help or field.metadata["help"], **metadata)
 
 
 @dataclass
 class PipelineConfig:
     """Settings of the pipeline: each is the stage's own setting of the same name, with its default."""
 
-    dataset: Path = _like(RecordConfig, "dataset", "dataset folder: recorded, unless it holds what is asked already")
+    dataset: Path = _like(
+        RecordConfig,
+        "dataset",
+        "the operator's demonstrations (CONTROLLER under command schedules): recorded, unless it holds what is asked",
+        paths.OPERATOR_DATASET,
+    )
     episodes: int = _like(RecordConfig, "episodes", "episodes to record")
     seed: int | None = setting(None, "seed of the first recorded episode (episode i uses SEED+i); default: 0")
-    controller: str = _like(RecordConfig, "controller")
-    noise: float = _like(RecordConfig, "noise")
+    controller: str = _like(
+        RecordConfig,
+        "controller",
+        "who demonstrates, following the schedules: by default the expert on leg odometry, which a student on what a "
+        "robot senses can imitate (docs/decisions/ppo-start.md)",
+        SensedExpert.name,
+    )
+    noise: float = _like(RecordConfig, "noise", None, SENSED_NOISE)
+    latency: float = _like(RecordConfig, "latency", None, SENSED_LATENCY)
     max_steps: int = _like(RecordConfig, "max_steps")
     workers: int | None = setting(
         None,
-        "simulation processes of the recording, both PPO stages and the robustness suite; default: each stage's "
+        "simulation processes of the recording, both PPO stages and the table's evaluations; default: each stage's "
         "(the machine's cores)",
     )
     backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
     ray_address: str | None = _like(FinetuneConfig, "ray_address")
-    bc_policy: Path = _like(TrainConfig, "policy", "checkpoint folder of the behaviour-cloned policy (train-bc)")
+    bc_policy: Path = _like(
+        FinetuneConfig,
+        "bc_policy",
+        f"checkpoint folder of the command-conditioned student (train-bc --inputs {STUDENT_INPUTS}); both PPO stages "
+        "start from it",
+    )
+    blind_policy: Path = setting(
+        paths.BLIND_POLICY,
+        f"checkpoint folder of BC on the same data without the command (--inputs {BLIND_INPUTS}): what it buys",
+    )
     epochs: int = _like(TrainConfig, "epochs")
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
-    tutorial: bool = setting(
-        True, "also train the seed tutorial's two learners at the PPO stages' budget, as baseline rows (tutorial-rl)"
-    )
-    proprio_policy: Path = setting(
-        paths.PROPRIO_POLICY, "checkpoint folder of BC on DATASET's sensed features (train-bc --inputs proprio)"
-    )
-    sensed_dataset: Path = setting(
-        paths.SENSED_DATASET, "dataset of EPISODES the expert on leg odometry records (--controller expert-sensed)"
-    )
-    sensed_noise: float = setting(SENSED_NOISE, "DART noise of SENSED_DATASET's recording")
-    sensed_latency: float = setting(
-        SENSED_LATENCY, "share of SENSED_DATASET's episodes recorded with one step of action latency (record --latency)"
-    )
-    odometry_policy: Path = setting(
-        paths.ODOMETRY_POLICY,
-        f"checkpoint folder of BC on SENSED_DATASET (--inputs {ODOMETRY_INPUTS}: the sensed features, leg odometry, "
-        "the command in flight and the delay, which SENSED_LATENCY's delayed episodes teach); both PPO stages start "
-        "from it",
-    )
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
     push: float = _like(FinetuneConfig, "push")
@@ -170,18 +177,11 @@ class PipelineConfig:
     )
     robustness_episodes: int = setting(
         20,
-        "episodes per condition of the robustness suite run at the end on the expert and every policy "
-        "(seeds 1000.., docs/concepts/robustness-suite.md); 0 = skip",
+        "episodes per condition of the closing table, on held-out schedules (seeds 1000..) and with the command zero",
     )
-
-
-@dataclass
-class Deployable:
-    """The stages of the policies that read only what a robot senses."""
-
-    proprio: TrainConfig
-    record: RecordConfig
-    odometry: TrainConfig
+    conditions: str = _like(
+        RobustnessConfig, "conditions", "the closing table's conditions (docs/concepts/robustness-suite.md), or 'all'"
+    )
 
 
 @dataclass
@@ -189,38 +189,33 @@ class Stages:
     """The config of every stage, as the pipeline runs them."""
 
     record: RecordConfig
-    train: TrainConfig
+    student: TrainConfig
+    blind: TrainConfig
     baseline: BaselineConfig
     finetune: FinetuneConfig
-    tutorial: TutorialConfig | None
-    deployable: Deployable
 
     def outputs(self) -> dict[str, Path]:
         """Each output folder, by the pipeline's option that names it."""
         return {
             "--dataset": self.record.dataset,
-            "--bc-policy": self.train.policy,
+            "--bc-policy": self.student.policy,
+            "--blind-policy": self.blind.policy,
             "--scratch-policy": self.baseline.policy,
             "--ppo-policy": self.finetune.policy,
-            "--proprio-policy": self.deployable.proprio.policy,
-            "--sensed-dataset": self.deployable.record.dataset,
-            "--odometry-policy": self.deployable.odometry.policy,
         }
 
 
-def check(cfg: PipelineConfig) -> None:
+def check(cfg: PipelineConfig) -> list[str]:
     """The pipeline's own settings, refused in one line that names them before any stage starts (the stages' own
-    checks name the stages' flags)."""
+    checks name the stages' flags); the table's conditions."""
     if cfg.episodes < MIN_EPISODES:
         raise UserError(
             f"--episodes must be at least {MIN_EPISODES} (BC holds whole episodes out for validation), "
             f"got {cfg.episodes}"
         )
-    if cfg.robustness_episodes < 0:
-        raise UserError(f"--robustness-episodes must be >= 0 (0 skips the suite), got {cfg.robustness_episodes}")
-    if not cfg.sensed_noise >= 0:  # also rejects NaN
-        raise UserError(f"--sensed-noise must be >= 0, got {cfg.sensed_noise}")
-    check_share(cfg, "sensed_latency")
+    if cfg.robustness_episodes < 1:
+        raise UserError(f"--robustness-episodes must be at least 1, got {cfg.robustness_episodes}")
+    return robustness.selected(RobustnessConfig(conditions=cfg.conditions))
 
 
 def stages(cfg: PipelineConfig) -> Stages:
@@ -230,7 +225,7 @@ def stages(cfg: PipelineConfig) -> Stages:
     if cfg.workers is not None:
         workers["workers"] = cfg.workers
     ppo = {
-        "bc_policy": cfg.odometry_policy,
+        "bc_policy": cfg.bc_policy,
         "timesteps": cfg.timesteps,
         "envs": cfg.envs,
         "push": cfg.push,
@@ -245,30 +240,18 @@ def stages(cfg: PipelineConfig) -> Stages:
         seed=cfg.seed,
         controller=cfg.controller,
         noise=cfg.noise,
+        latency=cfg.latency,
         max_steps=cfg.max_steps,
+        schedules=True,
         **workers,
     )
-    sensed = dataclasses.replace(
-        recording,
-        dataset=cfg.sensed_dataset,
-        controller=SensedExpert.name,
-        noise=cfg.sensed_noise,
-        latency=cfg.sensed_latency,
-    )
-    deployable = Deployable(
-        proprio=TrainConfig(dataset=cfg.dataset, policy=cfg.proprio_policy, epochs=cfg.epochs, inputs="proprio"),
-        record=sensed,
-        odometry=TrainConfig(
-            dataset=cfg.sensed_dataset, policy=cfg.odometry_policy, epochs=cfg.epochs, inputs=ODOMETRY_INPUTS
-        ),
-    )
+    student = TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs, inputs=STUDENT_INPUTS)
     return Stages(
         record=recording,
-        train=TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs),
+        student=student,
+        blind=dataclasses.replace(student, policy=cfg.blind_policy, inputs=BLIND_INPUTS),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
-        tutorial=TutorialConfig(timesteps=cfg.timesteps) if cfg.tutorial else None,
-        deployable=deployable,
     )
 
 
@@ -476,14 +459,10 @@ def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: b
 def validate(run: Stages) -> None:
     """Every stage's own checks, and that no two stages write one folder, before the first one starts."""
     validate_record(run.record)
-    bc_train.validate(run.train)
+    bc_train.validate(run.student)
+    bc_train.validate(run.blind)
     validate_ppo(run.baseline)
     validate_ppo(run.finetune)
-    if run.tutorial is not None:
-        tutorial.validate(run.tutorial)
-    validate_record(run.deployable.record)
-    bc_train.validate(run.deployable.proprio)
-    bc_train.validate(run.deployable.odometry)
     seen: dict[Path, str] = {}
     for option, folder in run.outputs().items():
         other = seen.setdefault(folder.resolve(), option)
@@ -491,128 +470,44 @@ def validate(run: Stages) -> None:
             raise UserError(f"{other} and {option} both name {folder}: each output needs its own folder")
 
 
-def tutorial_config(config: TutorialConfig, overwrite: bool) -> TutorialConfig:
-    """The tutorial stage's config: it replaces what the pipeline made itself, as every stage does (see the module)."""
-    folders = [config.preferred_policy, config.ppo_policy]
-    ours = all(not folder.exists() or _training_record(folder).get("made_by") == MADE_BY for folder in folders)
-    return dataclasses.replace(config, overwrite=overwrite or ours)
-
-
 def foresee(run: Stages, overwrite: bool) -> None:
-    """Refuse now what the run would refuse later: a checkpoint downstream of an output made again, a tutorial
-    run the pipeline did not make."""
+    """Refuse now what the run would refuse later: a checkpoint downstream of an output made again."""
     dataset_remade = dataset_decision(run.record).action != REUSE
-    remade = {run.train.policy.resolve(): bc_decision(run.train, overwrite, dataset_remade).action != REUSE}
-    proprio, odometry = run.deployable.proprio, run.deployable.odometry
-    remade[proprio.policy.resolve()] = (
-        bc_decision(proprio, overwrite, dataset_remade, "--proprio-policy").action != REUSE
-    )
-    sensed_remade = dataset_decision(run.deployable.record).action != REUSE
-    remade[odometry.policy.resolve()] = (
-        bc_decision(odometry, overwrite, sensed_remade, "--odometry-policy").action != REUSE
-    )
+    remade = {
+        config.policy.resolve(): bc_decision(config, overwrite, dataset_remade, option).action != REUSE
+        for config, option in ((run.student, "--bc-policy"), (run.blind, "--blind-policy"))
+    }
     for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
-    if run.tutorial is not None:
-        tutorial.plan(tutorial_config(run.tutorial, overwrite), MADE_BY)
 
 
-def run(stages: Stages, overwrite: bool = False, robustness_episodes: int = 0) -> str:
-    """Run what has to run, say why in one line each, and print and return the table(s): with
-    `robustness_episodes`, the suite's table of the expert and every policy too."""
+def run(stages: Stages, overwrite: bool = False, episodes: int = 20, conditions: Sequence[str] = tuple(SUITE)) -> str:
+    """Run what has to run, say why in one line each, then evaluate the experts and every policy (`episodes` per
+    condition) and print and return the table (`bc.report.command_table`)."""
     validate(stages)
     foresee(stages, overwrite)
-    learners = None if stages.tutorial is None else start_tutorial(stages.tutorial, overwrite)
-    experts = ["expert", SensedExpert.name]
-    results: dict[str, dict[str, Any]] = {}
-
-    def measure(names: list[str]) -> None:
-        if robustness_episodes:
-            results.update((name, suite(name, robustness_episodes, stages.finetune.workers)) for name in names)
-
-    try:
-        policies = run_stages(stages, overwrite)
-        # The suite of the others while the tutorial's learners may still train: the second core is not idle.
-        measure([*experts, *map(str, policies)])
-        if learners is not None:
-            folders = learners.finish()
-            measure(list(map(str, folders)))
-            policies += folders
-    finally:
-        if learners is not None:
-            learners.close()
-    table = report.table(policies)
+    policies = run_stages(stages, overwrite)
+    names = [*EXPERTS, *map(str, policies)]
+    workers = stages.finetune.workers
+    standing = {name: zero_command(name, episodes, workers) for name in names}
+    tracked = {name: suite(name, episodes, list(conditions), workers) for name in names}
+    table = report.command_table(standing, tracked)
     print(table)
-    if robustness_episodes:
-        suite_table = report.suite_table(results)
-        table += "\n\n" + suite_table
-        print("\n" + suite_table)
     return table
 
 
 def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
-    """Record, clone and run both PPO stages, each unless reused; the policies' folders."""
+    """Record, clone and run both PPO stages, each unless reused; the policies' folders, in the table's order."""
     record_stage(stages.record)
-    bc_stage(stages.train, overwrite, "--bc-policy")
-    bc_stage(stages.deployable.proprio, overwrite, "--proprio-policy")
-    record_stage(stages.deployable.record)
-    bc_stage(stages.deployable.odometry, overwrite, "--odometry-policy")
-    policies = [stages.train.policy, stages.deployable.proprio.policy, stages.deployable.odometry.policy]
+    bc_stage(stages.blind, overwrite, "--blind-policy")
+    bc_stage(stages.student, overwrite, "--bc-policy")
     for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
         decision = ppo_decision(config, option, overwrite)
         print(f"pipeline: {decision.line}", flush=True)
         if decision.action != REUSE:
             print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
-    return policies + [stages.finetune.policy, stages.baseline.policy]
-
-
-@dataclass
-class TutorialRun:
-    """The tutorial's learners, training in a worker process while the other stages run: they use one core, the
-    PPO stages keep both busy (docs/benchmarks.md, "Fresh-clone set-up and the pipeline", has its length)."""
-
-    config: TutorialConfig
-    made: list[str]
-    """The learners trained (the others' finished runs are reused)."""
-    worker: Worker | None
-    """Their training; None when every learner is reused."""
-
-    def finish(self) -> list[Path]:
-        """Wait for the learners, print a summary line per learner trained (as the other stages do); their folders."""
-        if self.worker is None:
-            results = tutorial.main(self.config, MADE_BY)
-        else:
-            if not self.worker.poll():  # their bars are off: say why nothing moves (on stderr, with the bars)
-                print("pipeline: waiting for the tutorial's learners to finish", file=sys.stderr, flush=True)
-            results = self.worker.recv()
-        tutorial.print_results(self.config, {learner: results[learner] for learner in self.made})
-        return [self.config.preferred_policy, self.config.ppo_policy]
-
-    def close(self) -> None:
-        """Stop the learners if they still train (the pipeline failed or was interrupted first), reap the worker."""
-        if self.worker is not None:
-            self.worker.close()
-
-
-def start_tutorial(config: TutorialConfig, overwrite: bool) -> TutorialRun:
-    """Start training the tutorial's learners that are not reused, in a worker process, saying so in one line."""
-    config = tutorial_config(config, overwrite)
-    folders = ", ".join(map(str, (config.preferred_policy, config.ppo_policy)))
-    made = [learner for learner, reused in tutorial.plan(config, MADE_BY).items() if not reused]
-    print(f"pipeline: the tutorial's learners: {folders} (reused if finished; trained beside the others)", flush=True)
-    worker = None
-    if made:
-        # No progress bars: two processes' bars on one terminal garble each other. The worker ends with the
-        # pipeline, a kill -9 included: it would otherwise write on into folders a next run makes again.
-        quiet = dataclasses.replace(config, progress=False)
-        worker = Worker(_train_tutorial, quiet, name="the tutorial's learners", exit_when_input_ends=True)
-    return TutorialRun(config, made, worker)
-
-
-def _train_tutorial(channel: Channel, config: TutorialConfig) -> None:
-    """The worker's target: train the learners, send their evaluations."""
-    channel.send(tutorial.main(config, MADE_BY))
+    return [stages.blind.policy, stages.student.policy, stages.finetune.policy, stages.baseline.policy]
 
 
 def record_stage(cfg: RecordConfig) -> None:
@@ -633,25 +528,40 @@ def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
         print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
 
 
-def suite(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:
-    """The robustness suite's results for `policy`: its robustness.json if made after the policy with the same
-    episodes and conditions (a registered controller's always), else a new run on `workers` processes (None: the
-    suite's default; the results do not depend on it)."""
-    cfg = RobustnessConfig(policy=policy, episodes=episodes, workers=workers, progress=False)
-    saved = robustness.output_folder(cfg) / robustness.RESULT_FILE
+def zero_command(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:
+    """`policy` standing still (the command zero, the clean condition) on the table's seeds: survival and return."""
+    seeds = range(EVAL_SEED, EVAL_SEED + episodes)
+    print(f"pipeline: {policy} with the command zero: {episodes} episodes", flush=True)
+    workers = default_workers(robustness.MOST_WORKERS) if workers is None else workers
+    return robustness.run_suite(policy, ["clean"], seeds, workers)["clean"]
+
+
+def suite(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> dict[str, Any]:
+    """The robustness suite's results for `policy` under held-out command schedules: its robustness_schedules.json
+    if made after the policy with the same episodes and conditions (a registered controller's always), else a new
+    run on `workers` processes (None: the suite's default; the results do not depend on it)."""
+    cfg = RobustnessConfig(
+        policy=policy,
+        episodes=episodes,
+        conditions=",".join(conditions),
+        schedules=True,
+        workers=workers,
+        progress=False,
+    )
+    saved = robustness.result_paths(cfg)[0]
     weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
     if saved.is_file() and (policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         result = json.loads(saved.read_text())
-        if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == list(SUITE):
-            print(f"pipeline: robustness of {policy}: reusing {saved}", flush=True)
+        if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == conditions:
+            print(f"pipeline: {policy} on held-out schedules: reusing {saved}", flush=True)
             return result
-    print(f"pipeline: robustness of {policy}: {episodes} episodes x {len(SUITE)} conditions", flush=True)
+    print(f"pipeline: {policy} on held-out schedules: {episodes} episodes x {len(conditions)} conditions", flush=True)
     return robustness.main(cfg)
 
 
 def main(cfg: PipelineConfig) -> str:
     """The whole pipeline as configured; returns the table(s) it printed."""
-    return run(stages(cfg), cfg.overwrite, cfg.robustness_episodes)
+    return run(stages(cfg), cfg.overwrite, cfg.robustness_episodes, check(cfg))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

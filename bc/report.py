@@ -1,4 +1,5 @@
-"""The pipeline's closing table: each policy's evaluation (POLICY/eval.json) beside the expert's.
+"""Tables of results: each policy's evaluation (POLICY/eval.json) beside the expert's, and the pipeline's closing
+table of survival and command tracking (`command_table`).
 
 python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
 """
@@ -6,11 +7,14 @@ python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from common.keys import COMMAND_NAMES
+from humanoid.commands import tracking_score
 from policies.folder import EVAL_FILE
 
 
@@ -34,23 +38,45 @@ def table(policy_dirs: Sequence[Path]) -> str:
     return "\n".join(rows)
 
 
-def suite_table(results: dict[str, dict[str, Any]]) -> str:
-    """A Markdown table of robustness results (`bc.robustness` JSON) per policy: the clean mean return, the
-    mean return over the suite's conditions (what the RL issue's "× scratch under the suite" compares), and
-    survivors per condition."""
-    names = list(next(iter(results.values()))["conditions"])
-    head = "| policy | clean return | suite mean return | " + " | ".join(names) + " |"
-    rows = [head, "|---|---|---|" + "---|" * len(names)]
-    for policy, result in results.items():
+def _survivors(row: dict[str, Any]) -> str:
+    return f"{round(row['survival_rate'] * row['episodes'])}/{row['episodes']}"
+
+
+def _number(value: float, digits: int) -> str:
+    return "n/a" if math.isnan(value) else f"{value:.{digits}f}"
+
+
+def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[str, Any]]) -> str:
+    """The pipeline's closing table, in two parts. First a row per controller: survivors with the command zero
+    (`standing`: one evaluation each, clean), then, on held-out command schedules (`tracked`: `bc.robustness`
+    results under schedules), survivors and the tracking score (`humanoid.commands.tracking_score`: 1 on the
+    command) per condition, and the mean return over the conditions (what "× scratch" compares). Then a row per
+    condition and controller: the settled tracking error per command field and the time to settle."""
+    first = next(iter(tracked.values()))
+    names = list(first["conditions"])
+    head = "| controller | standing | " + " | ".join(names) + " | mean return |"
+    rows = [head, "|---|---|" + "---|" * len(names) + "---|"]
+    for controller, result in tracked.items():
         conditions = result["conditions"]
-        suite_mean = sum(c["mean_return"] for c in conditions.values()) / len(conditions)
-        cells = [f"{round(c['survival_rate'] * c['episodes'])}/{c['episodes']}" for c in conditions.values()]
-        returns = f"{conditions['clean']['mean_return']:,.1f} | {suite_mean:,.1f}"
-        rows.append(f"| {policy} | {returns} | " + " | ".join(cells) + " |")
-    seeds = next(iter(results.values()))["seeds"]
-    rows.append(
-        f"\n(survivors per condition, seeds {seeds[0]}..{seeds[-1]}; what each is: docs/concepts/robustness-suite.md)"
-    )
+        cells = [f"{_survivors(c)} · {tracking_score(c['tracking']):.2f}" for c in conditions.values()]
+        mean_return = sum(c["mean_return"] for c in conditions.values()) / len(conditions)
+        rows.append(f"| {controller} | {_survivors(standing[controller])} | {' | '.join(cells)} | {mean_return:,.1f} |")
+    seeds = first["seeds"]
+    rows += [
+        "",
+        f"(survivors · tracking score, 1 = on the command, on held-out schedules, seeds {seeds[0]}..{seeds[-1]}; "
+        "standing: the same seeds with the command zero; the conditions: docs/concepts/robustness-suite.md)",
+        "",
+        "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |",
+        "|---|---|---|" + "---|" * len(COMMAND_NAMES) + "---|",
+    ]
+    for name in names:
+        for controller, result in tracked.items():
+            row = result["conditions"][name]
+            errors = " | ".join(_number(row["tracking"]["settled_error"][field], 3) for field in COMMAND_NAMES)
+            settle = _number(row["tracking"]["settle_seconds"], 2)
+            rows.append(f"| {name} | {controller} | {_survivors(row)} | {errors} | {settle} |")
+    rows.append("\n(settled tracking error per command field: rad, height in m; n/a: fell before any command settled)")
     return "\n".join(rows)
 
 

@@ -35,6 +35,8 @@ SECTOR_DEGREES = 45
 """Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
 RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
+SCHEDULES_SUFFIX = "_schedules"
+"""Under command schedules the files are robustness_schedules.json and .png: a policy keeps both suites' results."""
 CONTROLLER_FOLDER = Path("policies")
 """Where a registered controller's results go (`policies/expert/`): it has no checkpoint folder of its own."""
 
@@ -61,7 +63,11 @@ class RobustnessConfig:
     workers: int | None = setting(
         None, f"processes the episodes are spread over; default: the machine's cores, at most {MOST_WORKERS}"
     )
-    output: Path | None = setting(None, f"folder for {RESULT_FILE} and {FIGURE_FILE} (default: POLICY's folder)")
+    output: Path | None = setting(
+        None,
+        f"folder for {RESULT_FILE} and {FIGURE_FILE} (robustness{SCHEDULES_SUFFIX}.* under --schedules; default: "
+        "POLICY's folder)",
+    )
     progress: bool = setting(True, "show a progress bar")
 
 
@@ -95,6 +101,12 @@ def output_folder(cfg: RobustnessConfig) -> Path:
     if cfg.output is not None:
         return cfg.output
     return CONTROLLER_FOLDER / cfg.policy if cfg.policy in CONTROLLERS else Path(cfg.policy)
+
+
+def result_paths(cfg: RobustnessConfig) -> tuple[Path, Path]:
+    """Where `cfg`'s results and figure go."""
+    folder, suffix = output_folder(cfg), SCHEDULES_SUFFIX if cfg.schedules else ""
+    return tuple(folder / name.replace(".", f"{suffix}.") for name in (RESULT_FILE, FIGURE_FILE))
 
 
 def run_chunk(policy: str, name: str, seeds: range, schedules: bool = False) -> tuple[str, dict[str, Any]]:
@@ -218,19 +230,19 @@ def table(result: dict[str, Any]) -> str:
 
 
 def main(cfg: RobustnessConfig) -> dict[str, Any]:
-    """Run the suite as configured; writes robustness.json and the figure, returns the summary."""
+    """Run the suite as configured; writes the results and the figure (`result_paths`), returns the summary."""
     names = validate(cfg)
-    folder = output_folder(cfg)
+    result_path, figure_path = result_paths(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
     workers = default_workers(MOST_WORKERS) if cfg.workers is None else cfg.workers
     conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress, cfg.schedules)
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / RESULT_FILE).write_text(json.dumps(result, indent=1, default=str))
-        plot(result, folder / FIGURE_FILE)
+        result_path.parent.mkdir(parents=True, exist_ok=True)
+        result_path.write_text(json.dumps(result, indent=1, default=str))
+        plot(result, figure_path)
     except OSError as error:
-        raise UserError(f"cannot write the results to {folder}: {error.strerror or error}") from None
+        raise UserError(f"cannot write the results to {result_path.parent}: {error.strerror or error}") from None
     return result
 
 

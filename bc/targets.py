@@ -148,7 +148,17 @@ TARGETS: dict[str, Target] = {
         "bc.pipeline",
         PipelineConfig,
         tuple(f.name for f in dataclasses.fields(PipelineConfig)),
-        removed=("deployable", "ppo_from", "odometry_inputs"),
+        removed=(
+            "deployable",
+            "ppo_from",
+            "odometry_inputs",
+            "tutorial",
+            "proprio_policy",
+            "sensed_dataset",
+            "sensed_noise",
+            "sensed_latency",
+            "odometry_policy",
+        ),
     ),
 }
 

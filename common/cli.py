@@ -57,13 +57,13 @@ REMOVED_FLAGS: dict[str, Removed] = {
         Removed("--keep", "the run keeps the guarded actor, as the default did", "keep-policy"),
         Removed(
             "--ppo-from",
-            "the PPO stages start from ODOMETRY_POLICY, as the default did; for a PPO run from another BC policy: "
-            "make finetune-rl BC_POLICY=policies/bc_humanoid_stand",
+            "the PPO stages start from BC_POLICY, the command-conditioned student; for a PPO run from another BC "
+            "policy: make finetune-rl BC_POLICY=...",
             "ppo-start",
         ),
         Removed(
             "--deployable",
-            "the pipeline always makes the deployable students (PPO starts from one of them)",
+            "the pipeline's students read only what a robot senses (PPO starts from one of them)",
             "ppo-start",
         ),
         Removed(
@@ -79,10 +79,25 @@ REMOVED_FLAGS: dict[str, Removed] = {
         ),
         Removed(
             "--odometry-inputs",
-            "ODOMETRY_POLICY reads INPUTS=pending, as the default did; for another: "
-            "make train-bc INPUTS=... DATASET=datasets/humanoid_stand_sensed",
-            "ppo-start",
+            "the pipeline's student reads INPUTS=pending+command; for another: make train-bc INPUTS=... "
+            "DATASET=datasets/operator_sensed",
+            "pipeline-task",
         ),
+        Removed("--tutorial", "the seed tutorial's learners run apart: make tutorial-rl", "pipeline-task"),
+        Removed(
+            "--proprio-policy",
+            "the pipeline records the operator's demonstrations only; BC on the privileged expert's sensed features: "
+            "make record, then make train-bc INPUTS=proprio",
+            "pipeline-task",
+        ),
+        Removed(
+            "--sensed-dataset",
+            "the pipeline records one dataset, DATASET (the expert on leg odometry)",
+            "pipeline-task",
+        ),
+        Removed("--sensed-noise", "NOISE is the pipeline's one recording's DART noise", "pipeline-task"),
+        Removed("--sensed-latency", "LATENCY is the pipeline's one recording's delayed share", "pipeline-task"),
+        Removed("--odometry-policy", "BC_POLICY is the pipeline's student on what a robot senses", "pipeline-task"),
     )
 }
 """Flags removed from every stage that had them, by config field name. A stage that still has a field of the

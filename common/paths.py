@@ -12,18 +12,19 @@ from pathlib import Path
 DATASET = Path("datasets/humanoid_stand")
 """Demonstrations `make record` writes and `make train-bc` reads."""
 BC_POLICY = Path("policies/bc_humanoid_stand")
-"""The behaviour-cloned policy: `make train-bc`'s output, `make finetune-rl`'s starting actor."""
-PROPRIO_POLICY = Path("policies/bc_proprio_humanoid_stand")
-"""Behaviour cloning on the sensed features of the same demonstrations (`make pipeline`)."""
-SENSED_DATASET = Path("datasets/humanoid_stand_sensed")
-"""Demonstrations of the expert on leg odometry (`make pipeline`)."""
-ODOMETRY_POLICY = Path("policies/bc_odometry_humanoid_stand")
-"""Behaviour cloning on the sensed features and leg odometry (and, INPUTS=pending, the command in flight), from
-SENSED_DATASET (`make pipeline`)."""
-PPO_POLICY = Path("policies/ppo_humanoid_stand")
+"""The behaviour-cloned policy of `make train-bc`."""
+OPERATOR_DATASET = Path("datasets/operator_sensed")
+"""Demonstrations of the expert on leg odometry following the scripted operator's command schedules (`make
+pipeline`)."""
+STUDENT_POLICY = Path("policies/bc_operator")
+"""Behaviour cloning on what a robot senses, leg odometry, the command in flight and the operator's command
+(INPUTS=pending+command), from OPERATOR_DATASET (`make pipeline`): `make finetune-rl`'s starting actor."""
+BLIND_POLICY = Path("policies/bc_operator_blind")
+"""The same without the operator's command (INPUTS=pending): what the command buys (`make pipeline`)."""
+PPO_POLICY = Path("policies/ppo_operator")
 """The PPO-refined policy of `make finetune-rl`."""
-SCRATCH_POLICY = Path("policies/ppo_scratch_humanoid_stand")
-"""PPO from scratch on the same budget (`make baseline-rl`)."""
+SCRATCH_POLICY = Path("policies/ppo_scratch_operator")
+"""PPO from scratch on the same task and budget (`make baseline-rl`)."""
 TUTORIAL_PREFERRED_POLICY = Path("policies/tutorial_preferred")
 """The seed tutorial's "preferred action" learner (`make tutorial-rl`)."""
 TUTORIAL_PPO_POLICY = Path("policies/tutorial_ppo")

@@ -235,8 +235,10 @@ def test_robustness_under_schedules_adds_tracking_to_the_rows(
     assert code == 0 and row["survival_rate"] == 1.0 and TRACKING_FIELDS <= set(row["tracking"])
     assert set(row["tracking"]["settled_error"]) == set(COMMAND_NAMES)
     assert out[0].split() == ["condition", "survival", "mean", "return", *COMMAND_NAMES]  # the table's columns
-    saved = json.loads((tmp_path / robustness.RESULT_FILE).read_text())
-    assert saved["conditions"]["clean"]["tracking"] == row["tracking"]
+    saved = json.loads((tmp_path / "robustness_schedules.json").read_text())  # beside the standing suite's file
+    assert (
+        saved["conditions"]["clean"]["tracking"] == row["tracking"] and not (tmp_path / robustness.RESULT_FILE).exists()
+    )
 
 
 # bc.finetune

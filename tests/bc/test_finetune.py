@@ -296,7 +296,7 @@ def test_missing_default_odometry_student_says_how_to_make_it(
     monkeypatch.chdir(tmp_path)
     code, err = ppo_cli(["--policy", "ppo"], capsys)
     assert code == 1 and len(err) == 1
-    assert err[0].startswith(f"error: no policy checkpoint at {paths.ODOMETRY_POLICY}: `make pipeline` makes")
+    assert err[0].startswith(f"error: no policy checkpoint at {paths.STUDENT_POLICY}: `make pipeline` makes")
     assert "make train-bc INPUTS=pending" in err[0] and not (tmp_path / "ppo").exists()
 
 

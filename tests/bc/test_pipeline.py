@@ -1,13 +1,15 @@
 """`make pipeline`: each stage reuses its output only if made from the same inputs, says why it runs, refuses
-to touch what someone else made, and ends with `bc.report`'s table.
+to touch what someone else made, and ends with `bc.report.command_table`.
 
-One tiny real pipeline runs first (2 episodes, a few BC epochs, 256 PPO steps a run); each test works on a
-copy of its outputs, with the relative paths the configs saved, so the copy is the same pipeline's.
+One tiny real pipeline runs first (2 operator episodes of 250 steps, a few BC epochs, 256 PPO steps a run, one
+episode per condition of the table); each test works on a copy of its outputs, with the relative paths the configs
+saved, so the copy is the same pipeline's.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -17,19 +19,21 @@ from pathlib import Path
 
 import pytest
 
-from bc import report, tutorial
+from bc import report
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.finetune import FinetuneConfig
 from bc.pipeline import (
+    BLIND_INPUTS,
     MADE_BY,
     REMAKE,
     RESUME,
     REUSE,
-    Deployable,
+    STUDENT_INPUTS,
     PipelineConfig,
     Stages,
     bc_decision,
+    check,
     dataset_decision,
     ppo_decision,
     run,
@@ -37,12 +41,12 @@ from bc.pipeline import (
     suite,
 )
 from bc.train import TrainConfig
-from bc.tutorial import TutorialConfig
 from common import paths
 from common.cli import UserError
+from common.keys import COMMAND_NAMES
 from humanoid.conditions import SUITE
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, EVAL_FILE, WEIGHTS_FILE
+from policies.folder import CONFIG_FILE, EVAL_FILE
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
@@ -50,14 +54,13 @@ from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
-TUTORIAL_LINE = (
-    "pipeline: the tutorial's learners: tutorial_preferred, tutorial_ppo (reused if finished; "
-    "trained beside the others)"
-)
+CONDITIONS = ["clean", "push10"]
+"""The tiny run's table: two conditions, one episode each."""
 
 
 def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict | None = None) -> Stages:
-    """The pipeline's stages at a tiny size, in the current folder (relative paths)."""
+    """The pipeline's stages at a tiny size, in the current folder (relative paths). Episodes of 250 steps: the
+    schedules' first command comes after a neutral start of 3 s (200 steps)."""
     ppo = {
         "bc_policy": Path("bc"),
         "baseline": Path("scratch"),
@@ -77,7 +80,11 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
     record = {
         "dataset": Path("data"),
         "episodes": 2,
-        "max_steps": 40,
+        "max_steps": 250,
+        "controller": "expert-sensed",
+        "noise": SENSED_NOISE,
+        "latency": SENSED_LATENCY,
+        "schedules": True,
         "writer": "inline",
         "progress": False,
         **(record or {}),
@@ -85,6 +92,7 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
     train = {
         "dataset": Path("data"),
         "policy": Path("bc"),
+        "inputs": STUDENT_INPUTS,
         "hidden": 16,
         "epochs": 2,
         "min_updates": 0,
@@ -94,43 +102,28 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         "progress": False,
         **(train or {}),
     }
-    sensed = {
-        **record,
-        "dataset": Path("sensed"),
-        "controller": "expert-sensed",
-        "noise": SENSED_NOISE,
-        "latency": SENSED_LATENCY,
-    }
     return Stages(
         record=RecordConfig(**record),
-        train=TrainConfig(**train),
-        deployable=Deployable(
-            proprio=TrainConfig(**{**train, "policy": Path("bc_proprio"), "inputs": "proprio"}),
-            record=RecordConfig(**sensed),
-            odometry=TrainConfig(
-                **{**train, "dataset": Path("sensed"), "policy": Path("bc_odometry"), "inputs": "pending"}
-            ),
-        ),
+        student=TrainConfig(**train),
+        blind=TrainConfig(**{**train, "policy": Path("blind"), "inputs": BLIND_INPUTS}),
         baseline=BaselineConfig(policy=Path("scratch"), **ppo),
         finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
-        tutorial=TutorialConfig(
-            preferred_policy=Path("tutorial_preferred"),
-            ppo_policy=Path("tutorial_ppo"),
-            timesteps=64,
-            final_eval_episodes=1,
-            progress=False,
-        ),
     )
 
 
+def run_tiny(run_stages: Stages) -> str:
+    """`run(run_stages)` with the tiny table: one episode of each of CONDITIONS."""
+    return run(run_stages, episodes=1, conditions=CONDITIONS)
+
+
 def run_here(folder: Path, run_stages: Stages) -> list[str]:
-    """`run(run_stages)` in `folder`: the lines it printed."""
+    """`run_tiny(run_stages)` in `folder`: the lines it printed."""
     out = io.StringIO()
     cwd = Path.cwd()
     os.chdir(folder)
     try:
         with contextlib.redirect_stdout(out):
-            run(run_stages)
+            run_tiny(run_stages)
     finally:
         os.chdir(cwd)
     return out.getvalue().splitlines()
@@ -140,13 +133,16 @@ def pipeline_lines(lines: list[str]) -> list[str]:
     return [line for line in lines if line.startswith("pipeline: ")]
 
 
-def report_table() -> list[str]:
-    """What `python -m bc.report` prints for every policy of the pipeline, in the current folder."""
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        policies = ["bc", "bc_proprio", "bc_odometry", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"]
-        assert report.main(policies) == 0
-    return out.getvalue().splitlines()
+def stage_lines(lines: list[str]) -> list[str]:
+    """The lines that say what each stage does (not the table's evaluations)."""
+    return [
+        line for line in pipeline_lines(lines) if " on held-out schedules: " not in line and "command zero" not in line
+    ]
+
+
+def table_lines(lines: list[str]) -> list[str]:
+    """The closing table: from its head to the end."""
+    return lines[next(i for i, line in enumerate(lines) if line.startswith("| controller | standing")) :]
 
 
 @pytest.fixture(scope="module")
@@ -178,70 +174,85 @@ def made_by_someone_else(dataset: Path) -> None:
 
 
 def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str]]) -> None:
-    """From nothing, each stage runs, one line saying so, in the order record, BC, the deployable BC policies,
-    scratch, fine-tuning."""
+    """From nothing, each stage runs, one line saying so, in the order record, BC without and with the command,
+    scratch, fine-tuning; then the table's evaluations of the experts and every policy, with the command zero and
+    on held-out schedules."""
+    controllers = ["expert", "expert-sensed", "blind", "bc", "ppo", "scratch"]
     assert pipeline_lines(first_run[1]) == [
-        TUTORIAL_LINE,
         "pipeline: recording data: no dataset there yet",
+        "pipeline: training blind: no checkpoint there yet",
         "pipeline: training bc: no checkpoint there yet",
-        "pipeline: training bc_proprio: no checkpoint there yet",
-        "pipeline: recording sensed: no dataset there yet",
-        "pipeline: training bc_odometry: no checkpoint there yet",
         "pipeline: training from scratch scratch: no checkpoint there yet",
         "pipeline: fine-tuning ppo: no checkpoint there yet",
+        *(f"pipeline: {name} with the command zero: 1 episodes" for name in controllers),
+        *(f"pipeline: {name} on held-out schedules: 1 episodes x 2 conditions" for name in controllers),
     ]
 
 
-def test_first_run_prints_a_summary_line_per_tutorial_learner(first_run: tuple[Path, list[str]]) -> None:
-    """Each learner trained says what it cost and how it stood, as the other stages' summary lines do."""
-    summaries = [line for line in first_run[1] if line.startswith(("tutorial_preferred: ", "tutorial_ppo: "))]
-    assert [line.split(":")[0] for line in summaries] == ["tutorial_preferred", "tutorial_ppo"]
-    assert all(" steps in " in line and "survival" in line for line in summaries)
-
-
-def test_tutorial_learners_trained_beside_the_others_are_those_a_run_of_their_own_makes(
-    first_run: tuple[Path, list[str]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_the_pipeline_records_the_operator_and_its_students_read_the_command_or_not(
+    first_run: tuple[Path, list[str]],
 ) -> None:
-    """The learners train in a process of their own (`bc.background`); what they make does not depend on it."""
-    monkeypatch.chdir(tmp_path)
-    alone = tutorial.main(tiny_stages().tutorial, MADE_BY)
-    for learner, folder in (("preferred", "tutorial_preferred"), ("ppo", "tutorial_ppo")):
-        beside = json.loads((first_run[0] / folder / EVAL_FILE).read_text())
-        assert beside["returns"] == alone[learner]["returns"]
-    assert (first_run[0] / "tutorial_preferred" / WEIGHTS_FILE).read_bytes() == Path(
-        "tutorial_preferred", WEIGHTS_FILE
-    ).read_bytes()
+    """The dataset follows schedules (its commands vary), the student reads the command, the blind one does not,
+    and both PPO actors read the student's inputs."""
+    folder = first_run[0]
+    (run,) = recordings.read(folder / "data")
+    assert run["config"]["schedules"] and run["config"]["controller"] == "expert-sensed"
+    assert checkpoint.load(folder / "bc").spec.inputs == STUDENT_INPUTS
+    assert checkpoint.load(folder / "blind").spec.inputs == BLIND_INPUTS
+    assert (
+        checkpoint.load(folder / "ppo").spec.inputs == checkpoint.load(folder / "scratch").spec.inputs == STUDENT_INPUTS
+    )
 
 
-def test_second_run_reuses_everything_and_prints_the_reports_table(outputs: Path) -> None:
-    """Run again with the same inputs: nothing is made or changed, and the table is `bc.report`'s, line for line."""
+def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
+    first_run: tuple[Path, list[str]],
+) -> None:
+    """The closing table: a row per controller (standing, then survivors and tracking score per condition, the mean
+    return), then a row per condition and controller with the settled error of every command field."""
+    table = table_lines(first_run[1])
+    assert table[0] == "| controller | standing | clean | push10 | mean return |"
+    assert [line.split(" | ")[0].removeprefix("| ") for line in table[2:8]] == [
+        "expert",
+        "expert-sensed",
+        "blind",
+        "bc",
+        "ppo",
+        "scratch",
+    ]
+    assert table[2].startswith("| expert | 1/1 | 1/1 · 1.00 | ")  # the expert stands and follows the schedule
+    fields = next(line for line in table if line.startswith("| condition | controller"))
+    assert fields == "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |"
+    per_field = [line for line in table if line.startswith(("| clean | ", "| push10 | "))]
+    assert len(per_field) == 12
+
+
+def test_second_run_reuses_everything_and_prints_the_same_table(
+    first_run: tuple[Path, list[str]], outputs: Path
+) -> None:
+    """Run again with the same inputs: nothing is made or changed (the table's evaluations on schedules reused), and
+    the table is the first run's, line for line."""
     before = snapshot(outputs)
     lines = run_here(outputs, tiny_stages())
-    assert pipeline_lines(lines) == [
-        TUTORIAL_LINE,
+    assert stage_lines(lines) == [
         "pipeline: data holds the 2 episodes asked for, recorded so: not recording",
+        "pipeline: blind was made from this dataset with these settings: not training",
         "pipeline: bc was made from this dataset with these settings: not training",
-        "pipeline: bc_proprio was made from this dataset with these settings: not training",
-        "pipeline: sensed holds the 2 episodes asked for, recorded so: not recording",
-        "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
     ]
-    assert lines[len(pipeline_lines(lines)) :] == report_table()
+    assert sum("on held-out schedules: reusing" in line for line in lines) == 6
+    assert table_lines(lines) == table_lines(first_run[1])
     assert snapshot(outputs) == before
 
 
 def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(outputs: Path) -> None:
     """Other noise: the pipeline's own dataset is recorded again, so both BC runs on it are trained again, so both
-    PPO runs are; the sensed expert's dataset is another dataset, and stays."""
-    lines = pipeline_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
+    PPO runs are."""
+    lines = stage_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
     assert lines == [
-        TUTORIAL_LINE,
-        "pipeline: recording data again: it was recorded with --noise 0.05, not 0.02",
+        "pipeline: recording data again: it was recorded with --noise 0.03, not 0.02",
+        "pipeline: training blind again: it was made from another dataset",
         "pipeline: training bc again: it was made from another dataset",
-        "pipeline: training bc_proprio again: it was made from another dataset",
-        "pipeline: sensed holds the 2 episodes asked for, recorded so: not recording",
-        "pipeline: bc_odometry was made from this dataset with these settings: not training",
         "pipeline: training from scratch scratch again: it was made from another BC policy",
         "pipeline: fine-tuning ppo again: it was made from another BC policy",
     ]
@@ -251,21 +262,21 @@ def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(ou
 
 def test_other_training_setting_retrains_the_pipelines_checkpoint(outputs: Path) -> None:
     """A BC setting that differs from the saved config makes BC again, replacing it (--overwrite)."""
-    decision = bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=False)
+    decision = bc_decision(tiny_stages(train={"epochs": 3}).student, overwrite=False)
     assert (decision.action, decision.line) == (REMAKE, "training bc again: it was made with --epochs 2, not 3")
     assert decision.config.overwrite and decision.config.epochs == 3
 
 
 def test_changed_dataset_retrains_bc(outputs: Path) -> None:
     """An episode added to the dataset changes its fingerprint: BC, trained on the old one, is made again."""
-    record(RecordConfig(dataset=Path("data"), episodes=1, max_steps=40, writer="inline", progress=False))
-    decision = bc_decision(tiny_stages().train, overwrite=False)
+    record(dataclasses.replace(tiny_stages().record, episodes=1))
+    decision = bc_decision(tiny_stages().student, overwrite=False)
     assert (decision.action, decision.line) == (REMAKE, "training bc again: it was made from another dataset")
 
 
 def test_retrained_bc_policy_makes_the_ppo_runs_again(outputs: Path) -> None:
     """PPO runs record the BC weights they started from: new weights, new runs."""
-    bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).train)
+    bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).student)
     for config in (tiny_stages().baseline, tiny_stages().finetune):
         assert ppo_decision(config, "--ppo-policy", overwrite=False).line.endswith("it was made from another BC policy")
 
@@ -297,7 +308,7 @@ def test_outputs_made_before_a_setting_existed_are_made_again(outputs: Path) -> 
     config = json.loads((outputs / "bc" / CONFIG_FILE).read_text())
     del config["training"]["min_updates"]
     (outputs / "bc" / CONFIG_FILE).write_text(json.dumps(config))
-    decision = bc_decision(tiny_stages().train, overwrite=False)
+    decision = bc_decision(tiny_stages().student, overwrite=False)
     assert decision.line == "training bc again: it was made with no --min-updates (an older version)"
 
 
@@ -329,7 +340,7 @@ def test_dataset_with_an_older_sensed_layout_is_recorded_again(outputs: Path) ->
 def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:
     """A run stopped during its final evaluation left no eval.json: the table needs it, so BC is made again."""
     (outputs / "bc" / EVAL_FILE).unlink()
-    decision = bc_decision(tiny_stages().train, overwrite=False)
+    decision = bc_decision(tiny_stages().student, overwrite=False)
     assert (decision.action, decision.line) == (
         REMAKE,
         f"training bc again: it has no {EVAL_FILE} (its evaluation did not finish)",
@@ -340,7 +351,7 @@ def assert_refused_untouched(outputs: Path, stages: Stages, message: str) -> Non
     """Running `stages` fails with exactly `message` and changes nothing under `outputs`."""
     before = snapshot(outputs)
     with pytest.raises(UserError) as refusal:
-        run(stages)
+        run_tiny(stages)
     assert str(refusal.value) == message
     assert snapshot(outputs) == before
 
@@ -351,7 +362,7 @@ def test_user_recorded_dataset_that_differs_is_refused_and_left_alone(outputs: P
     assert_refused_untouched(
         outputs,
         tiny_stages(record={"noise": 0.02}),
-        "data was recorded with --noise 0.05, not 0.02, and the pipeline did not record it: it is left as it is "
+        "data was recorded with --noise 0.03, not 0.02, and the pipeline did not record it: it is left as it is "
         "(ask for what it holds, or choose another --dataset)",
     )
 
@@ -377,8 +388,8 @@ def test_overwrite_lets_the_pipeline_replace_a_user_made_checkpoint(outputs: Pat
     """With --overwrite true a differing checkpoint made by `make train-bc` is made again like the pipeline's own."""
     edit_json(outputs / "bc" / CONFIG_FILE, {"made_by": "bc.train"})
     with pytest.raises(UserError):
-        bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=False)
-    assert bc_decision(tiny_stages(train={"epochs": 3}).train, overwrite=True).action == REMAKE
+        bc_decision(tiny_stages(train={"epochs": 3}).student, overwrite=False)
+    assert bc_decision(tiny_stages(train={"epochs": 3}).student, overwrite=True).action == REMAKE
 
 
 def test_folder_that_is_not_a_checkpoint_is_refused(outputs: Path) -> None:
@@ -423,46 +434,49 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
 
 
 def test_pipeline_defaults_are_the_stages() -> None:
-    """Unset, every pipeline setting is the stage's own default: the same configs as `make <stage>` alone."""
+    """Unset, every pipeline setting is the stage's own default, but for what makes the task the operator's: the
+    dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, and the students'
+    inputs."""
+    operator = RecordConfig(
+        dataset=paths.OPERATOR_DATASET,
+        controller="expert-sensed",
+        noise=SENSED_NOISE,
+        latency=SENSED_LATENCY,
+        schedules=True,
+    )
+    student = TrainConfig(dataset=paths.OPERATOR_DATASET, policy=paths.STUDENT_POLICY, inputs=STUDENT_INPUTS)
     assert stages(PipelineConfig()) == Stages(
-        RecordConfig(),
-        TrainConfig(),
+        operator,
+        student,
+        dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
         BaselineConfig(),
         FinetuneConfig(),
-        TutorialConfig(timesteps=FinetuneConfig().timesteps),
-        Deployable(
-            TrainConfig(policy=paths.PROPRIO_POLICY, inputs="proprio"),
-            RecordConfig(
-                dataset=paths.SENSED_DATASET, controller="expert-sensed", noise=SENSED_NOISE, latency=SENSED_LATENCY
-            ),
-            TrainConfig(dataset=paths.SENSED_DATASET, policy=paths.ODOMETRY_POLICY, inputs="pending"),
-        ),
     )
+    assert check(PipelineConfig()) == list(SUITE)
 
 
-def test_ppo_starts_from_the_odometry_student_by_default() -> None:
-    """Fine-tuning refines the actor on what a robot senses, and scratch takes its shape and normalisation."""
+def test_ppo_starts_from_the_commanded_student_by_default() -> None:
+    """Fine-tuning refines the student that takes the command, and scratch takes its shape and inputs."""
     run_stages = stages(PipelineConfig())
-    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.ODOMETRY_POLICY
+    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.STUDENT_POLICY
 
 
-def test_ppo_from_the_odometry_student_makes_both_ppo_runs_again_with_the_students_actor(outputs: Path) -> None:
+def test_ppo_from_the_blind_student_makes_both_ppo_runs_again_with_its_actor(outputs: Path) -> None:
     """Switching the PPO stages' start remakes them (their --bc-policy differs), and the fine-tuned actor then
-    reads what the student reads."""
-    lines = pipeline_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("bc_odometry")})))
+    reads what that student reads."""
+    lines = stage_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("blind")})))
     assert lines[-2:] == [
-        "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not bc_odometry",
-        "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not bc_odometry",
+        "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not blind",
+        "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not blind",
     ]
-    assert checkpoint.load(Path("ppo")).spec.inputs == "pending"
+    assert checkpoint.load(Path("ppo")).spec.inputs == BLIND_INPUTS
 
 
-def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
-    """PPO from the odometry student: a sensed dataset recorded again remakes the student, so a PPO run the
-    pipeline did not make is refused before anything runs (the BC_POLICY chain is not what it depends on)."""
+def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
+    """A dataset recorded again remakes the student, so a PPO run the pipeline did not make is refused before
+    anything runs."""
     edit_json(outputs / "ppo" / CONFIG_FILE, {"made_by": "bc.finetune"})
-    run_stages = tiny_stages(ppo={"bc_policy": Path("bc_odometry")})
-    run_stages.deployable.record.noise = 0.02
+    run_stages = tiny_stages(record={"noise": 0.02})
     assert_refused_untouched(
         outputs,
         run_stages,
@@ -475,9 +489,8 @@ def test_remade_odometry_student_is_foreseen_to_make_ppo_again(outputs: Path) ->
     ("settings", "message"),
     [
         ({"episodes": 1}, "--episodes must be at least 2"),
-        ({"robustness_episodes": -1}, "--robustness-episodes must be >= 0"),
-        ({"sensed_noise": -1.0}, "--sensed-noise must be >= 0"),
-        ({"sensed_latency": 3.0}, "--sensed-latency must be a share in [0, 1]"),
+        ({"robustness_episodes": 0}, "--robustness-episodes must be at least 1"),
+        ({"conditions": "clean,gale"}, "unknown condition 'gale'"),
         (
             {"args": "--bogus"},
             "--args '--bogus' holds something other than flags of python -m bc.baseline: unrecognized",
@@ -507,25 +520,26 @@ def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs
 
 
 def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
-    """SENSED_DATASET naming DATASET would record two experts into one dataset: one line, nothing touched."""
+    """BLIND_POLICY naming BC_POLICY would train two students into one folder: one line, nothing touched."""
     run_stages = tiny_stages()
-    run_stages.deployable.record.dataset = Path("data")
+    run_stages.blind.policy = Path("bc")
     assert_refused_untouched(
-        outputs, run_stages, "--dataset and --sensed-dataset both name data: each output needs its own folder"
+        outputs, run_stages, "--bc-policy and --blind-policy both name bc: each output needs its own folder"
     )
 
 
 def test_pipeline_settings_and_args_reach_their_stages() -> None:
-    """WORKERS goes to both recordings and both PPO runs, EPISODES to both recordings, EPOCHS to every BC run,
-    SENSED_NOISE to the sensed expert's recording only, ARGS to both PPO runs."""
+    """WORKERS goes to the recording and both PPO runs, EPOCHS to both BC runs, NOISE and LATENCY to the recording,
+    ARGS to both PPO runs."""
     run_stages = stages(
-        PipelineConfig(episodes=3, workers=1, epochs=4, sensed_noise=0.01, args="--target-kl 0.01 --eval-episodes 2")
+        PipelineConfig(
+            episodes=3, workers=1, epochs=4, noise=0.01, latency=0.25, args="--target-kl 0.01 --eval-episodes 2"
+        )
     )
-    assert (run_stages.record.episodes, run_stages.record.workers, run_stages.train.epochs) == (3, 1, 4)
-    deployable = run_stages.deployable
-    assert (deployable.record.episodes, deployable.record.workers, deployable.record.noise) == (3, 1, 0.01)
-    assert run_stages.record.noise == RecordConfig().noise
-    assert (deployable.proprio.epochs, deployable.odometry.epochs) == (4, 4)
+    record_settings = run_stages.record
+    assert (record_settings.episodes, record_settings.workers, record_settings.noise) == (3, 1, 0.01)
+    assert (record_settings.latency, record_settings.schedules) == (0.25, True)
+    assert (run_stages.student.epochs, run_stages.blind.epochs) == (4, 4)
     for config in (run_stages.baseline, run_stages.finetune):
         assert (config.workers, config.target_kl, config.eval_episodes) == (1, 0.01, 2)
     assert run_stages.baseline.learning_rate == BaselineConfig().learning_rate  # each keeps its own defaults
@@ -537,53 +551,46 @@ def test_args_may_not_repeat_a_pipeline_setting() -> None:
         stages(PipelineConfig(args="--timesteps 5"))
 
 
-def test_the_suite_table_counts_survivors_per_condition(outputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The closing suite table: a row per policy with its clean return and survivors under every condition;
-    a second pipeline run reuses the results made after the policy."""
-    first = suite("bc", 1, workers=1)
-    assert suite("bc", 1, workers=1) == first and "reusing" in capsys.readouterr().out
-    table = report.suite_table({"bc": first}).splitlines()
-    assert table[0] == "| policy | clean return | suite mean return | " + " | ".join(SUITE) + " |"
-    survivors = [f"{round(c['survival_rate'])}/1" for c in first["conditions"].values()]
-    assert table[2].startswith(f"| bc | {first['conditions']['clean']['mean_return']:,.1f} | ")
-    assert table[2].endswith(" | " + " | ".join(survivors) + " |")
-
-
-def test_the_suite_runs_on_the_others_while_the_tutorials_learners_train_and_rows_every_policy(
-    outputs: Path,
+def test_the_table_reuses_evaluations_made_after_the_policy_only(
+    outputs: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """With the tutorial's PPO to train again, the others' suite runs meanwhile; the table still has a row for
-    each expert and every policy, in the order of the clean table, the tutorial's learners last."""
-    shutil.rmtree(outputs / "tutorial_ppo")
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        run(tiny_stages(), robustness_episodes=1)
-    lines = out.getvalue().splitlines()
-    table = lines[next(i for i, line in enumerate(lines) if line.startswith("| policy | clean return")) :]
-    rows = [line.split(" | ")[0].removeprefix("| ") for line in table[2:] if line.startswith("| ")]
-    assert rows == [
-        "expert",
-        "expert-sensed",
-        *("bc", "bc_proprio", "bc_odometry", "ppo", "scratch", "tutorial_preferred", "tutorial_ppo"),
-    ]
-    assert (outputs / "tutorial_ppo" / EVAL_FILE).is_file()
+    """A policy's results on schedules are reused while they are newer than its weights and hold the conditions
+    asked for; other conditions, or weights trained since, run them again."""
+    first = suite("bc", 1, CONDITIONS, workers=1)
+    assert "reusing" in capsys.readouterr().out
+    assert suite("bc", 1, ["clean"], workers=1)["conditions"].keys() == {"clean"}
+    assert "reusing" not in capsys.readouterr().out
+    bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).student)
+    capsys.readouterr()
+    assert suite("bc", 1, CONDITIONS, workers=1)["seeds"] == first["seeds"]
+    assert "reusing" not in capsys.readouterr().out
 
 
-def test_the_suite_table_averages_the_returns_over_the_conditions() -> None:
-    """Known answer: two conditions with returns 1,000 and 3,000 average to 2,000.0."""
-    result = {
-        "seeds": [1000, 1001],
-        "conditions": {
-            "clean": {"survival_rate": 1.0, "mean_return": 3000.0, "episodes": 2},
-            "push10": {"survival_rate": 0.5, "mean_return": 1000.0, "episodes": 2},
-        },
+def test_the_table_known_answer() -> None:
+    """Known answer: survivors out of episodes, the tracking score of the settled errors (each at its tolerance:
+    exp(-1) = 0.37), the mean return over the conditions (1,000 and 3,000: 2,000.0), n/a for a field never settled."""
+    at_tolerance = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
+    never = dict.fromkeys(COMMAND_NAMES, float("nan"))
+    tracked = {
+        "p": {
+            "seeds": [1000, 1001],
+            "conditions": {
+                "clean": {
+                    "survival_rate": 1.0,
+                    "mean_return": 3000.0,
+                    "episodes": 2,
+                    "tracking": {"settled_error": at_tolerance, "settle_seconds": 1.5},
+                },
+                "push10": {
+                    "survival_rate": 0.5,
+                    "mean_return": 1000.0,
+                    "episodes": 2,
+                    "tracking": {"settled_error": never, "settle_seconds": float("nan")},
+                },
+            },
+        }
     }
-    assert report.suite_table({"p": result}).splitlines()[2] == "| p | 3,000.0 | 2,000.0 | 2/2 | 1/2 |"
-
-
-def test_tutorial_runs_made_by_someone_else_are_refused_and_left_alone(outputs: Path) -> None:
-    """The tutorial's folders hold a run `make tutorial-rl` made with other settings: one line, nothing touched."""
-    edit_json(outputs / "tutorial_ppo" / CONFIG_FILE, {"made_by": "bc.tutorial", "ent_coef": 0.01})
-    assert_refused_untouched(
-        outputs, tiny_stages(), "tutorial_ppo already holds a checkpoint; pass --overwrite true to replace it"
-    )
+    lines = report.command_table({"p": {"survival_rate": 0.5, "episodes": 2}}, tracked).splitlines()
+    assert lines[2] == "| p | 1/2 | 2/2 · 0.37 | 1/2 · 0.00 | 2,000.0 |"
+    assert "| clean | p | 2/2 | 0.050 | 0.050 | 0.020 | 0.050 | 0.100 | 1.50 |" in lines
+    assert "| push10 | p | 1/2 | n/a | n/a | n/a | n/a | n/a | n/a |" in lines
