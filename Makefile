@@ -128,7 +128,7 @@ lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newes
 	$(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
 		--custom-compile-command "make lock" -o $(LOCK)
 
-bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 55 minutes)
+bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 105 minutes)
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark
@@ -136,6 +136,7 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 55 minutes)
 	$(PY) -m bench.latency_students
 	$(PY) -m bench.live_cost
 	$(PY) -m bench.ppo_throughput
+	$(PY) -m bench.training_seeds
 	$(PY) -m bench.ray_backend
 	$(PY) -m bench.shard_merge
 	$(PY) -m bench.worker_overhead

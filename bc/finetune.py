@@ -12,7 +12,7 @@ Data flow:
 2. Guards against the known failure (a random critic's first updates wreck a pretrained actor):
    critic warm-up, a conservative learning rate, clip range and target KL; and a critic that can
    learn (its own rate, scaled rewards, clipped inputs). The actor kept is the last one unless its
-   clean return fell below the floor (`bc.ppo.evaluator.holds_floor`): then the best evaluated.
+   clean return fell below the floor (`bc.ppo.evaluator.falls_back`; never for scratch): then the best evaluated.
 3. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
    with eval.json and a learning curve beside BC's level and the scratch baseline's curve. Its
    config.json holds every setting, who ran it and the BC weights' digest (`bc_policy_sha256`);
@@ -43,7 +43,7 @@ from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
-from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, holds_floor, plot_curves, selection_score
+from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, falls_back, plot_curves, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
@@ -440,7 +440,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             seconds = time.perf_counter() - start
             bar.close()
             actor = model.policy.actor
-            keep_best = not holds_floor(evaluator.curve)  # the guarded actor: docs/decisions/keep-policy.md
+            keep_best = falls_back(evaluator.curve, cfg.fresh)  # the guarded actor
             kept = evaluator.best if keep_best else evaluator.curve[-1]
             if keep_best:
                 actor.load_state_dict(evaluator.best_state)

@@ -31,9 +31,7 @@ and kills it after that (or at once with `kill=True`); it reaps the child and is
 group; the parent decides what stops). With `outlives_parent` a child is not a daemon, keeps doing
 what it was sent when the parent is gone (a message it cannot deliver is dropped) and is never
 killed by a timeout: the writer commits every episode it received even after a kill -9 of the
-recorder. With `exit_when_input_ends` a child that computes for long without reading its channel
-exits as soon as its input ends (the parent closed it, or died, a kill -9 included), whatever it is
-doing: a child of the forkserver is not its parent's, so nothing else would stop it.
+recorder.
 """
 
 from __future__ import annotations
@@ -43,7 +41,6 @@ import os
 import pickle
 import signal
 import sys
-import threading
 import traceback
 from collections.abc import Callable, Iterable, Iterator
 from multiprocessing.connection import Connection
@@ -54,7 +51,6 @@ from common.cli import UserError
 START_METHOD = "forkserver"
 CLOSE_TIMEOUT = 10.0  # seconds a closing child gets to finish before it is killed
 INTERRUPTED = 130  # exit code of a child stopped by Ctrl-C (when it does not ignore it), as a shell reports it
-ABANDONED = 1  # exit code of an `exit_when_input_ends` child stopped by the end of its input
 
 _preload: list[str] = []  # the modules this process's workers declared, in order
 
@@ -150,13 +146,10 @@ def _child(
     args: tuple,
     cpu: int | None,
     ignore_interrupt: bool,
-    exit_when_input_ends: bool,
 ) -> None:
     """The child's entry point: signal and CPU settings, then `target(channel, *args)` under the failure protocol."""
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if exit_when_input_ends:
-        threading.Thread(target=_exit_when_input_ends, args=(channel,), daemon=True).start()
     try:
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
@@ -173,13 +166,6 @@ def _child(
         sys.stderr.flush()
         _report(channel, error)
         sys.exit(1)
-
-
-def _exit_when_input_ends(channel: Channel) -> None:
-    """Wait for the end of the child's input (its target never reads it), then end the child at once."""
-    for _ in channel:
-        pass
-    os._exit(ABANDONED)
 
 
 def _context(preload: Iterable[str]) -> Any:
@@ -214,8 +200,7 @@ class Worker:
 
     `name` is how messages call it (`recording worker 0`). `preload`: the modules `target` imports
     (see the module's preload policy). `cpu`: pin the child to this core. `ignore_interrupt`: the
-    child ignores Ctrl-C (else it exits with code 130). `outlives_parent`, `exit_when_input_ends` (for a
-    target that never reads its channel): see the module.
+    child ignores Ctrl-C (else it exits with code 130). `outlives_parent`: see the module.
     `target` and `args` are pickled: a module-level function, and arguments that pickle (wrap
     closures in SB3's CloudpickleWrapper).
     """
@@ -229,7 +214,6 @@ class Worker:
         cpu: int | None = None,
         ignore_interrupt: bool = True,
         outlives_parent: bool = False,
-        exit_when_input_ends: bool = False,
     ) -> None:
         context = _context(preload)
         self.name = name
@@ -243,7 +227,7 @@ class Worker:
         # daemon: a parent that exits without closing its workers leaves no orphan (one that outlives it is no daemon)
         self.process = context.Process(
             target=_child,
-            args=(target, channel, args, cpu, ignore_interrupt, exit_when_input_ends),
+            args=(target, channel, args, cpu, ignore_interrupt),
             name=name,
             daemon=not outlives_parent,
         )

@@ -45,6 +45,13 @@ def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -
     return all(curve[-1][key] >= floor * curve[0][key] for key in keys)
 
 
+def falls_back(curve: Sequence[dict[str, float]], fresh: bool) -> bool:
+    """Whether a run keeps its best evaluated actor instead of its last: fine-tuning whose last actor gave up the floor
+    (`holds_floor`). Never PPO from scratch (`fresh`), which has none of the guards: its step 0 is no teacher, only
+    its random start (docs/decisions/keep-policy.md)."""
+    return not fresh and not holds_floor(curve)
+
+
 def better(point: dict[str, float], best: dict[str, float], start: dict[str, float]) -> bool:
     """Whether `point` replaces `best` as the actor a run falls back on: it holds the floor against `start` (step 0)
     and scores higher (`selection_score`; the first on ties)."""

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import better, holds_floor, selection_score
+from bc.ppo.evaluator import better, falls_back, holds_floor, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -263,6 +263,14 @@ def test_guarded_keeps_the_last_actor_unless_its_clean_return_fell_below_the_flo
     assert not holds_floor([tracked, {**held, "tracking_score": 0.62}])
 
 
+def test_scratch_keeps_its_last_actor_where_fine_tuning_falls_back() -> None:
+    """PPO from scratch has none of the guards: below its random start's return it still keeps its last actor."""
+    start = {"timesteps": 0, "mean_return": 310.0, "clean_mean_return": 310.0}
+    last = {"timesteps": 9, "mean_return": 230.0, "clean_mean_return": 230.0}
+    assert falls_back([start, last], fresh=False) and not falls_back([start, last], fresh=True)
+    assert not falls_back([start, start], fresh=False)
+
+
 def test_the_actor_fallen_back_on_holds_the_floor_too() -> None:
     """A higher score that gave up the student's tracking (below 90 % of step 0's) does not replace the best."""
     start = {"timesteps": 0, "mean_return": 1000.0, "clean_mean_return": 4000.0, "tracking_score": 0.7}
@@ -288,11 +296,11 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
     assert not (tmp_path / "ppo").exists()
 
 
-def test_missing_default_odometry_student_says_how_to_make_it(
+def test_missing_default_student_says_how_to_make_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """`make finetune-rl` starts from the odometry student by default; where none was made yet, its one line
-    says which commands make it (and how to start from the full-observation student instead)."""
+    """`make finetune-rl` starts from the pipeline's commanded student by default; where none was made yet, its one
+    line says which commands make it."""
     monkeypatch.chdir(tmp_path)
     code, err = ppo_cli(["--policy", "ppo"], capsys)
     assert code == 1 and len(err) == 1

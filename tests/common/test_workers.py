@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from common.cli import DatasetError
-from common.workers import ABANDONED, Channel, Worker, WorkerError
+from common.workers import Channel, Worker, WorkerError
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (processes)
 
@@ -46,13 +46,6 @@ def never_stop(channel: Channel) -> None:
         time.sleep(1)
 
 
-def compute_forever(channel: Channel) -> None:
-    """A long computation that never reads its channel (as the tutorial's learners beside the pipeline)."""
-    channel.send(os.getpid())
-    while True:
-        time.sleep(0.1)
-
-
 def look_up(channel: Channel) -> None:
     channel.serve(lambda key: {"a": 1}[key])
 
@@ -82,21 +75,6 @@ def gone(pid: int) -> bool:
     except ProcessLookupError:
         return True
     return False
-
-
-def ended(pid: int) -> bool:
-    """Gone, or a zombie: an orphan's new parent (a container's init, say) may never reap it."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except FileNotFoundError:
-        return True
-
-
-def start_computing_then_wait() -> None:
-    """For the kill -9 test below: a child computing, its pid printed, and this process waiting to be killed."""
-    worker = Worker(compute_forever, name="learner", exit_when_input_ends=True)
-    print(worker.recv(), flush=True)
-    time.sleep(60)
 
 
 def test_messages_go_both_ways_and_the_rest_comes_after_the_input_ends() -> None:
@@ -181,30 +159,6 @@ def test_a_child_that_outlives_its_parent_finishes_what_it_was_sent(tmp_path: Pa
         worker.send(message)
     assert worker.close() == 0
     assert out.read_text() == "a\nb\nc\n"
-
-
-def test_closing_stops_a_child_that_exits_when_its_input_ends_before_the_timeout() -> None:
-    """It never reads its channel, yet the end of its input stops it: exit code ABANDONED, not a kill."""
-    worker = Worker(compute_forever, name="learner", exit_when_input_ends=True)
-    worker.recv()
-    assert worker.close(timeout=60) == ABANDONED
-
-
-@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads process states from /proc")
-def test_a_child_that_exits_when_its_input_ends_does_so_after_a_kill_9_of_its_parent() -> None:
-    """A forkserver child is not its parent's child: without the flag it would compute on for ever."""
-    code = (
-        f"import sys; sys.path.insert(0, {str(HERE)!r}); import test_workers; test_workers.start_computing_then_wait()"
-    )
-    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-    child = int(parent.stdout.readline())
-    assert not ended(child)
-    parent.kill()
-    parent.wait()
-    deadline = time.monotonic() + 30  # a liveness bound, not a speed target: the pipe's end is seen at once
-    while not ended(child) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert ended(child)
 
 
 DEFAULTS = """

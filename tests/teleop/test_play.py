@@ -1,7 +1,8 @@
 """`make play`: scripted key presses through the terminal front end drive a learned policy that takes a command.
 
 The policy is cloned here from demonstrations an operator gave by keys (the expert leaning forward and back, and
-standing), cheap enough for the suite; the session then runs `make play`'s command behind a pseudo-terminal.
+standing), cheap enough for the suite, and refined by a few PPO updates on command schedules (`make finetune-rl`'s
+actor); a session of `make play`'s command behind a pseudo-terminal drives each.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bc.finetune import FinetuneConfig
+from bc.finetune import main as finetune
 from bc.targets import TARGETS
 from bc.train import TrainConfig
 from bc.train import main as train
@@ -22,6 +25,7 @@ from common import keys
 from humanoid.commands import Tracking
 from humanoid.env import humanoid_model, make_env, model_and_data
 from humanoid.expert import LQRExpert
+from policies.folder import WEIGHTS_FILE
 from support import Terminal, join_observation, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
@@ -80,6 +84,7 @@ def record_by_keys(root: Path, episodes: int) -> None:
 class Policies:
     commanded: Path  # INPUTS=full+command
     uncommanded: Path  # INPUTS=full, on the same data
+    fine_tuned: Path  # PPO from `commanded`, on command schedules
 
 
 def cheap_training(dataset: Path, policy: Path, inputs: str, updates: int) -> None:
@@ -106,10 +111,22 @@ def cheap_training(dataset: Path, policy: Path, inputs: str, updates: int) -> No
 def policies(tmp_path_factory: pytest.TempPathFactory) -> Policies:
     work = tmp_path_factory.mktemp("play")
     record_by_keys(work / "demonstrations", DEMONSTRATIONS)
-    made = Policies(work / "bc_command", work / "bc_plain")
+    made = Policies(work / "bc_command", work / "bc_plain", work / "ppo_command")
     cheap_training(work / "demonstrations", made.commanded, "full+command", UPDATES)
     cheap_training(work / "demonstrations", made.uncommanded, "full", 0)
+    fine_tune(made.commanded, made.fine_tuned)
     return made
+
+
+def fine_tune(student: Path, actor: Path) -> None:
+    """`make finetune-rl` from `student` at a tiny size: two updates of the actor (no critic warm-up), one process,
+    one final episode under a held-out schedule."""
+    settings = {"timesteps": 512, "envs": 4, "workers": 1, "rollout_steps": 256, "batch_size": 64, "epochs": 1}
+    evaluations = {"eval_freq": 512, "eval_episodes": 1, "final_eval_episodes": 1}
+    finetune(
+        FinetuneConfig(bc_policy=student, policy=actor, critic_warmup=0, progress=False, **settings, **evaluations)
+    )
+    assert (actor / WEIGHTS_FILE).read_bytes() != (student / WEIGHTS_FILE).read_bytes()  # PPO moved the actor
 
 
 @dataclass(frozen=True)
@@ -119,11 +136,13 @@ class Played:
     output: str
 
 
-@pytest.fixture(scope="module")
-def played(policies: Policies, tmp_path_factory: pytest.TempPathFactory) -> Played:
-    """One episode of `make play` on the commanded policy: land, lean forward (www), back to neutral, quit."""
+@pytest.fixture(scope="module", params=["student", "fine-tuned"])
+def played(policies: Policies, tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest) -> Played:
+    """One episode of `make play` on the commanded student, or the actor PPO refined from it: land, lean forward
+    (www), back to neutral, quit."""
+    policy = policies.commanded if request.param == "student" else policies.fine_tuned
     root = tmp_path_factory.mktemp("played") / "play"
-    terminal = Terminal([*PLAY, "--dataset", str(root), "--policy", str(policies.commanded), "--front-end", "terminal"])
+    terminal = Terminal([*PLAY, "--dataset", str(root), "--policy", str(policy), "--front-end", "terminal"])
     terminal.wait_for(b"keys:")
     terminal.press("\r", 0)  # start; the policy lands the body
     lean = SETTLE_STEPS * DT
@@ -135,7 +154,7 @@ def played(policies: Policies, tmp_path_factory: pytest.TempPathFactory) -> Play
     terminal.press("\x1b", 0)  # quit: the episode is saved
     assert terminal.process.wait(timeout=60) == 0, terminal.output.decode(errors="replace")[-2000:]
     terminal.read_for(0.5)
-    return Played(root, policies.commanded, terminal.output.decode(errors="replace"))
+    return Played(root, policy, terminal.output.decode(errors="replace"))
 
 
 STATUS_TIME = re.compile(rb"REC seed \d+ t +([0-9.]+) s")

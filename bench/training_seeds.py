@@ -1,0 +1,103 @@
+"""One run is one sample: `make pipeline`'s learned rows trained again with other training seeds on the same
+dataset, each measured as the pipeline's table measures it, and the spread over the seeds.
+
+    .venv/bin/python -m bench.training_seeds [--seeds 0 1 2] [--root policies/seeds] [--episodes 20]
+
+Seed 0 is the pipeline's own run (its folders, reused when `make pipeline` made them with these settings); seed
+N > 0 trains both students (`train-bc --seed N`) and both PPO stages (`--seed N`, from that seed's student) into
+ROOT/seed_N/. The dataset is the pipeline's, so what varies is training alone: the students' validation split,
+initial weights and minibatches, PPO's environments and sampling. Prints each seed's table, then per learned row
+and condition the lowest and highest survivors and tracking score over the seeds, and the mean return's range.
+Takes about the pipeline's length per new seed on 2 cores (docs/benchmarks.md, "Training seeds").
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from bc import pipeline, report
+from bc.pipeline import PipelineConfig, stages
+from humanoid.commands import tracking_score
+from humanoid.conditions import SUITE
+
+ROLES = ("blind", "student", "fine-tuned", "scratch")
+"""The learned rows of the pipeline's table, in its order (`pipeline.run_stages`)."""
+
+
+def seed_config(seed: int, root: Path) -> PipelineConfig:
+    """The pipeline's settings for training seed `seed`: its own folders for seed 0, ROOT/seed_N/ otherwise."""
+    if seed == 0:
+        return PipelineConfig()
+    folder = root / f"seed_{seed}"
+    return PipelineConfig(
+        bc_policy=folder / "bc_operator",
+        blind_policy=folder / "bc_operator_blind",
+        ppo_policy=folder / "ppo_operator",
+        scratch_policy=folder / "ppo_scratch_operator",
+        args=f"--seed {seed}",
+    )
+
+
+def run_seed(seed: int, root: Path, episodes: int) -> tuple[dict[str, dict], dict[str, dict]]:
+    """Train (or reuse) seed `seed`'s learned rows and measure them: (zero-command, schedules) results by role."""
+    run_stages = stages(seed_config(seed, root))
+    run_stages.student = dataclasses.replace(run_stages.student, seed=seed)
+    run_stages.blind = dataclasses.replace(run_stages.blind, seed=seed)
+    policies = pipeline.run_stages(run_stages, overwrite=False)
+    workers = run_stages.finetune.workers
+    standing, tracked = {}, {}
+    for role, policy in zip(ROLES, map(str, policies), strict=True):
+        standing[role] = pipeline.zero_command(policy, episodes, workers)
+        tracked[role] = pipeline.suite(policy, episodes, list(SUITE), workers)
+    return standing, tracked
+
+
+def _range(values: list[float], digits: int) -> str:
+    low, high = min(values), max(values)
+    return f"{low:.{digits}f}" if low == high else f"{low:.{digits}f}–{high:.{digits}f}"
+
+
+def spread_table(seeds: list[int], runs: list[tuple[dict[str, dict], dict[str, dict]]]) -> str:
+    """Per learned row: the range over the seeds of the survivors with the command zero and, per condition on held-out
+    schedules, of the survivors and the tracking score; and of the mean return over the conditions."""
+    names = list(SUITE)
+    lines = [
+        f"training seeds {', '.join(map(str, seeds))}: lowest–highest over the seeds (survivors · tracking score)",
+        "",
+        "| row | standing | " + " | ".join(names) + " | mean return |",
+        "|---|---|" + "---|" * len(names) + "---|",
+    ]
+    for role in ROLES:
+        standing = [round(run[0][role]["survival_rate"] * run[0][role]["episodes"]) for run in runs]
+        cells = []
+        for name in names:
+            rows = [run[1][role]["conditions"][name] for run in runs]
+            survivors = [round(row["survival_rate"] * row["episodes"]) for row in rows]
+            scores = [tracking_score(row["tracking"]) for row in rows]
+            cells.append(f"{_range(survivors, 0)} · {_range(scores, 2)}")
+        returns = [sum(c["mean_return"] for c in run[1][role]["conditions"].values()) / len(names) for run in runs]
+        lines.append(f"| {role} | {_range(standing, 0)} | " + " | ".join(cells) + f" | {_range(returns, 0)} |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.training_seeds", description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds (default 0 1 2)")
+    parser.add_argument("--root", type=Path, default=Path("policies/seeds"), help="folder of the seeds past 0")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes per condition (the pipeline's 20)")
+    args = parser.parse_args(argv)
+    runs = []
+    for seed in args.seeds:
+        standing, tracked = run_seed(seed, args.root, args.episodes)
+        runs.append((standing, tracked))
+        print(f"\nseed {seed}:\n" + report.command_table(standing, tracked).split("\n\n")[0], flush=True)
+    print("\n" + spread_table(args.seeds, runs))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

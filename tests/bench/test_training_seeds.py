@@ -1,0 +1,43 @@
+"""bench.training_seeds' folders and spread table, from given results: no training or simulation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bc.pipeline import PipelineConfig
+from bench.training_seeds import ROLES, seed_config, spread_table
+from common.keys import COMMAND_NAMES
+from humanoid.conditions import SUITE
+
+
+def test_seed_zero_is_the_pipelines_run_and_other_seeds_train_apart() -> None:
+    assert seed_config(0, Path("s")) == PipelineConfig()
+    other = seed_config(2, Path("s"))
+    folders = {other.bc_policy, other.blind_policy, other.ppo_policy, other.scratch_policy}
+    assert {folder.parent for folder in folders} == {Path("s/seed_2")} and len(folders) == 4
+    assert other.args == "--seed 2" and other.dataset == PipelineConfig().dataset  # same data: training alone varies
+
+
+def result(survivors: int, error: float, mean_return: float) -> dict:
+    tracking = {"settled_error": dict.fromkeys(COMMAND_NAMES, error), "settle_seconds": 1.0}
+    row = {"survival_rate": survivors / 20, "episodes": 20, "mean_return": mean_return, "tracking": tracking}
+    return {"conditions": dict.fromkeys(SUITE, row)}
+
+
+def test_the_spread_is_the_lowest_and_highest_over_the_seeds() -> None:
+    """Known answer: survivors 14 and 17, errors 0 (score 1) and far off (score 0), returns 1,000 and 2,000; one
+    number where the seeds agree."""
+    runs = [
+        (
+            {role: {"survival_rate": 1.0, "episodes": 20} for role in ROLES},
+            {role: result(14, 0.0, 1000.0) for role in ROLES},
+        ),
+        (
+            {role: {"survival_rate": 1.0, "episodes": 20} for role in ROLES},
+            {role: result(17, 9.0, 2000.0) for role in ROLES},
+        ),
+    ]
+    lines = spread_table([0, 1], runs).splitlines()
+    assert lines[2] == "| row | standing | " + " | ".join(SUITE) + " | mean return |"
+    assert lines[4] == "| blind | 20 | " + " | ".join(["14–17 · 0.00–1.00"] * len(SUITE)) + " | 1000–2000 |"
+    assert [line.split(" | ")[0] for line in lines[4:]] == [f"| {role}" for role in ROLES]
