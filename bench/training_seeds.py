@@ -57,8 +57,8 @@ def run_seed(seed: int, root: Path, episodes: int) -> tuple[dict[str, dict], dic
 
 
 def _range(values: list[float], digits: int) -> str:
-    low, high = min(values), max(values)
-    return f"{low:.{digits}f}" if low == high else f"{low:.{digits}f}–{high:.{digits}f}"
+    low, high = (f"{value:.{digits}f}" for value in (min(values), max(values)))
+    return low if low == high else f"{low}–{high}"
 
 
 def spread_table(seeds: list[int], runs: list[tuple[dict[str, dict], dict[str, dict]]]) -> str:

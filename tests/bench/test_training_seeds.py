@@ -26,7 +26,7 @@ def result(survivors: int, error: float, mean_return: float) -> dict:
 
 def test_the_spread_is_the_lowest_and_highest_over_the_seeds() -> None:
     """Known answer: survivors 14 and 17, errors 0 (score 1) and far off (score 0), returns 1,000 and 2,000; one
-    number where the seeds agree."""
+    number where the seeds agree as printed."""
     runs = [
         (
             {role: {"survival_rate": 1.0, "episodes": 20} for role in ROLES},
@@ -41,3 +41,5 @@ def test_the_spread_is_the_lowest_and_highest_over_the_seeds() -> None:
     assert lines[2] == "| row | standing | " + " | ".join(SUITE) + " | mean return |"
     assert lines[4] == "| blind | 20 | " + " | ".join(["14–17 · 0.00–1.00"] * len(SUITE)) + " | 1000–2000 |"
     assert [line.split(" | ")[0] for line in lines[4:]] == [f"| {role}" for role in ROLES]
+    nearly = [runs[0], (runs[0][0], {role: result(14, 1e-6, 1000.4) for role in ROLES})]
+    assert spread_table([0, 1], nearly).splitlines()[4].endswith(" | 14 · 1.00 | 1000 |")
