@@ -1,41 +1,12 @@
-"""Tables of results: each policy's evaluation (POLICY/eval.json) beside the expert's, and the pipeline's closing
-table of survival and command tracking (`command_table`).
-
-python -m bc.report policies/bc_humanoid_stand [more checkpoint folders ...]
-"""
+"""The pipeline's closing table: survival and command tracking of the experts and every policy (`command_table`)."""
 
 from __future__ import annotations
 
-import json
 import math
-import sys
-from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from common.keys import COMMAND_NAMES
 from humanoid.commands import tracking_score
-from policies.folder import EVAL_FILE
-
-
-def table(policy_dirs: Sequence[Path]) -> str:
-    """A Markdown table, one row per evaluated policy and one for the expert (from the first that has it)."""
-    evaluations = {path: json.loads((path / EVAL_FILE).read_text()) for path in policy_dirs}
-    reference = next((ev for ev in evaluations.values() if ev.get("expert_mean_return")), None)
-    expert = reference["expert_mean_return"] if reference else None
-    rows = ["| policy | seeds | survival | mean return | vs expert |", "|---|---|---|---|---|"]
-    for path, ev in evaluations.items():
-        versus = f"{ev['mean_return'] / expert:.1%}" if expert else "n/a"
-        rows.append(
-            f"| {path} | {ev['seeds'][0]}..{ev['seeds'][-1]} | {ev['survival_rate']:.0%} | "
-            f"{ev['mean_return']:,.1f} ± {ev['std_return']:,.1f} | {versus} |"
-        )
-    if reference:
-        rows.append(
-            f"| expert (LQR) | {reference['seeds'][0]}..{reference['seeds'][-1]} | "
-            f"{reference['expert_survival_rate']:.0%} | {expert:,.1f} | 100.0% |"
-        )
-    return "\n".join(rows)
 
 
 def _survivors(row: dict[str, Any]) -> str:
@@ -78,17 +49,3 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
             rows.append(f"| {name} | {controller} | {_survivors(row)} | {errors} | {settle} |")
     rows.append("\n(settled tracking error per command field: rad, height in m; n/a: fell before any command settled)")
     return "\n".join(rows)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    paths = [Path(arg) for arg in (sys.argv[1:] if argv is None else argv)]
-    missing = [str(path / EVAL_FILE) for path in paths if not (path / EVAL_FILE).is_file()]
-    if not paths or missing:
-        print(f"error: no evaluation at {', '.join(missing) or '(no folder given)'}", file=sys.stderr)
-        return 1
-    print(table(paths))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
