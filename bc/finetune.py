@@ -289,7 +289,8 @@ def widened(cfg: FinetuneConfig) -> dict[str, float]:
     return {method: last for method, last in grown.items() if last > 0}
 
 
-def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
+def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
+    """The training environments of `cfg`; with `schedules` (`follows_commands`) on the operator's task."""
     width = stage_width(0, len(stages(cfg)))  # a curriculum's first stage (1: no curriculum, the whole ranges)
     inputs = checkpoint.load(cfg.bc_policy).spec.inputs
     return make_vec_env(
@@ -304,7 +305,7 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         inputs,
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
-        tracking=cfg.tracking_weight if follows_commands(cfg) else None,
+        tracking=cfg.tracking_weight if schedules else None,
     )
 
 
@@ -401,7 +402,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             f"settings to resume it, or remove that folder"
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
-    env = vec_env(cfg)
+    env = vec_env(cfg, schedules)
     try:
         with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
             model = learner(cfg, env, folder / TENSORBOARD_DIR)

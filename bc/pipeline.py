@@ -71,7 +71,6 @@ from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common import keys, paths
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
-from common.workers import default_workers
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import humanoid_model
@@ -489,10 +488,7 @@ def run(stages: Stages, overwrite: bool = False, episodes: int = 20, conditions:
     foresee(stages, overwrite)
     policies = run_stages(stages, overwrite)
     names = [*EXPERTS, *map(str, policies)]
-    workers = stages.finetune.workers
-    standing = {name: zero_command(name, episodes, workers) for name in names}
-    tracked = {name: suite(name, episodes, list(conditions), workers) for name in names}
-    table = report.command_table(standing, tracked)
+    table = report.command_table(*measure(names, episodes, list(conditions), stages.finetune.workers))
     print(table)
     return table
 
@@ -528,12 +524,20 @@ def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
         print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
 
 
+def measure(
+    names: list[str], episodes: int, conditions: list[str], workers: int | None = None
+) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any]]]:
+    """What the table shows of each controller in `names`: its `zero_command` evaluation and its `suite` on held-out
+    schedules under `conditions`, by name."""
+    standing = {name: zero_command(name, episodes, workers) for name in names}
+    return standing, {name: suite(name, episodes, conditions, workers) for name in names}
+
+
 def zero_command(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:
     """`policy` standing still (the command zero, the clean condition) on the table's seeds: survival and return."""
     seeds = range(EVAL_SEED, EVAL_SEED + episodes)
     print(f"pipeline: {policy} with the command zero: {episodes} episodes", flush=True)
-    workers = default_workers(robustness.MOST_WORKERS) if workers is None else workers
-    return robustness.run_suite(policy, ["clean"], seeds, workers)["clean"]
+    return robustness.run_suite(policy, ["clean"], seeds, robustness.worker_count(workers))["clean"]
 
 
 def suite(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> dict[str, Any]:

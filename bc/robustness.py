@@ -103,6 +103,11 @@ def output_folder(cfg: RobustnessConfig) -> Path:
     return CONTROLLER_FOLDER / cfg.policy if cfg.policy in CONTROLLERS else Path(cfg.policy)
 
 
+def worker_count(workers: int | None) -> int:
+    """The processes a suite runs on: `workers`, or by default the machine's cores, at most MOST_WORKERS."""
+    return default_workers(MOST_WORKERS) if workers is None else workers
+
+
 def result_paths(cfg: RobustnessConfig) -> tuple[Path, Path]:
     """Where `cfg`'s results and figure go."""
     folder, suffix = output_folder(cfg), SCHEDULES_SUFFIX if cfg.schedules else ""
@@ -234,7 +239,7 @@ def main(cfg: RobustnessConfig) -> dict[str, Any]:
     names = validate(cfg)
     result_path, figure_path = result_paths(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
-    workers = default_workers(MOST_WORKERS) if cfg.workers is None else cfg.workers
+    workers = worker_count(cfg.workers)
     conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress, cfg.schedules)
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:

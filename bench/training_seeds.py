@@ -47,13 +47,12 @@ def run_seed(seed: int, root: Path, episodes: int) -> tuple[dict[str, dict], dic
     run_stages = stages(seed_config(seed, root))
     run_stages.student = dataclasses.replace(run_stages.student, seed=seed)
     run_stages.blind = dataclasses.replace(run_stages.blind, seed=seed)
-    policies = pipeline.run_stages(run_stages, overwrite=False)
-    workers = run_stages.finetune.workers
-    standing, tracked = {}, {}
-    for role, policy in zip(ROLES, map(str, policies), strict=True):
-        standing[role] = pipeline.zero_command(policy, episodes, workers)
-        tracked[role] = pipeline.suite(policy, episodes, list(SUITE), workers)
-    return standing, tracked
+    policies = list(map(str, pipeline.run_stages(run_stages, overwrite=False)))
+    standing, tracked = pipeline.measure(policies, episodes, list(SUITE), run_stages.finetune.workers)
+    return (
+        {role: standing[policy] for role, policy in zip(ROLES, policies, strict=True)},
+        {role: tracked[policy] for role, policy in zip(ROLES, policies, strict=True)},
+    )
 
 
 def _range(values: list[float], digits: int) -> str:
