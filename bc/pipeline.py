@@ -71,6 +71,7 @@ from bc.robustness import RobustnessConfig
 from bc.train import TrainConfig
 from common import keys, paths
 from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
+from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import humanoid_model
@@ -542,8 +543,8 @@ def zero_command(policy: str, episodes: int, workers: int | None = None) -> dict
 
 def suite(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> dict[str, Any]:
     """The robustness suite's results for `policy` under held-out command schedules: its robustness_schedules.json
-    if made after the policy with the same episodes and conditions (a registered controller's always), else a new
-    run on `workers` processes (None: the suite's default; the results do not depend on it)."""
+    if made after the policy with the same episodes, conditions and errors (a registered controller's always), else a
+    new run on `workers` processes (None: the suite's default; the results do not depend on it)."""
     cfg = RobustnessConfig(
         policy=policy,
         episodes=episodes,
@@ -556,7 +557,12 @@ def suite(policy: str, episodes: int, conditions: list[str], workers: int | None
     weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
     if saved.is_file() and (policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         result = json.loads(saved.read_text())
-        if result["seeds"] == list(range(cfg.seed, cfg.seed + episodes)) and list(result["conditions"]) == conditions:
+        current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())
+        if (
+            current
+            and result["seeds"] == list(range(cfg.seed, cfg.seed + episodes))
+            and list(result["conditions"]) == conditions
+        ):
             print(f"pipeline: {policy} on held-out schedules: reusing {saved}", flush=True)
             return result
     print(f"pipeline: {policy} on held-out schedules: {episodes} episodes x {len(conditions)} conditions", flush=True)

@@ -22,7 +22,8 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
     (`standing`: one evaluation each, clean), then, on held-out command schedules (`tracked`: `bc.robustness`
     results under schedules), survivors and the tracking score (`humanoid.commands.tracking_score`: 1 on the
     command) per condition, and the mean return over the conditions (what "× scratch" compares). Then a row per
-    condition and controller: the settled tracking error per command field and the time to settle."""
+    condition and controller: the settled tracking error per command field, over every command held and over those
+    that move the field (where a policy that holds the stand but ignores a field shows it), and the time to settle."""
     first = next(iter(tracked.values()))
     names = list(first["conditions"])
     head = "| controller | standing | " + " | ".join(names) + " | mean return |"
@@ -44,8 +45,12 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
     for name in names:
         for controller, result in tracked.items():
             row = result["conditions"][name]
-            errors = " | ".join(_number(row["tracking"]["settled_error"][field], 3) for field in COMMAND_NAMES)
+            held, moved = row["tracking"]["settled_error"], row["tracking"]["moved_error"]
+            errors = " | ".join(f"{_number(held[field], 3)} / {_number(moved[field], 3)}" for field in COMMAND_NAMES)
             settle = _number(row["tracking"]["settle_seconds"], 2)
             rows.append(f"| {name} | {controller} | {_survivors(row)} | {errors} | {settle} |")
-    rows.append("\n(settled tracking error per command field: rad, height in m; n/a: fell before any command settled)")
+    rows.append(
+        "\n(settled tracking error per command field, over every command held / over those that move the field away"
+        " from neutral: rad, height in m; n/a: fell before any such command settled)"
+    )
     return "\n".join(rows)

@@ -206,13 +206,14 @@ class Tracking:
 
 def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
     """An episode's tracking: per field the mean error once settled (over the last SETTLED_SECONDS of each command
-    held at least twice that after the setpoint's move to it), and the mean time from a command's change until every
-    field stays within TOLERANCE (a command never settled counts its whole duration). NaN where no command was held
-    long enough."""
+    held at least twice that after the setpoint's move to it), the same over only the commands that set that field
+    away from neutral ("moved_error": the posture asked for rather than the stand held, which most commands leave
+    most fields at), and the mean time from a command's change until every field stays within TOLERANCE (a command
+    never settled counts its whole duration). NaN where no command was held long enough."""
     window = round(SETTLED_SECONDS / dt)
     tolerance = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
-    settled, times, previous = [], [], NEUTRAL
+    settled, moved, times, previous = [], [], [], NEUTRAL
     for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
         inside = (errors[start:end] <= tolerance).all(axis=1)
         outside = np.flatnonzero(~inside)
@@ -221,12 +222,24 @@ def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dic
         moving = int(np.ceil(move_seconds(previous, target) / dt - 1e-9))  # the expert's ramp: whole steps
         if end - start >= moving + 2 * window:
             settled.append(errors[end - window : end])
+            moved.append(np.broadcast_to(command_vector(target) != command_vector(NEUTRAL), (window, COMMAND_SIZE)))
         previous = target
-    mean = np.concatenate(settled).mean(axis=0) if settled else np.full(COMMAND_SIZE, np.nan)
+    if settled:
+        held, asked = np.concatenate(settled), np.concatenate(moved)
+        mean = held.mean(axis=0)
+        with np.errstate(invalid="ignore"):  # NaN for a field no settled command moved
+            moved_mean = (held * asked).sum(axis=0) / asked.sum(axis=0)
+    else:
+        mean = moved_mean = np.full(COMMAND_SIZE, np.nan)
     return {
         "settled_error": dict(zip(COMMAND_NAMES, map(float, mean), strict=True)),
+        "moved_error": dict(zip(COMMAND_NAMES, map(float, moved_mean), strict=True)),
         "settle_seconds": float(np.mean(times)) if times else float("nan"),
     }
+
+
+ERROR_KINDS = ("settled_error", "moved_error")
+"""The per-field errors a `tracking_summary` holds: a result file without one was written by an older version."""
 
 
 def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | float]:
@@ -238,7 +251,7 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
         return float(np.mean(numbers)) if numbers else float("nan")
 
     return {
-        "settled_error": {name: mean([s["settled_error"][name] for s in summaries]) for name in COMMAND_NAMES},
+        **{kind: {name: mean([s[kind][name] for s in summaries]) for name in COMMAND_NAMES} for kind in ERROR_KINDS},
         "settle_seconds": mean([s["settle_seconds"] for s in summaries]),
     }
 

@@ -27,7 +27,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 from support import SHORT_EPISODE, TINY_PPO, record_short, snapshot
 from teleop import record as record_stage
 
-TRACKING_FIELDS = {"settled_error", "settle_seconds"}
+TRACKING_FIELDS = {"settled_error", "moved_error", "settle_seconds"}
 # Steps of a short operator episode: the neutral start (200 steps), then the first command, held long enough to settle
 # (seed 1007's: lean forward 0.1 and left 0.1 from step 200 to 350), then a few steps of the next.
 OPERATOR_STEPS = 360

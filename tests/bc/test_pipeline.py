@@ -44,6 +44,7 @@ from bc.train import TrainConfig
 from common import paths
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
+from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, EVAL_FILE
@@ -555,9 +556,17 @@ def test_the_table_reuses_evaluations_made_after_the_policy_only(
     outputs: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A policy's results on schedules are reused while they are newer than its weights and hold the conditions
-    asked for; other conditions, or weights trained since, run them again."""
+    and the errors asked for; other conditions, an older version's file (without an error the table prints), or
+    weights trained since, run them again."""
     first = suite("bc", 1, CONDITIONS, workers=1)
     assert "reusing" in capsys.readouterr().out
+    saved = Path("bc") / "robustness_schedules.json"
+    older = json.loads(saved.read_text())
+    for row in older["conditions"].values():
+        del row["tracking"]["moved_error"]
+    saved.write_text(json.dumps(older))
+    assert set(ERROR_KINDS) <= set(suite("bc", 1, CONDITIONS, workers=1)["conditions"]["clean"]["tracking"])
+    assert "reusing" not in capsys.readouterr().out
     assert suite("bc", 1, ["clean"], workers=1)["conditions"].keys() == {"clean"}
     assert "reusing" not in capsys.readouterr().out
     bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).student)
@@ -568,8 +577,10 @@ def test_the_table_reuses_evaluations_made_after_the_policy_only(
 
 def test_the_table_known_answer() -> None:
     """Known answer: survivors out of episodes, the tracking score of the settled errors (each at its tolerance:
-    exp(-1) = 0.37), the mean return over the conditions (1,000 and 3,000: 2,000.0), n/a for a field never settled."""
+    exp(-1) = 0.37), the mean return over the conditions (1,000 and 3,000: 2,000.0), each field's error over every
+    command and over those that moved it (twice the tolerance; n/a where none did), n/a for a field never settled."""
     at_tolerance = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
+    moved = {**{name: 2 * error for name, error in at_tolerance.items()}, "height": float("nan")}
     never = dict.fromkeys(COMMAND_NAMES, float("nan"))
     tracked = {
         "p": {
@@ -579,18 +590,21 @@ def test_the_table_known_answer() -> None:
                     "survival_rate": 1.0,
                     "mean_return": 3000.0,
                     "episodes": 2,
-                    "tracking": {"settled_error": at_tolerance, "settle_seconds": 1.5},
+                    "tracking": {"settled_error": at_tolerance, "moved_error": moved, "settle_seconds": 1.5},
                 },
                 "push10": {
                     "survival_rate": 0.5,
                     "mean_return": 1000.0,
                     "episodes": 2,
-                    "tracking": {"settled_error": never, "settle_seconds": float("nan")},
+                    "tracking": {"settled_error": never, "moved_error": never, "settle_seconds": float("nan")},
                 },
             },
         }
     }
     lines = report.command_table({"p": {"survival_rate": 0.5, "episodes": 2}}, tracked).splitlines()
     assert lines[2] == "| p | 1/2 | 2/2 · 0.37 | 1/2 · 0.00 | 2,000.0 |"
-    assert "| clean | p | 2/2 | 0.050 | 0.050 | 0.020 | 0.050 | 0.100 | 1.50 |" in lines
-    assert "| push10 | p | 1/2 | n/a | n/a | n/a | n/a | n/a | n/a |" in lines
+    assert (
+        "| clean | p | 2/2 | 0.050 / 0.100 | 0.050 / 0.100 | 0.020 / n/a | 0.050 / 0.100 | 0.100 / 0.200 | 1.50 |"
+        in lines
+    )
+    assert "| push10 | p | 1/2 | n/a / n/a | n/a / n/a | n/a / n/a | n/a / n/a | n/a / n/a | n/a |" in lines

@@ -225,11 +225,25 @@ def test_a_command_counts_as_settled_once_held_twice_the_window_after_its_move(h
     assert summary["settled_error"] == pytest.approx(dict.fromkeys(COMMAND_NAMES, settled))
 
 
+def test_moved_error_counts_only_the_commands_that_move_the_field() -> None:
+    """dt 0.1 s. Neutral for 30 steps (errors 0.001), then arms out (preset 3) for 60 steps (errors 0.5): both settle.
+    Over every command each field's error is the mean of both windows; over the commands that moved it, only the arms
+    have one (0.5), every other field none (NaN)."""
+    commands = np.zeros((90, len(COMMAND_NAMES)), np.float32)
+    commands[30:, COMMAND_NAMES.index("arms")] = 3.0
+    errors = np.full(commands.shape, 0.001)
+    errors[30:] = 0.5
+    summary = tracking_summary(errors, commands, 0.1)
+    assert summary["settled_error"] == pytest.approx(dict.fromkeys(COMMAND_NAMES, (0.001 + 0.5) / 2))
+    assert summary["moved_error"]["arms"] == pytest.approx(0.5)
+    assert all(np.isnan(summary["moved_error"][name]) for name in COMMAND_NAMES if name != "arms")
+
+
 def test_tracking_summary_without_a_command_held_long_enough_is_nan() -> None:
     commands = np.zeros((15, len(COMMAND_NAMES)), np.float32)
     summary = tracking_summary(np.zeros((15, len(COMMAND_NAMES))), commands, 0.1)
     assert summary["settle_seconds"] == 0.0
-    assert all(np.isnan(error) for error in summary["settled_error"].values())
+    assert all(np.isnan(error) for error in [*summary["settled_error"].values(), *summary["moved_error"].values()])
 
 
 # The expert.
