@@ -36,16 +36,17 @@ from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
 from humanoid.episode import Episode
 from humanoid.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set
-from teleop.dataset_reader import fingerprint, iter_frames, read_info, read_parameters
+from teleop.dataset_reader import fingerprint, iter_frames, read_episodes, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
 # The policy's input is computed by its input set (`humanoid.inputs.INPUT_SETS`) along each recorded episode
 # (`episode_inputs`), as a rollout runs it: each frame the entries of its `observed_columns`, placed by name in
 # `observed_names` order (the gymnasium observation's for "full", whichever way a dataset split it), then the
 # frame's action label as the command sent; each episode told its recorded delay (`episode_delays`).
-_CACHE_FORMAT = 3  # bump when what the cache holds changes
+_CACHE_FORMAT = 4  # bump when what the cache holds changes
 MIN_EPISODES = 2  # the split is by episode, and at least one is held out for validation
 _ARRAYS = ("inputs", "actions", "episode_index")
+_DECODED = {keys.ACTION: "actions", keys.EXECUTED_ACTION: "executed"}
 
 
 @dataclass
@@ -171,23 +172,27 @@ def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
     return cache_dir() / "bc-frames" / f"{path_hash}-{hashlib.sha256(content.encode()).hexdigest()[:16]}"
 
 
-def _decode(root: Path, info: dict[str, Any], columns: tuple[str, ...], index: np.ndarray) -> dict[str, np.ndarray]:
+def _decode(
+    root: Path, info: dict[str, Any], columns: tuple[str, ...], index: np.ndarray, ran: bool = False
+) -> dict[str, np.ndarray]:
     """The arrays read from the parquet files in float32, rows placed by frame index: the input `columns`
-    side by side, entries ordered by `index`."""
+    side by side, entries ordered by `index`; with `ran`, what ran too ("executed")."""
     features = info["features"]
     rows = info["total_frames"]
+    actions = [keys.ACTION, keys.EXECUTED_ACTION] if ran else [keys.ACTION]
     arrays = {
         "inputs": np.empty((rows, len(index)), np.float32),
-        "actions": np.empty((rows, features[keys.ACTION]["shape"][0]), np.float32),
+        **{_DECODED[key]: np.empty((rows, features[key]["shape"][0]), np.float32) for key in actions},
         "episode_index": np.empty(rows, np.int64),
     }
     filled = 0
-    for batch in iter_frames(root, [*columns, keys.ACTION, "episode_index"]):
+    for batch in iter_frames(root, [*columns, *actions, "episode_index"]):
         frame = batch["index"]
         # Recorded files hold consecutive frames: a slice assigns faster than an index array.
         at = slice(frame[0], frame[-1] + 1) if len(frame) and frame[-1] - frame[0] + 1 == len(frame) else frame
         arrays["inputs"][at] = np.concatenate([batch[key] for key in columns], axis=1)[:, index]
-        arrays["actions"][at] = batch[keys.ACTION]
+        for key in actions:
+            arrays[_DECODED[key]][at] = batch[key]
         arrays["episode_index"][at] = batch["episode_index"]
         filled += len(frame)
     if filled != rows:
@@ -229,13 +234,17 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
         arrays = {name: np.array(np.load(folder / f"{name}.npy", mmap_mode="r")) for name in _ARRAYS}
     else:
         try:
-            arrays = _decode(root, info, INPUT_SETS[inputs].observed_columns, index)
+            another = labelled_by_another(root)
+            arrays = _decode(root, info, INPUT_SETS[inputs].observed_columns, index, ran=bool(another.any()))
             delays = episode_delays(root)[arrays["episode_index"]]
         except (OSError, KeyError, ValueError, pa.ArrowException) as error:  # a damaged or half-copied file
             raise DatasetError(f"cannot read the frames of {root}: {error}") from None
+        # The action in flight: the label, or what ran where another controller labelled (DAgger's rounds).
+        ran = arrays.pop("executed", arrays["actions"])
+        sent = np.where(another[arrays["episode_index"]][:, None], ran, arrays["actions"])
         try:
             arrays["inputs"] = episode_inputs(
-                inputs, arrays["inputs"], arrays["actions"], arrays["episode_index"], delays, env.unwrapped.model
+                inputs, arrays["inputs"], sent, arrays["episode_index"], delays, env.unwrapped.model
             )
         except UserError as error:  # a delay the input set cannot carry
             raise DatasetError(f"{root}: {error}") from None
@@ -262,8 +271,18 @@ def episode_rows(episode: Episode, inputs: str, model: mujoco.MjModel) -> tuple[
     # The frames as the store records them: split from the whole episode's observations, in float32.
     frames = INPUT_SETS[inputs](model).observe(episode.observation, episode.command).astype(np.float32)
     actions = episode.action.astype(np.float32)
+    sent = episode.executed_action.astype(np.float32) if episode.labeller != episode.controller else actions
     delays = np.full(episode.length, episode.parameters.get(LATENCY_PARAMETER, 0), np.int64)
-    return episode_inputs(inputs, frames, actions, np.zeros(episode.length, np.int64), delays, model), actions
+    return episode_inputs(inputs, frames, sent, np.zeros(episode.length, np.int64), delays, model), actions
+
+
+def labelled_by_another(root: Path) -> np.ndarray:
+    """Per committed episode, whether its labels are another controller's than the one that ran (DAgger's rounds):
+    the action in flight under latency was then what ran (`executed_action`), not the label."""
+    table = read_episodes(root, [keys.EPISODE_CONTROLLER, keys.EPISODE_LABELLER])
+    return np.array(
+        [row[keys.EPISODE_CONTROLLER] != row[keys.EPISODE_LABELLER] for row in table.to_pylist()], dtype=bool
+    )
 
 
 def episode_delays(root: Path) -> np.ndarray:

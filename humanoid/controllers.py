@@ -51,6 +51,10 @@ class Controller(Protocol):
     def act(self, obs: np.ndarray) -> np.ndarray:
         """A float32 action of shape (17,) for one 348-dim observation."""
 
+    def ran(self, action: np.ndarray) -> None:
+        """What the env was sent this step when another controller chose it (a DAgger labeller's `act` only labels):
+        one that keeps the actions it sent, in flight under latency, keeps this one instead of its own."""
+
 
 class RandomController:
     """Uniform random actions: the baseline that falls within a few dozen steps."""
@@ -74,6 +78,9 @@ class RandomController:
 
     def setpoint(self) -> None:
         return None
+
+    def ran(self, action: np.ndarray) -> None:
+        """Random actions whatever ran."""
 
     def reset(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)

@@ -224,6 +224,8 @@ def run_episode(
         check_action(action, controller, t, seed)
         executed = executed_action(action, noise, t, env.action_space)
         label = action if labeller is None else labeller.act(obs)
+        if labeller is not None:
+            labeller.ran(executed)  # what is in flight is what ran, not its label
         buffer.record(t, obs, data, label, executed, commands[t], task, teacher.setpoint())
         obs, reward, terminated, truncated, _ = env.step(executed)
         buffer.outcome(t, reward, terminated, truncated)

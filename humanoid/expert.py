@@ -133,6 +133,12 @@ class LQRExpert:
         # As ActionLatency does: the first `delay` steps execute zeros.
         self._pending = deque([np.zeros(self.model.nu)] * self.delay)
 
+    def ran(self, action: np.ndarray) -> None:
+        """Under latency its prediction steps the actions in flight: as a DAgger labeller those are what the policy
+        rolled out sent, not its own labels."""
+        if self._pending:  # empty without a delay
+            self._pending[-1] = np.asarray(action, np.float64)
+
     def hold(self, posture: Posture, clip: bool = True) -> None:
         """Hold ``posture`` (clipped to its limits unless ``clip`` is False) from now on, moving there gradually.
 
@@ -253,6 +259,9 @@ class SensedExpert:
 
     def setpoint(self) -> np.ndarray:
         return self.expert.setpoint()
+
+    def ran(self, action: np.ndarray) -> None:
+        self.expert.ran(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return self.expert.act_on_state(*self.estimator(self.sensed(obs)))

@@ -246,7 +246,8 @@ def episode_inputs(
 ) -> np.ndarray:
     """A policy's inputs for recorded frames (rows of `observed_names` entries in frame order), of `frames`' type:
     the set's computation run along each episode as a rollout runs it, told each episode's delay (`delays`, per
-    frame) and each frame's action sent (`actions`, the recorded action labels)."""
+    frame) and each frame's action sent (`actions`: the recorded labels, or what ran where another controller
+    labelled, as in DAgger's rounds)."""
     features = INPUT_SETS[inputs](model)
     out = np.empty((len(frames), features.size), frames.dtype)
     for row, frame in enumerate(frames):

@@ -75,6 +75,10 @@ class PolicyController:
         self.features.sent(action)
         return action
 
+    def ran(self, action: np.ndarray) -> None:
+        """Its inputs carry what ran as the action in flight."""
+        self.features.sent(action)
+
 
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
     """CheckpointError in one line unless `env` can give `policy` its inputs and take its actions."""
@@ -135,6 +139,9 @@ class SB3Controller:
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """It acts on the observation alone, whatever the body."""
+
+    def ran(self, action: np.ndarray) -> None:
+        """It acts on the observation alone, whatever ran."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action, _ = self.model.predict(obs, deterministic=True)

@@ -25,7 +25,7 @@ from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomizati
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUTS
+from humanoid.inputs import INPUT_SETS, INPUTS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
@@ -233,6 +233,35 @@ def test_round_frames_in_memory_equal_the_frames_read_back(delayed: Path, inputs
     np.testing.assert_array_equal(trainer.demos.episode_index, read_back.episode_index)
     torch.testing.assert_close(trainer.demos.inputs, read_back.inputs, rtol=0, atol=0)
     torch.testing.assert_close(trainer.demos.actions, read_back.actions, rtol=0, atol=0)
+
+
+def test_a_delayed_rounds_action_in_flight_is_what_the_policy_sent(delayed: Path, tmp_path: Path) -> None:
+    """In a delayed round episode the "pending" inputs carry, at each step, the action the rolled-out policy sent the
+    step before (`executed_action`: no rollout noise), as its inputs did live; not the expert's label."""
+    root = tmp_path / "aggregate"
+    shutil.copytree(delayed, root)
+    env = recording_env(make_env(STEPS), Randomization(), 1.0)
+    training = TrainConfig(inputs="pending", epochs=1, min_updates=0, progress=False)
+    trainer = DAggerTrainer(
+        load_demonstrations(root, env, cache=False, inputs="pending"), training, env, make_controller("expert", env)
+    )
+    store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
+    try:
+        trainer.train()
+        trainer.collect(store, round_index=1, episodes=1)
+    finally:
+        store.close()
+        env.close()
+    names = INPUT_SETS["pending"].input_names(make_env().unwrapped.model)
+    in_flight = [i for i, name in enumerate(names) if name.startswith("pending.")]
+    rows = trainer.demos.episode_index == 4
+    pending = trainer.demos.inputs[rows][:, in_flight].numpy()
+    frames = read_frames(root, [keys.ACTION, keys.EXECUTED_ACTION])
+    episode = read_frames(root, ["episode_index"])["episode_index"] == 4
+    sent, labels = frames[keys.EXECUTED_ACTION][episode], frames[keys.ACTION][episode]
+    np.testing.assert_array_equal(pending[0], 0.0)  # as ActionLatency: nothing sent before the first step
+    np.testing.assert_array_equal(pending[1:], sent[:-1])
+    assert np.abs(sent - labels).max() > 1e-3  # the policy's actions are not the expert's
 
 
 def test_rollouts_run_under_the_conditions_the_dataset_was_recorded_in(delayed: Path, tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ import pytest
 
 from humanoid import physics
 from humanoid.conditions import ActionLatency, DomainRandomization, Randomization, action_delay
-from humanoid.controllers import make_controller
+from humanoid.controllers import RandomController, make_controller
 from humanoid.env import humanoid_model, model_and_data
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert, Predictor
@@ -157,6 +157,36 @@ def test_prediction_of_the_pending_action_is_where_the_env_goes(model: mujoco.Mj
     # The env's solver starts from its previous step's accelerations (warm start); the predictor from zero.
     np.testing.assert_allclose(qpos, data.qpos, atol=1e-6)
     np.testing.assert_allclose(qvel, data.qvel, atol=1e-3)
+
+
+def test_a_labeller_predicts_with_what_ran_not_with_its_labels(model: mujoco.MjModel) -> None:
+    """Under a step of latency the expert steps its prediction with the action in flight. As DAgger's labeller it is
+    told what ran: told its own label, it labels as the expert that acted; told another action, its next label
+    changes."""
+    obs, _ = gym.make("Humanoid-v5").reset(seed=4)
+    acting, told_own, told_other = (LQRExpert(model, delay=1, landing=False) for _ in range(3))
+    for expert in (acting, told_own, told_other):
+        expert.reset(4)
+    label = acting.act(obs)
+    np.testing.assert_array_equal(told_own.act(obs), label)
+    told_own.ran(label)
+    told_other.act(obs)
+    told_other.ran(np.zeros_like(label))
+    following = acting.act(obs)
+    np.testing.assert_array_equal(told_own.act(obs), following)
+    assert np.abs(told_other.act(obs) - following).max() > 1e-3
+
+
+def test_the_rollout_tells_a_labeller_what_ran(model: mujoco.MjModel) -> None:
+    """A delayed rollout of random actions labelled by the expert: its labels are those of an expert told, after each
+    label, the random action that ran."""
+    env = ActionLatency(gym.make("Humanoid-v5", max_episode_steps=20), steps=1)
+    episode = run_episode(env, RandomController(env.action_space), 3, labeller=LQRExpert(model, landing=False))
+    replay = LQRExpert(model, delay=1, landing=False)
+    replay.reset(3)
+    for obs, label, ran in zip(episode.observation, episode.action, episode.executed_action, strict=True):
+        np.testing.assert_array_equal(replay.act(obs), label)
+        replay.ran(ran)
 
 
 class Untold:
