@@ -209,24 +209,31 @@ def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+def one_round(delayed: Path, root: Path, inputs: str, latency: float, expert: str, episodes: int) -> DAggerTrainer:
+    """A copy of `delayed` at `root`, a policy on `inputs` fitted to it, and one round of `episodes` rollouts (seeds
+    4 on) under `latency`, labelled by `expert`, appended to `root`."""
+    shutil.copytree(delayed, root)
+    env = recording_env(make_env(STEPS), Randomization(), latency)
+    training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
+    trainer = DAggerTrainer(
+        load_demonstrations(root, env, cache=False, inputs=inputs), training, env, make_controller(expert, env)
+    )
+    store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
+    try:
+        trainer.train()
+        trainer.collect(store, round_index=1, episodes=episodes)
+    finally:
+        store.close()
+        env.close()
+    return trainer
+
+
 @pytest.mark.parametrize("inputs", INPUTS)
 def test_round_frames_in_memory_equal_the_frames_read_back(delayed: Path, inputs: str, tmp_path: Path) -> None:
     """A round's episodes (seeds 4, 5: one delayed, one not) join the aggregate in memory exactly as
     `load_demonstrations` reads them from the dataset they were appended to, for every kind of input."""
     root = tmp_path / "aggregate"
-    shutil.copytree(delayed, root)
-    env = recording_env(make_env(STEPS), Randomization(), 0.5)
-    training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
-    trainer = DAggerTrainer(
-        load_demonstrations(root, env, cache=False, inputs=inputs), training, env, make_controller("expert-sensed", env)
-    )
-    store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
-    try:
-        trainer.train()
-        trainer.collect(store, round_index=1, episodes=2)
-    finally:
-        store.close()
-        env.close()
+    trainer = one_round(delayed, root, inputs, latency=0.5, expert="expert-sensed", episodes=2)
     delays = [drawn[LATENCY_PARAMETER] for drawn in read_parameters(root)[4:]]
     assert delays == [drawn_delay(4), drawn_delay(5)] and sorted(delays) == [0, 1]  # both kinds of episode
     read_back = load_demonstrations(root, make_env(), cache=False, inputs=inputs)
@@ -239,19 +246,7 @@ def test_a_delayed_rounds_action_in_flight_is_what_the_policy_sent(delayed: Path
     """In a delayed round episode the "pending" inputs carry, at each step, the action the rolled-out policy sent the
     step before (`executed_action`: no rollout noise), as its inputs did live; not the expert's label."""
     root = tmp_path / "aggregate"
-    shutil.copytree(delayed, root)
-    env = recording_env(make_env(STEPS), Randomization(), 1.0)
-    training = TrainConfig(inputs="pending", epochs=1, min_updates=0, progress=False)
-    trainer = DAggerTrainer(
-        load_demonstrations(root, env, cache=False, inputs="pending"), training, env, make_controller("expert", env)
-    )
-    store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
-    try:
-        trainer.train()
-        trainer.collect(store, round_index=1, episodes=1)
-    finally:
-        store.close()
-        env.close()
+    trainer = one_round(delayed, root, "pending", latency=1.0, expert="expert", episodes=1)
     names = INPUT_SETS["pending"].input_names(make_env().unwrapped.model)
     in_flight = [i for i, name in enumerate(names) if name.startswith("pending.")]
     rows = trainer.demos.episode_index == 4
