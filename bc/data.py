@@ -42,7 +42,8 @@ from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 # The policy's input is computed by its input set (`humanoid.inputs.INPUT_SETS`) along each recorded episode
 # (`episode_inputs`), as a rollout runs it: each frame the entries of its `observed_columns`, placed by name in
 # `observed_names` order (the gymnasium observation's for "full", whichever way a dataset split it), then the
-# frame's action label as the command sent; each episode told its recorded delay (`episode_delays`).
+# frame's action sent (its label, or what ran where another controller labelled: `labelled_by_another`); each episode
+# told its recorded delay (`episode_delays`).
 _CACHE_FORMAT = 4  # bump when what the cache holds changes
 MIN_EPISODES = 2  # the split is by episode, and at least one is held out for validation
 _ARRAYS = ("inputs", "actions", "episode_index")
