@@ -195,7 +195,8 @@ def odometry_names(model: mujoco.MjModel) -> list[str]:
 class OdometryFeatures:
     """A policy's input computed from what a robot senses alone: the sensed features but the forces
     (`read_sensed`), then `LegOdometry`'s torso height and linear velocity, and the body inertias about the
-    centre of mass (MuJoCo's `cinert`) of the nominal model in the estimated, heading-free pose.
+    centre of mass (MuJoCo's `cinert`) of the nominal model in the estimated pose. That pose is turned by the
+    estimate's heading (the gyro's integral since reset), so the velocity and the inertias carry the heading too.
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/log.md, "The deployable
