@@ -9,6 +9,9 @@
               delay (docs/decisions/pending-inputs.md)
     SET+command  any of them, then the operator's command (`observation.command`, 5: humanoid.commands): a policy
               that follows posture commands; standing still is the zero command (docs/concepts/commands.md)
+    pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
+              run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
+              move the teacher's labels are (docs/decisions/command-features.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -43,11 +46,13 @@ import numpy as np
 
 from common.cli import UserError
 from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
-from humanoid import commands, estimator, sensors
+from humanoid import commands, estimator, posture, sensors
 from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, humanoid_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
+from humanoid.lqr import LQRDesign
+from humanoid.posture import ARM_JOINTS, PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
 
 
@@ -211,9 +216,59 @@ def commanded_set(base: type[InputSet]) -> type[InputSet]:
     return CommandedInputs
 
 
+RAMP_NAMES = (*(f"ramp.{name}" for name in COMMAND_NAMES if name != "arms"), *(f"ramp.{joint}" for joint in ARM_JOINTS))
+"""A ramped set's last inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
+
+
+def ramped_set(base: type[InputSet]) -> type[InputSet]:
+    """`base`'s inputs, then the operator's command as the expert's setpoint moves toward it (`PosturePath`, run on
+    the command the frame records): the set named "BASE+ramp".
+
+    Why: the expert's labels follow its setpoint, which reaches a new command over seconds; a policy that reads only
+    the command cannot tell how far along that move it is, a policy reading the ramp can, and it is computed from the
+    command alone, as a robot's command filter would (docs/decisions/command-features.md). The arm preset is read as
+    the six angles the setpoint's arms have on the way: a preset's number halfway between two presets names a third.
+    Stateful: the ramp runs along the episode's frames, one env step per frame.
+    """
+    commanded = commanded_set(base)
+
+    class RampedInputs(commanded):
+        name = f"{base.name}+ramp"
+        __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
+
+        @staticmethod
+        def input_names(model: mujoco.MjModel) -> list[str]:
+            return [*base.input_names(model), *RAMP_NAMES]
+
+        def __init__(self, model: mujoco.MjModel) -> None:
+            super().__init__(model)
+            self.path = PosturePath(LQRDesign().frame_skip * model.opt.timestep)
+            self.command = np.zeros(COMMAND_SIZE, np.float32)
+
+        def reset(self) -> None:
+            base.reset(self)
+            self.path.reset()
+            self.command[:] = 0.0
+
+        def __call__(self, frame: np.ndarray) -> np.ndarray:
+            command = frame[-COMMAND_SIZE:]
+            if (command != self.command).any():  # as the expert's `set_command`: a new target starts a move
+                self.command[:] = command
+                target = commands.command_posture(command).clipped()
+                if target != self.path.target:
+                    self.path.hold(target)
+            self.path.step()  # as the expert's `act`: one env step along the move, if there is one
+            posture = self.path.posture
+            ramp = [*(getattr(posture, name) for name in COMMAND_NAMES if name != "arms"), *self.path.arms()]
+            return np.concatenate([base.__call__(self, frame[:-COMMAND_SIZE]), np.array(ramp, frame.dtype)])
+
+    RampedInputs.__name__ = RampedInputs.__qualname__ = f"Ramped{base.__name__}"
+    return RampedInputs
+
+
 _BASES = (FullInputs, ProprioInputs, PendingInputs)
 INPUT_SETS: dict[str, type[InputSet]] = {
-    kind.name: kind for kind in (*_BASES, *(commanded_set(base) for base in _BASES))
+    kind.name: kind for kind in (*_BASES, *(commanded_set(base) for base in _BASES), ramped_set(PendingInputs))
 }
 INPUTS = tuple(INPUT_SETS)
 REMOVED = {"odometry": "pending, odometry's inputs plus the command in flight and the delay"}
@@ -232,7 +287,7 @@ def input_set(inputs: str) -> type[InputSet]:
 def computation_digest() -> str:
     """A digest of the code that computes every input set from recorded frames, so that inputs an earlier
     version computed and cached are not reused."""
-    source = b"".join(Path(module.__file__).read_bytes() for module in (commands, estimator, sensors))
+    source = b"".join(Path(module.__file__).read_bytes() for module in (commands, estimator, posture, sensors))
     return hashlib.sha256(Path(__file__).read_bytes() + source).hexdigest()[:16]
 
 

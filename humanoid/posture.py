@@ -408,12 +408,69 @@ def move_seconds(start: Posture, target: Posture, start_arms: np.ndarray | None 
     return max(times)
 
 
+class PosturePath:
+    """Where the expert's setpoint is, over time, on its way from one posture to the next: the slowest field at its
+    ``RATES`` speed (the arms at ``ARM_RATE``), eased in and out, one env step of ``dt`` s per ``step``.
+
+    ``PostureRamp`` moves the expert's reference along it; a policy on the "ramp" inputs runs it on the operator's
+    command (``humanoid.inputs.ramped_set``), so both read the same path from the same commands.
+    """
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self._from_arms = arm_angles(0.0)  # arm angles where the move began, which a blend of presets may not name
+        self.reset()
+
+    def reset(self) -> None:
+        """At the neutral posture, not moving."""
+        self.target = NEUTRAL
+        """The posture being moved to (or held)."""
+        self.start = NEUTRAL
+        """Where the current move began."""
+        self.progress = 1.0
+        """Fraction of the move's time elapsed, 1 once there."""
+        self._from_arms[:] = arm_angles(0.0)
+        self._increment = 1.0
+
+    @property
+    def moving(self) -> bool:
+        return self.progress < 1.0
+
+    @property
+    def posture(self) -> Posture:
+        """Where the setpoint is now, fieldwise between ``start`` and ``target`` (``arms``: the fraction of the way)."""
+        return blend(self.start, self.target, _smoothstep(self.progress))
+
+    @property
+    def from_arms(self) -> np.ndarray:
+        """The arm angles where the current move began."""
+        return self._from_arms
+
+    def arms(self) -> np.ndarray:
+        """The arm angles the setpoint has now (a move between presets passes through angles no preset names)."""
+        s = _smoothstep(self.progress)
+        return (1 - s) * self._from_arms + s * arm_angles(self.target.arms)
+
+    def hold(self, target: Posture) -> None:
+        """Start a move to ``target`` from wherever the setpoint is now."""
+        start = self.posture
+        self._from_arms[:] = self.arms()
+        self.start, self.target = start, target
+        duration = move_seconds(start, target, self._from_arms)
+        self._increment = 1.0 / max(1, int(np.ceil(duration / self.dt)))
+        self.progress = 0.0
+
+    def step(self) -> bool:
+        """Advance one env step; True while there is still some way to go."""
+        self.progress = min(1.0, self.progress + self._increment)
+        return self.progress < 1.0
+
+
 class PostureRamp:
     """Moves an expert's ``qpos_ref``, ``ctrl_ff`` and ``gain`` (written in place) to a posture's, gradually.
 
     A jump in the setpoint topples the body, so ``hold`` plans a path from where the setpoint is
-    to the target and ``step`` follows it, one env step per call, over ``duration`` seconds: the
-    slowest field at its ``RATES`` speed, eased in and out. Straight interpolation between two
+    to the target and ``step`` follows it (``PosturePath``: its timing). Straight interpolation between two
     balanced poses is not balanced in between (raising the arms moves the centre of mass 7 mm
     forward midway, enough to topple the body), so the path runs through balanced waypoints
     ``WAYPOINT_STEP`` apart, solved in ``hold`` (about 3 ms each), and interpolates between them
@@ -434,28 +491,25 @@ class PostureRamp:
         self.qpos_ref = qpos_ref
         self.ctrl_ff = ctrl_ff
         self.gain = gain
-        self.dt = design.frame_skip * model.opt.timestep
-        self.target = NEUTRAL
-        """The posture being moved to (or held)."""
-        self.start = NEUTRAL
-        """Where the current move began."""
-        self.progress = 1.0
-        """Fraction of the move's time elapsed, 1 once there."""
-        self._from_arms = arm_angles(0.0)  # arm angles where the move began, which a blend of presets may not name
+        self.path = PosturePath(design.frame_skip * model.opt.timestep)
         self._gains = gain[None].copy()  # (m + 1, nu, nx) gains designed along the path
         self._waypoints = qpos_ref[None].copy()  # (n + 1, nq) balanced poses along the path
         self._steps = np.zeros((0, model.nv))  # (n, nv) from each waypoint to the next
         self._ctrl = ctrl_ff[None].copy()  # (n + 1, nu) their feed-forwards
-        self._increment = 1.0
 
     @property
     def moving(self) -> bool:
-        return self.progress < 1.0
+        return self.path.moving
 
     @property
     def posture(self) -> Posture:
-        """Where the setpoint is now, fieldwise between ``start`` and ``target`` (``arms``: the fraction of the way)."""
-        return blend(self.start, self.target, _smoothstep(self.progress))
+        """Where the setpoint is now (``PosturePath.posture``)."""
+        return self.path.posture
+
+    @property
+    def target(self) -> Posture:
+        """The posture being moved to (or held)."""
+        return self.path.target
 
     def hold(self, posture: Posture, clip: bool = True) -> None:
         """Plan a move to ``posture.clipped()`` from wherever the setpoint is now.
@@ -469,12 +523,9 @@ class PostureRamp:
         model, design = self.model, self.design
         gain = posture_gain(model, target, design)
         qpos, ctrl = posture_reference(model, target, design)
-        start = self.posture
-        self._from_arms[:] = self._current_arms()
-        self.start, self.target = start, target
-        duration = move_seconds(start, target, self._from_arms)
-        steps = max(1, int(np.ceil(duration / self.dt)))
-        arm_change = float(np.abs(arm_angles(target.arms) - self._from_arms).max())
+        self.path.hold(target)
+        start, from_arms = self.path.start, self.path.from_arms
+        arm_change = float(np.abs(arm_angles(target.arms) - from_arms).max())
         n = _pieces(start, target, arm_change, WAYPOINT_STEP)
 
         neutral = posture_reference(model, NEUTRAL, design)[0]
@@ -483,7 +534,7 @@ class PostureRamp:
         ctrls = [self.ctrl_ff.copy()]
         for k in range(1, n):
             s = k / n
-            pose = posture_pose(model, blend(start, target, s), neutral, (1 - s) * self._from_arms + s * to_arms)
+            pose = posture_pose(model, blend(start, target, s), neutral, (1 - s) * from_arms + s * to_arms)
             waypoints.append(pose)
             ctrls.append(feed_forward(model, pose))
         waypoints.append(qpos)
@@ -498,25 +549,18 @@ class PostureRamp:
         # while twisting or crouching) without a stabilising gain.
         knots = _pieces(start, target, arm_change, GAIN_STEP)
         gains = [self.gain.copy()]
-        from_arms = tuple(self._from_arms)
-        gains += [_path_gain(model, design, start, target, from_arms, j / knots) for j in range(1, knots)]
+        from_arms_key = tuple(from_arms)
+        gains += [_path_gain(model, design, start, target, from_arms_key, j / knots) for j in range(1, knots)]
         gains.append(gain)
         self._gains = np.array(gains)
-        self._increment = 1.0 / steps
-        self.progress = 0.0
-
-    def _current_arms(self) -> np.ndarray:
-        s = _smoothstep(self.progress)
-        return (1 - s) * self._from_arms + s * arm_angles(self.target.arms)
 
     def step(self) -> bool:
         """Advance the setpoint by one env step; True while there is still some way to go."""
-        self.progress = min(1.0, self.progress + self._increment)
-        if self.progress >= 1.0:
+        if not self.path.step():
             # End exactly on the solved pose, not on a sum of increments.
             self._set(self.target)
             return False
-        s = _smoothstep(self.progress) * len(self._steps)
+        s = _smoothstep(self.path.progress) * len(self._steps)
         k = min(int(s), len(self._steps) - 1)
         frac = s - k
         self.qpos_ref[:] = self._waypoints[k]
@@ -537,6 +581,4 @@ class PostureRamp:
     def reset(self) -> None:
         """Back to the neutral setpoint at once: the env's reset has put the body back anyway."""
         self._set(NEUTRAL)
-        self.start = self.target = NEUTRAL
-        self.progress = 1.0
-        self._from_arms[:] = arm_angles(0.0)
+        self.path.reset()

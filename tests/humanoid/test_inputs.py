@@ -14,13 +14,14 @@ from bc.data import load_demonstrations
 from bc.ppo.learner import training_env
 from common import keys
 from common.cli import UserError
-from humanoid.commands import FIRST_NEUTRAL_SECONDS
+from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
 from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_SETS, INPUTS, PendingInputs, episode_inputs
+from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs
 from humanoid.learned import PolicyController
+from humanoid.posture import arm_angles
 from policies.mlp import MLPPolicy, MLPSpec
 from support import record_short
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
@@ -156,3 +157,40 @@ def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
     np.testing.assert_array_equal(inputs[-5:], command)
     assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in keys.COMMAND_NAMES]
     assert commanded.takes_command and not base.takes_command
+
+
+RAMP_SEED = 41  # its schedule's first command (at 3 s) leans left, crouches and puts the arms out, a 3.4 s move
+RAMP_STEPS = round(FIRST_NEUTRAL_SECONDS / 0.015) + 250
+
+
+def test_a_ramped_set_reads_the_setpoint_the_expert_moves_along() -> None:
+    """Known answer: along the expert's scheduled episode, "pending+ramp" is "pending"'s inputs, then the expert's own
+    setpoint step for step (its lean, lean, height and twist), then arm angles that leave the neutral ones when the
+    command changes, move monotonically and end on the commanded preset's."""
+    model = humanoid_model()
+    env = make_env(RAMP_STEPS)
+    schedule = command_schedule(RAMP_SEED, RAMP_STEPS, env.unwrapped.dt)
+    expert, ramped, base = LQRExpert(), INPUT_SETS["pending+ramp"](model), INPUT_SETS["pending"](model)
+    obs, _ = env.reset(seed=RAMP_SEED)
+    expert.reset(RAMP_SEED)
+    ramped.reset()
+    base.reset()
+    setpoints, ramps = [], []
+    for t, command in enumerate(schedule):
+        if t == 0 or (command != schedule[t - 1]).any():
+            expert.set_command(command)
+        action = expert.act(obs)
+        inputs = ramped(ramped.observe(obs, command))
+        np.testing.assert_array_equal(inputs[: -len(RAMP_NAMES)], base(base.observe(obs, command)))
+        setpoints.append(expert.setpoint())
+        ramps.append(inputs[-len(RAMP_NAMES) :])
+        obs, *_ = env.step(action)
+    setpoints, ramps = np.array(setpoints), np.array(ramps)
+    np.testing.assert_array_equal(ramps[:, :4].astype(np.float32), setpoints[:, :4])  # a command vector's float32
+    start = round(FIRST_NEUTRAL_SECONDS / env.unwrapped.dt)
+    arms = ramps[:, 4:]
+    np.testing.assert_array_equal(arms[:start], np.broadcast_to(arm_angles(0.0), (start, 6)))
+    np.testing.assert_allclose(arms[-1], arm_angles(schedule[-1][4]), rtol=0, atol=1e-12)
+    moves = np.diff(arms[start - 1 :], axis=0) * np.sign(arm_angles(3.0))
+    assert (moves >= 0).all() and (moves[0] > 0).all()
+    assert schedule[-1][4] == 3.0 and (np.abs(setpoints[-1] - schedule[-1]) < 1e-6).all()  # the move ended in time
