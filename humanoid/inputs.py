@@ -51,7 +51,6 @@ from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, humanoid_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
-from humanoid.lqr import LQRDesign
 from humanoid.posture import ARM_JOINTS, PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
 
@@ -216,7 +215,8 @@ def commanded_set(base: type[InputSet]) -> type[InputSet]:
     return CommandedInputs
 
 
-RAMP_NAMES = (*(f"ramp.{name}" for name in COMMAND_NAMES if name != "arms"), *(f"ramp.{joint}" for joint in ARM_JOINTS))
+_RAMP_FIELDS = tuple(name for name in COMMAND_NAMES if name != "arms")
+RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for joint in ARM_JOINTS))
 """A ramped set's last inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
 
 
@@ -242,7 +242,7 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
 
         def __init__(self, model: mujoco.MjModel) -> None:
             super().__init__(model)
-            self.path = PosturePath(LQRDesign().frame_skip * model.opt.timestep)
+            self.path = PosturePath(model)  # the design's env step, as the expert's
             self.command = np.zeros(COMMAND_SIZE, np.float32)
 
         def reset(self) -> None:
@@ -259,7 +259,7 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
                     self.path.hold(target)
             self.path.step()  # as the expert's `act`: one env step along the move, if there is one
             posture = self.path.posture
-            ramp = [*(getattr(posture, name) for name in COMMAND_NAMES if name != "arms"), *self.path.arms()]
+            ramp = [*(getattr(posture, name) for name in _RAMP_FIELDS), *self.path.arms()]
             return np.concatenate([base.__call__(self, frame[:-COMMAND_SIZE]), np.array(ramp, frame.dtype)])
 
     RampedInputs.__name__ = RampedInputs.__qualname__ = f"Ramped{base.__name__}"

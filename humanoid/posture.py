@@ -410,14 +410,15 @@ def move_seconds(start: Posture, target: Posture, start_arms: np.ndarray | None 
 
 class PosturePath:
     """Where the expert's setpoint is, over time, on its way from one posture to the next: the slowest field at its
-    ``RATES`` speed (the arms at ``ARM_RATE``), eased in and out, one env step of ``dt`` s per ``step``.
+    ``RATES`` speed (the arms at ``ARM_RATE``), eased in and out, one env step of ``model`` under ``design`` per
+    ``step``.
 
     ``PostureRamp`` moves the expert's reference along it; a policy on the "ramp" inputs runs it on the operator's
     command (``humanoid.inputs.ramped_set``), so both read the same path from the same commands.
     """
 
-    def __init__(self, dt: float) -> None:
-        self.dt = dt
+    def __init__(self, model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> None:
+        self.dt = design.frame_skip * model.opt.timestep
         self._from_arms = arm_angles(0.0)  # arm angles where the move began, which a blend of presets may not name
         self.reset()
 
@@ -491,7 +492,7 @@ class PostureRamp:
         self.qpos_ref = qpos_ref
         self.ctrl_ff = ctrl_ff
         self.gain = gain
-        self.path = PosturePath(design.frame_skip * model.opt.timestep)
+        self.path = PosturePath(model, design)
         self._gains = gain[None].copy()  # (m + 1, nu, nx) gains designed along the path
         self._waypoints = qpos_ref[None].copy()  # (n + 1, nq) balanced poses along the path
         self._steps = np.zeros((0, model.nv))  # (n, nv) from each waypoint to the next
@@ -549,8 +550,8 @@ class PostureRamp:
         # while twisting or crouching) without a stabilising gain.
         knots = _pieces(start, target, arm_change, GAIN_STEP)
         gains = [self.gain.copy()]
-        from_arms_key = tuple(from_arms)
-        gains += [_path_gain(model, design, start, target, from_arms_key, j / knots) for j in range(1, knots)]
+        key = tuple(from_arms)
+        gains += [_path_gain(model, design, start, target, key, j / knots) for j in range(1, knots)]
         gains.append(gain)
         self._gains = np.array(gains)
 
