@@ -40,8 +40,8 @@ VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS 
 VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY \
-	BLIND_POLICY EPOCHS SCRATCH_POLICY PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE \
-	ROBUSTNESS_EPISODES CONDITIONS
+	BLIND_POLICY EPOCHS DAGGER_OUTPUT DAGGER_POLICY ROUNDS DAGGER_EPISODES SCRATCH_POLICY PPO_POLICY TIMESTEPS ENVS \
+	PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES CONDITIONS
 REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY SENSED_DATASET SENSED_NOISE \
 	SENSED_LATENCY ODOMETRY_POLICY
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
@@ -108,7 +108,7 @@ tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PP
 	$(PY) -m bc.tutorial $(flags)
 
 # Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
-pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command) -> baseline-rl, finetune-rl -> the table
+pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command), dagger -> baseline-rl, finetune-rl -> the table
 	$(PY) -m bc.pipeline $(flags)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);

@@ -27,11 +27,13 @@ text).
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -55,7 +57,10 @@ from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
-SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience")
+SOURCE_FILE = "demonstrations.json"
+"""In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
+what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
+SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
 
@@ -104,6 +109,11 @@ class DaggerConfig:
         "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
         "data the validation loss says little about standing)",
     )
+    seed: int = setting(
+        0,
+        "training seed of every round's fit and of the final one (initial weights, validation split, minibatches); "
+        "the rollouts' episode seeds continue the dataset's whatever it is",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     eval_episodes: int = setting(20, "episodes of the final evaluation; 0 = skip it")
     progress: bool = setting(True, "show progress bars")
@@ -136,7 +146,8 @@ class DaggerResult:
         return "\n".join([*lines, self.final.describe()])
 
 
-def validate(cfg: DaggerConfig) -> None:
+def check_settings(cfg: DaggerConfig) -> None:
+    """The settings alone, refused in one line (`validate` also checks the folders)."""
     input_set(cfg.inputs)
     for name in ("rounds", "episodes", "epochs"):
         if getattr(cfg, name) <= 0:
@@ -153,6 +164,10 @@ def validate(cfg: DaggerConfig) -> None:
             raise UserError(str(error)) from None
     if cfg.output.resolve() == cfg.dataset.resolve():
         raise UserError("--output must differ from --dataset: DAgger leaves the demonstrations unchanged")
+
+
+def validate(cfg: DaggerConfig) -> None:
+    check_settings(cfg)
     if cfg.output.exists() and not (cfg.output / "meta/info.json").is_file():
         raise DatasetError(
             f"{cfg.output} exists and holds no LeRobot dataset: OUTPUT is DAgger's own copy of DATASET, give another"
@@ -197,15 +212,46 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
     return cfg
 
 
+def is_dagger_run(line: dict[str, Any]) -> bool:
+    """Whether a recordings.jsonl line (or a run's mark) is a DAgger run's, whoever ran it (`make dagger`, `make
+    pipeline`): its config holds the SHAPING settings."""
+    return set(SHAPING) <= set(line.get("config", {}))
+
+
+def changed_settings(saved: dict[str, Any], cfg: DaggerConfig, names: Sequence[str] = SHAPING) -> list[str]:
+    """The settings among `names` that a DAgger run's saved config holds otherwise than `cfg`."""
+    settings = config_dict(cfg)
+    return [name for name in names if saved.get(name) != settings[name]]
+
+
+def copy_demonstrations(cfg: DaggerConfig, made_by: str) -> None:
+    """Make OUTPUT a copy of DATASET with its SOURCE_FILE; copied aside, then renamed: a copy killed half-way is
+    never taken for the aggregate. Without DATASET's mark: a run killed there is not this one."""
+    partial = cfg.output.with_name(f".{cfg.output.name}.partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    source = {"path": str(cfg.dataset), "fingerprint": fingerprint(cfg.dataset), "made_by": made_by}
+    shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))
+    (partial / SOURCE_FILE).write_text(json.dumps(source, indent=2) + "\n")
+    partial.rename(cfg.output)
+
+
+def copied_from(output: Path) -> dict[str, Any]:
+    """OUTPUT's SOURCE_FILE; {} if it has none (a copy made before it existed, or no DAgger copy)."""
+    try:
+        source = json.loads((output / SOURCE_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return source if isinstance(source, dict) else {}
+
+
 def check_resume(cfg: DaggerConfig) -> None:
     """DatasetError in one line if OUTPUT holds the mark (`recordings.RUN_FILE`) of a DAgger run killed with other
     SHAPING settings than this one's: a resume keeps its rounds. Reads only, so that a refused run leaves OUTPUT as
     it was. (A mark another kind of run left binds nothing: the next take-over logs its episodes.)"""
     killed = recordings.marked(cfg.output)
-    if killed is None or killed["made_by"] != MADE_BY:
+    if killed is None or not is_dagger_run(killed):
         return
-    settings = config_dict(cfg)
-    changed = [name for name in SHAPING if killed["config"].get(name) != settings[name]]
+    changed = changed_settings(killed["config"], cfg)
     if changed:
         was = ", ".join(f"{flag(name)} {killed['config'].get(name)}" for name in changed)
         raise DatasetError(
@@ -291,25 +337,21 @@ class DAggerTrainer:
         return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived), added
 
 
-def main(cfg: DaggerConfig) -> DaggerResult:
+def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     """Bring `cfg.output` to `cfg.rounds` DAgger rounds of `cfg.episodes` episodes and save the final policy at
-    `cfg.policy`."""
+    `cfg.policy`. `made_by` (bc.dagger, bc.pipeline) goes with what the run writes: OUTPUT's copy, its
+    recordings.jsonl line, the checkpoint's config.json."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     cfg = resolved(cfg)
     if not cfg.output.exists():
-        # Copied aside, then renamed: a copy killed half-way is never taken for the aggregate.
-        partial = cfg.output.with_name(f".{cfg.output.name}.partial")
-        shutil.rmtree(partial, ignore_errors=True)
-        # Without DATASET's mark: a run killed there is not this one.
-        shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))
-        partial.rename(cfg.output)
+        copy_demonstrations(cfg, made_by)
     check_resume(cfg)
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(), randomization, cfg.latency)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
     result = DaggerResult()
-    context = {"dagger": config_dict(cfg)}
+    context = {"dagger": config_dict(cfg), "demonstrations": copied_from(cfg.output).get("fingerprint")}
     training = TrainConfig(
         dataset=cfg.output,
         policy=cfg.policy,
@@ -320,6 +362,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         patience=cfg.patience,
         eval_episodes=cfg.eval_episodes,
         progress=cfg.progress,
+        seed=cfg.seed,
     )
     try:
         table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND]).to_pydict()
@@ -333,7 +376,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         first = last if last and rounds.count(last) < cfg.episodes else last + 1
         seeds = table[keys.EPISODE_SEED]
         # Under the store's lock: one run at a time marks OUTPUT; a killed run's episodes get their line first.
-        with recordings.logged(cfg.output, MADE_BY, config_dict(cfg), len(seeds), lambda: seeds) as added:
+        with recordings.logged(cfg.output, made_by, config_dict(cfg), len(seeds), lambda: seeds) as added:
             for round_index in range(first, cfg.rounds + 1):
                 trainer.train(round_index)
                 missing = cfg.episodes - rounds.count(round_index)
@@ -345,7 +388,7 @@ def main(cfg: DaggerConfig) -> DaggerResult:
         env.close()
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
-    result.final = train_and_save(aggregate, training, env.action_space, MADE_BY, context)
+    result.final = train_and_save(aggregate, training, env.action_space, made_by, context)
     return result
 
 

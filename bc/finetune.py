@@ -63,8 +63,9 @@ from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
 STUDENT_RECIPE = (
     f"`make pipeline` makes the command-conditioned student, or `make record CONTROLLER=expert-sensed SCHEDULES=1 "
-    f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make train-bc "
-    f"INPUTS=pending+command DATASET={paths.OPERATOR_DATASET} POLICY={paths.STUDENT_POLICY}`"
+    f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make dagger "
+    f"INPUTS=pending+ramp EXPERT=expert-sensed ROUNDS=6 EPISODES=20 NOISE={SENSED_NOISE} "
+    f"DATASET={paths.OPERATOR_DATASET} OUTPUT={paths.OPERATOR_DAGGER_DATASET} POLICY={paths.DAGGER_STUDENT_POLICY}`"
 )
 """How to make the default BC checkpoint, said when it is missing."""
 
@@ -92,10 +93,10 @@ class FinetuneConfig:
     """Settings of one PPO run: fine-tuning the BC actor (`make finetune-rl`)."""
 
     bc_policy: Path = setting(
-        paths.STUDENT_POLICY,
+        paths.DAGGER_STUDENT_POLICY,
         "BC checkpoint: the actor to refine (`make baseline-rl`: only its shape and normalisation, and its inputs); "
-        "by default the student that follows the operator's command on what a robot senses (`make pipeline` makes "
-        "it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
+        "by default the DAgger student that follows the operator's command on what a robot senses (`make pipeline` "
+        "makes it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
@@ -376,7 +377,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """
     validate(cfg)
     cfg = dataclasses.replace(cfg, workers=workers(cfg))  # saved as a number: a resume must split as this run did
-    if cfg.bc_policy == paths.STUDENT_POLICY and not cfg.bc_policy.exists():
+    if cfg.bc_policy == paths.DAGGER_STUDENT_POLICY and not cfg.bc_policy.exists():
         raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {STUDENT_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())

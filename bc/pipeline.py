@@ -1,14 +1,19 @@
 """`make pipeline`: the operator-following task end to end. The expert on leg odometry follows the scripted
 operator's command schedules (record), students clone it on what a robot senses with and without the command
-(train-bc), PPO refines the commanded one and PPO from scratch gets the same task and budget (finetune-rl,
-baseline-rl); then one table: survival and tracking per command field on held-out schedules, clean and under every
-condition of the robustness suite, and survival with the command zero (standing), for the experts and every policy.
+(train-bc), DAgger lets the expert label where a commanded student goes (dagger), PPO refines that student and PPO
+from scratch gets the same task and budget (finetune-rl, baseline-rl); then one table: survival and tracking per
+command field on held-out schedules, clean and under every condition of the robustness suite, and survival with the
+command zero (standing), for the experts and every policy.
 
-    DATASET (CONTROLLER under schedules, NOISE, ---> BC_POLICY (pending+command) ---> PPO_POLICY, SCRATCH_POLICY
-      LATENCY of the episodes delayed)         '--> BLIND_POLICY (pending: no command)
+    DATASET (CONTROLLER under schedules, NOISE, -+-> BLIND_POLICY (BC, pending: no command)
+      LATENCY of the episodes delayed)          +-> BC_POLICY (BC, pending+command)
+                                                '-> DAGGER_OUTPUT, DAGGER_POLICY (pending+ramp) ---> PPO_POLICY,
+                                                                                                     SCRATCH_POLICY
 
 The students read the sensed features, leg odometry, the command in flight and the delay (`pending`:
-docs/decisions/pending-inputs.md); BC_POLICY also the operator's command. Both PPO stages start from it (their
+docs/decisions/pending-inputs.md); BC_POLICY also the operator's command, DAGGER_POLICY the command as the expert's
+setpoint moves toward it (`pending+ramp`), trained by DAgger: ROUNDS rounds of DAGGER_EPISODES rollouts under the
+recording's noise and latency (docs/decisions/pipeline-student.md says why). Both PPO stages start from it (their
 own default), so they train on command schedules with the tracking reward (docs/how-to/finetune-ppo.md). The seed
 tutorial's learners are not part of it: `make tutorial-rl` (docs/decisions/pipeline-task.md says what the
 pipeline dropped to stay within its budget, and the commands that make the rest).
@@ -23,8 +28,10 @@ A stage is skipped only if its output exists and was made from the same inputs:
 - the dataset: its recordings.jsonl (`teleop.recordings`) accounts for every episode in it, and
   those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
 - a checkpoint: its config.json holds the same settings and its eval.json exists, and it was made
-  from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json) or the BC
-  weights' digest (PPO: `bc_policy_sha256` in config.json);
+  from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json; DAgger: `demonstrations`
+  in config.json) or the BC weights' digest (PPO: `bc_policy_sha256` in config.json);
+- DAgger's aggregate, when its checkpoint is made again: it is a copy of the dataset as it is now (its
+  `bc.dagger.SOURCE_FILE`) and its rounds were rolled out with the same settings, else it is made again;
 - the table's evaluations: a policy's robustness_schedules.json, if written after its weights with the same
   seeds and conditions (a registered controller's always).
 
@@ -59,9 +66,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bc import dagger as bc_dagger
 from bc import report, robustness
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
+from bc.dagger import DaggerConfig
 from bc.data import MIN_EPISODES
 from bc.evaluate import EVAL_SEED
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
@@ -107,6 +116,10 @@ STUDENT_INPUTS = "pending+command"
 and the operator's command (docs/decisions/pending-inputs.md, docs/concepts/commands.md)."""
 BLIND_INPUTS = "pending"
 """What BLIND_POLICY reads: the same without the operator's command."""
+DAGGER_INPUTS = "pending+ramp"
+"""What DAGGER_POLICY, PPO's start, reads: `pending`'s inputs and the command as the expert's setpoint moves toward it
+(humanoid.inputs.ramped_set): under DAgger it follows every held-out schedule, where the command alone does not
+(docs/decisions/command-features.md)."""
 EXPERTS = ("expert", SensedExpert.name)
 """The registered controllers the table measures beside the policies: the expert told the simulator's state, and
 the one on leg odometry that records the demonstrations."""
@@ -150,16 +163,27 @@ class PipelineConfig:
     backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
     ray_address: str | None = _like(FinetuneConfig, "ray_address")
     bc_policy: Path = _like(
-        FinetuneConfig,
-        "bc_policy",
-        f"checkpoint folder of the command-conditioned student (train-bc --inputs {STUDENT_INPUTS}); both PPO stages "
-        "start from it",
+        TrainConfig,
+        "policy",
+        f"checkpoint folder of the command-conditioned BC student (train-bc --inputs {STUDENT_INPUTS})",
+        paths.STUDENT_POLICY,
     )
     blind_policy: Path = setting(
         paths.BLIND_POLICY,
         f"checkpoint folder of BC on the same data without the command (--inputs {BLIND_INPUTS}): what it buys",
     )
-    epochs: int = _like(TrainConfig, "epochs")
+    epochs: int = _like(TrainConfig, "epochs", "training epochs of the BC students and of every DAgger fit")
+    dagger_output: Path = _like(
+        DaggerConfig, "output", "DAgger's aggregate: a copy of DATASET, then its rounds", paths.OPERATOR_DAGGER_DATASET
+    )
+    dagger_policy: Path = _like(
+        FinetuneConfig,
+        "bc_policy",
+        f"checkpoint folder of the DAgger student (dagger --inputs {DAGGER_INPUTS}, the expert on leg odometry "
+        "labelling, NOISE on its rollouts' actions); both PPO stages start from it",
+    )
+    rounds: int = _like(DaggerConfig, "rounds", "DAgger rounds (docs/decisions/pipeline-student.md)")
+    dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", 20)
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
     timesteps: int = _like(FinetuneConfig, "timesteps")
@@ -191,6 +215,7 @@ class Stages:
     record: RecordConfig
     student: TrainConfig
     blind: TrainConfig
+    dagger: DaggerConfig
     baseline: BaselineConfig
     finetune: FinetuneConfig
 
@@ -200,6 +225,8 @@ class Stages:
             "--dataset": self.record.dataset,
             "--bc-policy": self.student.policy,
             "--blind-policy": self.blind.policy,
+            "--dagger-output": self.dagger.output,
+            "--dagger-policy": self.dagger.policy,
             "--scratch-policy": self.baseline.policy,
             "--ppo-policy": self.finetune.policy,
         }
@@ -225,7 +252,7 @@ def stages(cfg: PipelineConfig) -> Stages:
     if cfg.workers is not None:
         workers["workers"] = cfg.workers
     ppo = {
-        "bc_policy": cfg.bc_policy,
+        "bc_policy": cfg.dagger_policy,
         "timesteps": cfg.timesteps,
         "envs": cfg.envs,
         "push": cfg.push,
@@ -250,6 +277,19 @@ def stages(cfg: PipelineConfig) -> Stages:
         record=recording,
         student=student,
         blind=dataclasses.replace(student, policy=cfg.blind_policy, inputs=BLIND_INPUTS),
+        dagger=DaggerConfig(
+            dataset=cfg.dataset,
+            output=cfg.dagger_output,
+            policy=cfg.dagger_policy,
+            inputs=DAGGER_INPUTS,
+            expert=SensedExpert.name,
+            randomize=recording.randomize,  # the rollouts under the recording's conditions
+            latency=recording.latency,
+            noise=cfg.noise,
+            rounds=cfg.rounds,
+            episodes=cfg.dagger_episodes,
+            epochs=cfg.epochs,
+        ),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
     )
@@ -398,12 +438,14 @@ def checkpoint_decision(
     current_source: Callable[[], str | None],
     overwrite: bool,
     source_remade: bool = False,
+    settings_key: str | None = None,
 ) -> Decision:
     """Whether a training stage reuses its checkpoint `cfg.policy`, makes it, or makes it again.
 
     `source` names its input ("dataset", "BC policy"); `saved_source` is the input's identity the
     checkpoint records, `current_source` gives the one there now; `source_remade` foresees an input
     the pipeline will make again. `option` is the pipeline's flag of the folder, for the refusal.
+    `settings_key`: where in config.json's "training" the stage's settings are ("dagger"), if not there itself.
     """
     folder = cfg.policy
     if not folder.exists():
@@ -412,7 +454,8 @@ def checkpoint_decision(
     if problem:
         raise UserError(f"{problem}: it is left as it is (choose another {option})")
     training = _training_record(folder)
-    difference = first_difference(training, cfg, NOT_COMPARED | {"policy"})
+    saved = training.get(settings_key, {}) if settings_key else training
+    difference = first_difference(saved if isinstance(saved, dict) else {}, cfg, NOT_COMPARED | {"policy"})
     if source_remade:
         problem = f"was made from the {source} the pipeline makes again"
     elif difference:
@@ -445,6 +488,38 @@ def bc_decision(
     return checkpoint_decision(cfg, "training", option, "dataset", saved, current, overwrite, dataset_remade)
 
 
+def dagger_decision(cfg: DaggerConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
+    """The DAgger stage's decision: its input is the dataset, identified by the fingerprint the checkpoint records
+    (`demonstrations`: of the copy its aggregate began as)."""
+
+    def current() -> str | None:
+        return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
+
+    saved = _training_record(cfg.policy).get("demonstrations")
+    return checkpoint_decision(
+        cfg, "DAgger", "--dagger-policy", "dataset", saved, current, overwrite, dataset_remade, settings_key="dagger"
+    )
+
+
+def aggregate_problem(cfg: DaggerConfig) -> str | None:
+    """Why DAgger's aggregate OUTPUT cannot go on to the checkpoint `cfg` asks for: a copy of another dataset than
+    DATASET now, or rounds rolled out with other settings (a run killed too); None if it can, or is not there."""
+    if not cfg.output.exists():
+        return None
+    source = bc_dagger.copied_from(cfg.output)
+    if not source:
+        return f"has no {bc_dagger.SOURCE_FILE} saying which demonstrations it copied"
+    if not (cfg.dataset / INFO_PATH).is_file() or source.get("fingerprint") != fingerprint(cfg.dataset):
+        return f"is a copy of another dataset than {cfg.dataset} now"
+    killed = recordings.marked(cfg.output)
+    runs = [line for line in recordings.read(cfg.output) if bc_dagger.is_dagger_run(line)]
+    for run in [*runs, *([killed] if killed and bc_dagger.is_dagger_run(killed) else [])]:
+        changed = bc_dagger.changed_settings(run["config"], cfg, (*bc_dagger.SHAPING, "rounds"))
+        if changed:
+            return f"holds rounds rolled out with {flag(changed[0])} {run['config'].get(changed[0])}"
+    return None
+
+
 def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: bool = False) -> Decision:
     """A PPO stage's decision: its input is the BC checkpoint, identified by its weights' digest."""
 
@@ -461,6 +536,7 @@ def validate(run: Stages) -> None:
     validate_record(run.record)
     bc_train.validate(run.student)
     bc_train.validate(run.blind)
+    bc_dagger.check_settings(run.dagger)
     validate_ppo(run.baseline)
     validate_ppo(run.finetune)
     seen: dict[Path, str] = {}
@@ -477,6 +553,11 @@ def foresee(run: Stages, overwrite: bool) -> None:
         config.policy.resolve(): bc_decision(config, overwrite, dataset_remade, option).action != REUSE
         for config, option in ((run.student, "--bc-policy"), (run.blind, "--blind-policy"))
     }
+    remade[run.dagger.policy.resolve()] = dagger_decision(run.dagger, overwrite, dataset_remade).action != REUSE
+    if remade[run.dagger.policy.resolve()]:
+        copy = run.dagger.output
+        stale = dataset_remade and copy.exists() and "is a copy of the dataset the pipeline records again"
+        check_aggregate(run.dagger, stale or aggregate_problem(run.dagger))
     for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
@@ -495,16 +576,24 @@ def run(stages: Stages, overwrite: bool = False, episodes: int = 20, conditions:
 
 
 def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
-    """Record, clone and run both PPO stages, each unless reused; the policies' folders, in the table's order."""
+    """Record, clone, DAgger and run both PPO stages, each unless reused; the policies' folders, in the table's
+    order."""
     record_stage(stages.record)
     bc_stage(stages.blind, overwrite, "--blind-policy")
     bc_stage(stages.student, overwrite, "--bc-policy")
+    dagger_stage(stages.dagger, overwrite)
     for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
         decision = ppo_decision(config, option, overwrite)
         print(f"pipeline: {decision.line}", flush=True)
         if decision.action != REUSE:
             print_summary(decision.config, ppo_main(decision.config, made_by=MADE_BY))
-    return [stages.blind.policy, stages.student.policy, stages.finetune.policy, stages.baseline.policy]
+    return [
+        stages.blind.policy,
+        stages.student.policy,
+        stages.dagger.policy,
+        stages.finetune.policy,
+        stages.baseline.policy,
+    ]
 
 
 def record_stage(cfg: RecordConfig) -> None:
@@ -523,6 +612,30 @@ def bc_stage(cfg: TrainConfig, overwrite: bool, option: str) -> None:
     print(f"pipeline: {decision.line}", flush=True)
     if decision.action != REUSE:
         print(bc_train.main(decision.config, made_by=MADE_BY).describe(), flush=True)
+
+
+def check_aggregate(cfg: DaggerConfig, problem: str | None) -> None:
+    """Refuse in one line to make again an aggregate with `problem` that the pipeline did not copy."""
+    if problem and bc_dagger.copied_from(cfg.output).get("made_by") != MADE_BY:
+        raise UserError(
+            f"{cfg.output} {problem}, and the pipeline did not make it: it is left as it is "
+            "(choose another --dagger-output)"
+        )
+
+
+def dagger_stage(cfg: DaggerConfig, overwrite: bool) -> None:
+    """Run DAgger for the checkpoint of `cfg` or reuse it (`dagger_decision`), saying which; an aggregate that cannot
+    go on to it (`aggregate_problem`) is made again if the pipeline copied it, refused otherwise."""
+    decision = dagger_decision(cfg, overwrite)
+    print(f"pipeline: {decision.line}", flush=True)
+    if decision.action == REUSE:
+        return
+    problem = aggregate_problem(cfg)
+    check_aggregate(cfg, problem)
+    if problem:
+        print(f"pipeline: making {cfg.output} again: it {problem}", flush=True)
+        shutil.rmtree(cfg.output)
+    print(bc_dagger.main(decision.config, made_by=MADE_BY).describe(), flush=True)
 
 
 def measure(

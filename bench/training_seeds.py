@@ -4,9 +4,10 @@ dataset, each measured as the pipeline's table measures it, and the spread over 
     .venv/bin/python -m bench.training_seeds [--seeds 0 1 2] [--root policies/seeds] [--episodes 20]
 
 Seed 0 is the pipeline's own run (its folders, reused when `make pipeline` made them with these settings); seed
-N > 0 trains both students (`train-bc --seed N`) and both PPO stages (`--seed N`, from that seed's student) into
-ROOT/seed_N/. The dataset is the pipeline's, so what varies is training alone: the students' validation split,
-initial weights and minibatches, PPO's environments and sampling. Prints each seed's table, then per learned row
+N > 0 trains both BC students (`train-bc --seed N`), the DAgger student (`dagger --seed N`, into its own aggregate)
+and both PPO stages (`--seed N`, from that seed's DAgger student) into ROOT/seed_N/. The dataset is the pipeline's,
+so what varies is training alone: the students' validation split, initial weights and minibatches (and so where
+DAgger's rollouts go), PPO's environments and sampling. Prints each seed's table, then per learned row
 and condition the lowest and highest survivors and tracking score over the seeds, and the mean return's range.
 Takes about the pipeline's length per new seed on 2 cores (docs/benchmarks.md, "Training seeds").
 """
@@ -24,7 +25,7 @@ from bc.pipeline import PipelineConfig, stages
 from humanoid.commands import tracking_score
 from humanoid.conditions import SUITE
 
-ROLES = ("blind", "student", "fine-tuned", "scratch")
+ROLES = ("blind", "student", "dagger", "fine-tuned", "scratch")
 """The learned rows of the pipeline's table, in its order (`pipeline.run_stages`)."""
 
 
@@ -36,6 +37,8 @@ def seed_config(seed: int, root: Path) -> PipelineConfig:
     return PipelineConfig(
         bc_policy=folder / "bc_operator",
         blind_policy=folder / "bc_operator_blind",
+        dagger_output=folder / "operator_sensed_dagger",
+        dagger_policy=folder / "dagger_operator",
         ppo_policy=folder / "ppo_operator",
         scratch_policy=folder / "ppo_scratch_operator",
         args=f"--seed {seed}",
@@ -47,6 +50,7 @@ def run_seed(seed: int, root: Path, episodes: int) -> tuple[dict[str, dict], dic
     run_stages = stages(seed_config(seed, root))
     run_stages.student = dataclasses.replace(run_stages.student, seed=seed)
     run_stages.blind = dataclasses.replace(run_stages.blind, seed=seed)
+    run_stages.dagger = dataclasses.replace(run_stages.dagger, seed=seed)
     policies = list(map(str, pipeline.run_stages(run_stages, overwrite=False)))
     standing, tracked = pipeline.measure(policies, episodes, list(SUITE), run_stages.finetune.workers)
     return (

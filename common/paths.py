@@ -18,7 +18,12 @@ OPERATOR_DATASET = Path("datasets/operator_sensed")
 pipeline`)."""
 STUDENT_POLICY = Path("policies/bc_operator")
 """Behaviour cloning on what a robot senses, leg odometry, the command in flight and the operator's command
-(INPUTS=pending+command), from OPERATOR_DATASET (`make pipeline`): `make finetune-rl`'s starting actor."""
+(INPUTS=pending+command), from OPERATOR_DATASET (`make pipeline`)."""
+OPERATOR_DAGGER_DATASET = Path("datasets/operator_sensed_dagger")
+"""OPERATOR_DATASET and the DAgger rounds the expert on leg odometry labelled (`make pipeline`)."""
+DAGGER_STUDENT_POLICY = Path("policies/dagger_operator")
+"""DAgger on OPERATOR_DATASET with the command through the expert's ramp (INPUTS=pending+ramp; `make pipeline`):
+`make finetune-rl`'s starting actor."""
 BLIND_POLICY = Path("policies/bc_operator_blind")
 """The same without the operator's command (INPUTS=pending): what the command buys (`make pipeline`)."""
 PPO_POLICY = Path("policies/ppo_operator")

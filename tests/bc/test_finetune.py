@@ -299,13 +299,13 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
 def test_missing_default_student_says_how_to_make_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """`make finetune-rl` starts from the pipeline's commanded student by default; where none was made yet, its one
+    """`make finetune-rl` starts from the pipeline's DAgger student by default; where none was made yet, its one
     line says which commands make it."""
     monkeypatch.chdir(tmp_path)
     code, err = ppo_cli(["--policy", "ppo"], capsys)
     assert code == 1 and len(err) == 1
-    assert err[0].startswith(f"error: no policy checkpoint at {paths.STUDENT_POLICY}: `make pipeline` makes")
-    assert "make train-bc INPUTS=pending" in err[0] and not (tmp_path / "ppo").exists()
+    assert err[0].startswith(f"error: no policy checkpoint at {paths.DAGGER_STUDENT_POLICY}: `make pipeline` makes")
+    assert "make dagger INPUTS=pending+ramp" in err[0] and not (tmp_path / "ppo").exists()
 
 
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

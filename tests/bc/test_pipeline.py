@@ -19,12 +19,15 @@ from pathlib import Path
 
 import pytest
 
-from bc import report
+from bc import dagger as bc_dagger
+from bc import pipeline, report
 from bc import train as bc_train
 from bc.baseline import BaselineConfig
+from bc.dagger import SOURCE_FILE, DaggerConfig
 from bc.finetune import FinetuneConfig
 from bc.pipeline import (
     BLIND_INPUTS,
+    DAGGER_INPUTS,
     MADE_BY,
     REMAKE,
     RESUME,
@@ -34,6 +37,7 @@ from bc.pipeline import (
     Stages,
     bc_decision,
     check,
+    dagger_decision,
     dataset_decision,
     ppo_decision,
     run,
@@ -59,11 +63,13 @@ CONDITIONS = ["clean", "push10"]
 """The tiny run's table: two conditions, one episode each."""
 
 
-def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict | None = None) -> Stages:
+def tiny_stages(
+    record: dict | None = None, train: dict | None = None, ppo: dict | None = None, dagger: dict | None = None
+) -> Stages:
     """The pipeline's stages at a tiny size, in the current folder (relative paths). Episodes of 250 steps: the
-    schedules' first command comes after a neutral start of 3 s (200 steps)."""
+    schedules' first command comes after a neutral start of 3 s (200 steps); one DAgger round of one rollout."""
     ppo = {
-        "bc_policy": Path("bc"),
+        "bc_policy": Path("dagger"),
         "baseline": Path("scratch"),
         "timesteps": 256,
         "envs": 4,
@@ -103,10 +109,28 @@ def tiny_stages(record: dict | None = None, train: dict | None = None, ppo: dict
         "progress": False,
         **(train or {}),
     }
+    dagger = {
+        "dataset": Path("data"),
+        "output": Path("aggregate"),
+        "policy": Path("dagger"),
+        "inputs": DAGGER_INPUTS,
+        "expert": "expert-sensed",
+        "randomize": "none",
+        "latency": SENSED_LATENCY,
+        "noise": SENSED_NOISE,
+        "rounds": 1,
+        "episodes": 1,
+        "epochs": 2,
+        "min_updates": 0,
+        "eval_episodes": 1,
+        "progress": False,
+        **(dagger or {}),
+    }
     return Stages(
         record=RecordConfig(**record),
         student=TrainConfig(**train),
         blind=TrainConfig(**{**train, "policy": Path("blind"), "inputs": BLIND_INPUTS}),
+        dagger=DaggerConfig(**dagger),
         baseline=BaselineConfig(policy=Path("scratch"), **ppo),
         finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
     )
@@ -176,13 +200,14 @@ def made_by_someone_else(dataset: Path) -> None:
 
 def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str]]) -> None:
     """From nothing, each stage runs, one line saying so, in the order record, BC without and with the command,
-    scratch, fine-tuning; then the table's evaluations of the experts and every policy, with the command zero and
-    on held-out schedules."""
-    controllers = ["expert", "expert-sensed", "blind", "bc", "ppo", "scratch"]
+    DAgger, scratch, fine-tuning; then the table's evaluations of the experts and every policy, with the command zero
+    and on held-out schedules."""
+    controllers = ["expert", "expert-sensed", "blind", "bc", "dagger", "ppo", "scratch"]
     assert pipeline_lines(first_run[1]) == [
         "pipeline: recording data: no dataset there yet",
         "pipeline: training blind: no checkpoint there yet",
         "pipeline: training bc: no checkpoint there yet",
+        "pipeline: DAgger dagger: no checkpoint there yet",
         "pipeline: training from scratch scratch: no checkpoint there yet",
         "pipeline: fine-tuning ppo: no checkpoint there yet",
         *(f"pipeline: {name} with the command zero: 1 episodes" for name in controllers),
@@ -194,14 +219,17 @@ def test_the_pipeline_records_the_operator_and_its_students_read_the_command_or_
     first_run: tuple[Path, list[str]],
 ) -> None:
     """The dataset follows schedules (its commands vary), the student reads the command, the blind one does not,
-    and both PPO actors read the student's inputs."""
+    the DAgger student reads it through the expert's ramp, labelled by the expert on leg odometry, and both PPO actors
+    read the DAgger student's inputs."""
     folder = first_run[0]
     (run,) = recordings.read(folder / "data")
     assert run["config"]["schedules"] and run["config"]["controller"] == "expert-sensed"
     assert checkpoint.load(folder / "bc").spec.inputs == STUDENT_INPUTS
     assert checkpoint.load(folder / "blind").spec.inputs == BLIND_INPUTS
+    assert checkpoint.load(folder / "dagger").spec.inputs == DAGGER_INPUTS
+    assert [line["config"]["expert"] for line in recordings.read(folder / "aggregate")[1:]] == ["expert-sensed"]
     assert (
-        checkpoint.load(folder / "ppo").spec.inputs == checkpoint.load(folder / "scratch").spec.inputs == STUDENT_INPUTS
+        checkpoint.load(folder / "ppo").spec.inputs == checkpoint.load(folder / "scratch").spec.inputs == DAGGER_INPUTS
     )
 
 
@@ -212,11 +240,12 @@ def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
     return), then a row per condition and controller with the settled error of every command field."""
     table = table_lines(first_run[1])
     assert table[0] == "| controller | standing | clean | push10 | mean return |"
-    assert [line.split(" | ")[0].removeprefix("| ") for line in table[2:8]] == [
+    assert [line.split(" | ")[0].removeprefix("| ") for line in table[2:9]] == [
         "expert",
         "expert-sensed",
         "blind",
         "bc",
+        "dagger",
         "ppo",
         "scratch",
     ]
@@ -224,7 +253,7 @@ def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
     fields = next(line for line in table if line.startswith("| condition | controller"))
     assert fields == "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |"
     per_field = [line for line in table if line.startswith(("| clean | ", "| push10 | "))]
-    assert len(per_field) == 12
+    assert len(per_field) == 14
 
 
 def test_second_run_reuses_everything_and_prints_the_same_table(
@@ -238,27 +267,31 @@ def test_second_run_reuses_everything_and_prints_the_same_table(
         "pipeline: data holds the 2 episodes asked for, recorded so: not recording",
         "pipeline: blind was made from this dataset with these settings: not training",
         "pipeline: bc was made from this dataset with these settings: not training",
+        "pipeline: dagger was made from this dataset with these settings: not DAgger",
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
     ]
-    assert sum("on held-out schedules: reusing" in line for line in lines) == 6
+    assert sum("on held-out schedules: reusing" in line for line in lines) == 7
     assert table_lines(lines) == table_lines(first_run[1])
     assert snapshot(outputs) == before
 
 
 def test_dataset_recorded_otherwise_is_recorded_again_and_everything_after_it(outputs: Path) -> None:
-    """Other noise: the pipeline's own dataset is recorded again, so both BC runs on it are trained again, so both
-    PPO runs are."""
-    lines = stage_lines(run_here(outputs, tiny_stages(record={"noise": 0.02})))
+    """Other noise: the pipeline's own dataset is recorded again, so both BC runs on it are trained again, DAgger
+    starts again from a new copy, and both PPO runs are made again."""
+    lines = stage_lines(run_here(outputs, tiny_stages(record={"noise": 0.02}, dagger={"noise": 0.02})))
     assert lines == [
         "pipeline: recording data again: it was recorded with --noise 0.03, not 0.02",
         "pipeline: training blind again: it was made from another dataset",
         "pipeline: training bc again: it was made from another dataset",
+        "pipeline: DAgger dagger again: it was made with --noise 0.03, not 0.02",
+        "pipeline: making aggregate again: it is a copy of another dataset than data now",
         "pipeline: training from scratch scratch again: it was made from another BC policy",
         "pipeline: fine-tuning ppo again: it was made from another BC policy",
     ]
     assert [line["config"]["noise"] for line in recordings.read(Path("data"))] == [0.02]
     assert json.loads(Path("bc/dataset.json").read_text())["fingerprint"] == fingerprint(Path("data"))
+    assert json.loads((Path("aggregate") / SOURCE_FILE).read_text())["fingerprint"] == fingerprint(Path("data"))
 
 
 def test_other_training_setting_retrains_the_pipelines_checkpoint(outputs: Path) -> None:
@@ -275,9 +308,10 @@ def test_changed_dataset_retrains_bc(outputs: Path) -> None:
     assert (decision.action, decision.line) == (REMAKE, "training bc again: it was made from another dataset")
 
 
-def test_retrained_bc_policy_makes_the_ppo_runs_again(outputs: Path) -> None:
-    """PPO runs record the BC weights they started from: new weights, new runs."""
-    bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).student)
+def test_retrained_dagger_student_makes_the_ppo_runs_again(outputs: Path) -> None:
+    """PPO runs record the weights they started from: the DAgger student trained again on its aggregate (one epoch,
+    nothing rolled out: its round is there), new weights, new runs."""
+    bc_dagger.main(tiny_stages(dagger={"epochs": 1, "overwrite": True}).dagger)
     for config in (tiny_stages().baseline, tiny_stages().finetune):
         assert ppo_decision(config, "--ppo-policy", overwrite=False).line.endswith("it was made from another BC policy")
 
@@ -375,11 +409,12 @@ def test_user_recorded_dataset_with_the_same_settings_is_used(outputs: Path) -> 
 
 
 def test_user_made_checkpoint_downstream_is_refused_before_anything_runs(outputs: Path) -> None:
-    """BC would be made again, so PPO would too; a PPO run the pipeline did not make is refused before BC trains."""
+    """DAgger would be made again, so PPO would too; a PPO run the pipeline did not make is refused before anything
+    trains."""
     edit_json(outputs / "ppo" / CONFIG_FILE, {"made_by": "bc.finetune"})
     assert_refused_untouched(
         outputs,
-        tiny_stages(train={"epochs": 3}),
+        tiny_stages(dagger={"epochs": 3}),
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
         "it is (--overwrite true replaces it; or choose another --ppo-policy)",
     )
@@ -446,20 +481,32 @@ def test_pipeline_defaults_are_the_stages() -> None:
         schedules=True,
     )
     student = TrainConfig(dataset=paths.OPERATOR_DATASET, policy=paths.STUDENT_POLICY, inputs=STUDENT_INPUTS)
+    dagger = DaggerConfig(
+        dataset=paths.OPERATOR_DATASET,
+        output=paths.OPERATOR_DAGGER_DATASET,
+        policy=paths.DAGGER_STUDENT_POLICY,
+        inputs=DAGGER_INPUTS,
+        expert="expert-sensed",
+        randomize="none",
+        latency=SENSED_LATENCY,
+        noise=SENSED_NOISE,
+        episodes=20,
+    )
     assert stages(PipelineConfig()) == Stages(
         operator,
         student,
         dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
+        dagger,
         BaselineConfig(),
         FinetuneConfig(),
     )
     assert check(PipelineConfig()) == list(SUITE)
 
 
-def test_ppo_starts_from_the_commanded_student_by_default() -> None:
-    """Fine-tuning refines the student that takes the command, and scratch takes its shape and inputs."""
+def test_ppo_starts_from_the_dagger_student_by_default() -> None:
+    """Fine-tuning refines the DAgger student, which takes the command, and scratch takes its shape and inputs."""
     run_stages = stages(PipelineConfig())
-    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.STUDENT_POLICY
+    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.DAGGER_STUDENT_POLICY
 
 
 def test_ppo_from_the_blind_student_makes_both_ppo_runs_again_with_its_actor(outputs: Path) -> None:
@@ -467,8 +514,8 @@ def test_ppo_from_the_blind_student_makes_both_ppo_runs_again_with_its_actor(out
     reads what that student reads."""
     lines = stage_lines(run_here(outputs, tiny_stages(ppo={"bc_policy": Path("blind")})))
     assert lines[-2:] == [
-        "pipeline: training from scratch scratch again: it was made with --bc-policy bc, not blind",
-        "pipeline: fine-tuning ppo again: it was made with --bc-policy bc, not blind",
+        "pipeline: training from scratch scratch again: it was made with --bc-policy dagger, not blind",
+        "pipeline: fine-tuning ppo again: it was made with --bc-policy dagger, not blind",
     ]
     assert checkpoint.load(Path("ppo")).spec.inputs == BLIND_INPUTS
 
@@ -608,3 +655,29 @@ def test_the_table_known_answer() -> None:
         in lines
     )
     assert "| push10 | p | 1/2 | n/a / n/a | n/a / n/a | n/a / n/a | n/a / n/a | n/a / n/a | n/a |" in lines
+
+
+def test_a_lost_dagger_student_is_trained_again_from_its_aggregate(
+    outputs: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The DAgger checkpoint deleted, its aggregate intact: the pipeline trains it again from the rounds there,
+    rolling nothing out, and leaves the aggregate as it was."""
+    before = fingerprint(Path("aggregate"))
+    shutil.rmtree("dagger")
+    pipeline.dagger_stage(tiny_stages().dagger, overwrite=False)
+    assert pipeline_lines(capsys.readouterr().out.splitlines()) == ["pipeline: DAgger dagger: no checkpoint there yet"]
+    assert fingerprint(Path("aggregate")) == before
+    assert dagger_decision(tiny_stages().dagger, overwrite=False).action == REUSE
+
+
+def test_an_aggregate_someone_else_made_is_refused_and_left_alone(outputs: Path) -> None:
+    """DAgger's aggregate copied by `make dagger`, with rounds of other settings than the pipeline asks: one line,
+    nothing touched."""
+    source = json.loads((outputs / "aggregate" / SOURCE_FILE).read_text())
+    (outputs / "aggregate" / SOURCE_FILE).write_text(json.dumps({**source, "made_by": "bc.dagger"}))
+    assert_refused_untouched(
+        outputs,
+        tiny_stages(dagger={"rounds": 2}),
+        "aggregate holds rounds rolled out with --rounds 1, and the pipeline did not make it: it is left as it is "
+        "(choose another --dagger-output)",
+    )
