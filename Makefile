@@ -35,7 +35,7 @@ VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES OVERWRITE
 VARS.eval := POLICY EPISODES SEED SCHEDULES PUSH NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
 VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
-VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES OVERWRITE
+VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES SEED OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
 VARS.baseline-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
@@ -128,7 +128,7 @@ lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newes
 	$(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
 		--custom-compile-command "make lock" -o $(LOCK)
 
-bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 105 minutes)
+bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
 	$(PY) -m bench.bc_benchmark

@@ -555,9 +555,10 @@ def foresee(run: Stages, overwrite: bool) -> None:
     }
     remade[run.dagger.policy.resolve()] = dagger_decision(run.dagger, overwrite, dataset_remade).action != REUSE
     if remade[run.dagger.policy.resolve()]:
-        copy = run.dagger.output
-        stale = dataset_remade and copy.exists() and "is a copy of the dataset the pipeline records again"
-        check_aggregate(run.dagger, stale or aggregate_problem(run.dagger))
+        problem = aggregate_problem(run.dagger)
+        if dataset_remade and run.dagger.output.exists():
+            problem = "is a copy of the dataset the pipeline records again"
+        check_aggregate(run.dagger, problem)
     for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from bc.dagger import DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
+from bc.dagger import SOURCE_FILE, DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
 from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
@@ -30,7 +30,7 @@ from policies import checkpoint
 from policies.folder import CONFIG_FILE
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
 from teleop import recordings
-from teleop.dataset_reader import read_episodes, read_frames, read_parameters
+from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
 from teleop.record import RecordConfig, record
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
@@ -136,6 +136,27 @@ def test_final_checkpoint_records_the_dagger_settings(dagger: tuple) -> None:
     *_, config = dagger
     training = json.loads((config.policy / CONFIG_FILE).read_text())["training"]
     assert training["dagger"] == {**config_dict(config), **AS_RECORDED} and training["made_by"] == "bc.dagger"
+
+
+def test_the_aggregate_and_the_checkpoint_name_the_demonstrations_copied(dagger: tuple) -> None:
+    """OUTPUT's demonstrations.json holds DATASET's path and fingerprint and who copied it; the checkpoint records the
+    same fingerprint, which `make pipeline` compares with the dataset's before reusing either."""
+    demonstrations, output, *_, config = dagger
+    source = json.loads((output / SOURCE_FILE).read_text())
+    assert source == {"path": str(demonstrations), "fingerprint": fingerprint(demonstrations), "made_by": "bc.dagger"}
+    training = json.loads((config.policy / CONFIG_FILE).read_text())["training"]
+    assert training["demonstrations"] == source["fingerprint"]
+
+
+def test_another_training_seed_fits_other_policies_from_the_same_rollout_seeds(dagger: tuple, tmp_path: Path) -> None:
+    """SEED is every fit's seed (initial weights, split, minibatches), not the rollouts': the same episode seeds, other
+    weights."""
+    demonstrations, output, result, _, config = dagger
+    other = dataclasses.replace(config, output=tmp_path / "aggregate", policy=tmp_path / "policy", seed=1)
+    weights = main(other).final.policy.state_dict()
+    seeds = [keys.EPISODE_SEED]
+    assert read_episodes(other.output, seeds).to_pylist() == read_episodes(output, seeds).to_pylist()
+    assert any(not torch.equal(weights[name], value) for name, value in result.final.policy.state_dict().items())
 
 
 def test_aggregate_logs_the_rounds_in_recordings_jsonl(dagger: tuple) -> None:

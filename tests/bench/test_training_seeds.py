@@ -13,8 +13,15 @@ from humanoid.conditions import SUITE
 def test_seed_zero_is_the_pipelines_run_and_other_seeds_train_apart() -> None:
     assert seed_config(0, Path("s")) == PipelineConfig()
     other = seed_config(2, Path("s"))
-    folders = {other.bc_policy, other.blind_policy, other.ppo_policy, other.scratch_policy}
-    assert {folder.parent for folder in folders} == {Path("s/seed_2")} and len(folders) == 4
+    folders = {
+        other.bc_policy,
+        other.blind_policy,
+        other.dagger_output,
+        other.dagger_policy,
+        other.ppo_policy,
+        other.scratch_policy,
+    }
+    assert {folder.parent for folder in folders} == {Path("s/seed_2")} and len(folders) == 6
     assert other.args == "--seed 2" and other.dataset == PipelineConfig().dataset  # same data: training alone varies
 
 
