@@ -60,6 +60,9 @@ MADE_BY = "bc.dagger"
 SOURCE_FILE = "demonstrations.json"
 """In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
+OPERATOR_EPISODES = 20
+"""Rollouts per round of the operator's DAgger student (`make pipeline`): 6 rounds of 20 follow every held-out
+schedule where 10 a round did less (docs/decisions/pipeline-student.md)."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 

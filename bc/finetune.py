@@ -39,6 +39,7 @@ import torch
 from stable_baselines3.common.callbacks import CallbackList
 from tqdm import tqdm
 
+from bc.dagger import OPERATOR_EPISODES, DaggerConfig
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.ppo import resume
@@ -64,7 +65,8 @@ from teleop.record import SENSED_LATENCY, SENSED_NOISE
 STUDENT_RECIPE = (
     f"`make pipeline` makes the command-conditioned student, or `make record CONTROLLER=expert-sensed SCHEDULES=1 "
     f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make dagger "
-    f"INPUTS=pending+ramp EXPERT=expert-sensed ROUNDS=6 EPISODES=20 NOISE={SENSED_NOISE} "
+    f"INPUTS=pending+ramp EXPERT=expert-sensed ROUNDS={DaggerConfig().rounds} EPISODES={OPERATOR_EPISODES} "
+    f"NOISE={SENSED_NOISE} "
     f"DATASET={paths.OPERATOR_DATASET} OUTPUT={paths.OPERATOR_DAGGER_DATASET} POLICY={paths.DAGGER_STUDENT_POLICY}`"
 )
 """How to make the default BC checkpoint, said when it is missing."""

@@ -183,7 +183,7 @@ class PipelineConfig:
         "labelling, NOISE on its rollouts' actions); both PPO stages start from it",
     )
     rounds: int = _like(DaggerConfig, "rounds", "DAgger rounds (docs/decisions/pipeline-student.md)")
-    dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", 20)
+    dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", bc_dagger.OPERATOR_EPISODES)
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
     timesteps: int = _like(FinetuneConfig, "timesteps")
