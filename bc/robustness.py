@@ -26,6 +26,7 @@ from bc.evaluate import EVAL_SEED, evaluate
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.keys import COMMAND_NAMES
+from common.threads import one_blas_thread
 from common.workers import default_workers
 from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
@@ -124,6 +125,7 @@ def _init_worker() -> None:
     import torch  # noqa: PLC0415 - a policy's forward pass of one row gains nothing from more threads
 
     torch.set_num_threads(1)
+    one_blas_thread()
 
 
 def push_sectors(directions: list[float], toppled: list[bool]) -> dict[str, list]:

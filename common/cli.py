@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+from common.threads import one_blas_thread
+
 Config = TypeVar("Config")
 
 EXIT_FAILURE = 1
@@ -216,7 +218,9 @@ def run_cli(
     description: str,
     prog: str | None = None,
 ) -> int:
-    """Parse, run `main`, and turn user errors into one line on stderr and a non-zero exit code."""
+    """Parse, run `main` (on one BLAS thread: `common.threads`), and turn user errors into one line on stderr and a
+    non-zero exit code."""
+    one_blas_thread()
     try:
         main(parse_config(config_class, argv, description, prog))
     except UserError as error:

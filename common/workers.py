@@ -47,6 +47,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from common.cli import UserError
+from common.threads import one_blas_thread
 
 START_METHOD = "forkserver"
 CLOSE_TIMEOUT = 10.0  # seconds a closing child gets to finish before it is killed
@@ -150,6 +151,7 @@ def _child(
     """The child's entry point: signal and CPU settings, then `target(channel, *args)` under the failure protocol."""
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_blas_thread()
     try:
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
