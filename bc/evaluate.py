@@ -20,26 +20,36 @@ them) to callers such as `bc.train`.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+import multiprocessing as mp
+import os
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, run_cli, setting
+from common.threads import one_blas_thread
 from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
 from humanoid.episode import Episode, EpisodeBuffer, run_episode
+from humanoid.learned import PolicyController
 from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
 from humanoid.video import CAMERA, VideoRecorder
+from policies.mlp import MLPPolicy
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 EVAL_SEED = 1000  # first evaluation seed: recordings use 0, 1, 2, ... and stay far below it
@@ -221,6 +231,63 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         plot=cfg.plot,
     )
     return {**result, "config": config_dict(cfg)}
+
+
+def init_worker() -> None:
+    """Set up a process that evaluates: one torch and one BLAS thread, since a forward pass or an LQR product of one
+    row gains nothing from more and the processes share the cores (docs/decisions/blas-threads.md)."""
+    torch.set_num_threads(1)
+    one_blas_thread()
+    threading.Thread(target=_exit_with_parent, daemon=True).start()
+
+
+def _exit_with_parent() -> None:
+    """End this worker once the process that started its pool is gone: the workers wait on a queue that never closes,
+    and would otherwise outlive a killed run (kill -9), holding its forkserver too."""
+    parent = mp.parent_process()  # its sentinel: a pipe from the starting process, at its end once that one is gone
+    if parent is not None:
+        parent.join()
+        os._exit(1)
+
+
+@functools.cache
+def _pool(workers: int) -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=init_worker)
+
+
+def evaluation_pool(workers: int) -> Executor | None:
+    """This process's pool of `workers` evaluation processes (forkserver, `init_worker`) for `evaluate_each`: started
+    at the first call and kept until the process exits, so that every stage of a run shares it and the workers'
+    start-up (their imports, seconds each) is paid once; None for one worker (evaluations run here)."""
+    return _pool(workers) if workers > 1 else None
+
+
+Evaluated = str | tuple[MLPPolicy, str]
+"""What `evaluate_each` evaluates: a registered controller's name or a checkpoint folder, or a policy in memory and
+the name its results go by (the policy travels to a worker pickled; its inputs are rebuilt there)."""
+
+
+def _evaluate(what: Evaluated, settings: dict[str, Any]) -> dict[str, Any]:
+    return evaluate(what if isinstance(what, str) else PolicyController(*what), **settings)
+
+
+def evaluate_each(runs: Sequence[tuple[Evaluated, dict[str, Any]]], pool: Executor | None = None) -> Iterator[dict]:
+    """`evaluate` of each (what, its keyword arguments) of `runs`: all submitted to `pool` at once (the first first),
+    else one after the other here; the results in order. They are the same either way: an episode depends on its
+    seed alone."""
+    if pool is None:
+        yield from (_evaluate(what, settings) for what, settings in runs)
+        return
+    futures = [pool.submit(_evaluate, what, settings) for what, settings in runs]
+    try:
+        for future in futures:
+            yield future.result()
+    except BrokenProcessPool:
+        _pool.cache_clear()  # a worker died: the next evaluations start a new pool
+        raise
+    finally:
+        for future in futures:
+            future.cancel()  # the caller stopped early or failed: nothing more to run
 
 
 def _main_and_print(cfg: EvalConfig) -> None:

@@ -41,7 +41,7 @@ from tqdm import tqdm
 
 from bc.dagger import OPERATOR_EPISODES, DaggerConfig
 from bc.data import load_demonstrations
-from bc.evaluate import EVAL_SEED, evaluate
+from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
 from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, falls_back, plot_curves, selection_score
@@ -101,7 +101,9 @@ class FinetuneConfig:
         "makes it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
-    timesteps: int = setting(1_000_000, "environment steps of training (the budget: docs/decisions/ppo-budget.md)")
+    timesteps: int = setting(
+        2**19, "environment steps of training: 32 rollouts (the budget: docs/decisions/ppo-budget.md)"
+    )
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int | None = setting(
         None,
@@ -405,6 +407,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             f"settings to resume it, or remove that folder"
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
+    pool = evaluation_pool(min(cfg.workers, default_workers(1 + len(EVAL_CONDITIONS))))
     env = vec_env(cfg, schedules)
     try:
         with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
@@ -422,6 +425,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 settings=settings,
                 folder=folder,
                 bar=bar,
+                pool=pool,
             )
             guards = Guards(cfg.critic_warmup)
             curriculum = (
@@ -457,17 +461,11 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     finally:
         env.close()
 
-    result = evaluate(
-        str(cfg.policy), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress, schedules=schedules
-    )
-    if validation_push(cfg):
-        result["pushed"] = evaluate(
-            str(cfg.policy),
-            episodes=cfg.final_eval_episodes,
-            seed=EVAL_SEED,
-            push=validation_push(cfg),
-            schedules=schedules,
-        )
+    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+    pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
+    result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
+    if pushed:
+        result["pushed"] = pushed[0]
     bc_eval = cfg.bc_policy / EVAL_FILE
     bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
     result.update(

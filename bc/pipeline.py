@@ -120,9 +120,10 @@ DAGGER_INPUTS = "pending+ramp"
 """What DAGGER_POLICY, PPO's start, reads: `pending`'s inputs and the command as the expert's setpoint moves toward it
 (humanoid.inputs.ramped_set): under DAgger it follows every held-out schedule, where the command alone does not
 (docs/decisions/command-features.md)."""
-EXPERTS = ("expert", SensedExpert.name)
-"""The registered controllers the table measures beside the policies: the expert told the simulator's state, and
-the one on leg odometry that records the demonstrations."""
+EXPERTS = (SensedExpert.name,)
+"""The registered controllers the table measures beside the policies: the expert on leg odometry that records the
+demonstrations, the students' reference. The expert told the simulator's state is left to `make robustness
+POLICY=expert SCHEDULES=1`: it teaches no row of the table (docs/decisions/pipeline-task.md)."""
 
 
 def _like(config_class: type, name: str, help: str | None = None, default: Any = dataclasses.MISSING) -> Any:

@@ -10,10 +10,8 @@ The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/concepts
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import sys
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,11 +20,10 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from bc.evaluate import EVAL_SEED, evaluate
+from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool, init_worker
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
 from common.keys import COMMAND_NAMES
-from common.threads import one_blas_thread
 from common.workers import default_workers
 from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
@@ -115,19 +112,6 @@ def result_paths(cfg: RobustnessConfig) -> tuple[Path, Path]:
     return tuple(folder / name.replace(".", f"{suffix}.") for name in (RESULT_FILE, FIGURE_FILE))
 
 
-def run_chunk(policy: str, name: str, seeds: range, schedules: bool = False) -> tuple[str, dict[str, Any]]:
-    """`bc.evaluate.evaluate` of `policy` under condition `name` on the consecutive `seeds` (under command
-    `schedules`), in a worker."""
-    return name, evaluate(policy, len(seeds), seeds.start, condition=name, schedules=schedules)
-
-
-def _init_worker() -> None:
-    import torch  # noqa: PLC0415 - a policy's forward pass of one row gains nothing from more threads
-
-    torch.set_num_threads(1)
-    one_blas_thread()
-
-
 def push_sectors(directions: list[float], toppled: list[bool]) -> dict[str, list]:
     """Pushes and the pushes that toppled the body per direction sector (`SECTOR_DEGREES` wide, centred on
     0, 45, ..., -45: the direction seen from the torso, 0 forward, 180 back)."""
@@ -170,18 +154,14 @@ def run_suite(
     rows: dict[str, list] = {name: [] for name in names}
     bar = tqdm(total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
     if workers == 1:
-        _init_worker()
-        for name, chunk_seeds in tasks:
-            rows[name].append(run_chunk(policy, name, chunk_seeds, schedules)[1])
-            bar.update(len(chunk_seeds))
-    else:
-        context = mp.get_context("forkserver")
-        with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
-            futures = [pool.submit(run_chunk, policy, name, chunk_seeds, schedules) for name, chunk_seeds in tasks]
-            for future in futures:
-                name, evaluation = future.result()
-                rows[name].append(evaluation)
-                bar.update(evaluation["episodes"])
+        init_worker()  # this process evaluates: the same setting as a worker's
+    runs = [
+        (policy, {"episodes": len(chunk_seeds), "seed": chunk_seeds.start, "condition": name, "schedules": schedules})
+        for name, chunk_seeds in tasks
+    ]
+    for (name, _), evaluation in zip(tasks, evaluate_each(runs, evaluation_pool(workers)), strict=True):
+        rows[name].append(evaluation)
+        bar.update(evaluation["episodes"])
     bar.close()
     return {name: summarise(rows[name]) for name in names}
 

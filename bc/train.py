@@ -35,12 +35,12 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
-from bc.evaluate import EVAL_SEED, evaluate
+from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from common import keys, paths
 from common.cli import DatasetError, UserError, config_dict, config_text, flag, run_cli, setting
+from common.workers import default_workers
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
-from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, TENSORBOARD_DIR
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
@@ -415,9 +415,10 @@ def train_and_save(
     if cfg.eval_episodes:
         # A policy that takes a command is evaluated on held-out schedules (their seeds never recorded).
         schedules = input_set(cfg.inputs).takes_command
-        settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "progress": cfg.progress}
-        evaluation = evaluate(PolicyController(result.policy, str(cfg.policy)), schedules=schedules, **settings)
-        expert = evaluate("expert", schedules=schedules, **settings)  # the reference on the same seeds
+        settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
+        # The expert is the reference on the same seeds; the two side by side.
+        runs = [((result.policy, str(cfg.policy)), settings), ("expert", settings)]
+        evaluation, expert = evaluate_each(runs, evaluation_pool(default_workers(len(runs))))
         evaluation["expert_mean_return"] = expert["mean_return"]
         evaluation["expert_survival_rate"] = expert["survival_rate"]
         evaluation["expert_tracking"] = expert["tracking"]

@@ -36,6 +36,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from bc.evaluate import EVAL_SEED, evaluate
+from bc.finetune import FinetuneConfig
 from common import paths
 from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
@@ -57,7 +58,7 @@ class TutorialConfig:
         paths.TUTORIAL_PREFERRED_POLICY, "checkpoint folder of the preferred-action learner"
     )
     ppo_policy: Path = setting(paths.TUTORIAL_PPO_POLICY, "folder of the tutorial's SB3 PPO (saved by SB3)")
-    timesteps: int = setting(1_000_000, "environment steps of training, each learner (the pipeline: the PPO stages')")
+    timesteps: int = setting(FinetuneConfig.timesteps, "environment steps of training, each learner (the PPO stages')")
     learning_rate: float = setting(0.005, "PPO: Adam learning rate (the tutorial's)")
     seed: int = setting(0, "seed of the learners and their training environments")
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")

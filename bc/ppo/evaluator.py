@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
 
@@ -11,10 +12,9 @@ from matplotlib.figure import Figure  # the object API draws to files without ch
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
-from bc.evaluate import evaluate
+from bc.evaluate import evaluate_each
 from common.cli import config_text
 from humanoid.commands import tracking_score
-from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import CONFIG_TAG
 
@@ -65,7 +65,8 @@ class Evaluator(BaseCallback):
     TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The evaluator also
     remembers the best of them by `selection_score` (the first on ties) among those that hold the floor
     (`holds_floor`: step 0 does), so that a run that ends worse than it went, or worse than the BC policy it started
-    from, can keep its best actor without giving up the floor.
+    from, can keep its best actor without giving up the floor. With a `pool` (`bc.evaluate.evaluation_pool`) an
+    evaluation's runs go side by side while the sampling workers wait.
     """
 
     def __init__(
@@ -80,12 +81,13 @@ class Evaluator(BaseCallback):
         schedules: bool = False,
         folder: Path,
         bar: tqdm,
+        pool: Executor | None = None,
     ) -> None:
         super().__init__()
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
         self.schedules = schedules  # every evaluation under held-out command schedules, tracking scored
-        self.settings, self.folder, self.bar = settings, folder, bar
+        self.settings, self.folder, self.bar, self.pool = settings, folder, bar, pool
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
         self.best: dict[str, float] | None = None
@@ -94,19 +96,19 @@ class Evaluator(BaseCallback):
     def evaluate_now(self) -> None:
         actor = self.model.policy.actor
         settings = {"episodes": self.episodes, "seed": self.seed, "schedules": self.schedules}
-        result = evaluate(PolicyController(actor, "ppo"), push=self.push, **settings)
+        extras = [{"push": self.push}, *({"condition": name} for name in self.conditions)]
+        runs = [((actor, "ppo"), {**extra, **settings}) for extra in extras]
+        result, *conditions = evaluate_each(runs, self.pool)
         actor.train()
         point = {
             "timesteps": self.num_timesteps,
             "mean_return": result["mean_return"],
             "survival_rate": result["survival_rate"],
         }
-        for name in self.conditions:  # beside the validation one: together they choose the actor kept
-            under = evaluate(PolicyController(actor, "ppo"), condition=name, **settings)
+        for name, under in zip(self.conditions, conditions, strict=True):  # together they choose the actor kept
             if name == "clean" and self.schedules:
                 point["tracking_score"] = tracking_score(under["tracking"])
                 self.logger.record("eval/clean/tracking_score", point["tracking_score"])
-            actor.train()
             point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
             self.logger.record(f"eval/{name}/survival_rate", under["survival_rate"])
             self.logger.record(f"eval/{name}/mean_return", under["mean_return"])

@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 import torch
 
-from bc.evaluate import EvalConfig, cli, evaluate
+from bc.evaluate import EvalConfig, cli, evaluate, evaluate_each, evaluation_pool
 from common.cli import config_dict
 from humanoid.conditions import RANDOMIZATION_STREAM
 from humanoid.env import make_env
 from humanoid.perturbations import TorsoPushes, relative_direction, toppling
 from humanoid.video import VideoError
 from policies import checkpoint
+from policies.checkpoint import load
 from policies.folder import WEIGHTS_FILE
 from policies.mlp import MLPPolicy, MLPSpec
 
@@ -242,3 +243,15 @@ def test_policy_that_does_not_fit_the_env_is_refused(tmp_path: Path, spec: MLPSp
     checkpoint.save(MLPPolicy(spec), tmp_path / "small", {}, {})
     with pytest.raises(checkpoint.CheckpointError, match=message):
         evaluate(str(tmp_path / "small"), episodes=1)
+
+
+def test_evaluations_side_by_side_give_what_they_give_one_after_the_other(bc_policy: Path) -> None:
+    """A learned policy's evaluations in a pool's processes (the policy pickled) return what they return here, in
+    the order given: what PPO's evaluations during training rely on."""
+    runs = [((load(bc_policy), "bc"), {"episodes": 1, "seed": 1000, "condition": name}) for name in ("clean", "mass")]
+    here = list(evaluate_each(runs))
+    pool = evaluation_pool(2)
+    assert pool is not None and evaluation_pool(2) is pool  # one pool per process and size, kept
+    there = list(evaluate_each(runs, pool))
+    assert there == here
+    assert here[0]["parameters"] != here[1]["parameters"]  # in order: each condition's own result

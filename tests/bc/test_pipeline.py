@@ -202,7 +202,7 @@ def test_first_run_makes_every_output_saying_why(first_run: tuple[Path, list[str
     """From nothing, each stage runs, one line saying so, in the order record, BC without and with the command,
     DAgger, scratch, fine-tuning; then the table's evaluations of the experts and every policy, with the command zero
     and on held-out schedules."""
-    controllers = ["expert", "expert-sensed", "blind", "bc", "dagger", "ppo", "scratch"]
+    controllers = ["expert-sensed", "blind", "bc", "dagger", "ppo", "scratch"]
     assert pipeline_lines(first_run[1]) == [
         "pipeline: recording data: no dataset there yet",
         "pipeline: training blind: no checkpoint there yet",
@@ -240,8 +240,7 @@ def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
     return), then a row per condition and controller with the settled error of every command field."""
     table = table_lines(first_run[1])
     assert table[0] == "| controller | standing | clean | push10 | mean return |"
-    assert [line.split(" | ")[0].removeprefix("| ") for line in table[2:9]] == [
-        "expert",
+    assert [line.split(" | ")[0].removeprefix("| ") for line in table[2:8]] == [
         "expert-sensed",
         "blind",
         "bc",
@@ -249,11 +248,11 @@ def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
         "ppo",
         "scratch",
     ]
-    assert table[2].startswith("| expert | 1/1 | 1/1 · 1.00 | ")  # the expert stands and follows the schedule
+    assert table[2].startswith("| expert-sensed | 1/1 | 1/1 · 1.00 | ")  # the demonstrator follows the schedule
     fields = next(line for line in table if line.startswith("| condition | controller"))
     assert fields == "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |"
     per_field = [line for line in table if line.startswith(("| clean | ", "| push10 | "))]
-    assert len(per_field) == 14
+    assert len(per_field) == 12
 
 
 def test_second_run_reuses_everything_and_prints_the_same_table(
@@ -271,7 +270,7 @@ def test_second_run_reuses_everything_and_prints_the_same_table(
         "pipeline: scratch was made from this BC policy with these settings: not training from scratch",
         "pipeline: ppo was made from this BC policy with these settings: not fine-tuning",
     ]
-    assert sum("on held-out schedules: reusing" in line for line in lines) == 7
+    assert sum("on held-out schedules: reusing" in line for line in lines) == 6  # every row
     assert table_lines(lines) == table_lines(first_run[1])
     assert snapshot(outputs) == before
 
