@@ -20,7 +20,7 @@ them) to callers such as `bc.train`.
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import json
 import math
 import multiprocessing as mp
@@ -29,7 +29,6 @@ import sys
 import threading
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -250,16 +249,26 @@ def _exit_with_parent() -> None:
         os._exit(1)
 
 
-@functools.cache
-def _pool(workers: int) -> ProcessPoolExecutor:
-    return ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=init_worker)
+_open_pools: dict[int, Executor] = {}  # the pools of the `evaluation_pool` blocks now open, by size
 
 
-def evaluation_pool(workers: int) -> Executor | None:
-    """This process's pool of `workers` evaluation processes (forkserver, `init_worker`) for `evaluate_each`: started
-    at the first call and kept until the process exits, so that every stage of a run shares it and the workers'
-    start-up (their imports, seconds each) is paid once; None for one worker (evaluations run here)."""
-    return _pool(workers) if workers > 1 else None
+@contextlib.contextmanager
+def evaluation_pool(workers: int) -> Iterator[Executor | None]:
+    """A pool of `workers` evaluation processes (forkserver, `init_worker`) for `evaluate_each`, for the block: the
+    outermost block of a size starts it and shuts it down, the blocks inside it reuse it (the pipeline's table holds
+    one open over every controller's suite, so the workers' start-up, seconds each, is paid once). None for one
+    worker: evaluations run here. No pool outlives its block: idle ones beside BC's training halved its speed."""
+    if workers <= 1:
+        yield None
+    elif workers in _open_pools:
+        yield _open_pools[workers]
+    else:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=init_worker) as pool:
+            _open_pools[workers] = pool
+            try:
+                yield pool
+            finally:
+                del _open_pools[workers]
 
 
 Evaluated = str | tuple[MLPPolicy, str]
@@ -282,9 +291,6 @@ def evaluate_each(runs: Sequence[tuple[Evaluated, dict[str, Any]]], pool: Execut
     try:
         for future in futures:
             yield future.result()
-    except BrokenProcessPool:
-        _pool.cache_clear()  # a worker died: the next evaluations start a new pool
-        raise
     finally:
         for future in futures:
             future.cancel()  # the caller stopped early or failed: nothing more to run

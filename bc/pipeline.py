@@ -72,7 +72,7 @@ from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.dagger import DaggerConfig
 from bc.data import MIN_EPISODES
-from bc.evaluate import EVAL_SEED
+from bc.evaluate import EVAL_SEED, evaluation_pool
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
@@ -645,8 +645,9 @@ def measure(
 ) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any]]]:
     """What the table shows of each controller in `names`: its `zero_command` evaluation and its `suite` on held-out
     schedules under `conditions`, by name."""
-    standing = {name: zero_command(name, episodes, workers) for name in names}
-    return standing, {name: suite(name, episodes, conditions, workers) for name in names}
+    with evaluation_pool(robustness.worker_count(workers)):  # one pool for every controller's evaluations
+        standing = {name: zero_command(name, episodes, workers) for name in names}
+        return standing, {name: suite(name, episodes, conditions, workers) for name in names}
 
 
 def zero_command(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:

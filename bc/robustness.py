@@ -159,9 +159,10 @@ def run_suite(
         (policy, {"episodes": len(chunk_seeds), "seed": chunk_seeds.start, "condition": name, "schedules": schedules})
         for name, chunk_seeds in tasks
     ]
-    for (name, _), evaluation in zip(tasks, evaluate_each(runs, evaluation_pool(workers)), strict=True):
-        rows[name].append(evaluation)
-        bar.update(evaluation["episodes"])
+    with evaluation_pool(workers) as pool:
+        for (name, _), evaluation in zip(tasks, evaluate_each(runs, pool), strict=True):
+            rows[name].append(evaluation)
+            bar.update(evaluation["episodes"])
     bar.close()
     return {name: summarise(rows[name]) for name in names}
 

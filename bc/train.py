@@ -418,7 +418,8 @@ def train_and_save(
         settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
         # The expert is the reference on the same seeds; the two side by side.
         runs = [((result.policy, str(cfg.policy)), settings), ("expert", settings)]
-        evaluation, expert = evaluate_each(runs, evaluation_pool(default_workers(len(runs))))
+        with evaluation_pool(default_workers(len(runs))) as pool:
+            evaluation, expert = evaluate_each(runs, pool)
         evaluation["expert_mean_return"] = expert["mean_return"]
         evaluation["expert_survival_rate"] = expert["survival_rate"]
         evaluation["expert_tracking"] = expert["tracking"]

@@ -250,8 +250,8 @@ def test_evaluations_side_by_side_give_what_they_give_one_after_the_other(bc_pol
     the order given: what PPO's evaluations during training rely on."""
     runs = [((load(bc_policy), "bc"), {"episodes": 1, "seed": 1000, "condition": name}) for name in ("clean", "mass")]
     here = list(evaluate_each(runs))
-    pool = evaluation_pool(2)
-    assert pool is not None and evaluation_pool(2) is pool  # one pool per process and size, kept
-    there = list(evaluate_each(runs, pool))
+    with evaluation_pool(2) as pool, evaluation_pool(2) as inner:
+        assert pool is not None and inner is pool  # a block inside another reuses its pool
+        there = list(evaluate_each(runs, pool))
     assert there == here
     assert here[0]["parameters"] != here[1]["parameters"]  # in order: each condition's own result
