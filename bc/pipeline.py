@@ -3,7 +3,7 @@ operator's command schedules (record), students clone it on what a robot senses 
 (train-bc), DAgger lets the expert label where a commanded student goes (dagger), PPO refines that student and PPO
 from scratch gets the same task and budget (finetune-rl, baseline-rl); then one table: survival and tracking per
 command field on held-out schedules, clean and under every condition of the robustness suite, and survival with the
-command zero (standing), for the experts and every policy.
+command zero (standing), for the expert that records the demonstrations and every policy.
 
     DATASET (CONTROLLER under schedules, NOISE, -+-> BLIND_POLICY (BC, pending: no command)
       LATENCY of the episodes delayed)          +-> BC_POLICY (BC, pending+command)
