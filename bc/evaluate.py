@@ -237,6 +237,11 @@ def init_worker() -> None:
     row gains nothing from more and the processes share the cores (docs/decisions/blas-threads.md)."""
     torch.set_num_threads(1)
     one_blas_thread()
+
+
+def _init_pool_worker() -> None:
+    """`init_worker`, and the worker ends with the process that started its pool (`_exit_with_parent`)."""
+    init_worker()
     threading.Thread(target=_exit_with_parent, daemon=True).start()
 
 
@@ -254,8 +259,8 @@ _open_pools: dict[int, Executor] = {}  # the pools of the `evaluation_pool` bloc
 
 @contextlib.contextmanager
 def evaluation_pool(workers: int) -> Iterator[Executor | None]:
-    """A pool of `workers` evaluation processes (forkserver, `init_worker`) for `evaluate_each`, for the block: the
-    outermost block of a size starts it and shuts it down, the blocks inside it reuse it (the pipeline's table holds
+    """A pool of `workers` evaluation processes (forkserver, `_init_pool_worker`) for `evaluate_each`, for the block:
+    the outermost block of a size starts it and shuts it down, the blocks inside it reuse it (the pipeline's table holds
     one open over every controller's suite, so the workers' start-up, seconds each, is paid once). None for one
     worker: evaluations run here. No pool outlives its block: idle ones beside BC's training halved its speed."""
     if workers <= 1:
@@ -263,7 +268,8 @@ def evaluation_pool(workers: int) -> Iterator[Executor | None]:
     elif workers in _open_pools:
         yield _open_pools[workers]
     else:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=init_worker) as pool:
+        context = mp.get_context("forkserver")
+        with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_pool_worker) as pool:
             _open_pools[workers] = pool
             try:
                 yield pool

@@ -24,6 +24,7 @@ default is what it is: docs/how-to/finetune-ppo.md; what was tried and removed: 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -408,58 +409,57 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     with evaluation_pool(min(cfg.workers, default_workers(1 + len(EVAL_CONDITIONS)))) as pool:
-        env = vec_env(cfg, schedules)
-        try:
-            with checkpoint.running(cfg.policy, cfg.overwrite) as folder:
-                model = learner(cfg, env, folder / TENSORBOARD_DIR)
-                # SB3 stops after the first whole rollout that reaches TIMESTEPS.
-                steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
-                bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
-                evaluator = Evaluator(
-                    episodes=cfg.eval_episodes,
-                    seed=VALIDATION_SEED,
-                    push=validation_push(cfg),
-                    freq=cfg.eval_freq,
-                    conditions=EVAL_CONDITIONS,
-                    schedules=schedules,
-                    settings=settings,
-                    folder=folder,
-                    bar=bar,
-                    pool=pool,
-                )
-                guards = Guards(cfg.critic_warmup)
-                curriculum = (
-                    PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, widened(cfg))
-                    if stages(cfg)
-                    else None
-                )
-                if saved is not None:
-                    resume.restore(saved, model, env, evaluator, curriculum)
-                    bar.update(model.num_timesteps)
-                    print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
-                snapshots = resume.Snapshots(folder, evaluator, settings, saved, curriculum)
-                start = time.perf_counter()
-                model.learn(
-                    total_timesteps=cfg.timesteps - model.num_timesteps,
-                    # The curriculum after the guards (both act at a rollout's end) and before the snapshots.
-                    callback=CallbackList([guards, *([curriculum] if curriculum else []), evaluator, snapshots]),
-                    reset_num_timesteps=saved is None,
-                )
-                seconds = time.perf_counter() - start
-                bar.close()
-                actor = model.policy.actor
-                keep_best = falls_back(evaluator.curve, cfg.fresh)  # the guarded actor
-                kept = evaluator.best if keep_best else evaluator.curve[-1]
-                if keep_best:
-                    actor.load_state_dict(evaluator.best_state)
-                record = {**settings, "seconds": seconds, "kept": kept}
-                if curriculum is not None:
-                    record["curriculum_stages"] = curriculum.history
-                checkpoint.save(actor, folder, record, bc_dataset(cfg.bc_policy))
-                (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
-                (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
-        finally:
-            env.close()
+        with (
+            contextlib.closing(vec_env(cfg, schedules)) as env,
+            checkpoint.running(cfg.policy, cfg.overwrite) as folder,
+        ):
+            model = learner(cfg, env, folder / TENSORBOARD_DIR)
+            # SB3 stops after the first whole rollout that reaches TIMESTEPS.
+            steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
+            bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
+            evaluator = Evaluator(
+                episodes=cfg.eval_episodes,
+                seed=VALIDATION_SEED,
+                push=validation_push(cfg),
+                freq=cfg.eval_freq,
+                conditions=EVAL_CONDITIONS,
+                schedules=schedules,
+                settings=settings,
+                folder=folder,
+                bar=bar,
+                pool=pool,
+            )
+            guards = Guards(cfg.critic_warmup)
+            curriculum = (
+                PushCurriculum(stages(cfg), cfg.curriculum_advance, cfg.curriculum_episodes, widened(cfg))
+                if stages(cfg)
+                else None
+            )
+            if saved is not None:
+                resume.restore(saved, model, env, evaluator, curriculum)
+                bar.update(model.num_timesteps)
+                print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
+            snapshots = resume.Snapshots(folder, evaluator, settings, saved, curriculum)
+            start = time.perf_counter()
+            model.learn(
+                total_timesteps=cfg.timesteps - model.num_timesteps,
+                # The curriculum after the guards (both act at a rollout's end) and before the snapshots.
+                callback=CallbackList([guards, *([curriculum] if curriculum else []), evaluator, snapshots]),
+                reset_num_timesteps=saved is None,
+            )
+            seconds = time.perf_counter() - start
+            bar.close()
+            actor = model.policy.actor
+            keep_best = falls_back(evaluator.curve, cfg.fresh)  # the guarded actor
+            kept = evaluator.best if keep_best else evaluator.curve[-1]
+            if keep_best:
+                actor.load_state_dict(evaluator.best_state)
+            record = {**settings, "seconds": seconds, "kept": kept}
+            if curriculum is not None:
+                record["curriculum_stages"] = curriculum.history
+            checkpoint.save(actor, folder, record, bc_dataset(cfg.bc_policy))
+            (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
+            (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
 
         final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
         pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
