@@ -158,7 +158,8 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
 
 
 def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
-    """Where the decoded arrays of this version of the dataset live: <path hash>-<content hash>."""
+    """Where the decoded arrays of this version of the dataset, as `inputs`, live: <path and inputs hash>-<content
+    hash>. Each input set keeps its own: PPO's critic reads two sets of the same dataset in turn."""
     files = sorted((root / "data").glob("*/*.parquet"))
     content = json.dumps(
         [
@@ -169,7 +170,7 @@ def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
             [(str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in files],
         ]
     )
-    path_hash = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:16]
+    path_hash = hashlib.sha256(f"{root.resolve()}\n{inputs}".encode()).hexdigest()[:16]
     return cache_dir() / "bc-frames" / f"{path_hash}-{hashlib.sha256(content.encode()).hexdigest()[:16]}"
 
 
@@ -202,7 +203,7 @@ def _decode(
 
 
 def _store(folder: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Write the cache folder atomically, and drop older versions of the same dataset's cache."""
+    """Write the cache folder atomically, and drop older versions of the same dataset's cache of the same inputs."""
     staging: Path | None = None
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)

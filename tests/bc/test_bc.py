@@ -383,6 +383,16 @@ def test_pending_inputs_in_training_are_what_the_controller_computes_live(
     assert np.abs(trained[:, 42 + 1 : 42 + 4]).max() > 0.1  # the estimated velocity moves (the drop from reset)
 
 
+def test_each_input_set_keeps_its_own_cache(delayed_recording: Path, env: gym.Env) -> None:
+    """Two input sets of one dataset read in turn (as PPO's critic does) both come from the cache the second time,
+    the same rows as computed."""
+    first = {inputs: load_demonstrations(delayed_recording, env, inputs=inputs) for inputs in ("full", "pending")}
+    for inputs, loaded in first.items():
+        again = load_demonstrations(delayed_recording, env, inputs=inputs)
+        assert again.from_cache
+        assert torch.equal(again.inputs, loaded.inputs)
+
+
 def test_dataset_recorded_before_the_sensed_state_is_refused_for_proprio(
     recorded: Path, tmp_path: Path, env: gym.Env, capsys: pytest.CaptureFixture[str]
 ) -> None:
