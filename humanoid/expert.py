@@ -9,6 +9,7 @@ the landing plan's time-varying version of it.
 from __future__ import annotations
 
 import copy
+import functools
 from collections import deque
 
 import mujoco
@@ -30,6 +31,13 @@ from humanoid.lqr import (
 )
 from humanoid.posture import NEUTRAL, Posture, PostureRamp, body_gains
 from humanoid.sensors import Proprioception
+
+
+@functools.cache
+def nominal_model() -> mujoco.MjModel:
+    """Humanoid-v5's model, one instance per process for every expert designed on it (never changed): the posture
+    designs `humanoid.posture` caches per model then serve each new expert too, as a suite builds one per task."""
+    return humanoid_model()
 
 
 class LQRExpert:
@@ -67,7 +75,7 @@ class LQRExpert:
         expert").
         """
         self.name = name
-        self.model = humanoid_model() if model is None else model
+        self.model = nominal_model() if model is None else model
         self.design = design
         self._key = cache_key(self.model, design)  # the body the gains are designed on, as it is now
         self._body: tuple[mujoco.MjModel, LQRGains] | None = None  # a told body other than that one

@@ -119,6 +119,22 @@ def test_reset_after_a_posture_acts_exactly_like_a_never_commanded_expert(
         obs, *_ = env.step(action)
 
 
+def test_a_second_default_expert_plans_a_posture_without_designing_again() -> None:
+    """Default experts share the nominal model, so the second to hold a posture finds every gain the first designed
+    (a suite builds an expert per task): no new design, and the same actions."""
+    posture = Posture(lean_left=0.1, twist=-0.2)
+    first = LQRExpert()
+    first.hold(posture)
+    designed = posture_gain.cache_info().misses
+    second = LQRExpert()
+    second.hold(posture)
+    assert second.model is first.model
+    assert posture_gain.cache_info().misses == designed
+    obs = np.zeros(348)
+    obs[: len(first.qpos_ref) - 2] = first.qpos_ref[2:]
+    np.testing.assert_array_equal(first.act(obs), second.act(obs))
+
+
 @pytest.mark.parametrize("field", ["lean_forward", "lean_left", "height", "twist", "arms"])
 def test_static_pose_at_the_limits_needs_no_help_from_the_root(model: mujoco.MjModel, field: str) -> None:
     """At each field's limits the solved pose leaves no root force or moment and its feed-forward fits the motors."""
