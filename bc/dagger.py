@@ -9,7 +9,8 @@ itself goes:
 2. Each round (`DAggerTrainer`): roll the current policy out for EPISODES episodes under the
    conditions the dataset was recorded in (RANDOMIZE, LATENCY: by default what its recordings.jsonl
    says); at every visited state store the expert's action as the label (`action`) and the policy's
-   as what ran (`executed_action`). Each episode is appended to OUTPUT as it ends, with
+   as what ran (`executed_action`). The episodes run over WORKERS processes and are appended to
+   OUTPUT in seed order as they end (one finished early waits in OUTPUT/.dagger-spool), with
    `dagger_round` = the round and `labeller` = EXPERT, and to the frames in memory; the next policy
    is fitted to the aggregate in memory: nothing is read back from disk.
 3. The last round's aggregate trains the checkpoint at POLICY (`bc.train.train_and_save`), the policy
@@ -30,7 +31,7 @@ import dataclasses
 import json
 import shutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,17 +44,18 @@ from bc.data import Demonstrations, episode_rows, load_demonstrations
 from bc.train import MIN_UPDATES, TrainConfig, TrainResult, fit_demonstrations, train_and_save
 from common import keys, paths
 from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
+from common.workers import default_workers
+from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
-from humanoid.controllers import Controller, make_controller
 from humanoid.env import humanoid_model, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS, input_set
-from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.mlp import MLPPolicy
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
+from teleop.parallel import ParallelRollouts, RolloutSettings
+from teleop.spool import Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
@@ -63,6 +65,9 @@ what the checkpoint records as its demonstrations, and what `make pipeline` comp
 OPERATOR_EPISODES = 20
 """Rollouts per round of the operator's DAgger student (`make pipeline`): 6 rounds of 20 follow every held-out
 schedule where 10 a round did less (docs/decisions/pipeline-student.md)."""
+SPOOL = ".dagger-spool"
+"""In OUTPUT: a round's finished episodes waiting for their turn to be committed (`DAggerTrainer`); the recorder's
+own spool (`teleop.spool.SPOOL_DIR`) is committed whenever the dataset is opened, in seed order but past a gap."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -105,6 +110,11 @@ class DaggerConfig:
         "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first)",
     )
     episodes: int = setting(10, "policy episodes rolled out and labelled per round")
+    workers: int | None = setting(
+        None,
+        "processes rolling a round's episodes out, each with its labelling expert (committed in seed order: the "
+        "aggregate does not depend on it); default: the machine's cores, at most EPISODES",
+    )
     epochs: int = setting(30, "training epochs of every round's policy (more if MIN_UPDATES needs them)")
     min_updates: int = setting(MIN_UPDATES, "at least this many Adam steps in every round's training (bc.train's)")
     patience: int = setting(
@@ -152,7 +162,7 @@ class DaggerResult:
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
     input_set(cfg.inputs)
-    for name in ("rounds", "episodes", "epochs"):
+    for name in ("rounds", "episodes", "epochs", *(("workers",) if cfg.workers is not None else ())):
         if getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     for name in ("patience", "min_updates", "eval_episodes", "noise"):
@@ -267,26 +277,36 @@ class DAggerTrainer:
     """DAgger rounds in memory, as `imitation`'s trainers run them: the aggregate's frames and the current policy
     live here, so a round fits its policy to what the last one rolled out without reading the dataset back.
 
-    Every episode also goes to the dataset on disk as it ends (`collect`'s store), so a crash costs at most the
-    episode being rolled out and a later run continues from the rounds on disk.
+    A round's episodes are rolled out over `workers` processes (`teleop.parallel`, kept from one round to the next,
+    each with its labelling expert) and committed in seed order: the same aggregate whatever the count. A finished
+    episode waits for its turn in OUTPUT/`SPOOL` (`teleop.spool`), so a crash costs at most the episodes being rolled
+    out, and a later run commits the waiting ones in their turn and continues from the rounds on disk.
     """
 
     def __init__(
-        self, demos: Demonstrations, training: TrainConfig, env: gym.Env, expert: Controller, name: str = "dagger"
+        self,
+        demos: Demonstrations,
+        training: TrainConfig,
+        rollouts: RolloutSettings,
+        action_space: gym.spaces.Box,
+        workers: int = 1,
+        name: str = "dagger",
     ) -> None:
         """`demos`: the aggregate so far, rows as `load_demonstrations` reads them; `training`: how each policy is
-        fitted; `env`: where the policy is rolled out (its wrappers are the conditions); `expert`: the labeller;
-        `name`: the rolled-out policies' controller name, with ":roundN" for the round whose aggregate trained it."""
+        fitted; `rollouts`: how it is rolled out (the conditions, the noise, the labeller: `controller` and `policy`
+        are each round's); `workers`: processes rolling out; `name`: the rolled-out policies' controller name, with
+        ":roundN" for the round whose aggregate trained it."""
         self.demos = demos
         self.training = training
-        self.env = env
-        self.expert = expert
+        self.rollouts = dataclasses.replace(rollouts, schedules=input_set(training.inputs).takes_command)
+        self.action_space = action_space
+        self.workers = workers
         self.name = name
         self.policy: MLPPolicy | None = None
         self.round_of: dict[int, int] = {}
         """The DAgger round of each aggregate episode the trainer added or was told of; unlisted ones are round 0."""
         self._model = humanoid_model()  # nominal, as the training inputs are computed on load: never a drawn body
-        self._buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
+        self._processes: ParallelRollouts | None = None  # started by the first round with episodes to roll out
 
     def train(self, round_index: int | None = None) -> MLPPolicy:
         """Fit a new policy to the aggregate (with `round_index`, to its episodes from before that round: the
@@ -295,49 +315,80 @@ class DAggerTrainer:
         demos = self.demos
         if round_index is not None:
             demos = demos.only([e for e in demos.episodes if self.round_of.get(e, 0) < round_index])
-        self.policy = fit_demonstrations(demos, self.training, self.env.action_space).policy
+        self.policy = fit_demonstrations(demos, self.training, self.action_space).policy
         return self.policy
 
+    def _rolled_out(self, root: Path, seeds: list[int], name: str) -> Iterator[Path]:
+        """The spool file (in `root`'s SPOOL) of each of `seeds` as the current policy (called `name`) rolls them
+        out, in their order."""
+        if not seeds:
+            return iter(())
+        if self._processes is None:
+            settings = dataclasses.replace(self.rollouts, controller=name, policy=self.policy)
+            self._processes = ParallelRollouts(settings, root, self.workers, SPOOL)
+        else:
+            self._processes.act_with(self.policy, name)
+        return self._processes.in_seed_order(seeds)
+
     def collect(
-        self, store: EpisodeStore, round_index: int, episodes: int, progress: bool = False, noise: float = 0.0
+        self, store: EpisodeStore, round_index: int, episodes: int, progress: bool = False
     ) -> tuple[RoundReport, list[CommittedEpisode]]:
-        """Roll the current policy out for `episodes` episodes (seeds after `store`'s last), `noise` on the actions it
-        executes, the expert labelling every state; append each episode to `store` and its frames to the aggregate."""
+        """Roll the current policy out for `episodes` episodes (seeds after `store`'s last; those a killed run left in
+        the spool are taken from there), the expert labelling every state; append each episode to `store` and its
+        frames to the aggregate."""
         if self.policy is None:
             raise RuntimeError("train() a policy before collecting its rollouts")
-        controller = PolicyController(self.policy, f"{self.name}:round{round_index - 1}", self.env)
-        first_seed = store.next_seed()
+        spool = Spool(store.root, SPOOL)
+        seeds = list(range(store.next_seed(), store.next_seed() + episodes))
+        waiting = {seed for seed in seeds if spool.path_of(seed).is_file()}
+        fresh = [seed for seed in seeds if seed not in waiting]
+        rolled = self._rolled_out(store.root, fresh, f"{self.name}:round{round_index - 1}")
         added, returns, frames, survived, rows = [], [], 0, 0, []
         bar = tqdm(
-            range(first_seed, first_seed + episodes),
-            desc=f"round {round_index}",
-            unit="ep",
-            disable=not progress,
-            file=sys.stderr,
-            dynamic_ncols=True,
+            seeds, desc=f"round {round_index}", unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True
         )
         try:
             for seed in bar:
-                episode = run_episode(
-                    self.env,
-                    controller,
-                    seed,
-                    noise,
-                    self._buffer,
-                    labeller=self.expert,
-                    schedules=controller.takes_command,
-                )
+                path = spool.path_of(seed) if seed in waiting else next(rolled)
+                episode = Spool.load(path)
                 episode.dagger_round = round_index
-                committed = store.append(episode)
+                committed = store.append(episode, spooled=path)
                 added.append(committed)
                 rows.append((*episode_rows(episode, self.training.inputs, self._model), committed.index))
                 self.round_of[committed.index] = round_index
                 returns.append(episode.episode_return)
                 frames += episode.length
                 survived += not episode.fell
+        except BaseException:
+            self.close(interrupted=True)  # the finished episodes stay spooled
+            raise
         finally:  # also when interrupted: the aggregate in memory holds every episode on disk
             self.demos = self.demos.with_episodes(rows)
+        spool.remove_if_empty()
         return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived), added
+
+    def close(self, interrupted: bool = False) -> None:
+        """Stop the rollout processes (at once if `interrupted`)."""
+        if self._processes is not None:
+            self._processes.close(interrupted)
+            self._processes = None
+
+
+def workers(cfg: DaggerConfig) -> int:
+    """The rollout processes `cfg` asks for: --workers, else one per core, at most EPISODES (`common.workers`)."""
+    return default_workers(cfg.episodes) if cfg.workers is None else cfg.workers
+
+
+def settle_spool(output: Path, committed: int) -> None:
+    """What a killed run left in OUTPUT's SPOOL: kept for its round (`teleop.spool`'s recovery) if the run was a
+    DAgger run, which `check_resume` let through with these settings; dropped otherwise (no run was killed, or its
+    mark was removed to go on with other settings): those episodes are no round of this run."""
+    spool = Spool(output, SPOOL)
+    killed = recordings.marked(output)
+    if killed is not None and is_dagger_run(killed):
+        spool.recover(committed)
+    else:
+        shutil.rmtree(spool.folder, ignore_errors=True)
 
 
 def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
@@ -353,6 +404,7 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(), randomization, cfg.latency)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
+    settle_spool(cfg.output, store.num_episodes)
     result = DaggerResult()
     context = {"dagger": config_dict(cfg), "demonstrations": copied_from(cfg.output).get("fingerprint")}
     training = TrainConfig(
@@ -367,12 +419,23 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         progress=cfg.progress,
         seed=cfg.seed,
     )
+    rollouts = RolloutSettings(
+        cfg.policy.name,
+        cfg.noise,
+        env.spec.max_episode_steps,
+        DEFAULT_TASK,
+        randomization,
+        cfg.latency,
+        False,
+        cfg.expert,
+    )
+    trainer: DAggerTrainer | None = None
     try:
         table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND]).to_pydict()
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
         rounds = table[keys.EPISODE_DAGGER_ROUND]
         quiet = dataclasses.replace(training, progress=False)
-        trainer = DAggerTrainer(demos, quiet, env, make_controller(cfg.expert, env), cfg.policy.name)
+        trainer = DAggerTrainer(demos, quiet, rollouts, env.action_space, workers(cfg), cfg.policy.name)
         trainer.round_of = dict(zip(table["episode_index"], rounds, strict=True))
         last = max(rounds)
         # A last round with fewer than EPISODES episodes was cut short (a killed run): it is finished first.
@@ -383,10 +446,12 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
             for round_index in range(first, cfg.rounds + 1):
                 trainer.train(round_index)
                 missing = cfg.episodes - rounds.count(round_index)
-                report, committed = trainer.collect(store, round_index, missing, cfg.progress, cfg.noise)
+                report, committed = trainer.collect(store, round_index, missing, cfg.progress)
                 result.rounds.append(report)
                 added += committed
     finally:
+        if trainer is not None:
+            trainer.close()
         store.close()
         env.close()
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.

@@ -138,6 +138,7 @@ TARGETS: dict[str, Target] = {
             "noise",
             "rounds",
             "episodes",
+            "workers",
             "seed",
             "overwrite",
         ),

@@ -18,11 +18,15 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from common.workers import Channel, Worker, close_all
 from humanoid.conditions import Randomization
 from humanoid.episode import Episode, EpisodeBuffer, run_episode
-from teleop.spool import Spool
+from teleop.spool import SPOOL_DIR, Spool
+
+if TYPE_CHECKING:
+    from policies.mlp import MLPPolicy
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
 # What `_work` imports.
@@ -40,6 +44,9 @@ class RolloutSettings:
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
     latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
     schedules: bool = False  # the operator's command follows the schedule drawn from each seed
+    labeller: str | None = None  # a registered controller that labels every state (DAgger's expert), or none
+    policy: MLPPolicy | None = None  # the controller's weights, held in memory (DAgger's round policy, `controller`
+    # naming it), instead of a registered controller or checkpoint folder by that name
 
 
 class Simulator:
@@ -52,37 +59,67 @@ class Simulator:
 
         self.settings = settings
         self.env = recording_env(make_env(settings.max_steps), settings.randomization, settings.latency)
-        self.controller = make_controller(settings.controller, self.env)
+        if settings.policy is None:
+            self.controller = make_controller(settings.controller, self.env)
+        else:
+            self.act_with(settings.policy, settings.controller)
+        self.labeller = None if settings.labeller is None else make_controller(settings.labeller, self.env)
         self.buffer = EpisodeBuffer(self.env, settings.max_steps)
 
     def run(self, seed: int) -> Episode:
         settings = self.settings
         return run_episode(
-            self.env, self.controller, seed, settings.noise, self.buffer, settings.task, schedules=settings.schedules
+            self.env,
+            self.controller,
+            seed,
+            settings.noise,
+            self.buffer,
+            settings.task,
+            labeller=self.labeller,
+            schedules=settings.schedules,
         )
 
+    def act_with(self, policy: MLPPolicy, name: str) -> None:
+        """From the next seed on, `policy` (in memory, called `name`) acts: DAgger's next round."""
+        from humanoid.learned import PolicyController  # noqa: PLC0415 - torch, for a policy's worker only
 
-def _work(channel: Channel, settings: RolloutSettings, dataset: Path) -> None:
-    """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed."""
+        self.controller = PolicyController(policy, name, self.env)
+
+
+@dataclass(frozen=True)
+class NextPolicy:
+    """A message to the workers: the policy that acts from the next seed on (`Simulator.act_with`)."""
+
+    policy: MLPPolicy
+    name: str
+
+
+def _work(channel: Channel, settings: RolloutSettings, dataset: Path, spool_name: str) -> None:
+    """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed; a `NextPolicy`
+    changes who acts."""
     simulator = Simulator(settings)
-    spool = Spool(dataset)
-    for seed in channel:
-        spool.put(simulator.run(seed))
-        channel.send(seed)
+    spool = Spool(dataset, spool_name)
+    for message in channel:
+        if isinstance(message, NextPolicy):
+            simulator.act_with(message.policy, message.name)
+            continue
+        spool.put(simulator.run(message))
+        channel.send(message)
 
 
 class ParallelRollouts:
     """`workers` simulation processes for one recording; a context manager that stops them on exit."""
 
-    def __init__(self, settings: RolloutSettings, dataset: Path, workers: int) -> None:
-        self._spool = Spool(dataset)
+    def __init__(self, settings: RolloutSettings, dataset: Path, workers: int, spool: str = SPOOL_DIR) -> None:
+        """Spooled into DATASET/`spool`: the recorder's spool, or another whose episodes the caller commits."""
+        self._spool = Spool(dataset, spool)
         self._workers: list[Worker] = []
         self._closed = False
         try:
             for index in range(workers):
                 # The forkserver imports WORKER_MODULES once: a worker then starts in milliseconds instead of 0.2 s.
                 self._workers.append(
-                    Worker(_work, settings, dataset, name=f"recording worker {index}", preload=WORKER_MODULES)
+                    Worker(_work, settings, dataset, spool, name=f"recording worker {index}", preload=WORKER_MODULES)
                 )
         except BaseException:
             self.close(interrupted=True)
@@ -116,6 +153,11 @@ class ParallelRollouts:
                     hand_out(worker)
             done.discard(seed)
             yield self._spool.path_of(seed)
+
+    def act_with(self, policy: MLPPolicy, name: str) -> None:
+        """Every worker rolls out `policy` (called `name`) from the next seed handed out on (DAgger's next round)."""
+        for worker in self._workers:
+            worker.send(NextPolicy(policy, name))
 
     def close(self, interrupted: bool = False) -> None:
         """Stop the workers once their seeds are done, or at once if `interrupted` (spooled episodes stay).

@@ -30,10 +30,10 @@ _FACTS = "_facts"
 
 
 class Spool:
-    """The spool folder of one dataset."""
+    """The spool folder of one dataset: `name`, SPOOL_DIR for the recorder's (which `teleop.store` commits on open)."""
 
-    def __init__(self, dataset: Path) -> None:
-        self.folder = dataset / SPOOL_DIR
+    def __init__(self, dataset: Path, name: str = SPOOL_DIR) -> None:
+        self.folder = dataset / name
 
     def put(self, episode: Episode) -> Path:
         """Write `episode` under its seed, atomically: a reader sees the whole file or none."""

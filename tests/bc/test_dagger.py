@@ -9,21 +9,33 @@ import shutil
 import signal
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from bc.dagger import SOURCE_FILE, DaggerConfig, DaggerResult, DAggerTrainer, cli, main, recorded_conditions
+from bc.dagger import (
+    SOURCE_FILE,
+    SPOOL,
+    DaggerConfig,
+    DaggerResult,
+    DAggerTrainer,
+    cli,
+    main,
+    recorded_conditions,
+    settle_spool,
+)
 from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
 from common import keys
 from common.cli import DatasetError, config_dict
+from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_env
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
+from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUT_SETS, INPUTS
 from policies import checkpoint
@@ -31,7 +43,9 @@ from policies.folder import CONFIG_FILE
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
+from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import RecordConfig, record
+from teleop.spool import Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -230,20 +244,27 @@ def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def one_round(delayed: Path, root: Path, inputs: str, latency: float, expert: str, episodes: int) -> DAggerTrainer:
+def one_round(
+    delayed: Path, root: Path, inputs: str, latency: float, expert: str, episodes: int, waiting: Sequence[int] = ()
+) -> DAggerTrainer:
     """A copy of `delayed` at `root`, a policy on `inputs` fitted to it, and one round of `episodes` rollouts (seeds
-    4 on) under `latency`, labelled by `expert`, appended to `root`."""
+    4 on) under `latency`, labelled by `expert`, appended to `root`; the seeds `waiting` rolled out beforehand and
+    left in the spool, as a killed run leaves episodes it finished beyond one it had not."""
     shutil.copytree(delayed, root)
     env = recording_env(make_env(STEPS), Randomization(), latency)
     training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
-    trainer = DAggerTrainer(
-        load_demonstrations(root, env, cache=False, inputs=inputs), training, env, make_controller(expert, env)
-    )
+    rollouts = RolloutSettings("dagger", 0.0, STEPS, DEFAULT_TASK, Randomization(), latency, labeller=expert)
+    demos = load_demonstrations(root, env, cache=False, inputs=inputs)
+    trainer = DAggerTrainer(demos, training, rollouts, env.action_space)
     store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
     try:
         trainer.train()
+        simulator = Simulator(dataclasses.replace(trainer.rollouts, controller="dagger:round0", policy=trainer.policy))
+        for seed in waiting:
+            Spool(root, SPOOL).put(simulator.run(seed))
         trainer.collect(store, round_index=1, episodes=episodes)
     finally:
+        trainer.close()
         store.close()
         env.close()
     return trainer
@@ -261,6 +282,30 @@ def test_round_frames_in_memory_equal_the_frames_read_back(delayed: Path, inputs
     np.testing.assert_array_equal(trainer.demos.episode_index, read_back.episode_index)
     torch.testing.assert_close(trainer.demos.inputs, read_back.inputs, rtol=0, atol=0)
     torch.testing.assert_close(trainer.demos.actions, read_back.actions, rtol=0, atol=0)
+
+
+def test_an_episode_left_waiting_is_committed_in_its_turn(delayed: Path, tmp_path: Path) -> None:
+    """A round's episode left in OUTPUT's spool beyond one not rolled out yet (seed 5, not 4) is committed in its
+    seed's turn, not rolled out again: the aggregate, on disk and in memory, is the one of a round never broken."""
+    unbroken = one_round(delayed, tmp_path / "unbroken", "pending", 0.5, "expert-sensed", episodes=2)
+    resumed = one_round(delayed, tmp_path / "resumed", "pending", 0.5, "expert-sensed", episodes=2, waiting=[5])
+    assert not (tmp_path / "resumed" / SPOOL).exists()
+    columns = [keys.EPISODE_SEED, "length", keys.EPISODE_RETURN, keys.EPISODE_CONTROLLER]
+    episodes = [read_episodes(tmp_path / name, columns).to_pylist() for name in ("unbroken", "resumed")]
+    assert episodes[0] == episodes[1] and [e[keys.EPISODE_SEED] for e in episodes[1]] == [0, 1, 2, 3, 4, 5]
+    for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):
+        np.testing.assert_array_equal(read_frames(tmp_path / "resumed")[key], read_frames(tmp_path / "unbroken")[key])
+    torch.testing.assert_close(resumed.demos.inputs, unbroken.demos.inputs, rtol=0, atol=0)
+
+
+def test_a_spool_no_killed_dagger_run_left_is_dropped(delayed: Path, tmp_path: Path) -> None:
+    """Spooled episodes without the mark of a killed DAgger run (removed to go on with other settings) are no round
+    of the next run: dropped."""
+    root = tmp_path / "aggregate"
+    shutil.copytree(delayed, root)
+    Spool(root, SPOOL).put(run_episode(make_env(STEPS), LQRExpert(), seed=4))
+    settle_spool(root, committed=4)
+    assert not (root / SPOOL).exists()
 
 
 def test_a_delayed_rounds_action_in_flight_is_what_the_policy_sent(delayed: Path, tmp_path: Path) -> None:
@@ -338,7 +383,8 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
 
 
 @pytest.mark.parametrize(
-    ("option", "value"), [("--noise", "-0.1"), ("--noise", "nan"), ("--latency", "1.5"), ("--randomize", "heavy")]
+    ("option", "value"),
+    [("--noise", "-0.1"), ("--noise", "nan"), ("--latency", "1.5"), ("--randomize", "heavy"), ("--workers", "0")],
 )
 def test_bad_rollout_settings_are_refused(
     recorded: Path, tmp_path: Path, option: str, value: str, capsys: pytest.CaptureFixture[str]
