@@ -169,7 +169,8 @@ def test_the_balanced_pose_of_a_command_tracks_it_exactly(
 def test_known_perturbations_give_known_errors(model: mujoco.MjModel, tracking: Tracking) -> None:
     """From the neutral stand: the twist joint 0.1 rad off is a twist error of 0.1 and nothing else; the torso
     pitched forward 0.1 rad (about the world y axis) leans forward 0.1; rolled 0.1 rad about x leans right 0.1;
-    2 cm lower is a height error of 0.02; one arm joint 0.06 rad off is an arms error of 0.01 (mean of six)."""
+    2 cm lower is a height error of 0.02; one arm joint 0.06 rad off is an arms error of 0.01 (mean of six). `error`
+    of one state is the same row bit for bit."""
     zero = command_vector(NEUTRAL)[None]
     stand = reference_observation(model, zero[0])
     assert np.array_equal(stand[0, 1:5], [1.0, 0.0, 0.0, 0.0])  # upright: the rotations below are the torso's
@@ -188,6 +189,8 @@ def test_known_perturbations_give_known_errors(model: mujoco.MjModel, tracking: 
     }
     for name, (obs, error) in expected.items():
         np.testing.assert_allclose(tracking.errors(obs, zero)[0], error, atol=1e-9, err_msg=name)
+        # One state at a time (PPO's reward): the same numbers, bit for bit.
+        np.testing.assert_array_equal(tracking.error(obs[0], zero[0]), tracking.errors(obs, zero)[0], err_msg=name)
     achieved = np.concatenate([tracking.achieved(obs) for obs in (pitched, rolled, lowered, twisted)])
     np.testing.assert_allclose(
         achieved, [[0.1, 0, 0, 0], [0, -0.1, 0, 0], [0, 0, -0.02, 0], [0, 0, 0, -0.1]], atol=1e-9
