@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from bc.data import Demonstrations, episode_rows, load_demonstrations
+from bc.data import Demonstrations, cache_demonstrations, episode_rows, load_demonstrations
 from bc.train import MIN_UPDATES, TrainConfig, TrainResult, fit_demonstrations, train_and_save
 from common import keys, paths
 from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
@@ -456,6 +456,8 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         env.close()
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
+    if training.cache:
+        cache_demonstrations(aggregate)  # the rows `load_demonstrations` would compute again (PPO's critic reads them)
     result.final = train_and_save(aggregate, training, env.action_space, made_by, context)
     return result
 

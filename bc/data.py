@@ -221,6 +221,15 @@ def _store(folder: Path, arrays: dict[str, np.ndarray]) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
+def cache_demonstrations(demos: Demonstrations) -> None:
+    """Put `demos` (every committed frame of its dataset as `load_demonstrations` reads them, rows made elsewhere)
+    into the decoded-frames cache, so that the next load of the dataset as these inputs reads them back: DAgger's
+    aggregate, whose rows it holds in memory, for PPO's critic."""
+    folder = _cache_folder(demos.root, (demos.root / INFO_PATH).read_text(), demos.kind)
+    arrays = {"inputs": demos.inputs.numpy(), "actions": demos.actions.numpy(), "episode_index": demos.episode_index}
+    _store(folder, arrays)
+
+
 def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: str = "full") -> Demonstrations:
     """Every committed frame of the dataset at `root`, checked against `env`, as float32 tensors of `inputs`."""
     start = time.perf_counter()

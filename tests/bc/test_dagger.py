@@ -132,6 +132,17 @@ def test_the_sensed_expert_labels_each_episode_from_its_start(sensed_dagger: Pat
     assert_labelled_by(SensedExpert(), read_frames(sensed_dagger), episodes[3:])
 
 
+def test_the_aggregate_loads_from_the_cache_as_computed(sensed_dagger: Path) -> None:
+    """The run leaves its aggregate's rows (held in memory) in the decoded-frames cache: the next load as the student's
+    inputs reads them from there, equal to the rows computed from the files."""
+    cached = load_demonstrations(sensed_dagger, make_env(), inputs="pending")
+    computed = load_demonstrations(sensed_dagger, make_env(), cache=False, inputs="pending")
+    assert cached.from_cache and not computed.from_cache
+    torch.testing.assert_close(cached.inputs, computed.inputs, rtol=0, atol=0)
+    torch.testing.assert_close(cached.actions, computed.actions, rtol=0, atol=0)
+    np.testing.assert_array_equal(cached.episode_index, computed.episode_index)
+
+
 def test_demonstrations_are_left_unchanged_and_a_policy_is_saved(dagger: tuple) -> None:
     """DATASET is only read; the final policy is a loadable checkpoint trained on the aggregate, on the inputs asked."""
     demonstrations, output, result, before, _ = dagger
