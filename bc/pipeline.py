@@ -27,7 +27,8 @@ A stage is skipped only if its output exists and was made from the same inputs:
 
 - the dataset: its recordings.jsonl (`teleop.recordings`) accounts for every episode in it, and
   those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
-- a checkpoint: its config.json holds the same settings and its eval.json exists, and it was made
+- a checkpoint: its config.json holds the same settings and its eval.json exists (BC and DAgger here skip
+  theirs: STAGE_EVALUATION), and it was made
   from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json; DAgger: `demonstrations`
   in config.json) or the BC weights' digest (PPO: `bc_policy_sha256` in config.json);
 - DAgger's aggregate, when its checkpoint is made again: it is a copy of the dataset as it is now (its
@@ -116,6 +117,9 @@ STUDENT_INPUTS = "pending+command"
 and the operator's command (docs/decisions/pending-inputs.md, docs/concepts/commands.md)."""
 BLIND_INPUTS = "pending"
 """What BLIND_POLICY reads: the same without the operator's command."""
+STAGE_EVALUATION = 0
+"""Episodes of the BC and DAgger stages' own evaluation after training: none, since the table evaluates every
+controller on the same held-out seeds (its clean column is that evaluation), and the three cost about 35 s."""
 DAGGER_INPUTS = "pending+ramp"
 """What DAGGER_POLICY, PPO's start, reads: `pending`'s inputs and the command as the expert's setpoint moves toward it
 (humanoid.inputs.ramped_set): under DAgger it follows every held-out schedule, where the command alone does not
@@ -273,7 +277,13 @@ def stages(cfg: PipelineConfig) -> Stages:
         schedules=True,
         **workers,
     )
-    student = TrainConfig(dataset=cfg.dataset, policy=cfg.bc_policy, epochs=cfg.epochs, inputs=STUDENT_INPUTS)
+    student = TrainConfig(
+        dataset=cfg.dataset,
+        policy=cfg.bc_policy,
+        epochs=cfg.epochs,
+        inputs=STUDENT_INPUTS,
+        eval_episodes=STAGE_EVALUATION,
+    )
     return Stages(
         record=recording,
         student=student,
@@ -290,6 +300,7 @@ def stages(cfg: PipelineConfig) -> Stages:
             rounds=cfg.rounds,
             episodes=cfg.dagger_episodes,
             epochs=cfg.epochs,
+            eval_episodes=STAGE_EVALUATION,
         ),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
@@ -430,8 +441,13 @@ def _training_record(folder: Path) -> dict[str, Any]:
     return training if isinstance(training, dict) else {}
 
 
+def evaluates(cfg: TrainConfig | FinetuneConfig | DaggerConfig) -> bool:
+    """Whether the stage writes an eval.json: PPO always, BC and DAgger unless told no episodes."""
+    return not isinstance(cfg, TrainConfig | DaggerConfig) or cfg.eval_episodes > 0
+
+
 def checkpoint_decision(
-    cfg: TrainConfig | FinetuneConfig,
+    cfg: TrainConfig | FinetuneConfig | DaggerConfig,
     verb: str,
     option: str,
     source: str,
@@ -465,7 +481,7 @@ def checkpoint_decision(
         problem = f"does not record which {source} it was made from (an older version)"
     elif saved_source != current_source():
         problem = f"was made from another {source}"
-    elif not (folder / EVAL_FILE).is_file():
+    elif evaluates(cfg) and not (folder / EVAL_FILE).is_file():
         problem = f"has no {EVAL_FILE} (its evaluation did not finish)"
     if problem is None:
         return Decision(REUSE, f"{folder} was made from this {source} with these settings: not {verb}")

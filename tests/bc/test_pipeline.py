@@ -381,6 +381,14 @@ def test_checkpoint_without_its_evaluation_is_made_again(outputs: Path) -> None:
     )
 
 
+def test_a_checkpoint_made_without_an_evaluation_needs_none(outputs: Path) -> None:
+    """The pipeline's BC and DAgger stages skip their own evaluation (the table evaluates every controller on the same
+    seeds): a checkpoint made so has no eval.json and is reused."""
+    (outputs / "bc" / EVAL_FILE).unlink()
+    edit_json(outputs / "bc" / CONFIG_FILE, {"eval_episodes": 0})
+    assert bc_decision(tiny_stages(train={"eval_episodes": 0}).student, overwrite=False).action == REUSE
+
+
 def assert_refused_untouched(outputs: Path, stages: Stages, message: str) -> None:
     """Running `stages` fails with exactly `message` and changes nothing under `outputs`."""
     before = snapshot(outputs)
@@ -470,8 +478,8 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
 
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every pipeline setting is the stage's own default, but for what makes the task the operator's: the
-    dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, and the students'
-    inputs."""
+    dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, the students' inputs,
+    and no evaluation of their own (the table's)."""
     operator = RecordConfig(
         dataset=paths.OPERATOR_DATASET,
         controller="expert-sensed",
@@ -479,7 +487,9 @@ def test_pipeline_defaults_are_the_stages() -> None:
         latency=SENSED_LATENCY,
         schedules=True,
     )
-    student = TrainConfig(dataset=paths.OPERATOR_DATASET, policy=paths.STUDENT_POLICY, inputs=STUDENT_INPUTS)
+    student = TrainConfig(
+        dataset=paths.OPERATOR_DATASET, policy=paths.STUDENT_POLICY, inputs=STUDENT_INPUTS, eval_episodes=0
+    )
     dagger = DaggerConfig(
         dataset=paths.OPERATOR_DATASET,
         output=paths.OPERATOR_DAGGER_DATASET,
@@ -490,6 +500,7 @@ def test_pipeline_defaults_are_the_stages() -> None:
         latency=SENSED_LATENCY,
         noise=SENSED_NOISE,
         episodes=20,
+        eval_episodes=0,
     )
     assert stages(PipelineConfig()) == Stages(
         operator,
