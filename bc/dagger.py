@@ -339,7 +339,8 @@ class DAggerTrainer:
         if self.policy is None:
             raise RuntimeError("train() a policy before collecting its rollouts")
         spool = Spool(store.root, SPOOL)
-        seeds = list(range(store.next_seed(), store.next_seed() + episodes))
+        first_seed = store.next_seed()
+        seeds = list(range(first_seed, first_seed + episodes))
         waiting = {seed for seed in seeds if spool.path_of(seed).is_file()}
         fresh = [seed for seed in seeds if seed not in waiting]
         rolled = self._rolled_out(store.root, fresh, f"{self.name}:round{round_index - 1}")
@@ -420,14 +421,13 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         seed=cfg.seed,
     )
     rollouts = RolloutSettings(
-        cfg.policy.name,
-        cfg.noise,
-        env.spec.max_episode_steps,
-        DEFAULT_TASK,
-        randomization,
-        cfg.latency,
-        False,
-        cfg.expert,
+        controller=cfg.policy.name,  # each round's policy goes by it (`DAggerTrainer`)
+        noise=cfg.noise,
+        max_steps=env.spec.max_episode_steps,
+        task=DEFAULT_TASK,
+        randomization=randomization,
+        latency=cfg.latency,
+        labeller=cfg.expert,
     )
     trainer: DAggerTrainer | None = None
     try:

@@ -173,9 +173,8 @@ class Tracking:
         abdomen_z = qpos[..., self.twist_at]
         half = abdomen_z / 2
         zero = np.zeros_like(half)
-        frame = _rotation(qpos[..., 1:5]) @ _rotation(
-            np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
-        )
+        unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
+        frame = _rotation(qpos[..., 1:5]) @ _rotation(unyaw)
         pitch = np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))
         lean_left = -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])
         return np.concatenate([np.stack([pitch, lean_left, qpos[..., 0], -abdomen_z], -1), qpos[..., self.arms_at]], -1)
