@@ -131,6 +131,7 @@ lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newes
 bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 	$(PY) -m bench.expert_check --episodes 20 --noise 0 0.02 0.05
 	$(PY) -m bench.record_throughput
+	$(PY) -m bench.dagger_workers
 	$(PY) -m bench.bc_benchmark
 	$(PY) -m bench.data_efficiency
 	$(PY) -m bench.latency_students

@@ -31,6 +31,7 @@ import dataclasses
 import json
 import shutil
 import sys
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +142,7 @@ class RoundReport:
     frames: int
     mean_return: float
     survived: int
+    seconds: float  # rolling out, labelling and committing its episodes
 
 
 @dataclass
@@ -153,7 +155,7 @@ class DaggerResult:
     def describe(self) -> str:
         lines = [
             f"round {r.round}: the policy stood {r.survived}/{r.episodes} episodes, mean return "
-            f"{r.mean_return:.1f}; {r.frames} frames labelled"
+            f"{r.mean_return:.1f}; {r.frames} frames labelled in {r.seconds:.1f} s"
             for r in self.rounds
         ]
         return "\n".join([*lines, self.final.describe()])
@@ -338,6 +340,7 @@ class DAggerTrainer:
         frames to the aggregate."""
         if self.policy is None:
             raise RuntimeError("train() a policy before collecting its rollouts")
+        start = time.perf_counter()
         spool = Spool(store.root, SPOOL)
         first_seed = store.next_seed()
         seeds = list(range(first_seed, first_seed + episodes))
@@ -366,7 +369,8 @@ class DAggerTrainer:
         finally:  # also when interrupted: the aggregate in memory holds every episode on disk
             self.demos = self.demos.with_episodes(rows)
         spool.remove_if_empty()
-        return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived), added
+        seconds = time.perf_counter() - start
+        return RoundReport(round_index, episodes, frames, float(np.mean(returns)), survived, seconds), added
 
     def close(self, interrupted: bool = False) -> None:
         """Stop the rollout processes (at once if `interrupted`)."""

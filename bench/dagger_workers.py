@@ -1,0 +1,104 @@
+"""DAgger's rollouts on 1 process against 2, side by side, and the same aggregate either way.
+
+    .venv/bin/python -m bench.dagger_workers [--demonstrations 50] [--rounds 2] [--episodes 20] [--repeats 3]
+
+A small operator recording (the pipeline's recipe: `expert-sensed` on command schedules, DART σ 0.03, half the
+episodes delayed a step), then `make dagger` on it with the pipeline's student (`pending+ramp`, the expert on leg
+odometry labelling, NOISE 0.03) for ROUNDS rounds of EPISODES rollouts, once with WORKERS=1 and once with
+WORKERS=2 in each repeat: labelled frames per second of the rounds' rollouts (the worker processes' start-up
+included, the fits not: `RoundReport.seconds`), and the median of the per-repeat ratios. Each repeat also
+checks that both runs wrote the same aggregate (`teleop.dataset_reader.fingerprint` of the frames) and the same
+final weights.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import statistics
+import tempfile
+from pathlib import Path
+
+from bc.dagger import DaggerConfig, main
+from bc.pipeline import DAGGER_INPUTS
+from humanoid.expert import SensedExpert
+from policies.folder import WEIGHTS_FILE
+from teleop.dataset_reader import fingerprint
+from teleop.record import RecordConfig, record
+
+NOISE = 0.03
+"""The pipeline's DART σ (`make pipeline NOISE=`), of the demonstrations and of the rollouts."""
+LATENCY = 0.5
+"""The pipeline's share of delayed episodes."""
+
+
+def dagger(demonstrations: Path, folder: Path, rounds: int, episodes: int, workers: int) -> tuple[float, str, str]:
+    """(labelled frames per second, the aggregate's fingerprint, the final weights' digest) of one DAgger run."""
+    config = DaggerConfig(
+        dataset=demonstrations,
+        output=folder / "aggregate",
+        policy=folder / "policy",
+        inputs=DAGGER_INPUTS,
+        expert=SensedExpert.name,
+        noise=NOISE,
+        rounds=rounds,
+        episodes=episodes,
+        workers=workers,
+        min_updates=0,  # the fits are not what is measured
+        eval_episodes=0,
+        progress=False,
+    )
+    rounds_run = main(config).rounds
+    rate = sum(report.frames for report in rounds_run) / sum(report.seconds for report in rounds_run)
+    weights = hashlib.sha256((config.policy / WEIGHTS_FILE).read_bytes()).hexdigest()
+    return rate, fingerprint(config.output), weights
+
+
+def run(demonstrations: int, rounds: int, episodes: int, repeats: int) -> str:
+    with tempfile.TemporaryDirectory() as scratch:
+        recorded = Path(scratch) / "demonstrations"
+        record(
+            RecordConfig(
+                dataset=recorded,
+                episodes=demonstrations,
+                controller=SensedExpert.name,
+                noise=NOISE,
+                latency=LATENCY,
+                schedules=True,
+                progress=False,
+            )
+        )
+        rows, ratios = [], []
+        for repeat in range(repeats):
+            one = dagger(recorded, Path(scratch) / f"one{repeat}", rounds, episodes, 1)
+            two = dagger(recorded, Path(scratch) / f"two{repeat}", rounds, episodes, 2)
+            if one[1:] != two[1:]:
+                raise RuntimeError(f"repeat {repeat}: 1 and 2 workers wrote different aggregates or weights")
+            ratios.append(two[0] / one[0])
+            rows.append(f"| {repeat} | {one[0]:,.0f} | {two[0]:,.0f} | {ratios[-1]:.2f}× |")
+    return "\n".join(
+        [
+            f"DAgger, {rounds} rounds × {episodes} rollouts from {demonstrations} operator demonstrations, "
+            "labelled frames/s of the rounds (with the workers' start-up); the same aggregate and weights each time",
+            "",
+            "| repeat | 1 worker | 2 workers | 2 against 1 |",
+            "|---|---|---|---|",
+            *rows,
+            "",
+            f"median ratio: {statistics.median(ratios):.2f}×",
+        ]
+    )
+
+
+def cli() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--demonstrations", type=int, default=50)
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    print(run(args.demonstrations, args.rounds, args.episodes, args.repeats))
+
+
+if __name__ == "__main__":
+    cli()
