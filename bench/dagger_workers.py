@@ -2,50 +2,41 @@
 
     .venv/bin/python -m bench.dagger_workers [--demonstrations 50] [--rounds 2] [--episodes 20] [--repeats 3]
 
-A small operator recording (the pipeline's recipe: `expert-sensed` on command schedules, DART σ 0.03, half the
-episodes delayed a step), then `make dagger` on it with the pipeline's student (`pending+ramp`, the expert on leg
-odometry labelling, NOISE 0.03) for ROUNDS rounds of EPISODES rollouts, once with WORKERS=1 and once with
-WORKERS=2 in each repeat: labelled frames per second of the rounds' rollouts (the worker processes' start-up
-included, the fits not: `RoundReport.seconds`), and the median of the per-repeat ratios. Each repeat also
-checks that both runs wrote the same aggregate (`teleop.dataset_reader.fingerprint` of the frames) and the same
-final weights.
+A recording in the pipeline's recipe, then the pipeline's DAgger stage on it (`bc.pipeline.stages`: its student's
+inputs, its labelling expert, its noise and conditions) for ROUNDS rounds of EPISODES rollouts, once with WORKERS=1
+and once with WORKERS=2 in each repeat: labelled frames per second of the rounds' rollouts (the worker processes'
+start-up included, the fits not: `RoundReport.seconds`), and the median of the per-repeat ratios. Each repeat also
+checks that both runs wrote the same aggregate (`teleop.dataset_reader.fingerprint`) and the same final weights.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import statistics
 import tempfile
 from pathlib import Path
 
-from bc.dagger import DaggerConfig, main
-from bc.pipeline import DAGGER_INPUTS
-from humanoid.expert import SensedExpert
+from bc.dagger import main
+from bc.pipeline import PipelineConfig, stages
 from policies.folder import WEIGHTS_FILE
 from teleop.dataset_reader import fingerprint
-from teleop.record import RecordConfig, record
-
-NOISE = 0.03
-"""The pipeline's DART σ (`make pipeline NOISE=`), of the demonstrations and of the rollouts."""
-LATENCY = 0.5
-"""The pipeline's share of delayed episodes."""
+from teleop.record import record
 
 
 def dagger(demonstrations: Path, folder: Path, rounds: int, episodes: int, workers: int) -> tuple[float, str, str]:
-    """(labelled frames per second, the aggregate's fingerprint, the final weights' digest) of one DAgger run."""
-    config = DaggerConfig(
+    """(labelled frames per second, the aggregate's fingerprint, the final weights' digest) of one DAgger run: the
+    pipeline's stage on `demonstrations`, with `workers`."""
+    config = dataclasses.replace(
+        stages(PipelineConfig()).dagger,
         dataset=demonstrations,
         output=folder / "aggregate",
         policy=folder / "policy",
-        inputs=DAGGER_INPUTS,
-        expert=SensedExpert.name,
-        noise=NOISE,
         rounds=rounds,
         episodes=episodes,
         workers=workers,
         min_updates=0,  # the fits are not what is measured
-        eval_episodes=0,
         progress=False,
     )
     rounds_run = main(config).rounds
@@ -57,17 +48,8 @@ def dagger(demonstrations: Path, folder: Path, rounds: int, episodes: int, worke
 def run(demonstrations: int, rounds: int, episodes: int, repeats: int) -> str:
     with tempfile.TemporaryDirectory() as scratch:
         recorded = Path(scratch) / "demonstrations"
-        record(
-            RecordConfig(
-                dataset=recorded,
-                episodes=demonstrations,
-                controller=SensedExpert.name,
-                noise=NOISE,
-                latency=LATENCY,
-                schedules=True,
-                progress=False,
-            )
-        )
+        recording = stages(PipelineConfig()).record  # the pipeline's recipe
+        record(dataclasses.replace(recording, dataset=recorded, episodes=demonstrations, progress=False))
         rows, ratios = [], []
         for repeat in range(repeats):
             one = dagger(recorded, Path(scratch) / f"one{repeat}", rounds, episodes, 1)
