@@ -48,7 +48,7 @@ from common.cli import DatasetError, UserError, check_share, config_dict, flag, 
 from common.workers import default_workers
 from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
-from humanoid.env import humanoid_model, make_env
+from humanoid.env import make_env, nominal_model
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS, input_set
 from policies import checkpoint
@@ -307,7 +307,7 @@ class DAggerTrainer:
         self.policy: MLPPolicy | None = None
         self.round_of: dict[int, int] = {}
         """The DAgger round of each aggregate episode the trainer added or was told of; unlisted ones are round 0."""
-        self._model = humanoid_model()  # nominal, as the training inputs are computed on load: never a drawn body
+        self._model = nominal_model()  # nominal, as the training inputs are computed on load: never a drawn body
         self._processes: ParallelRollouts | None = None  # started by the first round with episodes to roll out
 
     def train(self, round_index: int | None = None) -> MLPPolicy:

@@ -43,7 +43,7 @@ from common.threads import one_blas_thread
 from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
-from humanoid.env import EPISODE_STEPS, make_env
+from humanoid.env import EPISODE_STEPS, make_env, nominal_model
 from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from humanoid.learned import PolicyController
 from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
@@ -152,9 +152,9 @@ def evaluate(
         if publisher is not None:
             publisher.close()
         env.close()
-    model = env.unwrapped.model
+    measure = Tracking(nominal_model())  # the nominal body's targets, solved once per process
     if plot is not None:
-        plot_tracking(results[0], Tracking(model), env.unwrapped.dt, plot)
+        plot_tracking(results[0], measure, env.unwrapped.dt, plot)
     returns = np.array([episode.episode_return for episode in results])
     lengths = np.array([episode.length for episode in results])
     survived = [episode.length == EPISODE_STEPS and not episode.fell for episode in results]
@@ -180,7 +180,7 @@ def evaluate(
         "parameters": [episode.parameters for episode in results],
         "video": None if video is None else str(video),
         "takes_command": controller.takes_command,
-        "tracking": tracking(results, Tracking(model), env.unwrapped.dt) if schedules else None,
+        "tracking": tracking(results, measure, env.unwrapped.dt) if schedules else None,
     }
 
 

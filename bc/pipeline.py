@@ -84,7 +84,7 @@ from common.cli import Config, UserError, config_dict, flag, parse_config, run_c
 from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
-from humanoid.env import humanoid_model
+from humanoid.env import nominal_model
 from humanoid.expert import SensedExpert
 from humanoid.sensors import proprioception_names
 from policies.folder import (
@@ -395,7 +395,7 @@ def _layout_problem(root: Path) -> str | None:
         names = read_info(root)["features"][keys.OBS_STATE]["names"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    wanted = proprioception_names(humanoid_model())
+    wanted = proprioception_names(nominal_model())
     if names == wanted:
         return None
     return f"records {len(names)} sensed features as {keys.OBS_STATE}, not this version's {len(wanted)}"

@@ -18,7 +18,6 @@ Standing still is the zero command.
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import gymnasium as gym
@@ -27,6 +26,7 @@ import numpy as np
 
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
+from humanoid.env import nominal_model
 from humanoid.posture import ARM_JOINTS, NEUTRAL, Posture, move_seconds, posture_reference
 
 COMMAND_SIZE = len(COMMAND_NAMES)
@@ -300,7 +300,7 @@ class CommandedTask(gym.Wrapper):
     def __init__(self, env: gym.Env, weight: float) -> None:
         super().__init__(env)
         self.weight = weight
-        self.tracking = Tracking(copy.copy(env.unwrapped.model))  # the nominal body's targets, whatever is drawn later
+        self.tracking = Tracking(nominal_model())  # the nominal body's targets, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
         self.t = 0

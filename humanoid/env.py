@@ -6,6 +6,7 @@ environment's shapes and names.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,14 @@ def humanoid_model() -> mujoco.MjModel:
     """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
     xml = Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"
     return mujoco.MjModel.from_xml_path(str(xml))
+
+
+@functools.cache
+def nominal_model() -> mujoco.MjModel:
+    """Humanoid-v5's model, one instance per process, never changed, for whatever computes on the nominal body (the
+    experts' designs, the tracking's targets, the observation's layout): `humanoid.posture` caches its designs per
+    model object, so each new expert, tracked episode or training environment reuses what an earlier one solved."""
+    return humanoid_model()
 
 
 def model_and_data(env: gym.Env) -> tuple[mujoco.MjModel, mujoco.MjData]:

@@ -9,14 +9,13 @@ the landing plan's time-varying version of it.
 from __future__ import annotations
 
 import copy
-import functools
 from collections import deque
 
 import mujoco
 import numpy as np
 
 from humanoid.commands import command_posture, command_vector
-from humanoid.env import humanoid_model
+from humanoid.env import nominal_model
 from humanoid.estimator import LegOdometry
 from humanoid.landing import Landing, load_or_design_landing
 from humanoid.lqr import (
@@ -31,13 +30,6 @@ from humanoid.lqr import (
 )
 from humanoid.posture import NEUTRAL, Posture, PostureRamp, body_gains
 from humanoid.sensors import Proprioception
-
-
-@functools.cache
-def nominal_model() -> mujoco.MjModel:
-    """Humanoid-v5's model, one instance per process for every expert designed on it (never changed): the posture
-    designs `humanoid.posture` caches per model then serve each new expert too, as a suite builds one per task."""
-    return humanoid_model()
 
 
 class LQRExpert:

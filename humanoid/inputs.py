@@ -49,7 +49,7 @@ from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_S
 from humanoid import commands, estimator, posture, sensors
 from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
-from humanoid.env import actuator_names, humanoid_model, observation_names
+from humanoid.env import actuator_names, nominal_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
 from humanoid.posture import ARM_JOINTS, PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
@@ -327,7 +327,7 @@ class InputObservation(gym.Wrapper):
 
     def __init__(self, env: gym.Env, inputs: str) -> None:
         super().__init__(env)
-        self.features = INPUT_SETS[inputs](humanoid_model())
+        self.features = INPUT_SETS[inputs](nominal_model())
         self.command = np.zeros(COMMAND_SIZE, np.float32)
         """The operator's command the inputs carry (a commanded set's): an inner `humanoid.commands.CommandedTask`'s,
         which it gives in the info at the reset and after every step; without one, zero (standing still) unless set."""

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from humanoid.commands import COMMAND_SIZE
-from humanoid.env import make_env
+from humanoid.env import make_env, nominal_model
 from humanoid.inputs import INPUT_SETS, REMOVED, InputSet
 from policies.checkpoint import CheckpointError, load
 from policies.folder import SB3_FILE
@@ -31,12 +31,13 @@ class PolicyController:
 
     def __init__(self, policy: MLPPolicy, name: str, env: gym.Env | None = None) -> None:
         """`policy` run in `env` (any Humanoid-v5 if None: the observation layout is the environment's, not
-        the model instance's), whose gymnasium observations it turns into the inputs it was trained on."""
+        the model instance's), whose gymnasium observations it turns into the inputs it was trained on, computed on
+        the nominal body whatever `env` has drawn (as the training inputs are)."""
         own = env is None
         env = make_env() if env is None else env
         try:
             check_fits(policy, env, name)
-            self.features: InputSet = INPUT_SETS[policy.spec.inputs](env.unwrapped.model)
+            self.features: InputSet = INPUT_SETS[policy.spec.inputs](nominal_model())
         finally:
             if own:
                 env.close()

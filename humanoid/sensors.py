@@ -29,13 +29,12 @@ and cfrc_ext. Datasets recorded before this split stored qpos[2:] and qvel (45) 
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
-from humanoid.env import humanoid_model, observation_names
+from humanoid.env import nominal_model, observation_names
 
 GRAVITY_NAMES = ("imu.gravity_x", "imu.gravity_y", "imu.gravity_z")
 GYRO_NAMES = ("root.wx", "root.wy", "root.wz")  # qvel[3:6]: the free joint's angular velocity, torso frame
@@ -140,12 +139,6 @@ class ObservationSplit:
         return np.concatenate([state, environment_state], axis=-1)[..., self._joined]
 
 
-@functools.cache
-def _layout_model() -> mujoco.MjModel:
-    # Every Humanoid-v5 has this observation layout (drawn masses or gears do not change names): load it once.
-    return humanoid_model()
-
-
 def observation_index(recorded: Sequence[str], model: mujoco.MjModel | None = None) -> np.ndarray | None:
     """Where each gymnasium observation entry sits among the `recorded` names (state's, then environment
     state's, side by side), so that `np.concatenate([state, environment_state], -1)[..., index]` is the
@@ -153,6 +146,6 @@ def observation_index(recorded: Sequence[str], model: mujoco.MjModel | None = No
     cannot give the observation)."""
     position = {name: i for i, name in enumerate(recorded)}
     try:
-        return np.array([position[name] for name in observation_names(model or _layout_model())])
+        return np.array([position[name] for name in observation_names(model or nominal_model())])
     except KeyError:
         return None

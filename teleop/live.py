@@ -27,7 +27,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from common.cli import UserError
 from humanoid.commands import Tracking
-from humanoid.env import body_names, humanoid_model, model_and_data, step_duration_ns
+from humanoid.env import body_names, model_and_data, nominal_model, step_duration_ns
 from humanoid.episode import EpisodeBuffer
 from humanoid.sensors import Proprioception
 from teleop.mcap_io.schema import COMMAND_VALUES, Command, Step, command_values
@@ -67,7 +67,7 @@ class LivePublisher:
         frames = body_names(model)
         self._scene = scene_update(model, frames).SerializeToString()
         self._proprioception = Proprioception(model)
-        self._tracking = Tracking(humanoid_model())
+        self._tracking = Tracking(nominal_model())
         self._step_ns = step_duration_ns(env)
         self._transforms = FrameTransformsEncoder(WORLD_FRAME, frames)
         self.episode = -1

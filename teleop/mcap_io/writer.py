@@ -35,7 +35,7 @@ from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
 from humanoid.commands import Tracking
-from humanoid.env import humanoid_model
+from humanoid.env import nominal_model
 from humanoid.episode import Episode
 from teleop.mcap_io.bulk import BulkMcapWriter
 from teleop.mcap_io.schema import Command, Step, command_values
@@ -125,7 +125,7 @@ def write_episode_mcap(
     transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
         times_ns, episode.body_position, episode.body_orientation
     )
-    achieved = Tracking(humanoid_model()).achieved(episode.observation)
+    achieved = Tracking(nominal_model()).achieved(episode.observation)
     values = command_values(episode.command, episode.push, episode.setpoint, achieved)
     commands = CommandEncoder().encode(times_ns, values, episode.tasks)
     steps = StepEncoder().encode(

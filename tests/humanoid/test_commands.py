@@ -37,7 +37,8 @@ from humanoid.commands import (
     tracking_score,
     tracking_summary,
 )
-from humanoid.env import EPISODE_STEPS, humanoid_model, make_env
+from humanoid.conditions import DomainRandomization, Randomization
+from humanoid.env import EPISODE_STEPS, humanoid_model, make_env, nominal_model
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert
 from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
@@ -379,3 +380,16 @@ def test_a_saved_stream_draws_the_same_next_schedule() -> None:
     task.set_random_state(state)
     task.reset()
     np.testing.assert_array_equal(task.commands, first)
+
+
+def test_every_training_environment_measures_on_the_one_nominal_body() -> None:
+    """PPO runs dozens of `CommandedTask`s per process: each measures on the process's nominal model, so a target one
+    environment solved (`posture_reference` caches per model object) is the next one's too, and no body drawn in
+    place reaches the targets."""
+    drawn = CommandedTask(DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2))), weight=1.0)
+    drawn.reset(seed=0)
+    other = CommandedTask(make_env(), weight=1.0)
+    assert drawn.tracking.model is other.tracking.model is nominal_model()
+    assert not np.array_equal(drawn.unwrapped.model.body_mass, nominal_model().body_mass)
+    command = command_vector(Posture(lean_left=0.1, height=-0.05))
+    np.testing.assert_array_equal(drawn.tracking.target(command), Tracking(humanoid_model()).target(command))

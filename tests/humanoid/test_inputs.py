@@ -15,7 +15,7 @@ from bc.ppo.learner import training_env
 from common import keys
 from common.cli import UserError
 from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
-from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
+from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
 from humanoid.expert import LQRExpert
@@ -194,3 +194,13 @@ def test_a_ramped_set_reads_the_setpoint_the_expert_moves_along() -> None:
     moves = np.diff(arms[start - 1 :], axis=0) * np.sign(arm_angles(3.0))
     assert (moves >= 0).all() and (moves[0] > 0).all()
     assert schedule[-1][4] == 3.0 and (np.abs(setpoints[-1] - schedule[-1]) < 1e-6).all()  # the move ended in time
+
+
+def test_a_policy_made_after_a_drawn_body_estimates_on_the_nominal_one() -> None:
+    """A policy's inputs compute on the nominal body whatever its env drew last, as its training inputs were: DAgger
+    builds each round's controller in an env that has run episodes (`teleop.parallel.Simulator.act_with`)."""
+    env = DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2)))
+    env.reset(seed=0)
+    controller = tiny_policy("pending", env)
+    assert controller.features.odometry.odometry.mass == pytest.approx(float(humanoid_model().body_mass.sum()), 1e-12)
+    assert controller.features.odometry.odometry.mass != pytest.approx(float(env.unwrapped.model.body_mass.sum()))
