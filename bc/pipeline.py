@@ -73,7 +73,7 @@ from bc import train as bc_train
 from bc.baseline import BaselineConfig
 from bc.dagger import DaggerConfig
 from bc.data import MIN_EPISODES
-from bc.evaluate import EVAL_SEED, evaluation_pool
+from bc.evaluate import EVAL_SEED
 from bc.finetune import FinetuneConfig, print_summary, weights_digest
 from bc.finetune import main as ppo_main
 from bc.finetune import validate as validate_ppo
@@ -659,25 +659,37 @@ def dagger_stage(cfg: DaggerConfig, overwrite: bool) -> None:
 def measure(
     names: list[str], episodes: int, conditions: list[str], workers: int | None = None
 ) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any]]]:
-    """What the table shows of each controller in `names`: its `zero_command` evaluation and its `suite` on held-out
-    schedules under `conditions`, by name."""
-    with evaluation_pool(robustness.worker_count(workers)):  # one pool for every controller's evaluations
-        standing = {name: zero_command(name, episodes, workers) for name in names}
-        return standing, {name: suite(name, episodes, conditions, workers) for name in names}
-
-
-def zero_command(policy: str, episodes: int, workers: int | None = None) -> dict[str, Any]:
-    """`policy` standing still (the command zero, the clean condition) on the table's seeds: survival and return."""
+    """What the table shows of each controller in `names`: its evaluation with the command zero (the clean condition)
+    and its suite on held-out schedules under `conditions` (a suite saved after the policy with the same episodes,
+    conditions and errors is reused), by name. Every evaluation goes to one pool at once: no worker waits at a
+    controller's end for the next one's."""
+    count = robustness.worker_count(workers)
     seeds = range(EVAL_SEED, EVAL_SEED + episodes)
-    print(f"pipeline: {policy} with the command zero: {episodes} episodes", flush=True)
-    return robustness.run_suite(policy, ["clean"], seeds, robustness.worker_count(workers))["clean"]
+    configs = {name: suite_config(name, episodes, conditions, workers) for name in names}
+    saved = {name: saved_suite(config) for name, config in configs.items()}
+    fresh = [name for name in names if saved[name] is None]
+    for name in names:
+        print(f"pipeline: {name} with the command zero: {episodes} episodes", flush=True)
+    for name in names:
+        saved_at = robustness.result_paths(configs[name])[0]
+        how = f"{episodes} episodes x {len(conditions)} conditions" if name in fresh else f"reusing {saved_at}"
+        print(f"pipeline: {name} on held-out schedules: {how}", flush=True)
+    planned = [
+        *(robustness.suite_runs(name, ["clean"], seeds, count) for name in names),
+        *(robustness.suite_runs(name, conditions, seeds, count, schedules=True) for name in fresh),
+    ]
+    rows = list(robustness.evaluate_suites(planned, count))
+    standing = {name: row["clean"] for name, row in zip(names, rows[: len(names)], strict=True)}
+    suites = {
+        **saved,
+        **{name: robustness.save(configs[name], row) for name, row in zip(fresh, rows[len(names) :], strict=True)},
+    }
+    return standing, {name: suites[name] for name in names}
 
 
-def suite(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> dict[str, Any]:
-    """The robustness suite's results for `policy` under held-out command schedules: its robustness_schedules.json
-    if made after the policy with the same episodes, conditions and errors (a registered controller's always), else a
-    new run on `workers` processes (None: the suite's default; the results do not depend on it)."""
-    cfg = RobustnessConfig(
+def suite_config(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> RobustnessConfig:
+    """The robustness run of `policy`'s row in the table: `episodes` on held-out schedules under each condition."""
+    return RobustnessConfig(
         policy=policy,
         episodes=episodes,
         conditions=",".join(conditions),
@@ -685,20 +697,22 @@ def suite(policy: str, episodes: int, conditions: list[str], workers: int | None
         workers=workers,
         progress=False,
     )
+
+
+def saved_suite(cfg: RobustnessConfig) -> dict[str, Any] | None:
+    """The suite `cfg` runs as its robustness_schedules.json holds it, if made after the policy (a registered
+    controller's always) with the same episodes, conditions and errors; else None."""
     saved = robustness.result_paths(cfg)[0]
-    weights = Path(policy) / (SB3_FILE if is_sb3_policy(Path(policy)) else WEIGHTS_FILE)
-    if saved.is_file() and (policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
-        result = json.loads(saved.read_text())
-        current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())
-        if (
-            current
-            and result["seeds"] == list(range(cfg.seed, cfg.seed + episodes))
-            and list(result["conditions"]) == conditions
-        ):
-            print(f"pipeline: {policy} on held-out schedules: reusing {saved}", flush=True)
-            return result
-    print(f"pipeline: {policy} on held-out schedules: {episodes} episodes x {len(conditions)} conditions", flush=True)
-    return robustness.main(cfg)
+    policy = Path(cfg.policy)
+    weights = policy / (SB3_FILE if is_sb3_policy(policy) else WEIGHTS_FILE)
+    if not saved.is_file() or not (cfg.policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
+        return None
+    result = json.loads(saved.read_text())
+    current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())
+    same = result["seeds"] == list(range(cfg.seed, cfg.seed + cfg.episodes)) and list(result["conditions"]) == (
+        cfg.conditions.split(",")
+    )
+    return result if current and same else None
 
 
 def main(cfg: PipelineConfig) -> str:

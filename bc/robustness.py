@@ -9,9 +9,10 @@ The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/concepts
 
 from __future__ import annotations
 
+import itertools
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -144,27 +145,61 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True)
+class SuiteRuns:
+    """A suite's evaluations (`evaluate_each`'s runs: each condition's seeds in chunks), and its rows from their
+    results. A caller may submit several suites' runs at once, as the pipeline's table does."""
+
+    names: list[str]
+    runs: list[tuple[str, dict[str, Any]]]
+
+    def rows(self, evaluations: Iterable[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        """The results per condition from the runs' evaluations, in the runs' order."""
+        chunks: dict[str, list] = {name: [] for name in self.names}
+        for (_, settings), evaluation in zip(self.runs, evaluations, strict=True):
+            chunks[settings["condition"]].append(evaluation)
+        return {name: summarise(chunks[name]) for name in self.names}
+
+
+def suite_runs(policy: str, names: list[str], seeds: range, workers: int, schedules: bool = False) -> SuiteRuns:
+    """Every condition in `names` on `seeds` (under command `schedules`), in chunks for `workers` processes."""
+    chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
+    return SuiteRuns(
+        names,
+        [
+            (policy, {"episodes": len(part), "seed": part.start, "condition": name, "schedules": schedules})
+            for name in names
+            for part in (seeds[i : i + chunk] for i in range(0, len(seeds), chunk))
+        ],
+    )
+
+
+def evaluate_suites(suites: Sequence[SuiteRuns], workers: int, bar: tqdm | None = None) -> Iterator[dict[str, Any]]:
+    """Each suite's rows, in order, its runs and every other's submitted at once to one pool of `workers` processes
+    (no worker waits at a suite's end for the next one's runs); `bar` counts the episodes done."""
+    if workers == 1:
+        init_worker()  # this process evaluates: the same setting as a worker's
+    with evaluation_pool(workers) as pool:
+        evaluations = evaluate_each([run for suite in suites for run in suite.runs], pool)
+        for suite in suites:
+            done = []
+            for evaluation in itertools.islice(evaluations, len(suite.runs)):
+                done.append(evaluation)
+                if bar is not None:
+                    bar.update(evaluation["episodes"])
+            yield suite.rows(done)
+
+
 def run_suite(
     policy: str, names: list[str], seeds: range, workers: int, progress: bool = False, schedules: bool = False
 ) -> dict:
     """Every condition in `names` on `seeds` (under command `schedules`), in chunks over `workers` processes; results
     per condition."""
-    chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
-    tasks = [(name, seeds[i : i + chunk]) for name in names for i in range(0, len(seeds), chunk)]
-    rows: dict[str, list] = {name: [] for name in names}
-    bar = tqdm(total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True)
-    if workers == 1:
-        init_worker()  # this process evaluates: the same setting as a worker's
-    runs = [
-        (policy, {"episodes": len(chunk_seeds), "seed": chunk_seeds.start, "condition": name, "schedules": schedules})
-        for name, chunk_seeds in tasks
-    ]
-    with evaluation_pool(workers) as pool:
-        for (name, _), evaluation in zip(tasks, evaluate_each(runs, pool), strict=True):
-            rows[name].append(evaluation)
-            bar.update(evaluation["episodes"])
-    bar.close()
-    return {name: summarise(rows[name]) for name in names}
+    with tqdm(
+        total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True
+    ) as bar:
+        [rows] = evaluate_suites([suite_runs(policy, names, seeds, workers, schedules)], workers, bar)
+    return rows
 
 
 def plot(result: dict[str, Any], path: Path) -> None:
@@ -220,10 +255,14 @@ def table(result: dict[str, Any]) -> str:
 def main(cfg: RobustnessConfig) -> dict[str, Any]:
     """Run the suite as configured; writes the results and the figure (`result_paths`), returns the summary."""
     names = validate(cfg)
+    seeds = range(cfg.seed, cfg.seed + cfg.episodes)
+    return save(cfg, run_suite(cfg.policy, names, seeds, worker_count(cfg.workers), cfg.progress, cfg.schedules))
+
+
+def save(cfg: RobustnessConfig, conditions: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The result of `cfg`'s suite from its rows per condition, written with its figure (`result_paths`)."""
     result_path, figure_path = result_paths(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
-    workers = worker_count(cfg.workers)
-    conditions = run_suite(cfg.policy, names, seeds, workers, cfg.progress, cfg.schedules)
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         result_path.parent.mkdir(parents=True, exist_ok=True)

@@ -39,10 +39,10 @@ from bc.pipeline import (
     check,
     dagger_decision,
     dataset_decision,
+    measure,
     ppo_decision,
     run,
     stages,
-    suite,
 )
 from bc.train import TrainConfig
 from common import paths
@@ -609,26 +609,31 @@ def test_args_may_not_repeat_a_pipeline_setting() -> None:
         stages(PipelineConfig(args="--timesteps 5"))
 
 
+def table_suite(conditions: list[str]) -> dict:
+    """The table's suite of the checkpoint "bc" (1 episode per condition, in this process)."""
+    return measure(["bc"], 1, conditions, workers=1)[1]["bc"]
+
+
 def test_the_table_reuses_evaluations_made_after_the_policy_only(
     outputs: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A policy's results on schedules are reused while they are newer than its weights and hold the conditions
     and the errors asked for; other conditions, an older version's file (without an error the table prints), or
     weights trained since, run them again."""
-    first = suite("bc", 1, CONDITIONS, workers=1)
+    first = table_suite(CONDITIONS)
     assert "reusing" in capsys.readouterr().out
     saved = Path("bc") / "robustness_schedules.json"
     older = json.loads(saved.read_text())
     for row in older["conditions"].values():
         del row["tracking"]["moved_error"]
     saved.write_text(json.dumps(older))
-    assert set(ERROR_KINDS) <= set(suite("bc", 1, CONDITIONS, workers=1)["conditions"]["clean"]["tracking"])
+    assert set(ERROR_KINDS) <= set(table_suite(CONDITIONS)["conditions"]["clean"]["tracking"])
     assert "reusing" not in capsys.readouterr().out
-    assert suite("bc", 1, ["clean"], workers=1)["conditions"].keys() == {"clean"}
+    assert table_suite(["clean"])["conditions"].keys() == {"clean"}
     assert "reusing" not in capsys.readouterr().out
     bc_train.main(tiny_stages(train={"epochs": 1, "overwrite": True}).student)
     capsys.readouterr()
-    assert suite("bc", 1, CONDITIONS, workers=1)["seeds"] == first["seeds"]
+    assert table_suite(CONDITIONS)["seeds"] == first["seeds"]
     assert "reusing" not in capsys.readouterr().out
 
 

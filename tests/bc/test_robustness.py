@@ -7,7 +7,17 @@ from pathlib import Path
 
 import pytest
 
-from bc.robustness import FIGURE_FILE, RESULT_FILE, RobustnessConfig, cli, output_folder, push_sectors, run_suite
+from bc.robustness import (
+    FIGURE_FILE,
+    RESULT_FILE,
+    RobustnessConfig,
+    cli,
+    evaluate_suites,
+    output_folder,
+    push_sectors,
+    run_suite,
+    suite_runs,
+)
 from humanoid.conditions import SUITE
 
 
@@ -35,10 +45,17 @@ def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
 
 
 @pytest.mark.slow
-def test_the_same_seeds_give_the_same_results_in_one_or_two_workers() -> None:
-    one = run_suite("expert", ["mass", "latency"], range(1000, 1002), workers=1)
-    two = run_suite("expert", ["mass", "latency"], range(1000, 1002), workers=2)
+def test_the_same_seeds_give_the_same_results_in_one_or_two_workers_alone_or_with_another_suite() -> None:
+    """Rows depend on the seeds alone: not on the workers, nor on another suite submitted to the same pool first (as
+    the pipeline's table submits every controller's)."""
+    seeds = range(1000, 1002)
+    one = run_suite("expert", ["mass", "latency"], seeds, workers=1)
+    two = run_suite("expert", ["mass", "latency"], seeds, workers=2)
     assert one == two
+    together = [suite_runs("random", ["clean"], seeds, 2), suite_runs("expert", ["mass", "latency"], seeds, 2)]
+    first, second = evaluate_suites(together, workers=2)
+    assert second == one
+    assert first == run_suite("random", ["clean"], seeds, workers=1)
 
 
 @pytest.mark.parametrize(
