@@ -56,7 +56,7 @@ from policies.mlp import MLPPolicy
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.parallel import ParallelRollouts, RolloutSettings
-from teleop.spool import Spool
+from teleop.spool import DAGGER_SPOOL, Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 MADE_BY = "bc.dagger"
@@ -66,9 +66,6 @@ what the checkpoint records as its demonstrations, and what `make pipeline` comp
 OPERATOR_EPISODES = 20
 """Rollouts per round of the operator's DAgger student (`make pipeline`): 6 rounds of 20 follow every held-out
 schedule where 10 a round did less (docs/decisions/pipeline-student.md)."""
-SPOOL = ".dagger-spool"
-"""In OUTPUT: a round's finished episodes waiting for their turn to be committed (`DAggerTrainer`); the recorder's
-own spool (`teleop.spool.SPOOL_DIR`) is committed whenever the dataset is opened, in seed order but past a gap."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -281,8 +278,8 @@ class DAggerTrainer:
 
     A round's episodes are rolled out over `workers` processes (`teleop.parallel`, kept from one round to the next,
     each with its labelling expert) and committed in seed order: the same aggregate whatever the count. A finished
-    episode waits for its turn in OUTPUT/`SPOOL` (`teleop.spool`), so a crash costs at most the episodes being rolled
-    out, and a later run commits the waiting ones in their turn and continues from the rounds on disk.
+    episode waits for its turn in OUTPUT/`DAGGER_SPOOL` (`teleop.spool`), so a crash costs at most the episodes being
+    rolled out, and a later run commits the waiting ones in their turn and continues from the rounds on disk.
     """
 
     def __init__(
@@ -321,13 +318,13 @@ class DAggerTrainer:
         return self.policy
 
     def _rolled_out(self, root: Path, seeds: list[int], name: str) -> Iterator[Path]:
-        """The spool file (in `root`'s SPOOL) of each of `seeds` as the current policy (called `name`) rolls them
+        """The spool file (in `root`'s DAGGER_SPOOL) of each of `seeds` as the current policy (called `name`) rolls them
         out, in their order."""
         if not seeds:
             return iter(())
         if self._processes is None:
             settings = dataclasses.replace(self.rollouts, controller=name, policy=self.policy)
-            self._processes = ParallelRollouts(settings, root, self.workers, SPOOL)
+            self._processes = ParallelRollouts(settings, root, self.workers, DAGGER_SPOOL)
         else:
             self._processes.act_with(self.policy, name)
         return self._processes.in_seed_order(seeds)
@@ -341,7 +338,7 @@ class DAggerTrainer:
         if self.policy is None:
             raise RuntimeError("train() a policy before collecting its rollouts")
         start = time.perf_counter()
-        spool = Spool(store.root, SPOOL)
+        spool = Spool(store.root, DAGGER_SPOOL)
         first_seed = store.next_seed()
         seeds = list(range(first_seed, first_seed + episodes))
         waiting = {seed for seed in seeds if spool.path_of(seed).is_file()}
@@ -385,10 +382,10 @@ def workers(cfg: DaggerConfig) -> int:
 
 
 def settle_spool(output: Path, committed: int) -> None:
-    """What a killed run left in OUTPUT's SPOOL: kept for its round (`teleop.spool`'s recovery) if the run was a
+    """What a killed run left in OUTPUT's DAGGER_SPOOL: kept for its round (`teleop.spool`'s recovery) if the run was a
     DAgger run, which `check_resume` let through with these settings; dropped otherwise (no run was killed, or its
     mark was removed to go on with other settings): those episodes are no round of this run."""
-    spool = Spool(output, SPOOL)
+    spool = Spool(output, DAGGER_SPOOL)
     killed = recordings.marked(output)
     if killed is not None and is_dagger_run(killed):
         spool.recover(committed)

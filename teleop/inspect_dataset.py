@@ -44,7 +44,7 @@ from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH, read_footer
 from teleop.mcap_io.writer import FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC
-from teleop.spool import SPOOL_DIR
+from teleop.spool import SPOOLS, Spool
 from teleop.store import MCAP_DIR, mcap_name
 
 
@@ -485,16 +485,17 @@ def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Pa
     )
     stray_data = [path for path in (root / "data").glob("*/*.parquet") if path not in data_paths]
     stray_mcap = [path for path in (root / MCAP_DIR).glob("*.mcap") if path not in mcap_paths]
-    partial = list(root.rglob("*.partial"))
-    spooled = list((root / SPOOL_DIR).glob("*")) if (root / SPOOL_DIR).is_dir() else []
+    partial = [path for path in root.rglob("*.partial") if path.parent.name not in SPOOLS]  # a spool's: below
     if extra_rows > 0 or stray_data or stray_mcap or partial:
         notes.append(
             f"uncommitted files of an interrupted recording: {max(extra_rows, 0)} episode rows, "
             f"{len(stray_data)} data files, {len(stray_mcap)} MCAP files, {len(partial)} partial files "
             "(the next `make record` removes them)"
         )
-    if spooled:
-        notes.append(f"{len(spooled)} finished episodes wait in {SPOOL_DIR} (the next `make record` commits them)")
+    for name, fate in SPOOLS.items():
+        finished, cut_short = Spool(root, name).contents()
+        if finished or cut_short:
+            notes.append(f"{name} holds {finished} finished episodes and {cut_short} partial files ({fate})")
     return notes
 
 

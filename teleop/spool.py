@@ -24,6 +24,15 @@ import numpy as np
 from humanoid.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
 
 SPOOL_DIR = ".spool"
+DAGGER_SPOOL = ".dagger-spool"
+"""A DAgger aggregate's (`bc.dagger`): a round's finished episodes wait there for their turn, and only DAgger commits
+them, in seed order. The recorder's SPOOL_DIR is committed whenever the dataset is opened, past a gap in the seeds
+too, which would break a resumed round's order."""
+SPOOLS = {
+    SPOOL_DIR: "the next `make record` commits the finished ones and removes the rest",
+    DAGGER_SPOOL: "the next `make dagger` on this aggregate commits the finished ones and removes the rest",
+}
+"""Each spool folder a dataset may hold, and what becomes of what waits there (`make inspect` says)."""
 _READY = ".npz"
 _COMMITTING = ".committing"
 _FACTS = "_facts"
@@ -52,6 +61,15 @@ class Spool:
     def ready(self) -> list[Path]:
         """The spooled episodes, in seed order."""
         return sorted(self.folder.glob(f"*{_READY}")) if self.folder.is_dir() else []
+
+    def contents(self) -> tuple[int, int]:
+        """(finished episodes, partial files) in the folder: those waiting or being committed, and those a kill cut
+        short (what `recover` drops)."""
+        if not self.folder.is_dir():
+            return 0, 0
+        return len(self.ready()) + len(list(self.folder.glob(f"*{_COMMITTING}"))), len(
+            list(self.folder.glob("*.partial"))
+        )
 
     def path_of(self, seed: int) -> Path:
         return self.folder / f"{seed:012d}{_READY}"

@@ -18,7 +18,6 @@ import torch
 
 from bc.dagger import (
     SOURCE_FILE,
-    SPOOL,
     DaggerConfig,
     DaggerResult,
     DAggerTrainer,
@@ -45,7 +44,7 @@ from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import RecordConfig, record
-from teleop.spool import Spool
+from teleop.spool import DAGGER_SPOOL, Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -272,7 +271,7 @@ def one_round(
         trainer.train()
         simulator = Simulator(dataclasses.replace(trainer.rollouts, controller="dagger:round0", policy=trainer.policy))
         for seed in waiting:
-            Spool(root, SPOOL).put(simulator.run(seed))
+            Spool(root, DAGGER_SPOOL).put(simulator.run(seed))
         trainer.collect(store, round_index=1, episodes=episodes)
     finally:
         trainer.close()
@@ -300,7 +299,7 @@ def test_an_episode_left_waiting_is_committed_in_its_turn(delayed: Path, tmp_pat
     seed's turn, not rolled out again: the aggregate, on disk and in memory, is the one of a round never broken."""
     unbroken = one_round(delayed, tmp_path / "unbroken", "pending", 0.5, "expert-sensed", episodes=2)
     resumed = one_round(delayed, tmp_path / "resumed", "pending", 0.5, "expert-sensed", episodes=2, waiting=[5])
-    assert not (tmp_path / "resumed" / SPOOL).exists()
+    assert not (tmp_path / "resumed" / DAGGER_SPOOL).exists()
     columns = [keys.EPISODE_SEED, "length", keys.EPISODE_RETURN, keys.EPISODE_CONTROLLER]
     episodes = [read_episodes(tmp_path / name, columns).to_pylist() for name in ("unbroken", "resumed")]
     assert episodes[0] == episodes[1] and [e[keys.EPISODE_SEED] for e in episodes[1]] == [0, 1, 2, 3, 4, 5]
@@ -314,9 +313,9 @@ def test_a_spool_no_killed_dagger_run_left_is_dropped(delayed: Path, tmp_path: P
     of the next run: dropped."""
     root = tmp_path / "aggregate"
     shutil.copytree(delayed, root)
-    Spool(root, SPOOL).put(run_episode(make_env(STEPS), LQRExpert(), seed=4))
+    Spool(root, DAGGER_SPOOL).put(run_episode(make_env(STEPS), LQRExpert(), seed=4))
     settle_spool(root, committed=4)
-    assert not (root / SPOOL).exists()
+    assert not (root / DAGGER_SPOOL).exists()
 
 
 def test_a_delayed_rounds_action_in_flight_is_what_the_policy_sent(delayed: Path, tmp_path: Path) -> None:

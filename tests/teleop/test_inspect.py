@@ -17,11 +17,15 @@ import pytest
 from matplotlib import image
 
 from common import keys
+from humanoid.env import make_env
+from humanoid.episode import run_episode
+from humanoid.expert import LQRExpert
 from support import snapshot
 from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import RecordConfig, record
+from teleop.spool import DAGGER_SPOOL, SPOOL_DIR, Spool
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -137,6 +141,18 @@ def test_recording_sessions_are_listed(tmp_path: Path) -> None:
     sessions = [line for line in run.out.splitlines() if "teleop.record at " in line]
     assert run.code == 0 and len(sessions) == 2 and sessions[0].startswith("sessions    ")
     assert sessions[0].endswith(": episodes 0..1") and sessions[1].endswith(": episodes 2..2")
+
+
+def test_each_spool_is_named_with_what_the_next_run_makes_of_it(copy: Path) -> None:
+    """Episodes a killed DAgger round left in its spool are named as its, not counted among the recorder's leftovers:
+    only `make dagger` commits them (`teleop.spool.DAGGER_SPOOL`)."""
+    spool = Spool(copy, DAGGER_SPOOL)
+    spool.put(run_episode(make_env(20), LQRExpert(), seed=7))
+    (spool.folder / "000000000008.npz.partial").write_bytes(b"cut short")
+    run = inspect("--dataset", copy, "--lerobot", "false")
+    assert run.code == 0, run.err
+    assert f"{DAGGER_SPOOL} holds 1 finished episodes and 1 partial files (the next `make dagger`" in run.out
+    assert "interrupted recording" not in run.out and f"{SPOOL_DIR} holds" not in run.out
 
 
 def test_nan_in_a_frame_is_named(copy: Path) -> None:
