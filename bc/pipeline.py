@@ -680,11 +680,8 @@ def measure(
     ]
     rows = list(robustness.evaluate_suites(planned, count))
     standing = {name: row["clean"] for name, row in zip(names, rows[: len(names)], strict=True)}
-    suites = {
-        **saved,
-        **{name: robustness.save(configs[name], row) for name, row in zip(fresh, rows[len(names) :], strict=True)},
-    }
-    return standing, {name: suites[name] for name in names}
+    made = {name: robustness.save(configs[name], row) for name, row in zip(fresh, rows[len(names) :], strict=True)}
+    return standing, {name: saved[name] or made[name] for name in names}
 
 
 def suite_config(policy: str, episodes: int, conditions: list[str], workers: int | None = None) -> RobustnessConfig:
@@ -709,9 +706,8 @@ def saved_suite(cfg: RobustnessConfig) -> dict[str, Any] | None:
         return None
     result = json.loads(saved.read_text())
     current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())
-    same = result["seeds"] == list(range(cfg.seed, cfg.seed + cfg.episodes)) and list(result["conditions"]) == (
-        cfg.conditions.split(",")
-    )
+    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
+    same = result["seeds"] == seeds and list(result["conditions"]) == cfg.conditions.split(",")
     return result if current and same else None
 
 
