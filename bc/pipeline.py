@@ -177,7 +177,7 @@ class PipelineConfig:
         paths.BLIND_POLICY,
         f"checkpoint folder of BC on the same data without the command (--inputs {BLIND_INPUTS}): what it buys",
     )
-    epochs: int = _like(TrainConfig, "epochs", "training epochs of the BC students and of every DAgger fit")
+    epochs: int = _like(TrainConfig, "epochs", "training epochs of the BC students")
     dagger_output: Path = _like(
         DaggerConfig, "output", "DAgger's aggregate: a copy of DATASET, then its rounds", paths.OPERATOR_DAGGER_DATASET
     )
@@ -189,6 +189,7 @@ class PipelineConfig:
     )
     rounds: int = _like(DaggerConfig, "rounds", "DAgger rounds (docs/decisions/pipeline-student.md)")
     dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", bc_dagger.OPERATOR_EPISODES)
+    dagger_epochs: int = _like(DaggerConfig, "epochs", "training epochs of every DAgger fit", bc_dagger.OPERATOR_EPOCHS)
     scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
     timesteps: int = _like(FinetuneConfig, "timesteps")
@@ -299,7 +300,7 @@ def stages(cfg: PipelineConfig) -> Stages:
             noise=cfg.noise,
             rounds=cfg.rounds,
             episodes=cfg.dagger_episodes,
-            epochs=cfg.epochs,
+            epochs=cfg.dagger_epochs,
             eval_episodes=STAGE_EVALUATION,
         ),
         baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),

@@ -479,7 +479,7 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every pipeline setting is the stage's own default, but for what makes the task the operator's: the
     dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, the students' inputs,
-    and no evaluation of their own (the table's)."""
+    DAgger's rollouts and epochs, and no evaluation of their own (the table's)."""
     operator = RecordConfig(
         dataset=paths.OPERATOR_DATASET,
         controller="expert-sensed",
@@ -500,6 +500,7 @@ def test_pipeline_defaults_are_the_stages() -> None:
         latency=SENSED_LATENCY,
         noise=SENSED_NOISE,
         episodes=20,
+        epochs=15,
         eval_episodes=0,
     )
     assert stages(PipelineConfig()) == Stages(
