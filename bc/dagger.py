@@ -67,9 +67,8 @@ OPERATOR_EPISODES = 20
 """Rollouts per round of the operator's DAgger student (`make pipeline`): 6 rounds of 20 follow every held-out
 schedule where 10 a round did less (docs/decisions/pipeline-student.md)."""
 OPERATOR_EPOCHS = 15
-"""Epochs of every fit of the operator's DAgger student (`make pipeline`; more if MIN_UPDATES needs them): over three
-training seeds as many held-out schedules followed as at 30, more under pushes, bodies, delays and sensor noise, and
-the seven fits take about 30 s less (docs/decisions/pipeline-student.md)."""
+"""Epochs of every fit of the operator's DAgger student (`make pipeline`; more if MIN_UPDATES needs them): a sturdier
+student than at 30 over three training seeds, for fewer Adam steps (docs/decisions/pipeline-student.md)."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 

@@ -67,9 +67,8 @@ class Spool:
         short (what `recover` drops)."""
         if not self.folder.is_dir():
             return 0, 0
-        return len(self.ready()) + len(list(self.folder.glob(f"*{_COMMITTING}"))), len(
-            list(self.folder.glob("*.partial"))
-        )
+        finished = len(self.ready()) + len(list(self.folder.glob(f"*{_COMMITTING}")))
+        return finished, len(list(self.folder.glob("*.partial")))
 
     def path_of(self, seed: int) -> Path:
         return self.folder / f"{seed:012d}{_READY}"
