@@ -59,11 +59,13 @@ help:  ## list the targets and their variables
 # Installed from the lock (exact versions and hashes), never by resolving pyproject.toml afresh;
 # `make lock` re-resolves it. uv installs (pinned to the lock's own uv); pip only bootstraps it. torchcodec is
 # left out of the lock (pyproject.toml's [tool.uv]), and removed from a .venv built before that.
+# --compile-bytecode, as pip does by default: where PYTHONDONTWRITEBYTECODE is set (as on these machines), every
+# Python process would otherwise compile torch, SB3 and the rest again (docs/decisions/bytecode.md).
 $(STAMP): $(LOCK) pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: no Python >= 3.12 found (set PYTHON312=/path/to/python3.12)" >&2; exit 1; }
 	@test -x $(PY) || $(PYTHON312) -m venv $(VENV)
 	$(PY) -m pip install --quiet uv==$(UV_VERSION)
-	$(UV) pip install --quiet --python $(PY) --require-hashes -r $(LOCK)
+	$(UV) pip install --quiet --python $(PY) --require-hashes --compile-bytecode -r $(LOCK)
 	$(UV) pip uninstall --quiet --python $(PY) torchcodec
 	$(UV) pip install --quiet --python $(PY) --no-deps -e .
 	@touch $@
