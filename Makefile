@@ -116,7 +116,7 @@ pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with a
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
 # on these 2-core machines 2 finish first (docs/benchmarks.md, "The test suite").
 TEST_WORKERS ?= 2
-test: $(STAMP)  ## run the whole test suite (about 6 minutes on 2 cores; TEST_WORKERS processes)
+test: $(STAMP)  ## run the whole test suite (about 4½ minutes on 2 cores; TEST_WORKERS processes)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 80 s)
