@@ -119,7 +119,7 @@ TEST_WORKERS ?= 2
 test: $(STAMP)  ## run the whole test suite (about 4½ minutes on 2 cores; TEST_WORKERS processes)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
-test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 80 s)
+test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 1 minute)
 	$(PY) -m pytest -m "not slow"
 
 lint: $(STAMP)  ## ruff: lint and format check (configured in pyproject.toml)
