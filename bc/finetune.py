@@ -151,10 +151,10 @@ class FinetuneConfig:
         "--latency-share does; 0 = none",
     )
     tracking_weight: float = setting(
-        5.0,
+        10.0,
         "for a BC policy that takes a command: its training episodes follow the operator's command schedules, and "
         "each step's reward adds this times the tracking term (the mean over the fields of exp(-(error/tolerance)²), "
-        "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 5: docs/decisions/tracking-weight.md); "
+        "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 10: docs/decisions/tracking-weight.md); "
         "evaluations run held-out schedules",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
