@@ -180,7 +180,12 @@ class FinetuneConfig:
         20_000,
         "steps between evaluations (and checkpoints) during training; each runs after the first update past its mark",
     )
-    eval_episodes: int = setting(5, "episodes of each evaluation during training")
+    eval_episodes: int = setting(5, "episodes of each evaluation during training but the clean one")
+    floor_episodes: int = setting(
+        20,
+        "episodes of the clean evaluation during training, whose return and tracking score must hold 0.9 of step 0's "
+        "(the floor); with 5, one fall crossed it (docs/decisions/ppo-guards.md)",
+    )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
     update_threads: int = setting(
@@ -201,7 +206,8 @@ class FinetuneConfig:
     below 1, not in the 1,000s, under the gradient-norm clip actor and critic share
     (docs/decisions/fixed-settings.md)."""
     log_std_init: ClassVar[float] = math.log(0.05)
-    """Initial log std of the exploration noise: std 0.05, the DART noise the BC data was recorded with."""
+    """Initial log std of the exploration noise: std 0.05, `make record`'s DART noise and the suite's `noise`
+    condition; 0.03, the pipeline's recording noise, did worse (docs/decisions/fixed-settings.md)."""
 
 
 def workers(cfg: FinetuneConfig) -> int:
@@ -222,6 +228,7 @@ def validate(cfg: FinetuneConfig) -> None:
         "epochs",
         "eval_freq",
         "eval_episodes",
+        "floor_episodes",
         "learning_rate",
         "critic_learning_rate",
     ):
@@ -419,6 +426,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
             evaluator = Evaluator(
                 episodes=cfg.eval_episodes,
+                floor_episodes=cfg.floor_episodes,
                 seed=VALIDATION_SEED,
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,

@@ -44,6 +44,7 @@ TINY_PPO = {
     "epochs": 2,
     "eval_freq": 256,
     "eval_episodes": 1,
+    "floor_episodes": 1,
     "final_eval_episodes": 1,
     "progress": False,
 }

@@ -13,6 +13,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
 from bc.evaluate import evaluate_each
+from bc.robustness import summarise
 from common.cli import config_text
 from humanoid.commands import tracking_score
 from policies import checkpoint
@@ -73,6 +74,7 @@ class Evaluator(BaseCallback):
         self,
         *,
         episodes: int,
+        floor_episodes: int,
         seed: int,
         push: float,
         freq: int,
@@ -85,6 +87,7 @@ class Evaluator(BaseCallback):
     ) -> None:
         super().__init__()
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
+        self.floor_episodes = floor_episodes  # the clean condition's, which holds the floor
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
         self.schedules = schedules  # every evaluation under held-out command schedules, tracking scored
         self.settings, self.folder, self.bar, self.pool = settings, folder, bar, pool
@@ -95,10 +98,11 @@ class Evaluator(BaseCallback):
 
     def evaluate_now(self) -> None:
         actor = self.model.policy.actor
-        settings = {"episodes": self.episodes, "seed": self.seed, "schedules": self.schedules}
         extras = [{"push": self.push}, *({"condition": name} for name in self.conditions)]
-        runs = [((actor, "ppo"), {**extra, **settings}) for extra in extras]
-        result, *conditions = evaluate_each(runs, self.pool)
+        parts = [[{**extra, **part} for part in self.parts(extra)] for extra in extras]
+        runs = [((actor, "ppo"), part) for run in parts for part in run]
+        evaluations = evaluate_each(runs, self.pool)
+        result, *conditions = [summarise([next(evaluations) for _ in run]) for run in parts]
         actor.train()
         point = {
             "timesteps": self.num_timesteps,
@@ -120,6 +124,16 @@ class Evaluator(BaseCallback):
         checkpoint.save(actor, self.folder / CHECKPOINTS_DIR / f"step_{self.num_timesteps:08d}", self.settings, {})
         self.bar.set_postfix(eval_return=f"{point['mean_return']:.0f}", survival=f"{point['survival_rate']:.0%}")
         self.next_at = self.num_timesteps + self.freq
+
+    def parts(self, run: dict[str, Any]) -> list[dict[str, Any]]:
+        """The seeds of an evaluation's `run` (its push or condition) as `evaluate`'s settings, in parts of at most
+        `episodes` that the pool runs side by side: `floor_episodes` for the clean condition, which holds the floor
+        (`holds_floor`), `episodes` for the others."""
+        total = self.floor_episodes if run.get("condition") == "clean" else self.episodes
+        return [
+            {"seed": self.seed + start, "episodes": min(self.episodes, total - start), "schedules": self.schedules}
+            for start in range(0, total, self.episodes)
+        ]
 
     def _on_training_start(self) -> None:
         self.logger.record(CONFIG_TAG, config_text(self.settings), exclude=("stdout", "log", "json", "csv"))

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from bc.finetune import FinetuneConfig, cli, follows_commands, learner, main, vec_env, weights_digest
-from bc.ppo.evaluator import better, falls_back, holds_floor, selection_score
+from bc.ppo.evaluator import Evaluator, better, falls_back, holds_floor, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import training_env
 from bc.ppo.vec_env import WorkerGroupVecEnv
@@ -263,6 +263,18 @@ def test_guarded_keeps_the_last_actor_unless_its_clean_return_fell_below_the_flo
     assert not holds_floor([tracked, {**held, "tracking_score": 0.62}])
 
 
+def test_the_clean_evaluation_which_holds_the_floor_runs_its_own_episodes(tmp_path: Path) -> None:
+    """--floor-episodes for the clean condition (one fall in 5 episodes crossed the floor), in parts of at most
+    --eval-episodes from the validation seed; --eval-episodes for the validation push and the other conditions."""
+    evaluator = Evaluator(
+        episodes=5, floor_episodes=12, seed=2000, push=40.0, freq=1, settings={}, folder=tmp_path, bar=None
+    )
+    clean = [(part["seed"], part["episodes"]) for part in evaluator.parts({"condition": "clean"})]
+    assert clean == [(2000, 5), (2005, 5), (2010, 2)]
+    assert [(part["seed"], part["episodes"]) for part in evaluator.parts({"push": 40.0})] == [(2000, 5)]
+    assert [(part["seed"], part["episodes"]) for part in evaluator.parts({"condition": "mass"})] == [(2000, 5)]
+
+
 def test_scratch_keeps_its_last_actor_where_fine_tuning_falls_back() -> None:
     """PPO from scratch has none of the guards: below its random start's return it still keeps its last actor."""
     start = {"timesteps": 0, "mean_return": 310.0, "clean_mean_return": 310.0}
@@ -390,6 +402,7 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--envs", "0"], "--envs must be positive"),
         (["--envs", "4", "--workers", "5"], "--workers (5) must not exceed --envs (4)"),
         (["--critic-learning-rate", "0"], "--critic-learning-rate must be positive"),
+        (["--floor-episodes", "0"], "--floor-episodes must be positive"),
         (["--backend", "ray", "--ray-address", "6379"], "--ray-address must be HOST:PORT"),
         (["--curriculum", "20,10"], "forces must not decrease"),
         (["--curriculum", "10,x"], "give push forces in newtons"),

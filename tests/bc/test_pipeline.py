@@ -79,6 +79,7 @@ def tiny_stages(
         "epochs": 1,
         "eval_freq": 256,
         "eval_episodes": 1,
+        "floor_episodes": 1,
         "final_eval_episodes": 1,
         "critic_warmup": 0,
         "progress": False,

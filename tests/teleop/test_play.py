@@ -122,7 +122,7 @@ def fine_tune(student: Path, actor: Path) -> None:
     """`make finetune-rl` from `student` at a tiny size: two updates of the actor (no critic warm-up), one process,
     one final episode under a held-out schedule."""
     settings = {"timesteps": 512, "envs": 4, "workers": 1, "rollout_steps": 256, "batch_size": 64, "epochs": 1}
-    evaluations = {"eval_freq": 512, "eval_episodes": 1, "final_eval_episodes": 1}
+    evaluations = {"eval_freq": 512, "eval_episodes": 1, "floor_episodes": 1, "final_eval_episodes": 1}
     finetune(
         FinetuneConfig(bc_policy=student, policy=actor, critic_warmup=0, progress=False, **settings, **evaluations)
     )
