@@ -177,8 +177,9 @@ class FinetuneConfig:
     )
     critic_warmup: int = setting(50_000, "first steps that train the critic only (actor frozen); 0 = none")
     eval_freq: int = setting(
-        20_000,
-        "steps between evaluations (and checkpoints) during training; each runs after the first update past its mark",
+        65_536,
+        "steps between evaluations (and checkpoints) during training, each after the first update past its mark: "
+        "4 rollouts, since the clean evaluation runs --floor-episodes (docs/decisions/ppo-guards.md)",
     )
     eval_episodes: int = setting(5, "episodes of each evaluation during training but the clean one")
     floor_episodes: int = setting(
