@@ -184,8 +184,8 @@ class FinetuneConfig:
     eval_episodes: int = setting(5, "episodes of each evaluation during training but the clean one")
     floor_episodes: int = setting(
         20,
-        "episodes of the clean evaluation during training, whose return and tracking score must hold 0.9 of step 0's "
-        "(the floor); with 5, one fall crossed it (docs/decisions/ppo-guards.md)",
+        "episodes of the clean evaluation during training, whose return and tracking score must hold the floor "
+        "against step 0's (bc.ppo.evaluator.CLEAN_FLOOR); with 5, one fall crossed it (docs/decisions/ppo-guards.md)",
     )
     final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
