@@ -40,6 +40,7 @@ from tqdm import tqdm
 from common import paths
 from common.cli import UserError, config_dict, run_cli, setting
 from common.threads import one_blas_thread
+from common.workers import forkserver_context
 from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import Controller, make_controller
@@ -268,7 +269,7 @@ def evaluation_pool(workers: int) -> Iterator[Executor | None]:
     elif workers in _open_pools:
         yield _open_pools[workers]
     else:
-        context = mp.get_context("forkserver")
+        context = forkserver_context()
         with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_pool_worker) as pool:
             _open_pools[workers] = pool
             try:

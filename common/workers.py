@@ -7,7 +7,8 @@ each property is the one it is, with the measurements.
 Start: multiprocessing's forkserver, always. The server is a fresh interpreter (it inherits no
 lock, thread or open file of the parent), started once per parent process; it imports the preload
 list once and every child is a fork of it, so a child starts in milliseconds instead of paying for
-its imports again (docs/concepts/processes.md). Preload policy: the server imports `__main__`, the parent's
+its imports again (docs/concepts/processes.md), and it imports from this process's `sys.path`
+(`start_server`). Preload policy: the server imports `__main__`, the parent's
 main module by name (`python -m pkg.mod`: CPython 3.12's forkserver preloads `__main__` only when
 started from a file path, and every child would re-run the main module otherwise), and every module
 the workers of this process declared (`preload=`) before the server started; a later declaration
@@ -43,6 +44,7 @@ import signal
 import sys
 import traceback
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing import forkserver
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -170,12 +172,40 @@ def _child(
         sys.exit(1)
 
 
-def _context(preload: Iterable[str]) -> Any:
-    """The forkserver context, its preload list brought up to date (it counts until the server starts)."""
-    _preload.extend(module for module in preload if module not in _preload)
+def declare_preload(modules: Iterable[str]) -> Any:
+    """Add `modules` to the forkserver's preload list (it counts until the server starts); the context."""
+    _preload.extend(module for module in modules if module not in _preload)
     context = mp.get_context(START_METHOD)
     context.set_forkserver_preload(["__main__", *_preload])
     return context
+
+
+def forkserver_context(preload: Iterable[str] = ()) -> Any:
+    """The forkserver context, `preload` declared and the server started on this process's import path
+    (`start_server`): every worker and process pool of the project starts from here."""
+    context = declare_preload(preload)
+    start_server()
+    return context
+
+
+def start_server() -> None:
+    """Start the forkserver (if it is not running) importing from this process's `sys.path`, not from the current
+    directory. CPython before 3.12.8 and 3.13.1 drops the path it hands the server (gh-117378), whose `python -c`
+    then looks in the current directory first: a parent started from another checkout's folder gave its children
+    that checkout's modules. The path goes to the server in its environment alone (`PYTHONPATH`, and
+    `PYTHONSAFEPATH` to leave the current directory out); this process's is restored."""
+    names = ("PYTHONPATH", "PYTHONSAFEPATH")
+    saved = {name: os.environ.get(name) for name in names}
+    os.environ["PYTHONPATH"] = os.pathsep.join(path or os.getcwd() for path in sys.path)
+    os.environ["PYTHONSAFEPATH"] = "1"
+    try:
+        forkserver.ensure_running()
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def default_workers(most: int) -> int:
@@ -217,7 +247,7 @@ class Worker:
         ignore_interrupt: bool = True,
         outlives_parent: bool = False,
     ) -> None:
-        context = _context(preload)
+        context = forkserver_context(preload)
         self.name = name
         self.failed = False  # a fatal failure or the child's death was raised: nothing more will come
         self.exitcode: int | None = None

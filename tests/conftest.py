@@ -31,7 +31,9 @@ os.environ.setdefault("RAY_AUTH_TOKEN", uuid.uuid4().hex)
 # declared before it started (common.workers): declared here, before any test starts it, a recording, writer, PPO,
 # robustness-suite or tutorial worker starts in milliseconds whichever test started the server, instead of
 # importing torch, SB3 and MuJoCo anew (seconds each).
-workers._context([*WORKER_MODULES, *WRITER_MODULES, "bc.ppo.learner", "bc.ppo.vec_env", "bc.robustness", "bc.pipeline"])
+workers.declare_preload(
+    [*WORKER_MODULES, *WRITER_MODULES, "bc.ppo.learner", "bc.ppo.vec_env", "bc.robustness", "bc.pipeline"]
+)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -97,6 +97,34 @@ def test_a_child_exception_is_one_line_in_the_parent_with_the_traceback_on_stder
     assert 'raise ValueError("bad value")' in result.stderr
 
 
+PROBE = """
+WHERE = {where!r}
+
+
+def where(channel):
+    channel.send(WHERE)
+"""
+
+
+def test_children_import_from_the_parents_path_not_from_the_current_directory(tmp_path: Path) -> None:
+    """A parent whose current directory holds another copy of a module its workers preload (another checkout's
+    folder, say) gives them its own copy: the forkserver imports from the parent's `sys.path` (CPython gh-117378)."""
+    for folder, where in (("ours", "the parent's"), ("cwd", "another checkout's")):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "probe.py").write_text(PROBE.format(where=where))
+    code = (
+        f"import sys; sys.path.insert(0, {str(tmp_path / 'ours')!r})\n"
+        "import probe\n"
+        "from common.workers import Worker\n"
+        "with Worker(probe.where, name='probe', preload=['probe']) as worker:\n"
+        "    print(worker.recv())\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path / "cwd", capture_output=True, text=True, timeout=60, check=True
+    )
+    assert result.stdout == "the parent's\n"
+
+
 def test_a_child_exception_ends_it_with_exit_code_1_and_a_user_error_stays_itself() -> None:
     worker = Worker(raise_value_error, name="test worker")
     worker.send("go")
