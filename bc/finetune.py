@@ -157,6 +157,12 @@ class FinetuneConfig:
         "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 10: docs/decisions/tracking-weight.md); "
         "evaluations run held-out schedules",
     )
+    tracking_width: float = setting(
+        1.0,
+        "the tracking term's kernel width, in each field's settling tolerance (humanoid.commands.TOLERANCE, about "
+        "one key press; the tracking score measured is always at 1): half as wide tracked no closer over three "
+        "training seeds, twice as wide fell below the floor (docs/decisions/tracking-weight.md)",
+    )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
     critic_learning_rate: float = setting(
@@ -232,6 +238,7 @@ def validate(cfg: FinetuneConfig) -> None:
         "floor_episodes",
         "learning_rate",
         "critic_learning_rate",
+        "tracking_width",
     ):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
@@ -320,6 +327,7 @@ def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
         tracking=cfg.tracking_weight if schedules else None,
+        tracking_width=cfg.tracking_width,
     )
 
 

@@ -264,11 +264,12 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
     }
 
 
-def tracking_reward(errors: np.ndarray) -> np.ndarray:
+def tracking_reward(errors: np.ndarray, width: float = 1.0) -> np.ndarray:
     """The tracking term of PPO's reward for errors (..., COMMAND_SIZE): the mean over the fields of
-    exp(-(error / TOLERANCE)²), as the public humanoid stacks reward a command (1 on it, 0.37 one key press off)."""
-    width = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
-    return np.exp(-np.square(errors / width)).mean(axis=-1)
+    exp(-(error / (width · TOLERANCE))²), as the public humanoid stacks reward a command (1 on it; at `width` 1,
+    0.37 one key press off)."""
+    tolerance = width * np.array([TOLERANCE[name] for name in COMMAND_NAMES])
+    return np.exp(-np.square(errors / tolerance)).mean(axis=-1)
 
 
 def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
@@ -293,13 +294,14 @@ class CommandedTask(gym.Wrapper):
     the zero command) whose seed is drawn from the wrapper's stream, seeded by the reset's seed, so episodes repeat
     exactly (and a resumed run replays them: `random_state`). The command in force goes out in `info[COMMAND_INFO]`
     at the reset and after every step, for the actor's inputs; each step's reward adds `weight` ×
-    `tracking_reward` of the true posture reached against the command acted under (the simulator's, not the
-    possibly noisy observation's). With `weight` 0 the reward is the environment's alone.
+    `tracking_reward` (its kernel `width` TOLERANCEs wide) of the true posture reached against the command acted
+    under (the simulator's, not the possibly noisy observation's). With `weight` 0 the reward is the environment's
+    alone.
     """
 
-    def __init__(self, env: gym.Env, weight: float) -> None:
+    def __init__(self, env: gym.Env, weight: float, width: float = 1.0) -> None:
         super().__init__(env)
-        self.weight = weight
+        self.weight, self.width = weight, width
         self.tracking = Tracking(nominal_model())  # the nominal body's targets, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
@@ -325,7 +327,8 @@ class CommandedTask(gym.Wrapper):
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         command = self.commands[self.t]
-        reward += self.weight * float(tracking_reward(self.tracking.error(self.env.unwrapped.data.qpos[2:], command)))
+        error = self.tracking.error(self.env.unwrapped.data.qpos[2:], command)
+        reward += self.weight * float(tracking_reward(error, self.width))
         self.t = min(self.t + 1, len(self.commands) - 1)
         info[COMMAND_INFO] = self.commands[self.t]
         return obs, reward, terminated, truncated, info

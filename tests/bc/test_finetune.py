@@ -411,6 +411,7 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--latency-share", "-0.5"], "--latency-share must be in [0, 1]"),
         (["--obs-noise-share", "2"], "--obs-noise-share must be in [0, 1]"),
         (["--tracking-weight", "-1"], "--tracking-weight must be >= 0"),
+        (["--tracking-width", "0"], "--tracking-width must be positive"),
         (["--randomize", "wild"], "--randomize 'wild': unknown preset"),
         (["--randomize", "mass=1.2:0.8"], "mass range has low 1.2 > high 0.8"),
     ],

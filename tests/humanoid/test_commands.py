@@ -330,10 +330,12 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
 
 
 def test_the_tracking_kernel_is_one_on_the_command_and_falls_with_the_error() -> None:
-    """exp(-(error / tolerance)²) per field, averaged: 1 on the command; one field one tolerance off: (4 + 1/e) / 5."""
-    assert tracking_reward(np.zeros(5)) == 1.0
+    """exp(-(error / (width · tolerance))²) per field, averaged: 1 on the command; one field one tolerance off:
+    (4 + 1/e) / 5, and (4 + e⁻⁴) / 5 with the kernel half as wide."""
+    assert tracking_reward(np.zeros(5)) == tracking_reward(np.zeros(5), 0.5) == 1.0
     one_off = np.array([TOLERANCE["lean_forward"], 0.0, 0.0, 0.0, 0.0])
     assert tracking_reward(one_off) == pytest.approx((4 + np.exp(-1)) / 5)
+    assert tracking_reward(one_off, 0.5) == pytest.approx((4 + np.exp(-4)) / 5)
     assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, 0.0)}) == 1.0
     assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, float("nan"))}) == 0.0
 
@@ -342,7 +344,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
     """Under `CommandedTask` the info carries the schedule's command at the reset and after each step (a neutral
     start, then a change), the same per reset seed, from a schedule seed past every evaluation's; the reward is the
     environment's plus the weight times the tracking kernel of the true posture against the command."""
-    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0)
+    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0, width=0.5)
     bare = make_env()
     obs, info = task.reset(seed=11)
     bare.reset(seed=11)
@@ -359,7 +361,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
         _, base, *_ = bare.step(action)
         errors = task.tracking.errors(task.unwrapped.data.qpos[None, 2:], commands[t][None])
         extra.append(reward - base)
-        assert reward - base == pytest.approx(2.0 * tracking_reward(errors)[0])
+        assert reward - base == pytest.approx(2.0 * tracking_reward(errors, 0.5)[0])
         seen.append(info[COMMAND_INFO])
     np.testing.assert_array_equal(np.array(seen), commands[: len(seen)])
     assert (np.array(seen)[-1] != 0).any()  # past the neutral start, a command
