@@ -8,11 +8,11 @@ Start: multiprocessing's forkserver, always. The server is a fresh interpreter (
 lock, thread or open file of the parent), started once per parent process; it imports the preload
 list once and every child is a fork of it, so a child starts in milliseconds instead of paying for
 its imports again (docs/concepts/processes.md), and it imports from this process's `sys.path`
-(`start_server`). Preload policy: the server imports `__main__`, the parent's
-main module by name (`python -m pkg.mod`: CPython 3.12's forkserver preloads `__main__` only when
-started from a file path, and every child would re-run the main module otherwise), and every module
-the workers of this process declared (`preload=`) before the server started; a later declaration
-does not change a running server, it only costs that child its imports.
+(`start_server`). Preload policy: `__main__`, which CPython 3.12.1's server never takes from the
+parent (it looks for a key the parent no longer sends, gh-98552: each child re-runs the main module,
+cheap once its imports are preloaded), and every module the workers of this process declared
+(`preload=`) before the server started; a later declaration does not change a running server, it
+only costs that child its imports.
 
 Channel: two one-way pipes, so that the parent can end the child's input (`stop_sending`: its
 `for message in channel` ends) and still read what the child sends until it ends (`rest`).
