@@ -192,8 +192,9 @@ def start_server() -> None:
     """Start the forkserver (if it is not running) importing from this process's `sys.path`, not from the current
     directory. CPython before 3.12.8 and 3.13.1 drops the path it hands the server (gh-117378), whose `python -c`
     then looks in the current directory first: a parent started from another checkout's folder gave its children
-    that checkout's modules. The path goes to the server in its environment alone (`PYTHONPATH`, and
-    `PYTHONSAFEPATH` to leave the current directory out); this process's is restored."""
+    that checkout's modules. The path goes in the environment the server starts with (`PYTHONPATH`, and
+    `PYTHONSAFEPATH` to leave the current directory out), which its children inherit; this process's own is
+    restored."""
     names = ("PYTHONPATH", "PYTHONSAFEPATH")
     saved = {name: os.environ.get(name) for name in names}
     os.environ["PYTHONPATH"] = os.pathsep.join(path or os.getcwd() for path in sys.path)
