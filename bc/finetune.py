@@ -193,7 +193,11 @@ class FinetuneConfig:
         "episodes of the clean evaluation during training, whose return and tracking score must hold the floor "
         "against step 0's (bc.ppo.evaluator.CLEAN_FLOOR); with 5, one fall crossed it (docs/decisions/ppo-guards.md)",
     )
-    final_eval_episodes: int = setting(20, "episodes of the final evaluation (seeds 1000...)")
+    final_eval_episodes: int = setting(
+        20,
+        "episodes of the final evaluation (seeds 1000...); 0 = skip it (`make pipeline` does: its table evaluates "
+        "every controller on those seeds)",
+    )
     seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
     update_threads: int = setting(
         0,
@@ -392,7 +396,8 @@ def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, 
 
 
 def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
-    """Train as configured; returns the final evaluation written to POLICY/eval.json.
+    """Train as configured; returns what POLICY/eval.json holds: the training's figures and the final evaluation
+    (none with FINAL_EVAL_EPISODES 0).
 
     `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
     """
@@ -478,11 +483,13 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
 
-        final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
-        pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
-        result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
-    if pushed:
-        result["pushed"] = pushed[0]
+        result: dict[str, Any] = {}
+        if cfg.final_eval_episodes:
+            final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+            pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
+            result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
+            if pushed:
+                result["pushed"] = pushed[0]
     bc_eval = cfg.bc_policy / EVAL_FILE
     bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
     result.update(
@@ -517,10 +524,14 @@ def print_summary(cfg: FinetuneConfig, result: dict[str, Any]) -> None:
         f"{cfg.policy}: {result['timesteps']} steps in {result['seconds']:.0f} s ({result['steps_per_s']:.0f}/s); "
         f"evaluations during training {min(p['mean_return'] for p in curve):.0f}.."
         f"{max(p['mean_return'] for p in curve):.0f} (first {curve[0]['mean_return']:.1f}), "
-        f"kept step {result['kept']['timesteps']} (mean over its evaluations {selection_score(result['kept']):.1f}); "
-        f"final on seeds {result['seeds'][0]}..{result['seeds'][-1]}: "
-        f"survival {result['survival_rate']:.0%}, return {result['mean_return']:.1f}"
-        + (f" (BC {result['bc_mean_return']:.1f})" if result["bc_mean_return"] else "")
+        f"kept step {result['kept']['timesteps']} (mean over its evaluations {selection_score(result['kept']):.1f})"
+        + (
+            f"; final on seeds {result['seeds'][0]}..{result['seeds'][-1]}: "
+            f"survival {result['survival_rate']:.0%}, return {result['mean_return']:.1f}"
+            + (f" (BC {result['bc_mean_return']:.1f})" if result["bc_mean_return"] else "")
+            if "seeds" in result
+            else ""
+        )
     )
 
 

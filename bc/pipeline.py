@@ -28,7 +28,7 @@ A stage is skipped only if its output exists and was made from the same inputs:
 - the dataset: its recordings.jsonl (`teleop.recordings`) accounts for every episode in it, and
   those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
 - a checkpoint: its config.json holds the same settings and its eval.json exists (BC and DAgger here skip
-  theirs: STAGE_EVALUATION), and it was made
+  their evaluation and write none, PPO its final one: STAGE_EVALUATION), and it was made
   from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json; DAgger: `demonstrations`
   in config.json) or the BC weights' digest (PPO: `bc_policy_sha256` in config.json);
 - DAgger's aggregate, when its checkpoint is made again: it is a copy of the dataset as it is now (its
@@ -118,8 +118,9 @@ and the operator's command (docs/decisions/pending-inputs.md, docs/concepts/comm
 BLIND_INPUTS = "pending"
 """What BLIND_POLICY reads: the same without the operator's command."""
 STAGE_EVALUATION = 0
-"""Episodes of the BC and DAgger stages' own evaluation after training: none, since the table evaluates every
-controller on the same held-out seeds (its clean column is that evaluation), and the three cost about 35 s."""
+"""Episodes of each stage's own evaluation after training (BC's, DAgger's, PPO's final one): none, since the table
+evaluates every controller on the same held-out seeds (its clean column is that evaluation;
+docs/decisions/pipeline-task.md)."""
 DAGGER_INPUTS = "pending+ramp"
 """What DAGGER_POLICY, PPO's start, reads: `pending`'s inputs and the command as the expert's setpoint moves toward it
 (humanoid.inputs.ramped_set): under DAgger it follows every held-out schedule, where the command alone does not
@@ -265,6 +266,7 @@ def stages(cfg: PipelineConfig) -> Stages:
         "curriculum": cfg.curriculum,
         "randomize": cfg.randomize,
         "baseline": cfg.scratch_policy,
+        "final_eval_episodes": STAGE_EVALUATION,
         **workers,
     }
     recording = RecordConfig(
@@ -325,7 +327,10 @@ def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) 
     defaults = config_class()
     repeated = [name for name in settings if getattr(given, name) != getattr(defaults, name)]
     if repeated:
-        raise UserError(f"--args sets {flag(repeated[0])}, a setting of the pipeline's own: set it as such")
+        name = repeated[0]
+        if name in {f.name for f in dataclasses.fields(PipelineConfig)}:
+            raise UserError(f"--args sets {flag(name)}, a setting of the pipeline's own: set it as such")
+        raise UserError(f"--args sets {flag(name)}, which the pipeline sets itself ({settings[name]})")
     return dataclasses.replace(given, **settings)
 
 
@@ -443,7 +448,8 @@ def _training_record(folder: Path) -> dict[str, Any]:
 
 
 def evaluates(cfg: TrainConfig | FinetuneConfig | DaggerConfig) -> bool:
-    """Whether the stage writes an eval.json: PPO always, BC and DAgger unless told no episodes."""
+    """Whether the stage writes an eval.json: PPO always (its training's figures), BC and DAgger unless told no
+    episodes."""
     return not isinstance(cfg, TrainConfig | DaggerConfig) or cfg.eval_episodes > 0
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from bc.finetune import FinetuneConfig, cli, follows_commands, learner, main, vec_env, weights_digest
+from bc.finetune import FinetuneConfig, cli, follows_commands, learner, main, print_summary, vec_env, weights_digest
 from bc.ppo.evaluator import Evaluator, better, falls_back, holds_floor, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import training_env
@@ -224,19 +224,24 @@ def test_the_curriculum_moves_on_at_rollout_ends_and_the_checkpoint_says_when(bc
     assert result["pushed"]["push_newtons"] == 10.0
 
 
-def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path) -> None:
-    """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout."""
-    result = main(
-        FinetuneConfig(
-            bc_policy=bc_policy,
-            policy=tmp_path / "ppo",
-            timesteps=300,
-            critic_warmup=0,
-            **{**TINY_PPO, "eval_freq": 100},
-        )
+def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout.
+    Without a final evaluation (`make pipeline`'s), eval.json and the summary hold the training's figures only."""
+    config = FinetuneConfig(
+        bc_policy=bc_policy,
+        policy=tmp_path / "ppo",
+        timesteps=300,
+        critic_warmup=0,
+        **{**TINY_PPO, "eval_freq": 100, "final_eval_episodes": 0},
     )
+    result = main(config)
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512]
     assert result["timesteps"] == 512
+    assert json.loads((config.policy / policy_files.EVAL_FILE).read_text()) == json.loads(json.dumps(result))
+    assert "seeds" not in result and "survival_rate" not in result
+    print_summary(config, result)
+    printed = capsys.readouterr().out
+    assert f"kept step {result['kept']['timesteps']}" in printed and "final on" not in printed
 
 
 def test_the_saved_actor_is_the_checkpoint_of_the_evaluation_kept(tiny_run: tuple[FinetuneConfig, dict]) -> None:

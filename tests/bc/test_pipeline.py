@@ -480,7 +480,7 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every pipeline setting is the stage's own default, but for what makes the task the operator's: the
     dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, the students' inputs,
-    DAgger's rollouts and epochs, and no evaluation of their own (the table's)."""
+    DAgger's rollouts and epochs, and no evaluation of their own after training (the table's)."""
     operator = RecordConfig(
         dataset=paths.OPERATOR_DATASET,
         controller="expert-sensed",
@@ -509,8 +509,8 @@ def test_pipeline_defaults_are_the_stages() -> None:
         student,
         dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
         dagger,
-        BaselineConfig(),
-        FinetuneConfig(),
+        BaselineConfig(final_eval_episodes=0),
+        FinetuneConfig(final_eval_episodes=0),
     )
     assert check(PipelineConfig()) == list(SUITE)
 
@@ -606,9 +606,12 @@ def test_pipeline_settings_and_args_reach_their_stages() -> None:
 
 
 def test_args_may_not_repeat_a_pipeline_setting() -> None:
-    """--timesteps in ARGS would silently lose to TIMESTEPS: refused, naming the flag."""
+    """--timesteps in ARGS would silently lose to TIMESTEPS: refused, naming the flag; as is a setting the pipeline
+    gives a stage itself."""
     with pytest.raises(UserError, match="--args sets --timesteps, a setting of the pipeline's own"):
         stages(PipelineConfig(args="--timesteps 5"))
+    with pytest.raises(UserError, match="--args sets --final-eval-episodes, which the pipeline sets itself"):
+        stages(PipelineConfig(args="--final-eval-episodes 5"))
 
 
 def table_suite(conditions: list[str]) -> dict:
