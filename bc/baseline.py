@@ -1,8 +1,11 @@
 """`make baseline-rl`: PPO from scratch, the yardstick of `make finetune-rl`.
 
 The same network shape, environments and budget as the fine-tuning run, fresh weights (the input
-normalisation still comes from the BC checkpoint's data), and none of its guards: no critic
-warm-up, no BC term, the critic at the actor's rate, the environment's own rewards.
+normalisation still comes from the BC checkpoint's data), and the same PPO clip range, target KL and
+clipped critic inputs, so that the two differ only in their start and the guards against forgetting.
+Those it drops: no critic warm-up, the actor and the critic both at SB3's default rate, the
+environment's own rewards, and no keep rule (the last actor is kept: a random start is no floor).
+What each guard is for: docs/decisions/ppo-guards.md.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from common.cli import run_cli, setting
 
 @dataclass
 class BaselineConfig(FinetuneConfig):
-    """Settings of PPO from scratch: `bc.finetune`'s, with the defaults of an unguarded run."""
+    """Settings of PPO from scratch: `bc.finetune`'s, with the guards against forgetting off."""
 
     policy: Path = setting(paths.SCRATCH_POLICY, "checkpoint folder to write")
     learning_rate: float = setting(3e-4, "Adam learning rate of the actor (SB3's PPO default)")

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import shutil
 import sys
 import time
@@ -167,8 +168,8 @@ def check_settings(cfg: DaggerConfig) -> None:
     for name in ("rounds", "episodes", "epochs", *(("workers",) if cfg.workers is not None else ())):
         if getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    for name in ("patience", "min_updates", "eval_episodes", "noise"):
-        if not getattr(cfg, name) >= 0:  # also rejects a NaN noise
+    for name in ("patience", "min_updates", "eval_episodes", "noise", "seed"):
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {getattr(cfg, name)}")
     if cfg.latency is not None:
         check_share(cfg, "latency")

@@ -43,7 +43,7 @@ from common.threads import one_blas_thread
 from common.workers import forkserver_context
 from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
-from humanoid.controllers import Controller, make_controller
+from humanoid.controllers import CONTROLLERS, Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
 from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from humanoid.learned import PolicyController
@@ -61,7 +61,7 @@ class EvalConfig:
 
     policy: str = setting(
         str(paths.BC_POLICY),
-        "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)",
+        f"policy checkpoint folder, or a registered controller ({', '.join(CONTROLLERS)})",
     )
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")

@@ -18,8 +18,9 @@ Data flow:
    config.json holds every setting, who ran it and the BC weights' digest (`bc_policy_sha256`);
    TensorBoard gets the same as text.
 
-`make baseline-rl` (`bc.baseline`) runs the same with fresh weights and no guards. Why each
-default is what it is: docs/how-to/finetune-ppo.md; what was tried and removed: docs/decisions/.
+`make baseline-rl` (`bc.baseline`) runs the same with fresh weights and without the guards against forgetting (the
+same clip range and target KL). Why each default is what it is: docs/how-to/finetune-ppo.md; what was tried and
+removed: docs/decisions/.
 """
 
 from __future__ import annotations
@@ -243,10 +244,16 @@ def validate(cfg: FinetuneConfig) -> None:
         "learning_rate",
         "critic_learning_rate",
         "tracking_width",
+        "clip_range",
+        "curriculum_episodes",
     ):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"{flag(name)} must be positive, got {value}")
+    if cfg.batch_size < 2:  # PPO normalises each minibatch's advantages: one sample has no spread
+        raise UserError(f"--batch-size must be at least 2, got {cfg.batch_size}")
+    if cfg.seed < 0:
+        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if workers(cfg) <= 0:
         raise UserError(f"--workers must be positive, got {workers(cfg)}")
     for name in (
@@ -255,7 +262,6 @@ def validate(cfg: FinetuneConfig) -> None:
         "critic_warmup",
         "final_eval_episodes",
         "update_threads",
-        "curriculum_episodes",
         "tracking_weight",
     ):
         value = getattr(cfg, name)
@@ -268,7 +274,7 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"--rollout-steps ({cfg.rollout_steps}) must be a multiple of --envs ({cfg.envs})")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
-    for name in ("curriculum_advance", "latency_share", "obs_noise_share"):
+    for name in ("curriculum_advance", "latency_share", "obs_noise_share", "gamma", "gae_lambda"):
         if not 0 <= getattr(cfg, name) <= 1:
             raise UserError(f"{flag(name)} must be in [0, 1], got {getattr(cfg, name)}")
     if stages(cfg) and cfg.push:
@@ -397,7 +403,7 @@ def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, 
 
 def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
     """Train as configured; returns what POLICY/eval.json holds: the training's figures and the final evaluation
-    (none with FINAL_EVAL_EPISODES 0).
+    (none with --final-eval-episodes 0).
 
     `made_by` (bc.finetune, bc.baseline, bc.pipeline) is saved with the settings in config.json.
     """
@@ -496,7 +502,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         timesteps=steps,
         seconds=seconds,
         steps_per_s=steps / seconds,
-        bc_mean_return=None if bc is None else bc["mean_return"],
+        bc_mean_return=None if bc is None else bc.get("mean_return"),  # none if its final evaluation was skipped
         expert_mean_return=None if bc is None else bc.get("expert_mean_return"),
         training_curve=evaluator.curve,
         kept=kept,

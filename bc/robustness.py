@@ -1,6 +1,6 @@
 """`make robustness`: a policy (or the expert) on the same seeds under every condition of the suite.
 
-    conditions x seeds --(chunks, both cores)--> rollouts under `Condition.wrap` --> per condition:
+    conditions x seeds --(chunks, over the cores: WORKERS)--> rollouts under `Condition.wrap` --> per condition:
     survival rate, mean return (and, pushed, which directions toppled it) --> a table,
     POLICY/robustness.json, POLICY/robustness.png, and the JSON summary as the last line printed
 
@@ -51,7 +51,7 @@ class RobustnessConfig:
 
     policy: str = setting(
         str(paths.BC_POLICY),
-        "policy checkpoint folder, or a registered controller (expert, expert-sensed, random)",
+        f"policy checkpoint folder, or a registered controller ({', '.join(CONTROLLERS)})",
     )
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
@@ -79,6 +79,9 @@ def selected(cfg: RobustnessConfig) -> list[str]:
             raise UserError(str(error)) from None
     if not names:
         raise UserError(f"{flag('conditions')} names no condition")
+    twice = next((name for i, name in enumerate(names) if name in names[:i]), None)
+    if twice is not None:  # its row would merge both runs of the same seeds
+        raise UserError(f"{flag('conditions')} names {twice} twice")
     return names
 
 

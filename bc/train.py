@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -38,7 +37,7 @@ from bc.data import Demonstrations, episode_delays, load_demonstrations, split_b
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from common import keys, paths
 from common.cli import DatasetError, UserError, config_dict, config_text, flag, run_cli, setting
-from common.workers import default_workers
+from common.workers import available_cores, default_workers
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
 from policies import checkpoint
@@ -183,7 +182,7 @@ def validate(cfg: TrainConfig) -> None:
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"{flag(name)} must be positive, got {value}")
-    for name in ("weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed"):
+    for name in ("weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed", "seed"):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
@@ -340,7 +339,7 @@ def fit_demonstrations(
 ) -> TrainResult:
     """A policy for `action_space` fitted to `demos` in memory as `cfg` says (its split, input normalisation and
     training); nothing is written but `writer`'s logs. The same `demos` and `cfg` give the same weights."""
-    torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
+    torch.set_num_threads(cfg.threads or available_cores())
     torch.manual_seed(cfg.seed)
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)

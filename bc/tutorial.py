@@ -1,6 +1,6 @@
-"""`make tutorial-rl`: the seed tutorial's two learners, as baseline rows of `make pipeline`'s tables.
+"""`make tutorial-rl`: the seed tutorial's two learners, on the PPO stages' budget but outside `make pipeline`.
 
-What a reader of that tutorial would have got on the same task and budget:
+What a reader of that tutorial would have got:
 
 - **preferred action** (`PreferredActionLearner`): one mean action for every state; each step acts
   with it plus Gaussian exploration noise, and moves the mean a step toward the action taken when
@@ -11,9 +11,10 @@ What a reader of that tutorial would have got on the same task and budget:
   ent_coef=0.005)` on one environment, every other setting SB3's default; saved by SB3
   (`policies.folder.SB3_FILE`) and run by `humanoid.learned.SB3Controller`.
 
-Both train on the clean task for TIMESTEPS environment steps (the pipeline gives them the PPO
-stages' budget). Where the tutorial names no value (the mean's step, the noise's start and end),
-the choice and the measured result are in docs/log.md, "The tutorial's learners".
+Both train to stand, on the clean task without a command, for TIMESTEPS environment steps (by default the
+PPO stages' budget). The pipeline leaves them out: its table is about following commands, which neither
+takes (docs/decisions/pipeline-task.md). Where the tutorial names no value (the mean's step, the noise's start
+and end), the choice and the measured result are in docs/log.md, "The tutorial's learners".
 """
 
 from __future__ import annotations

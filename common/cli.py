@@ -109,6 +109,10 @@ REMOVED_VALUES: dict[tuple[str, str], Removed] = {
     ("controller", "expert-adaptive"): _ADAPTIVE,  # make record, make pipeline
     ("policy", "expert-adaptive"): _ADAPTIVE,  # make eval, make robustness
     ("expert", "expert-adaptive"): _ADAPTIVE,  # make dagger
+    # make train-bc, make dagger; humanoid.inputs.removed_inputs refuses it from a checkpoint too
+    ("inputs", "odometry"): Removed(
+        "inputs 'odometry'", "use pending: the same inputs, then the command in flight and the delay", "pending-inputs"
+    ),
 }
 """Values removed from a flag that stays, by (config field name, value)."""
 

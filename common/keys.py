@@ -12,6 +12,11 @@ Joined by their recorded names they are the gymnasium observation, bit for bit (
 `humanoid.sensors.ObservationSplit.join`.
 """
 
+from collections.abc import Mapping
+from typing import TypeVar
+
+T = TypeVar("T")
+
 # LeRobot's own names (lerobot.utils.constants; a test checks they agree). Spelled out here because
 # importing lerobot pulls in torch, which the recorder's simulation process does not need.
 OBS_STATE = "observation.state"
@@ -57,11 +62,20 @@ EPISODE_FINAL_STATE = "final.observation.state"
 EPISODE_FINAL_ENV_STATE = "final.observation.environment_state"
 
 # Columns of meta/episodes/*.parquet holding the physical parameters drawn for the episode
-# (`make record RANDOMIZE=...`, humanoid.conditions.DomainRandomization): scale factors of the nominal
-# model, one column per randomised parameter, PREFIX + the drawn value's name. Only datasets recorded
-# with randomisation have them, and then every episode has the same ones. The MCAP metadata record
-# holds them too, under the same keys, as JSON text.
+# (`make record RANDOMIZE=... LATENCY=...`, humanoid.conditions): one column per drawn value, PREFIX + its
+# name, e.g. `randomization.mass_scale` (13 floats, one per body, the world excluded, in model order),
+# `randomization.friction_scale` (one float: every geom's sliding friction), `randomization.strength_scale`
+# (17 floats, one per motor's gear, in actuator order), `randomization.latency_steps` (the action delay).
+# Only datasets recorded with randomisation have them, and then every episode has the same ones. The MCAP
+# metadata record holds them too, under the same keys, as JSON text.
 RANDOMIZATION_PREFIX = "randomization."
-EPISODE_MASS_SCALE = "randomization.mass_scale"  # 13 floats, one per body (the world excluded), in model order
-EPISODE_FRICTION_SCALE = "randomization.friction_scale"  # one float: every geom's sliding friction
-EPISODE_STRENGTH_SCALE = "randomization.strength_scale"  # 17 floats, one per motor's gear, in actuator order
+
+
+def drawn_parameters(columns: Mapping[str, T]) -> dict[str, T]:
+    """The drawn parameters among `columns` (an episode's row, or its MCAP metadata), by name, in their order:
+    the `RANDOMIZATION_PREFIX` columns with the prefix removed, e.g. {"friction_scale": 1.2}."""
+    return {
+        name.removeprefix(RANDOMIZATION_PREFIX): value
+        for name, value in columns.items()
+        if name.startswith(RANDOMIZATION_PREFIX)
+    }

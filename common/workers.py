@@ -209,11 +209,17 @@ def start_server() -> None:
                 os.environ[name] = value
 
 
+def available_cores() -> int:
+    """The cores this process may run on: its CPU affinity, which a container or `taskset` narrows (`os.cpu_count`
+    counts the machine's). What "0 = one per core" means for a thread count."""
+    return len(os.sched_getaffinity(0))
+
+
 def default_workers(most: int) -> int:
     """The worker count of recording, PPO and the robustness suite unless told: one per core this process may run on
-    (its CPU affinity, which a container or `taskset` narrows), at most `most`, past which more do not help (each
-    command says why its `most`: docs/decisions/worker-counts.md)."""
-    return max(1, min(most, len(os.sched_getaffinity(0))))
+    (`available_cores`), at most `most`, past which more do not help (each command says why its `most`:
+    docs/decisions/worker-counts.md)."""
+    return max(1, min(most, available_cores()))
 
 
 def describe_exit(code: int | None) -> str:

@@ -57,15 +57,6 @@ def command_posture(command: np.ndarray) -> Posture:
     return Posture(**{name: float(value) for name, value in zip(COMMAND_NAMES, command, strict=True)})
 
 
-def check_command(command: np.ndarray) -> None:
-    """UserError in one line unless every field of `command` is finite and within the posture's limits."""
-    for name, value in zip(COMMAND_NAMES, command, strict=True):
-        if not Posture.MIN[name] <= value <= Posture.MAX[name]:
-            raise UserError(
-                f"command field {name}={value:g} is outside its range [{Posture.MIN[name]:g}, {Posture.MAX[name]:g}]"
-            )
-
-
 def _grid(name: str) -> np.ndarray:
     """The nonzero values of `name` on the keyboard's grid within SCALE of its limits."""
     step = Posture.STEP[name]

@@ -44,7 +44,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from common.cli import UserError
+from common.cli import REMOVED_VALUES, Removed, UserError
 from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
 from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
@@ -271,14 +271,19 @@ INPUT_SETS: dict[str, type[InputSet]] = {
     kind.name: kind for kind in (*_BASES, *(commanded_set(base) for base in _BASES), ramped_set(PendingInputs))
 }
 INPUTS = tuple(INPUT_SETS)
-REMOVED = {"odometry": "pending, odometry's inputs plus the command in flight and the delay"}
-"""Input sets this version no longer computes, and what to use instead."""
+
+
+def removed_inputs(inputs: str) -> Removed | None:
+    """What replaced input set `inputs` if this version no longer computes it (`common.cli.REMOVED_VALUES`, which
+    refuses `--inputs` of that name on every command line), else None."""
+    return REMOVED_VALUES.get(("inputs", inputs))
 
 
 def input_set(inputs: str) -> type[InputSet]:
     """The input set named `inputs`; UserError in one line for a name it is not (saying what replaced a removed one)."""
-    if inputs in REMOVED:
-        raise UserError(f"INPUTS={inputs} was removed: use INPUTS={REMOVED[inputs]}")
+    removed = removed_inputs(inputs)
+    if removed is not None:
+        raise UserError(removed.message())
     if inputs not in INPUT_SETS:
         raise UserError(f"unknown inputs {inputs!r}; known: {', '.join(INPUTS)}")
     return INPUT_SETS[inputs]

@@ -20,7 +20,7 @@ import torch
 
 from humanoid.commands import COMMAND_SIZE
 from humanoid.env import make_env, nominal_model
-from humanoid.inputs import INPUT_SETS, REMOVED, InputSet
+from humanoid.inputs import INPUT_SETS, InputSet, removed_inputs
 from policies.checkpoint import CheckpointError, load
 from policies.folder import SB3_FILE
 from policies.mlp import MLPPolicy
@@ -84,11 +84,9 @@ class PolicyController:
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
     """CheckpointError in one line unless `env` can give `policy` its inputs and take its actions."""
     spec = policy.spec
-    if spec.inputs in REMOVED:
-        raise CheckpointError(
-            f"{name} reads INPUTS={spec.inputs}, which this version removed: "
-            f"retrain it with INPUTS={REMOVED[spec.inputs]}"
-        )
+    removed = removed_inputs(spec.inputs)
+    if removed is not None:
+        raise CheckpointError(f"{name} must be retrained: {removed.message()}")
     if spec.inputs not in INPUT_SETS or spec.input_keys != INPUT_SETS[spec.inputs].columns:
         # e.g. a policy conditioned on a command needs a command source besides the observation.
         raise CheckpointError(

@@ -94,10 +94,10 @@ def in_body_frame(axes: np.ndarray, vector: np.ndarray) -> np.ndarray:
     )
 
 
-def gravity_direction(quaternion: np.ndarray) -> np.ndarray:
-    """The world's down direction in the body frame, (..., 3), from body orientations (..., 4) w-x-y-z:
-    R^T (0, 0, -1), minus each body axis's vertical component."""
-    return -body_axes(quaternion)[..., 2]
+def gravity_direction(axes: np.ndarray) -> np.ndarray:
+    """The world's down direction, (..., 3), in the frames whose `body_axes` are `axes`: R^T (0, 0, -1), minus each
+    body axis's vertical component."""
+    return -axes[..., 2]
 
 
 class Proprioception:
@@ -108,7 +108,7 @@ class Proprioception:
         position = {name: i for i, name in enumerate(names)}
         self.names = proprioception_names(model)
         copied = [name for name in self.names if name in position]
-        # Where the inputs sit in the observation (public: `bc.ppo.features` computes the same in torch).
+        # Where the inputs sit in the observation.
         self.copied = np.array([position[name] for name in copied])
         self.quaternion = np.array([position[name] for name in QUATERNION_NAMES])
         self.feet = np.array([[position[f"{foot}.cfrc_ext{i}"] for i in range(6)] for foot in FEET])
@@ -119,7 +119,8 @@ class Proprioception:
         axes = body_axes(obs[..., self.quaternion])  # once for the gravity and both feet's forces
         contacts = [np.any(obs[..., rows] != 0.0, axis=-1, keepdims=True) for rows in self.feet]
         forces = [in_body_frame(axes, obs[..., rows[FORCE_PART]]) for rows in self.feet]
-        return np.concatenate([obs[..., self.copied], -axes[..., 2], *contacts, *forces], axis=-1).astype(np.float64)
+        sensed = [obs[..., self.copied], gravity_direction(axes), *contacts, *forces]
+        return np.concatenate(sensed, axis=-1).astype(np.float64)
 
 
 class ObservationSplit:

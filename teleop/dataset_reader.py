@@ -27,7 +27,7 @@ from common import keys
 from common.cli import DatasetError
 from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
-from teleop.mcap_io.writer import FINAL_TOPIC, METADATA_NAME, STEP_TOPIC
+from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
@@ -85,24 +85,9 @@ def read_parameters(root: Path) -> list[dict[str, Any]]:
     From the episode columns `randomization.*` (`keys.RANDOMIZATION_PREFIX`), in episode order.
     """
     table = read_episodes(root)
-    prefix = keys.RANDOMIZATION_PREFIX
-    columns = [name for name in table.column_names if name.startswith(prefix)]
+    columns = [name for name in table.column_names if name.startswith(keys.RANDOMIZATION_PREFIX)]
     rows = table.select(columns).to_pylist() if columns else [{} for _ in range(table.num_rows)]
-    return [{name.removeprefix(prefix): value for name, value in row.items()} for row in rows]
-
-
-def read_mcap_parameters(path: Path) -> dict[str, Any]:
-    """The drawn physical parameters in one episode's MCAP metadata record (JSON text, decoded); {} if none."""
-    prefix = keys.RANDOMIZATION_PREFIX
-    with path.open("rb") as stream:
-        for record in make_reader(stream).iter_metadata():
-            if record.name == METADATA_NAME:
-                return {
-                    name.removeprefix(prefix): json.loads(value)
-                    for name, value in record.metadata.items()
-                    if name.startswith(prefix)
-                }
-    return {}
+    return [keys.drawn_parameters(row) for row in rows]
 
 
 def fingerprint(root: Path) -> str:

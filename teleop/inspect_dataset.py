@@ -525,11 +525,7 @@ def _summarise(dataset: Dataset) -> Report:
                 for name, sigma in zip(episodes[keys.EPISODE_CONTROLLER], noise, strict=True)
             )
         )
-    randomized = {
-        name.removeprefix(keys.RANDOMIZATION_PREFIX): _drawn_range(values)
-        for name, values in episodes.items()
-        if name.startswith(keys.RANDOMIZATION_PREFIX)
-    }
+    randomized = {name: _drawn_range(values) for name, values in keys.drawn_parameters(episodes).items()}
     readable = [m for m in dataset.mcap if m.problem is None]
     topics: Counter[str] = Counter()
     for m in readable:

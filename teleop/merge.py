@@ -74,7 +74,6 @@ def read_episode(root: Path, row: dict, columns: dict[str, np.ndarray], body_fra
     path = root / row[keys.EPISODE_MCAP]
     steps = read_steps(path)
     body_position, body_orientation = read_body_poses(path, body_frames)
-    prefix = keys.RANDOMIZATION_PREFIX
     return Episode(
         seed=row[keys.EPISODE_SEED],
         controller=row[keys.EPISODE_CONTROLLER],
@@ -94,7 +93,7 @@ def read_episode(root: Path, row: dict, columns: dict[str, np.ndarray], body_fra
         tasks=steps["task"],
         final_observation=read_mcap_final(path)["observation"],
         dagger_round=row[keys.EPISODE_DAGGER_ROUND],
-        parameters={name.removeprefix(prefix): value for name, value in row.items() if name.startswith(prefix)},
+        parameters=keys.drawn_parameters(row),
     )
 
 
@@ -115,8 +114,7 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
             raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")
         features = info["features"]
         rows = read_episodes(shard).to_pylist()
-        prefix = keys.RANDOMIZATION_PREFIX
-        drawn = tuple(name.removeprefix(prefix) for name in rows[0] if name.startswith(prefix)) if rows else None
+        drawn = tuple(keys.drawn_parameters(rows[0])) if rows else None
         if drawn is not None and parameters is not None and set(drawn) != set(parameters):
             raise UserError(f"{shard} draws other physical parameters than {shards[0]}")
         parameters = parameters if drawn is None else drawn

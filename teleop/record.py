@@ -28,6 +28,7 @@ with -9 gets its line from the next one (the mark it left, `teleop.recordings.ma
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -197,7 +198,7 @@ def validate(cfg: RecordConfig) -> None:
     for name in ("episodes", "max_steps", "workers"):
         if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    if not cfg.noise >= 0:  # also rejects NaN
+    if not (math.isfinite(cfg.noise) and cfg.noise >= 0):
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
     if cfg.seed is not None and cfg.seed < 0:
         raise UserError(f"--seed must be >= 0, got {cfg.seed}")

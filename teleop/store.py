@@ -282,9 +282,7 @@ class EpisodeStore:
 
     def _drawn_parameters(self) -> frozenset[str]:
         """The drawn parameters of the last committed episode, from its metadata row's columns."""
-        prefix = keys.RANDOMIZATION_PREFIX
-        columns = self.lerobot.last_episode_columns()
-        return frozenset(name.removeprefix(prefix) for name in columns if name.startswith(prefix))
+        return frozenset(keys.drawn_parameters(dict.fromkeys(self.lerobot.last_episode_columns())))
 
     def _check_parameters(self, parameters: frozenset[str]) -> None:
         """DatasetError unless episodes drawing `parameters` fit the dataset's (any do while it is empty)."""

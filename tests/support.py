@@ -130,6 +130,11 @@ def read_mcap_episode(path: Path) -> McapEpisode:
     )
 
 
+def mcap_parameters(path: Path) -> dict[str, object]:
+    """The drawn physical parameters in the MCAP metadata record of episode file `path` (JSON text, decoded)."""
+    return {name: json.loads(text) for name, text in keys.drawn_parameters(read_mcap_episode(path).metadata).items()}
+
+
 class Terminal:
     """A command behind a pseudo-terminal, as a person at a TTY would run it (the recorder in keyboard mode)."""
 

@@ -48,8 +48,8 @@ def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -
 
 def falls_back(curve: Sequence[dict[str, float]], fresh: bool) -> bool:
     """Whether a run keeps its best evaluated actor instead of its last: fine-tuning whose last actor gave up the floor
-    (`holds_floor`). Never PPO from scratch (`fresh`), which has none of the guards: its step 0 is no teacher, only
-    its random start (docs/decisions/keep-policy.md)."""
+    (`holds_floor`). Never PPO from scratch (`fresh`), which has no guards against forgetting: its step 0 is no
+    teacher, only its random start (docs/decisions/keep-policy.md)."""
     return not fresh and not holds_floor(curve)
 
 

@@ -7,7 +7,6 @@ actions are the BC policy's, exactly.
 from __future__ import annotations
 
 import functools
-import os
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,6 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
+from common.workers import available_cores
 from humanoid.commands import CommandedTask
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import make_env
@@ -146,7 +146,7 @@ def build_model(
     model = WorkerRolloutPPO(
         BCActorCriticPolicy,
         env,
-        update_threads=update_threads or len(os.sched_getaffinity(0)),
+        update_threads=update_threads or available_cores(),
         reward_scale=reward_scale,
         learning_rate=learning_rate,
         n_steps=n_steps,

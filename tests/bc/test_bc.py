@@ -295,9 +295,12 @@ def test_incompatible_dataset_is_refused(
     assert not (tmp_path / "policy").exists()
 
 
-def test_negative_min_updates_are_refused(recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, err = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "p"), "--min-updates", "-1"], capsys)
-    assert (code, err) == (1, ["error: --min-updates must be >= 0, got -1"])
+@pytest.mark.parametrize("name", ["min-updates", "seed"])
+def test_negative_counts_are_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "p"), f"--{name}", "-1"], capsys)
+    assert (code, err) == (1, [f"error: --{name} must be >= 0, got -1"])
     assert not (tmp_path / "p").exists()
 
 

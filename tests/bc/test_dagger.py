@@ -394,7 +394,15 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
 
 @pytest.mark.parametrize(
     ("option", "value"),
-    [("--noise", "-0.1"), ("--noise", "nan"), ("--latency", "1.5"), ("--randomize", "heavy"), ("--workers", "0")],
+    [
+        ("--noise", "-0.1"),
+        ("--noise", "nan"),
+        ("--noise", "inf"),
+        ("--seed", "-1"),
+        ("--latency", "1.5"),
+        ("--randomize", "heavy"),
+        ("--workers", "0"),
+    ],
 )
 def test_bad_rollout_settings_are_refused(
     recorded: Path, tmp_path: Path, option: str, value: str, capsys: pytest.CaptureFixture[str]

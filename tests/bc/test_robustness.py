@@ -62,6 +62,7 @@ def test_the_same_seeds_give_the_same_results_in_one_or_two_workers_alone_or_wit
     "args, message",
     [
         (["--conditions", "gravity"], "unknown condition 'gravity'"),
+        (["--conditions", "clean,mass,clean"], "--conditions names clean twice"),
         (["--episodes", "0"], "--episodes must be positive"),
         (["--policy", "nowhere/policy"], "no policy checkpoint at nowhere/policy"),
         (["--policy", "keyboard"], "controller 'keyboard' is driven by a person"),

@@ -27,7 +27,6 @@ from humanoid.commands import (
     TRAINING_SEEDS,
     CommandedTask,
     Tracking,
-    check_command,
     command_posture,
     command_schedule,
     command_vector,
@@ -129,23 +128,6 @@ def test_a_negative_seed_is_refused_in_one_line() -> None:
     for schedule in (lambda: schedule_targets(-1, SECONDS), lambda: command_schedule(-1, EPISODE_STEPS, DT)):
         with pytest.raises(UserError, match=r"^a schedule's seed must be >= 0, got -1$"):
             schedule()
-
-
-@pytest.mark.parametrize(
-    ("field", "value"),
-    [("lean_forward", 0.31), ("lean_left", -0.35), ("height", 0.01), ("twist", 0.6), ("arms", -1.0), ("arms", np.nan)],
-)
-def test_check_command_refuses_a_field_out_of_range(field: str, value: float) -> None:
-    command = command_vector(NEUTRAL)
-    command[COMMAND_NAMES.index(field)] = value
-    with pytest.raises(UserError, match=rf"^command field {field}=\S+ is outside its range \[\S+, \S+\]$"):
-        check_command(command)
-
-
-def test_check_command_accepts_the_limits_and_the_zero_command() -> None:
-    check_command(command_vector(NEUTRAL))
-    check_command(command_vector(Posture(**Posture.MIN)))
-    check_command(command_vector(Posture(**Posture.MAX)))
 
 
 def test_the_task_names_each_commanded_field() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,10 +19,12 @@ from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
+from humanoid.estimator import odometry_names
 from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs
+from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs, input_set
 from humanoid.learned import PolicyController
 from humanoid.posture import arm_angles
+from policies.checkpoint import CheckpointError
 from policies.mlp import MLPPolicy, MLPSpec
 from support import record_short
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
@@ -129,6 +132,12 @@ def test_a_delay_beyond_one_step_is_refused_in_one_line() -> None:
         PendingInputs(humanoid_model()).set_delay(2)
 
 
+ODOMETRY_REMOVED = (
+    "inputs 'odometry' was removed; use pending: the same inputs, then the command in flight and the delay "
+    "(docs/decisions/pending-inputs.md)"
+)
+
+
 @pytest.mark.parametrize("cli", [bc_train.cli, dagger.cli])
 def test_the_removed_odometry_inputs_are_refused_naming_pending(
     cli: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -140,8 +149,19 @@ def test_the_removed_odometry_inputs_are_refused_naming_pending(
         folders += ["--output", str(tmp_path / "aggregate")]
     assert cli([*folders, "--inputs", "odometry"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: INPUTS=odometry was removed: use INPUTS=pending")
+    assert err == [f"error: {ODOMETRY_REMOVED}"]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_checkpoint_on_the_removed_odometry_inputs_is_refused_naming_pending() -> None:
+    """A policy saved reading "odometry" (as an earlier version wrote them): the live controller and PPO's start
+    (`input_set` of its spec) refuse it in one line naming pending, as the command line does."""
+    spec = MLPSpec((keys.OBS_STATE,), len(odometry_names(humanoid_model())), 17, (8,), inputs="odometry")
+    policy = MLPPolicy(spec, -np.ones(17, np.float32), np.ones(17, np.float32))
+    with pytest.raises(CheckpointError, match=rf"^policies/old must be retrained: {re.escape(ODOMETRY_REMOVED)}$"):
+        PolicyController(policy, "policies/old")  # in an env of its own, which it closes
+    with pytest.raises(UserError, match=rf"^{re.escape(ODOMETRY_REMOVED)}$"):
+        input_set("odometry")
 
 
 def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:

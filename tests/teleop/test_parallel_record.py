@@ -49,7 +49,7 @@ def test_two_workers_write_the_files_one_process_writes_with_randomisation(tmp_p
     record(tmp_path / "one", workers=1, randomize="suite")
     record(tmp_path / "two", workers=2, randomize="suite")
     assert snapshot(tmp_path / "two") == snapshot(tmp_path / "one")
-    assert keys.EPISODE_MASS_SCALE in read_episodes(tmp_path / "two").column_names
+    assert keys.RANDOMIZATION_PREFIX + "mass_scale" in read_episodes(tmp_path / "two").column_names
 
 
 def test_more_workers_than_episodes_still_commit_in_seed_order(tmp_path: Path) -> None:

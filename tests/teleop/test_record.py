@@ -105,6 +105,7 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--episodes", "0"], "--episodes must be positive"),
         (["--episodes", "-3"], "--episodes must be positive"),
         (["--noise", "-0.1"], "--noise must be >= 0"),
+        (["--noise", "inf"], "--noise must be >= 0"),
     ],
 )
 def test_bad_settings_are_refused_before_touching_the_disk(

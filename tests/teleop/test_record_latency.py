@@ -13,8 +13,8 @@ from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
-from support import drawn_delay
-from teleop.dataset_reader import read_episodes, read_frames, read_mcap_parameters, read_parameters
+from support import drawn_delay, mcap_parameters
+from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
 from teleop.record import RecordConfig, cli, main
@@ -39,7 +39,7 @@ def test_each_episode_stores_its_drawn_delay_in_both_formats(delayed: Path) -> N
     assert {d[LATENCY_PARAMETER] for d in expected} == {0, 1}  # both kinds among these seeds
     assert read_parameters(delayed) == expected
     rows = read_episodes(delayed).to_pylist()
-    assert [read_mcap_parameters(delayed / row[keys.EPISODE_MCAP]) for row in rows] == expected
+    assert [mcap_parameters(delayed / row[keys.EPISODE_MCAP]) for row in rows] == expected
 
 
 def test_the_expert_is_told_each_episodes_delay(delayed: Path) -> None:
