@@ -6,6 +6,7 @@ That a run ends with the same weights however it runs (workers, Ray, threads, ki
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import textwrap
@@ -226,7 +227,8 @@ def test_the_curriculum_moves_on_at_rollout_ends_and_the_checkpoint_says_when(bc
 
 def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """With EVAL_FREQ shorter than a rollout, each actor is evaluated once; the last after the last whole rollout.
-    Without a final evaluation (`make pipeline`'s), eval.json and the summary hold the training's figures only."""
+    Without a final evaluation (`make pipeline`'s), eval.json and the summary hold the training's figures only, and
+    such a checkpoint can start another run."""
     config = FinetuneConfig(
         bc_policy=bc_policy,
         policy=tmp_path / "ppo",
@@ -242,6 +244,8 @@ def test_evaluations_fall_between_updates(bc_policy: Path, tmp_path: Path, capsy
     print_summary(config, result)
     printed = capsys.readouterr().out
     assert f"kept step {result['kept']['timesteps']}" in printed and "final on" not in printed
+    again = main(dataclasses.replace(config, bc_policy=config.policy, policy=tmp_path / "again", timesteps=256))
+    assert again["bc_mean_return"] is None  # its start has no final evaluation to compare with
 
 
 def test_the_saved_actor_is_the_checkpoint_of_the_evaluation_kept(tiny_run: tuple[FinetuneConfig, dict]) -> None:
