@@ -27,7 +27,7 @@ export PYTHONUNBUFFERED := 1
 # of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
 # REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
 # line saying what to use instead (common/cli.py's REMOVED_FLAGS) rather than make ignoring them.
-VARS.record := DATASET EPISODES SEED CONTROLLER SCHEDULES NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS LIVE LIVE_PORT LIVE_HOST
+VARS.record := DATASET EPISODES SEED CONTROLLER SCHEDULES NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.inspect := DATASET PLOT
 VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES

@@ -101,6 +101,7 @@ TARGETS: dict[str, Target] = {
             "latency",
             "max_steps",
             *_BACKEND,
+            "front_end",
             *_LIVE,
         ),
     ),

@@ -70,7 +70,7 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     wanted = None if columns is None else list(dict.fromkeys([*columns, "episode_index"]))
     paths = sorted((root / EPISODES_DIR).glob("*/*.parquet"))
     if not paths:
-        raise FileNotFoundError(f"{root} has no episode metadata ({EPISODES_DIR})")
+        raise DatasetError(f"{root} has no episode metadata ({EPISODES_DIR}): no episode was committed to it")
     # Hundreds of stats/ columns per file: reading only the wanted ones is most of the speed.
     tables = list(_read_in_order(paths, wanted, skip_prefix="stats/"))
     episodes = _rows_before(pa.concat_tables(tables, promote_options="default"), "episode_index", committed)

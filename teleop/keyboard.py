@@ -120,6 +120,7 @@ class TeleopSession:
         self.target = NEUTRAL
         """The command in force (clipped to the posture's limits)."""
         self.sink = sink
+        self.held = set(sink.seeds())  # the dataset's seeds: a session's discarded episodes may run it past SEED's
         self.next_seed = first_seed
         self.episodes_left = episodes
         self.noise_std = noise_std
@@ -193,6 +194,8 @@ class TeleopSession:
         self.data.xfrc_applied[self.torso] = 0.0
         seed = self.next_seed
         self.next_seed += 1  # a discarded seed is not reused: the next episode starts fresh
+        while self.next_seed in self.held:  # nor is one the dataset holds (teleop.seeds)
+            self.next_seed += 1
         if save and self.t > 0:
             episode = self.buffer.episode(
                 self.t,
@@ -305,8 +308,7 @@ def parse_keys(text: str) -> list[str]:
 
 def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
     """Real-time loop reading keys from the TTY `stdin_fd` (cbreak: Ctrl-C still interrupts)."""
-    if not os.isatty(stdin_fd):
-        raise UserError("keyboard teleoperation needs a terminal: stdin is not a TTY (or use --front-end viewer)")
+    front_end_here("terminal", stdin_fd)
     saved_mode = termios.tcgetattr(stdin_fd)
     tty.setcbreak(stdin_fd)
     dt = session.env.unwrapped.dt
@@ -397,6 +399,19 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def front_end_here(front_end: str, stdin_fd: int | None = None) -> str:
+    """The front end `front_end` ("auto": the viewer if a display exists, else the terminal) resolves to here;
+    UserError in one line if it cannot run: no display for the viewer, no TTY on `stdin_fd` (stdin's by default) for
+    the terminal. `make record` asks before it opens the dataset."""
+    if front_end == "auto":
+        front_end = "viewer" if has_display() else "terminal"
+    if front_end == "viewer" and not has_display():
+        raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
+    if front_end == "terminal" and not os.isatty(sys.stdin.fileno() if stdin_fd is None else stdin_fd):
+        raise UserError("keyboard teleoperation needs a terminal: stdin is not a TTY (or use --front-end viewer)")
+    return front_end
+
+
 def run_session(
     env: gym.Env,
     sink: EpisodeSink,
@@ -414,10 +429,7 @@ def run_session(
 
     from humanoid.expert import LQRExpert  # noqa: PLC0415
 
-    if front_end == "auto":
-        front_end = "viewer" if has_display() else "terminal"
-    if front_end == "viewer" and not has_display():
-        raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
+    front_end = front_end_here(front_end)
     controller = LQRExpert(model_and_data(env)[0]) if controller is None else controller
     session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer)
     if front_end == "viewer":

@@ -227,6 +227,10 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(f"--controller {cfg.controller}: the keys set the command, --schedules cannot")
     if cfg.policy is not None:
         check_played(cfg)
+    if cfg.controller in INTERACTIVE:
+        from teleop.keyboard import front_end_here  # noqa: PLC0415 - termios and the keys, for the keyboard only
+
+        front_end_here(cfg.front_end)
     check_destination(cfg.dataset)
 
 
@@ -310,18 +314,25 @@ def _record(
     randomization = parse_randomization(cfg.randomize)
     env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency)
     parameters = recorded_parameters(randomization, cfg.latency)
+    # Before the dataset opens: a port in use or a bad host is refused with nothing written.
+    live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
-    if cfg.writer == "process" and rollouts is None:
-        from teleop.writer_process import WriterProcess  # noqa: PLC0415
+    try:
+        if cfg.writer == "process" and rollouts is None:
+            from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
-        # Opens the dataset while this process builds the controller.
-        sink = WriterProcess(cfg.dataset, parameters)
-    else:
-        from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
+            # Opens the dataset while this process builds the controller.
+            sink = WriterProcess(cfg.dataset, parameters)
+        else:
+            from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
-        sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, parameters))
-    live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
+            sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, parameters))
+    except BaseException:
+        if live is not None:
+            live.close()
+        env.close()
+        raise
     start = time.perf_counter()
     interactive = cfg.controller in INTERACTIVE
     bar = tqdm(

@@ -87,16 +87,29 @@ def _line(
     }
 
 
-def _write(root: Path, line: dict[str, Any]) -> None:
+def _cut_short(path: Path) -> bool:
+    """Whether the file at `path` ends inside a line (a write a full disk or a kill cut short)."""
     try:
-        with (root / RECORDINGS_FILE).open("a") as stream:
-            stream.write(json.dumps(line, default=str) + "\n")
+        with path.open("rb") as stream:
+            stream.seek(-1, os.SEEK_END)
+            return stream.read(1) != b"\n"
+    except OSError:  # no file yet, or an empty one
+        return False
+
+
+def _write(root: Path, line: dict[str, Any]) -> None:
+    path = root / RECORDINGS_FILE
+    try:
+        start = "\n" if _cut_short(path) else ""  # a line cut short stays alone, unreadable; this one starts anew
+        with path.open("a") as stream:
+            stream.write(start + json.dumps(line, default=str) + "\n")
     except OSError as error:  # the episodes are committed: a missing line costs only their history
-        log.warning("cannot add the run to %s: %s", root / RECORDINGS_FILE, error.strerror or error)
+        log.warning("cannot add the run to %s: %s", path, error.strerror or error)
 
 
 def read(root: Path) -> list[dict[str, Any]]:
-    """The lines of `root`'s recordings.jsonl, oldest first; [] if it has none (or an unreadable line ends it)."""
+    """The lines of `root`'s recordings.jsonl, oldest first; [] if it has none. A line cut short (a full disk, a kill
+    mid-write) is left out: each write starts on a line of its own (`_write`), so the lines after it are whole."""
     path = root / RECORDINGS_FILE
     if not path.is_file():
         return []
@@ -104,8 +117,8 @@ def read(root: Path) -> list[dict[str, Any]]:
     for text in path.read_text().splitlines():
         try:
             lines.append(json.loads(text))
-        except ValueError:  # a line cut short by a full disk: what follows cannot be trusted either
-            break
+        except ValueError:
+            log.warning("%s holds a line cut short: left out", path)
     return lines
 
 

@@ -90,11 +90,12 @@ DATA = {"datasets", "exports", "outputs"}  # data folders the stages write, whic
 
 
 def sources() -> list[Path]:
-    """The project's Python files and its Makefile (not .venv, .git, other hidden folders or data)."""
+    """The project's Python files, its Makefile and pyproject.toml (not .venv, .git, other hidden folders or data)."""
     here = Path(__file__).resolve()  # its examples point nowhere on purpose
     tops = [top for top in ROOT.iterdir() if not top.name.startswith(".") and top.name not in DATA]
     files = [p for top in tops for p in ([top] if top.is_file() else top.rglob("*.py")) if p.suffix == ".py"]
-    return [*(p for p in files if p != here and not any(part.startswith(".") for part in p.parts)), ROOT / "Makefile"]
+    project = [p for p in files if p != here and not any(part.startswith(".") for part in p.parts)]
+    return [*project, ROOT / "Makefile", ROOT / "pyproject.toml"]
 
 
 def test_the_flag_reference_is_generated_from_the_configs() -> None:

@@ -11,12 +11,15 @@ import pytest
 
 from common import keys
 from humanoid.commands import task_for
+from humanoid.env import make_env
 from humanoid.episode import DEFAULT_TASK
+from humanoid.expert import LQRExpert
 from humanoid.posture import Posture
 from support import Terminal, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.keyboard import KEY_MAP, key_help, parse_keys
+from teleop.keyboard import KEY_MAP, TeleopSession, key_help, parse_keys
 from teleop.record import cli
+from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -147,7 +150,7 @@ def test_task_for_neutral_is_the_default_task() -> None:
 
 
 def test_keyboard_without_a_terminal_is_a_one_line_error(tmp_path: Path) -> None:
-    """With stdin not a TTY the recorder exits non-zero with one line and writes no episode."""
+    """With stdin not a TTY the recorder exits non-zero with one line, before the dataset's folder exists."""
     result = subprocess.run(
         [*KEYBOARD_RECORDER, "--dataset", str(tmp_path / "d")],
         stdin=subprocess.DEVNULL,
@@ -155,5 +158,27 @@ def test_keyboard_without_a_terminal_is_a_one_line_error(tmp_path: Path) -> None
         text=True,
         timeout=60,
     )
-    assert result.returncode != 0
-    assert result.stderr.strip().splitlines()[-1].startswith("error: keyboard teleoperation needs a terminal")
+    assert result.returncode != 0 and not (tmp_path / "d").exists()
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: keyboard teleoperation needs a terminal")
+
+
+def test_a_keyboard_session_skips_the_seeds_its_dataset_holds(tmp_path: Path) -> None:
+    """Past SEED's range (a discarded episode uses its seed up), the next episode takes the next seed the dataset does
+    not hold: none is recorded twice (teleop.seeds)."""
+    env = make_env(5)
+    store = EpisodeStore(tmp_path / "dataset", DatasetSpec.from_env(env))
+    expert = LQRExpert(env.unwrapped.model)
+    first = TeleopSession(env, expert, store, 8, 1, 0.0, lambda committed: None)
+    first.press("enter")
+    while first.recording:
+        first.tick()
+    assert store.seeds() == [8]
+    session = TeleopSession(env, expert, store, 7, 1, 0.0, lambda committed: None)
+    session.press("enter")
+    session.press("backspace")  # seed 7 discarded: 8 is the dataset's
+    session.press("enter")
+    while session.recording:
+        session.tick()
+    store.close()
+    assert read_episodes(tmp_path / "dataset", [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist() == [8, 9]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -81,6 +82,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
         ("not a dataset", "is not a dataset"),
         ("other episodes", "holds other episodes than the first"),
         ("itself", "a shard cannot be merged into itself"),
+        ("no episode", "no episode was committed to it"),
     ],
 )
 def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
@@ -93,7 +95,11 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
         "not a dataset": [first, tmp_path / "nothing"],
         "other episodes": [second],
         "itself": [first, target],
+        "no episode": [first, tmp_path / "opened"],  # what a first session refused or killed early leaves
     }[which]
+    if which == "no episode":
+        (tmp_path / "opened/meta").mkdir(parents=True)
+        shutil.copy(first / "meta/info.json", tmp_path / "opened/meta/info.json")
     if which in ("other episodes", "itself"):
         merge([first], target)  # seeds 0..2, which shard_1 (3..5) does not start with
     before = snapshot(target) if target.exists() else None

@@ -52,3 +52,13 @@ def test_a_run_that_fails_is_logged_incomplete_and_leaves_no_mark(tmp_path: Path
     (line,) = recordings.read(tmp_path)
     assert (line["complete"], line["episodes"], line["seeds"]) == (False, [0, 0], [7, 7])
     assert recordings.marked(tmp_path) is None
+
+
+def test_a_line_cut_short_hides_no_later_session(tmp_path: Path) -> None:
+    """A write cut short (a full disk, a kill) leaves half a line: the next session's line starts a line of its own,
+    and reading leaves out the broken one only."""
+    recordings.append(tmp_path, "teleop.record", {"n": 1}, [recordings.Episode(0, 0)], complete=True)
+    with (tmp_path / recordings.RECORDINGS_FILE).open("a") as stream:
+        stream.write('{"made_by": "teleop.rec')
+    recordings.append(tmp_path, "teleop.record", {"n": 3}, [recordings.Episode(2, 2)], complete=True)
+    assert [line["config"] for line in recordings.read(tmp_path)] == [{"n": 1}, {"n": 3}]
