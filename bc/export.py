@@ -160,8 +160,12 @@ def export_minari(cfg: ExportConfig) -> str:
     import minari  # noqa: PLC0415 - minari loads h5py/arrow; only export needs it
 
     name = dataset_id(cfg.dataset)
+    # Minari writes into a hidden staging root beside OUT, renamed at the end: OUT appears complete or not at all.
+    out = out_folder(cfg)
+    staging = out.with_name(f".{out.name}.partial")
+    shutil.rmtree(staging, ignore_errors=True)  # what a killed export of the same OUT left
     previous = os.environ.get("MINARI_DATASETS_PATH")
-    os.environ["MINARI_DATASETS_PATH"] = str(out_folder(cfg).resolve())  # where Minari writes: the new root
+    os.environ["MINARI_DATASETS_PATH"] = str(staging.resolve())  # where Minari writes
     try:
         with warnings.catch_warnings():
             # Minari warns that no author e-mail and no separate evaluation env are given: neither exists here.
@@ -177,11 +181,13 @@ def export_minari(cfg: ExportConfig) -> str:
                 data_format="arrow",
                 **scores,
             )
+        staging.rename(out)
     finally:
         if previous is None:
             os.environ.pop("MINARI_DATASETS_PATH", None)
         else:
             os.environ["MINARI_DATASETS_PATH"] = previous
+        shutil.rmtree(staging, ignore_errors=True)
     return name
 
 

@@ -125,18 +125,27 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
 
 
 def rss_mib(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:  # the process ended between listing and reading
+        return 0.0
+    for line in status.splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
     return 0.0
 
 
 def children(pid: int) -> list[int]:
-    return [int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+    try:
+        return [int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+    except OSError:
+        return []
 
 
 class MemorySampler(threading.Thread):
-    """Resident memory of this process and its writer child, sampled while a recording runs."""
+    """Resident memory of this process and of its writer, sampled while a one-worker recording runs. The writer is
+    a child of the forkserver (common.workers), itself this process's child beside the resource tracker: the
+    grandchildren are the writer."""
 
     def __init__(self, root: Path) -> None:
         super().__init__(daemon=True)
@@ -146,15 +155,15 @@ class MemorySampler(threading.Thread):
         while not self.stop.wait(0.1):
             info = self.root / "meta/info.json"
             committed = int(info.read_text().split('"total_episodes": ')[1].split(",")[0]) if info.exists() else 0
-            kids = children(os.getpid())
-            self.samples.append((committed, rss_mib(os.getpid()), sum(rss_mib(k) for k in kids)))
+            writers = [grandchild for child in children(os.getpid()) for grandchild in children(child)]
+            self.samples.append((committed, rss_mib(os.getpid()), sum(rss_mib(k) for k in writers)))
 
 
 def memory_profile(episodes: int, root: Path) -> tuple[tuple[float, float], tuple[float, float]]:
     """Peak (recorder, writer) RSS in MiB over the first 20 % of the episodes and over the last 20 %."""
     sampler = MemorySampler(root)
     sampler.start()
-    main(RecordConfig(dataset=root, episodes=episodes, progress=False))
+    main(RecordConfig(dataset=root, episodes=episodes, workers=1, progress=False))  # a writer process beside it
     sampler.stop.set()
     sampler.join()
     early = [s for s in sampler.samples if 1 <= s[0] <= episodes // 5]
@@ -189,7 +198,7 @@ def run(episodes: int, repeats: int, memory_episodes: int, cpu_episodes: int) ->
     table = [
         f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, NOISE={DEFAULT_NOISE}):",
         "",
-        "| repeat | rollout, no writing | 2 rollouts at once | record, 1 worker (default) | record, 2 workers |",
+        "| repeat | rollout, no writing | 2 rollouts at once | record, 1 worker | record, 2 workers (default) |",
         "|---|---|---|---|---|",
         *rows,
         f"| median | | | {statistics.median(one_vs_rollout):.2f}x rollout | "

@@ -34,6 +34,7 @@ from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
 from teleop.mcap_io.writer import TF_TOPIC
 from teleop.seeds import seed_clash
+from teleop.spool import SPOOLS
 from teleop.store import DatasetSpec, EpisodeStore
 
 
@@ -101,6 +102,18 @@ def shard_list(text: str) -> list[Path]:
     return [Path(name) for name in text.replace(",", " ").split()]
 
 
+def check_finished(shard: Path) -> None:
+    """UserError in one line if a run killed in `shard` left work there (its mark, episodes waiting in a spool): the
+    next run there finishes it, and its episodes would come after those merged, out of seed order."""
+    waiting = [name for name in SPOOLS if any((shard / name).glob("*.npz"))]
+    if recordings.marked(shard) is not None or waiting:
+        left = ", ".join([*(["its mark"] if recordings.marked(shard) is not None else []), *waiting])
+        raise UserError(
+            f"{shard} holds what a killed run left ({left}): the next run on it (`make record DATASET={shard}`, "
+            "`make dagger` on an aggregate) finishes it; merge after"
+        )
+
+
 def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, ...], dict]:
     """Every shard episode as (seed, shard, episode columns) in seed order; the drawn parameters; the features."""
     if not shards:
@@ -109,6 +122,7 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
     for number, shard in enumerate(shards):
         if not (shard / "meta/info.json").is_file():
             raise UserError(f"{shard} is not a dataset (no meta/info.json)")
+        check_finished(shard)
         info = read_info(shard)
         if features is not None and info["features"] != features:
             raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")

@@ -27,8 +27,12 @@ pytestmark = pytest.mark.slow  # reference episodes of the expert: seconds
 
 @pytest.fixture(scope="module")
 def exported(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[minari.MinariDataset]:
-    """The 3-episode recording exported to a new Minari root, loaded back by Minari with its root set."""
-    yield from export_and_load(recorded, tmp_path_factory.mktemp("minari") / "root", reference_episodes=2)
+    """The 3-episode recording exported to a new Minari root, loaded back by Minari with its root set; a killed
+    export's staging root beside it (its name's) is replaced, and none is left."""
+    folder = tmp_path_factory.mktemp("minari")
+    (folder / ".root.partial/humanoid-bc").mkdir(parents=True)
+    yield from export_and_load(recorded, folder / "root", reference_episodes=2)
+    assert sorted(path.name for path in folder.iterdir()) == ["root"]
 
 
 @pytest.fixture(scope="module")

@@ -83,6 +83,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
         ("other episodes", "holds other episodes than the first"),
         ("itself", "a shard cannot be merged into itself"),
         ("no episode", "no episode was committed to it"),
+        ("killed", "holds what a killed run left (its mark, .spool)"),
     ],
 )
 def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
@@ -96,7 +97,13 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
         "other episodes": [second],
         "itself": [first, target],
         "no episode": [first, tmp_path / "opened"],  # what a first session refused or killed early leaves
+        "killed": [first, tmp_path / "killed"],  # a parallel recording killed with an episode finished past a gap
     }[which]
+    if which == "killed":
+        shutil.copytree(second, tmp_path / "killed")
+        recordings.mark(tmp_path / "killed", "teleop.record", {}, episodes=3)
+        (tmp_path / "killed/.spool").mkdir()
+        (tmp_path / "killed/.spool/000000000007.npz").write_bytes(b"an episode")
     if which == "no episode":
         (tmp_path / "opened/meta").mkdir(parents=True)
         shutil.copy(first / "meta/info.json", tmp_path / "opened/meta/info.json")
