@@ -26,6 +26,7 @@ from support import read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
 from teleop.mcap_io.schema import Step
+from teleop.record import cli as record_cli
 from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # a recorder process and a client: seconds
@@ -117,15 +118,21 @@ def test_a_port_out_of_range_is_refused(capsys: pytest.CaptureFixture[str]) -> N
     assert code == 1 and len(err) == 1 and "--live-port" in err[0]
 
 
-def test_a_port_in_use_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
-    """Another server on the port: the evaluation stops before its first episode, saying why in one line."""
+def test_a_port_in_use_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Another server on the port: the evaluation stops before its first episode, and the recorder before it opens
+    the dataset, saying why in one line."""
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        code = evaluate_cli(["--policy", "expert", "--episodes", "1", "--live", "true", "--live-port", str(port)])
+        live = ["--live", "true", "--live-port", str(port)]
+        codes = [
+            evaluate_cli(["--policy", "expert", "--episodes", "1", *live]),
+            record_cli(["--dataset", str(tmp_path / "dataset"), "--writer", "inline", "--progress", "false", *live]),
+        ]
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1 and len(err) == 1 and f"cannot serve the live view on 127.0.0.1:{port}" in err[0]
+    assert codes == [1, 1] and len(err) == 2 and not (tmp_path / "dataset").exists()
+    assert all(f"cannot serve the live view on 127.0.0.1:{port}" in line for line in err)
 
 
 class Seen:
