@@ -204,7 +204,6 @@ def run_episode(
         else np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
     )
     acting = [controller] if labeller is None else [controller, labeller]
-    teacher = acting[-1]  # whose setpoint is recorded: the labeller's, whose actions are the labels
 
     obs, info = env.reset(seed=seed)
     for each in acting:
@@ -220,17 +219,9 @@ def run_episode(
                 each.set_command(commands[t])
             if schedules:
                 task = task_for(command_posture(commands[t]))
-        action = controller.act(obs)
-        check_action(action, controller, t, seed)
-        executed = executed_action(action, noise, t, env.action_space)
-        label = action if labeller is None else labeller.act(obs)
-        if labeller is not None:
-            labeller.ran(executed)  # what is in flight is what ran, not its label
-        buffer.record(t, obs, data, label, executed, commands[t], task, teacher.setpoint())
-        obs, reward, terminated, truncated, _ = env.step(executed)
-        buffer.outcome(t, reward, terminated, truncated)
-        if observer is not None:
-            observer.step(buffer, t)
+        obs, _, terminated, truncated = rollout_step(
+            env, data, controller, obs, t, seed, noise, buffer, commands[t], task, labeller=labeller, observer=observer
+        )
         t += 1
         if terminated or truncated:
             break
@@ -243,6 +234,41 @@ def run_episode(
         labeller=controller.name if labeller is None else labeller.name,
         parameters=info.get("parameters", {}),
     )
+
+
+def rollout_step(
+    env: gym.Env,
+    data: mujoco.MjData,
+    controller: Controller,
+    obs: np.ndarray,
+    t: int,
+    seed: int,
+    noise: np.ndarray | None,
+    buffer: EpisodeBuffer,
+    command: np.ndarray,
+    task: str,
+    *,
+    labeller: Controller | None = None,
+    push: np.ndarray | None = None,
+    observer: StepObserver | None = None,
+) -> tuple[np.ndarray, float, bool, bool]:
+    """Step t of an episode, as every rollout takes it (`run_episode`, the keyboard's session): `controller` acts on
+    `obs` (checked), the episode's `noise` is added (`executed_action`), `labeller` (DAgger) labels the state, row t
+    is recorded with the teacher's setpoint (the labeller's, else the controller's) and the `push` in force, the env
+    steps, and `observer` sees the row. Returns (o_t+1, r_t, terminated, truncated)."""
+    action = controller.act(obs)
+    check_action(action, controller, t, seed)
+    executed = executed_action(action, noise, t, env.action_space)
+    label = action if labeller is None else labeller.act(obs)
+    if labeller is not None:
+        labeller.ran(executed)  # what is in flight is what ran, not its label
+    teacher = controller if labeller is None else labeller  # whose actions are the labels
+    buffer.record(t, obs, data, label, executed, command, task, teacher.setpoint(), push)
+    obs, reward, terminated, truncated, _ = env.step(executed)
+    buffer.outcome(t, reward, terminated, truncated)
+    if observer is not None:
+        observer.step(buffer, t)
+    return obs, float(reward), terminated, truncated
 
 
 def tell_delay(controller: Controller, env: gym.Env) -> None:

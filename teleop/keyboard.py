@@ -32,13 +32,7 @@ from common.cli import UserError
 from humanoid.commands import ARM_NAMES, command_vector, task_for
 from humanoid.controllers import Controller
 from humanoid.env import model_and_data
-from humanoid.episode import (
-    EpisodeBuffer,
-    StepObserver,
-    check_action,
-    executed_action,
-    injected_noise,
-)
+from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
 from humanoid.physics import TORSO_BODY, torso_height
 from humanoid.posture import NEUTRAL, Posture
 
@@ -223,27 +217,22 @@ class TeleopSession:
         """One env step of the episode in progress (nothing while idle)."""
         if not self.recording:
             return
-        t = self.t
-        action = self.controller.act(self.obs)
-        check_action(action, self.controller, t, self.next_seed)
-        executed = executed_action(action, self.noise, t, self.env.action_space)
         self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
-        self.buffer.record(
-            t,
-            self.obs,
+        self.obs, reward, terminated, truncated = rollout_step(
+            self.env,
             self.data,
-            action,
-            executed,
+            self.controller,
+            self.obs,
+            self.t,
+            self.next_seed,
+            self.noise,
+            self.buffer,
             command_vector(self.target),
             task_for(self.target),
-            self.controller.setpoint(),
-            self.data.xfrc_applied[self.torso, :2],
+            push=self.data.xfrc_applied[self.torso, :2],
+            observer=self.observer,
         )
-        self.obs, reward, terminated, truncated, _ = self.env.step(executed)
         self.pushing_left = max(0, self.pushing_left - 1)
-        self.buffer.outcome(t, reward, terminated, truncated)
-        if self.observer is not None:
-            self.observer.step(self.buffer, t)
         self.t += 1
         self.episode_return += reward
         if terminated or truncated:
