@@ -461,8 +461,7 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         env.close()
     # The identity of the dataset the policy was trained on: OUTPUT as the rounds left it.
     aggregate = dataclasses.replace(trainer.demos, fingerprint=fingerprint(cfg.output))
-    if training.cache:
-        cache_demonstrations(aggregate)  # the rows `load_demonstrations` would compute again (PPO's critic reads them)
+    cache_demonstrations(aggregate)  # the rows `load_demonstrations` would compute again (PPO's critic reads them)
     result.final = train_and_save(aggregate, training, env.action_space, made_by, context)
     return result
 

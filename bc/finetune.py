@@ -33,6 +33,7 @@ import math
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -371,8 +372,18 @@ def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | Non
 
 
 def bc_dataset(bc_policy: Path) -> dict[str, Any]:
-    """The BC checkpoint's record of its training data (path, episodes, frames, split)."""
-    return json.loads((bc_policy / DATASET_FILE).read_text())
+    """The BC checkpoint's record of its training data (path, episodes, frames, split); UserError in one line if it
+    names none (the tutorial's learners): that data normalises the critic's inputs."""
+    try:
+        record = json.loads((bc_policy / DATASET_FILE).read_text())
+    except (OSError, ValueError):
+        record = {}
+    if not isinstance(record, dict) or "path" not in record:
+        raise UserError(
+            f"{bc_policy} names no demonstrations ({DATASET_FILE}): PPO starts from a policy trained on a dataset "
+            "(make train-bc, make dagger, or a PPO run from one), whose data normalise its critic's inputs"
+        )
+    return record
 
 
 def weights_digest(policy: Path) -> str:
@@ -381,16 +392,18 @@ def weights_digest(policy: Path) -> str:
 
 
 def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and std (floored as the actor's) of what the critic reads, the whole PPO observation: the gymnasium
-    observation, then the actor's `inputs` (`InputObservation`), in the BC checkpoint's data. The critic keeps
-    what the actor knows that the simulator's state does not say, such as the command in flight under latency."""
+    """Mean and std (floored at `policies.mlp.STD_FLOOR`) of what the critic reads, the whole PPO observation: the
+    gymnasium observation, then the actor's `inputs` (`InputObservation`), in the BC checkpoint's data. The critic
+    keeps what the actor knows that the simulator's state does not say, such as the command in flight under
+    latency."""
     dataset, env = Path(bc_dataset(cfg.bc_policy)["path"]), make_env()
     observations = load_demonstrations(dataset, env).inputs
     return normalisation(torch.cat([observations, load_demonstrations(dataset, env, inputs=inputs).inputs], dim=1))
 
 
-def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, Any] | None:
-    """The final evaluation of a run already finished at POLICY with these settings (not re-run); else None."""
+def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], schedules: bool) -> dict[str, Any] | None:
+    """POLICY/eval.json of a run already finished there with these settings (not re-run; its final evaluation run
+    now if a kill cut it short); else None."""
     config, evaluation = cfg.policy / CONFIG_FILE, cfg.policy / EVAL_FILE
     if cfg.overwrite or not (config.is_file() and evaluation.is_file()):
         return None
@@ -398,7 +411,27 @@ def finished_result(cfg: FinetuneConfig, settings: dict[str, Any]) -> dict[str, 
     if resume.comparable({name: training.get(name) for name in settings}) != resume.comparable(settings):
         return None
     print(f"{cfg.policy} already holds this run, finished: not run again", file=sys.stderr)
-    return json.loads(evaluation.read_text())
+    result = json.loads(evaluation.read_text())
+    if cfg.final_eval_episodes and "seeds" not in result:  # killed during its final evaluation
+        return final_evaluation(cfg, schedules, result)
+    return result
+
+
+def final_evaluation(
+    cfg: FinetuneConfig, schedules: bool, figures: dict[str, Any], pool: Executor | None = None
+) -> dict[str, Any]:
+    """The published actor at POLICY on FINAL_EVAL_EPISODES seeds from EVAL_SEED (none if 0), clean and under the
+    validation push, with the training's `figures`: what POLICY/eval.json then holds."""
+    result: dict[str, Any] = {}
+    if cfg.final_eval_episodes:
+        final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+        pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
+        result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
+        if pushed:
+            result["pushed"] = pushed[0]
+    result.update(figures)
+    checkpoint.write_json(cfg.policy / EVAL_FILE, result)
+    return result
 
 
 def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
@@ -413,6 +446,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {STUDENT_RECIPE}")
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
+    demonstrations = bc_dataset(cfg.bc_policy)
     schedules = follows_commands(cfg)
     settings = {
         **config_dict(cfg),
@@ -421,7 +455,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
         "made_by": made_by,
         "bc_policy_sha256": weights_digest(cfg.bc_policy),
     }
-    finished = finished_result(cfg, settings)
+    finished = finished_result(cfg, settings, schedules)
     if finished is not None:
         return finished
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
@@ -453,6 +487,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 conditions=EVAL_CONDITIONS,
                 schedules=schedules,
                 settings=settings,
+                demonstrations=demonstrations,
                 folder=folder,
                 bar=bar,
                 pool=pool,
@@ -485,29 +520,23 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             record = {**settings, "seconds": seconds, "kept": kept}
             if curriculum is not None:
                 record["curriculum_stages"] = curriculum.history
-            checkpoint.save(actor, folder, record, bc_dataset(cfg.bc_policy))
+            checkpoint.save(actor, folder, record, demonstrations)
             (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
+            bc_eval = cfg.bc_policy / EVAL_FILE
+            bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
+            figures = {
+                "timesteps": steps,
+                "seconds": seconds,
+                "steps_per_s": steps / seconds,
+                "bc_mean_return": None if bc is None else bc.get("mean_return"),  # none if its evaluation was skipped
+                "expert_mean_return": None if bc is None else bc.get("expert_mean_return"),
+                "training_curve": evaluator.curve,
+                "kept": kept,
+            }
+            # Published with the weights: a kill during the final evaluation leaves a finished run (`finished_result`).
+            checkpoint.write_json(folder / EVAL_FILE, figures)
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
-
-        result: dict[str, Any] = {}
-        if cfg.final_eval_episodes:
-            final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
-            pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
-            result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
-            if pushed:
-                result["pushed"] = pushed[0]
-    bc_eval = cfg.bc_policy / EVAL_FILE
-    bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
-    result.update(
-        timesteps=steps,
-        seconds=seconds,
-        steps_per_s=steps / seconds,
-        bc_mean_return=None if bc is None else bc.get("mean_return"),  # none if its final evaluation was skipped
-        expert_mean_return=None if bc is None else bc.get("expert_mean_return"),
-        training_curve=evaluator.curve,
-        kept=kept,
-    )
-    checkpoint.write_json(cfg.policy / EVAL_FILE, result)
+        result = final_evaluation(cfg, schedules, figures, pool)
     fine_tuning = not cfg.fresh
     curves = {"PPO fine-tuning" if fine_tuning else "PPO from scratch": evaluator.curve}
     baseline_curve = cfg.baseline / CURVE_FILE

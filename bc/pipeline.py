@@ -711,7 +711,9 @@ def saved_suite(cfg: RobustnessConfig) -> dict[str, Any] | None:
     weights = policy / (SB3_FILE if is_sb3_policy(policy) else WEIGHTS_FILE)
     if not saved.is_file() or not (cfg.policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         return None
-    result = json.loads(saved.read_text())
+    result = _json_object(saved)
+    if not result:  # unreadable (written before it was written whole): made again
+        return None
     current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())
     seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
     same = result["seeds"] == seeds and list(result["conditions"]) == cfg.conditions.split(",")

@@ -29,6 +29,7 @@ from common.workers import default_workers
 from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
+from policies import checkpoint
 
 SECTOR_DEGREES = 45
 """Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
@@ -269,7 +270,7 @@ def save(cfg: RobustnessConfig, conditions: dict[str, dict[str, Any]]) -> dict[s
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         result_path.parent.mkdir(parents=True, exist_ok=True)
-        result_path.write_text(json.dumps(result, indent=1, default=str))
+        checkpoint.write_json(result_path, result, indent=1)  # `make pipeline` reuses it
         plot(result, figure_path)
     except OSError as error:
         raise UserError(f"cannot write the results to {result_path.parent}: {error.strerror or error}") from None

@@ -42,8 +42,12 @@ class CheckpointError(UserError):
     """A folder that is not a usable checkpoint, or a checkpoint that may not be replaced."""
 
 
-def write_json(path: Path, content: Any) -> None:
-    path.write_text(json.dumps(content, indent=2, default=str) + "\n")
+def write_json(path: Path, content: Any, indent: int = 2) -> None:
+    """Write `content` as JSON to `path` through a file beside it, renamed: a kill leaves the old file or the new one,
+    never half of it (eval.json is what a later run trusts)."""
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(json.dumps(content, indent=indent, default=str) + "\n")
+    os.replace(partial, path)
 
 
 def save(policy: MLPPolicy, folder: Path, training: dict[str, Any], dataset: dict[str, Any]) -> None:

@@ -79,6 +79,7 @@ class Evaluator(BaseCallback):
         push: float,
         freq: int,
         settings: dict[str, Any],
+        demonstrations: dict[str, Any] | None = None,
         conditions: Sequence[str] = (),
         schedules: bool = False,
         folder: Path,
@@ -91,6 +92,7 @@ class Evaluator(BaseCallback):
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
         self.schedules = schedules  # every evaluation under held-out command schedules, tracking scored
         self.settings, self.folder, self.bar, self.pool = settings, folder, bar, pool
+        self.demonstrations = demonstrations or {}  # what each checkpoint names as its training data (dataset.json)
         self.curve: list[dict[str, float]] = []
         self.next_at = 0
         self.best: dict[str, float] | None = None
@@ -121,7 +123,8 @@ class Evaluator(BaseCallback):
             self.best, self.best_state = point, {k: v.detach().clone() for k, v in actor.state_dict().items()}
         self.logger.record("eval/mean_return", point["mean_return"])
         self.logger.record("eval/survival_rate", point["survival_rate"])
-        checkpoint.save(actor, self.folder / CHECKPOINTS_DIR / f"step_{self.num_timesteps:08d}", self.settings, {})
+        step = self.folder / CHECKPOINTS_DIR / f"step_{self.num_timesteps:08d}"
+        checkpoint.save(actor, step, self.settings, self.demonstrations)  # each a start for another PPO run
         self.bar.set_postfix(eval_return=f"{point['mean_return']:.0f}", survival=f"{point['survival_rate']:.0%}")
         self.next_at = self.num_timesteps + self.freq
 

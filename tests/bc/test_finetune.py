@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import shutil
 import textwrap
 from pathlib import Path
 
@@ -177,6 +178,10 @@ def test_tiny_run_writes_a_loadable_checkpoint(bc_policy: Path, tiny_run: tuple[
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256, 512, 768]
     assert (config.policy / policy_files.EVAL_FILE).is_file() and (config.policy / "learning_curve.png").is_file()
     assert len(list((config.policy / "checkpoints").iterdir())) == 4
+    data = (config.policy / policy_files.DATASET_FILE).read_text()
+    assert all(
+        (step / policy_files.DATASET_FILE).read_text() == data for step in (config.policy / "checkpoints").iterdir()
+    )
     assert result["episodes"] == 1 and 0.0 <= result["survival_rate"] <= 1.0
 
 
@@ -458,3 +463,33 @@ def test_existing_checkpoint_is_not_overwritten(
     code, err = ppo_cli(["--bc-policy", str(bc_policy), "--policy", str(target)], capsys)
     assert code == 1 and len(err) == 1 and "--overwrite" in err[0]
     assert snapshot(target) == existing and snapshot(bc_policy) == before
+
+
+def test_a_run_killed_in_its_final_evaluation_is_finished_by_the_same_command(
+    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The weights and the training's figures are published together; killed during the final evaluation, the same
+    command runs that evaluation alone, to the whole run's eval.json."""
+    config = FinetuneConfig(bc_policy=bc_policy, policy=tmp_path / "ppo", timesteps=256, critic_warmup=0, **TINY_PPO)
+    path = config.policy / policy_files.EVAL_FILE
+    whole = json.loads(json.dumps(main(config), default=str))
+    figures = ("timesteps", "seconds", "steps_per_s", "bc_mean_return", "expert_mean_return", "training_curve", "kept")
+    checkpoint.write_json(path, {name: whole[name] for name in figures})  # what the kill leaves
+    weights = (config.policy / policy_files.WEIGHTS_FILE).read_bytes()
+    capsys.readouterr()
+    assert json.loads(json.dumps(main(config), default=str)) == whole == json.loads(path.read_text())
+    assert "already holds this run" in capsys.readouterr().err
+    assert (config.policy / policy_files.WEIGHTS_FILE).read_bytes() == weights
+
+
+def test_a_start_that_names_no_demonstrations_is_refused(
+    bc_policy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Their data normalise the critic: a checkpoint whose dataset.json names none is refused in one line, before
+    any worker starts."""
+    start = tmp_path / "start"
+    shutil.copytree(bc_policy, start)
+    (start / policy_files.DATASET_FILE).write_text("{}")
+    code, err = ppo_cli(["--bc-policy", str(start), "--policy", str(tmp_path / "ppo")], capsys)
+    assert code == 1 and len(err) == 1 and "names no demonstrations" in err[0]
+    assert not (tmp_path / "ppo").exists()

@@ -623,8 +623,8 @@ def test_the_table_reuses_evaluations_made_after_the_policy_only(
     outputs: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A policy's results on schedules are reused while they are newer than its weights and hold the conditions
-    and the errors asked for; other conditions, an older version's file (without an error the table prints), or
-    weights trained since, run them again."""
+    and the errors asked for; other conditions, an older version's file (without an error the table prints), a file
+    cut short, or weights trained since, run them again."""
     first = table_suite(CONDITIONS)
     assert "reusing" in capsys.readouterr().out
     saved = Path("bc") / "robustness_schedules.json"
@@ -633,6 +633,9 @@ def test_the_table_reuses_evaluations_made_after_the_policy_only(
         del row["tracking"]["moved_error"]
     saved.write_text(json.dumps(older))
     assert set(ERROR_KINDS) <= set(table_suite(CONDITIONS)["conditions"]["clean"]["tracking"])
+    assert "reusing" not in capsys.readouterr().out
+    saved.write_text(saved.read_text()[:100])  # cut short (written before it was written whole)
+    assert table_suite(CONDITIONS)["seeds"] == first["seeds"]
     assert "reusing" not in capsys.readouterr().out
     assert table_suite(["clean"])["conditions"].keys() == {"clean"}
     assert "reusing" not in capsys.readouterr().out
