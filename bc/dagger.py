@@ -56,6 +56,7 @@ from policies import checkpoint
 from policies.mlp import MLPPolicy
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
+from teleop.lerobot_io.format import INFO_PATH
 from teleop.parallel import ParallelRollouts, RolloutSettings
 from teleop.spool import DAGGER_SPOOL, Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
@@ -184,11 +185,11 @@ def check_settings(cfg: DaggerConfig) -> None:
 
 def validate(cfg: DaggerConfig) -> None:
     check_settings(cfg)
-    if cfg.output.exists() and not (cfg.output / "meta/info.json").is_file():
+    if cfg.output.exists() and not (cfg.output / INFO_PATH).is_file():
         raise DatasetError(
             f"{cfg.output} exists and holds no LeRobot dataset: OUTPUT is DAgger's own copy of DATASET, give another"
         )
-    if not (cfg.dataset / "meta/info.json").is_file() and not cfg.output.exists():
+    if not (cfg.dataset / INFO_PATH).is_file() and not cfg.output.exists():
         raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record DATASET={cfg.dataset}`")
 
 

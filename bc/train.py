@@ -298,7 +298,7 @@ def plot_learning_curve(result: TrainResult, path: Path) -> None:
     figure.savefig(path, dpi=100)
 
 
-def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | None = None) -> TrainResult:
+def main(cfg: TrainConfig, made_by: str = "bc.train") -> TrainResult:
     """Train, save and evaluate a behaviour-cloning policy on the dataset `cfg` names (`train_and_save`)."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)  # before minutes of work, not after
@@ -308,7 +308,7 @@ def main(cfg: TrainConfig, made_by: str = "bc.train", context: dict[str, Any] | 
     finally:
         env.close()
     check_taught(cfg)
-    return train_and_save(demos, cfg, env.action_space, made_by, context)
+    return train_and_save(demos, cfg, env.action_space, made_by)
 
 
 def check_taught(cfg: TrainConfig) -> None:

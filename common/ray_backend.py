@@ -151,8 +151,8 @@ class RaySession:
             ray.shutdown()
             raise
 
-    def spawn(self, factories: Sequence[Callable[[], Any]], name: str, pin: bool = True) -> list[RayWorker]:
-        """One actor per factory (`name i`), each holding `factory()`, one CPU and, with `pin`, one core."""
+    def spawn(self, factories: Sequence[Callable[[], Any]], name: str) -> list[RayWorker]:
+        """One actor per factory (`name i`), each holding `factory()`, one CPU and one core."""
         import ray  # noqa: PLC0415 - imported only with the Ray backend
 
         host = ray.remote(num_cpus=1, max_restarts=0, scheduling_strategy="SPREAD")(_Host)
@@ -168,13 +168,12 @@ class RaySession:
             ) from None
         except ray.exceptions.RayTaskError as error:  # a factory failed: its exception, as in one process
             raise error.cause from None
-        if pin:
-            landed: dict[str, int] = {}
-            pins = []
-            for actor, (node, cores) in zip(actors, places, strict=True):
-                order = landed[node] = landed.get(node, -1) + 1
-                pins.append(actor.pin.remote(cores[order % len(cores)]))
-            ray.get(pins)
+        landed: dict[str, int] = {}
+        pins = []
+        for actor, (node, cores) in zip(actors, places, strict=True):
+            order = landed[node] = landed.get(node, -1) + 1
+            pins.append(actor.pin.remote(cores[order % len(cores)]))
+        ray.get(pins)
         return workers
 
     def put(self, value: Any) -> Any:

@@ -234,7 +234,6 @@ class WorkerGroupVecEnv(VecEnv):
         self,
         factories: Sequence[Callable[[], gym.Env]],
         workers: int,
-        pin: bool = True,
         backend: str = "local",
         ray_address: str | None = None,
         preload: Iterable[str] = (),
@@ -242,7 +241,7 @@ class WorkerGroupVecEnv(VecEnv):
         if not 1 <= workers <= len(factories):
             raise ValueError(f"need 1 <= workers <= environments, got {workers} workers for {len(factories)}")
         self.groups = split(len(factories), workers)
-        cpus = sorted(os.sched_getaffinity(0)) if pin else []
+        cpus = sorted(os.sched_getaffinity(0))
         self.workers: list[Worker | _InProcess | RayWorker] = []
         self.closed = False
         self._ray: RaySession | None = None
@@ -252,7 +251,6 @@ class WorkerGroupVecEnv(VecEnv):
                 self.workers += self._ray.spawn(
                     [functools.partial(_share_of, [factories[i] for i in group]) for group in self.groups],
                     name="environment worker",
-                    pin=pin,
                 )
             except BaseException:
                 self.close()
@@ -268,7 +266,7 @@ class WorkerGroupVecEnv(VecEnv):
                             CloudpickleWrapper([factories[i] for i in group]),
                             name=f"environment worker {index}",
                             preload=(__name__, *preload),
-                            cpu=cpus[index % len(cpus)] if cpus else None,
+                            cpu=cpus[index % len(cpus)],
                             ignore_interrupt=False,  # Ctrl-C stops a worker mid-rollout, as it stops the learner
                         )
                     )
