@@ -422,13 +422,13 @@ def final_evaluation(
 ) -> dict[str, Any]:
     """The published actor at POLICY on FINAL_EVAL_EPISODES seeds from EVAL_SEED (none if 0), clean and under the
     validation push, with the training's `figures`: what POLICY/eval.json then holds."""
-    result: dict[str, Any] = {}
-    if cfg.final_eval_episodes:
-        final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
-        pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
-        result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
-        if pushed:
-            result["pushed"] = pushed[0]
+    if not cfg.final_eval_episodes:
+        return figures  # eval.json holds them already
+    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+    pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
+    result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
+    if pushed:
+        result["pushed"] = pushed[0]
     result.update(figures)
     checkpoint.write_json(cfg.policy / EVAL_FILE, result)
     return result
