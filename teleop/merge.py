@@ -32,6 +32,7 @@ from humanoid.env import make_env
 from humanoid.episode import Episode
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
+from teleop.lerobot_io.format import INFO_PATH
 from teleop.mcap_io.writer import TF_TOPIC
 from teleop.seeds import seed_clash
 from teleop.spool import SPOOLS
@@ -105,12 +106,12 @@ def shard_list(text: str) -> list[Path]:
 def check_finished(shard: Path) -> None:
     """UserError in one line if a run killed in `shard` left work there (its mark, episodes waiting in a spool): the
     next run there finishes it, and its episodes would come after those merged, out of seed order."""
-    waiting = [name for name in SPOOLS if any((shard / name).glob("*.npz"))]
-    if recordings.marked(shard) is not None or waiting:
-        left = ", ".join([*(["its mark"] if recordings.marked(shard) is not None else []), *waiting])
+    left = ["its mark"] if recordings.marked(shard) is not None else []
+    left += [name for name in SPOOLS if any((shard / name).glob("*.npz"))]
+    if left:
         raise UserError(
-            f"{shard} holds what a killed run left ({left}): the next run on it (`make record DATASET={shard}`, "
-            "`make dagger` on an aggregate) finishes it; merge after"
+            f"{shard} holds what a killed run left ({', '.join(left)}): the next run on it "
+            f"(`make record DATASET={shard}`, `make dagger` on an aggregate) finishes it; merge after"
         )
 
 
@@ -120,8 +121,8 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
         raise UserError("--shards names no dataset")
     episodes, features, parameters = [], None, None
     for number, shard in enumerate(shards):
-        if not (shard / "meta/info.json").is_file():
-            raise UserError(f"{shard} is not a dataset (no meta/info.json)")
+        if not (shard / INFO_PATH).is_file():
+            raise UserError(f"{shard} is not a dataset (no {INFO_PATH})")
         check_finished(shard)
         info = read_info(shard)
         if features is not None and info["features"] != features:
