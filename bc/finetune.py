@@ -61,7 +61,14 @@ from humanoid.env import make_env
 from humanoid.inputs import input_set
 from humanoid.learned import PolicyController
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, DATASET_FILE, EVAL_FILE, TENSORBOARD_DIR, WEIGHTS_FILE
+from policies.folder import (
+    DATASET_FILE,
+    EVAL_FILE,
+    TENSORBOARD_DIR,
+    WEIGHTS_FILE,
+    finished_with,
+    json_object,
+)
 from policies.mlp import normalisation
 from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
@@ -374,11 +381,8 @@ def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | Non
 def bc_dataset(bc_policy: Path) -> dict[str, Any]:
     """The BC checkpoint's record of its training data (path, episodes, frames, split); UserError in one line if it
     names none (the tutorial's learners): that data normalises the critic's inputs."""
-    try:
-        record = json.loads((bc_policy / DATASET_FILE).read_text())
-    except (OSError, ValueError):
-        record = {}
-    if not isinstance(record, dict) or "path" not in record:
+    record = json_object(bc_policy / DATASET_FILE)
+    if "path" not in record:
         raise UserError(
             f"{bc_policy} names no demonstrations ({DATASET_FILE}): PPO starts from a policy trained on a dataset "
             "(make train-bc, make dagger, or a PPO run from one), whose data normalise its critic's inputs"
@@ -404,14 +408,10 @@ def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor
 def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], schedules: bool) -> dict[str, Any] | None:
     """POLICY/eval.json of a run already finished there with these settings (not re-run; its final evaluation run
     now if a kill cut it short); else None."""
-    config, evaluation = cfg.policy / CONFIG_FILE, cfg.policy / EVAL_FILE
-    if cfg.overwrite or not (config.is_file() and evaluation.is_file()):
-        return None
-    training = json.loads(config.read_text()).get("training", {})
-    if resume.comparable({name: training.get(name) for name in settings}) != resume.comparable(settings):
+    if cfg.overwrite or not finished_with(cfg.policy, settings, resume.PRESENTATION):
         return None
     print(f"{cfg.policy} already holds this run, finished: not run again", file=sys.stderr)
-    result = json.loads(evaluation.read_text())
+    result = json.loads((cfg.policy / EVAL_FILE).read_text())
     if cfg.final_eval_episodes and "seeds" not in result:  # killed during its final evaluation
         return final_evaluation(cfg, schedules, result)
     return result

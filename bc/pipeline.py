@@ -58,7 +58,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
-import json
 import shlex
 import shutil
 import sys
@@ -88,7 +87,6 @@ from humanoid.env import nominal_model
 from humanoid.expert import SensedExpert
 from humanoid.sensors import proprioception_names
 from policies.folder import (
-    CONFIG_FILE,
     DATASET_FILE,
     EVAL_FILE,
     SB3_FILE,
@@ -96,6 +94,8 @@ from policies.folder import (
     checkpoint_problem,
     is_checkpoint,
     is_sb3_policy,
+    json_object,
+    training_settings,
 )
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
@@ -432,21 +432,6 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
     )
 
 
-def _json_object(path: Path) -> dict[str, Any]:
-    """The JSON object in `path`; {} if it is missing, unreadable or not an object."""
-    try:
-        content = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return content if isinstance(content, dict) else {}
-
-
-def _training_record(folder: Path) -> dict[str, Any]:
-    """The settings a checkpoint's config.json records under "training"."""
-    training = _json_object(folder / CONFIG_FILE).get("training")
-    return training if isinstance(training, dict) else {}
-
-
 def evaluates(cfg: TrainConfig | FinetuneConfig | DaggerConfig) -> bool:
     """Whether the stage writes an eval.json: PPO always (its training's figures), BC and DAgger unless told no
     episodes."""
@@ -477,7 +462,7 @@ def checkpoint_decision(
     problem = checkpoint_problem(folder)
     if problem:
         raise UserError(f"{problem}: it is left as it is (choose another {option})")
-    training = _training_record(folder)
+    training = training_settings(folder)
     saved = training.get(settings_key, {}) if settings_key else training
     difference = first_difference(saved if isinstance(saved, dict) else {}, cfg, NOT_COMPARED | {"policy"})
     if source_remade:
@@ -508,7 +493,7 @@ def bc_decision(
     def current() -> str | None:
         return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
 
-    saved = _json_object(cfg.policy / DATASET_FILE).get("fingerprint")
+    saved = json_object(cfg.policy / DATASET_FILE).get("fingerprint")
     return checkpoint_decision(cfg, "training", option, "dataset", saved, current, overwrite, dataset_remade)
 
 
@@ -519,7 +504,7 @@ def dagger_decision(cfg: DaggerConfig, overwrite: bool, dataset_remade: bool = F
     def current() -> str | None:
         return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
 
-    saved = _training_record(cfg.policy).get("demonstrations")
+    saved = training_settings(cfg.policy).get("demonstrations")
     return checkpoint_decision(
         cfg, "DAgger", "--dagger-policy", "dataset", saved, current, overwrite, dataset_remade, settings_key="dagger"
     )
@@ -550,7 +535,7 @@ def ppo_decision(cfg: FinetuneConfig, option: str, overwrite: bool, bc_remade: b
     def current() -> str | None:
         return weights_digest(cfg.bc_policy) if is_checkpoint(cfg.bc_policy) else None
 
-    saved = _training_record(cfg.policy).get("bc_policy_sha256")
+    saved = training_settings(cfg.policy).get("bc_policy_sha256")
     verb = "training from scratch" if cfg.fresh else "fine-tuning"
     return checkpoint_decision(cfg, verb, option, "BC policy", saved, current, overwrite, bc_remade)
 
@@ -711,7 +696,7 @@ def saved_suite(cfg: RobustnessConfig) -> dict[str, Any] | None:
     weights = policy / (SB3_FILE if is_sb3_policy(policy) else WEIGHTS_FILE)
     if not saved.is_file() or not (cfg.policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         return None
-    result = _json_object(saved)
+    result = json_object(saved)
     if not result:  # unreadable (written before it was written whole): made again
         return None
     current = all(set(ERROR_KINDS) <= set(row["tracking"]) for row in result["conditions"].values())

@@ -43,7 +43,7 @@ from common.cli import UserError, config_dict, config_text, flag, run_cli, setti
 from humanoid.env import make_env
 from humanoid.inputs import FullInputs
 from policies import checkpoint
-from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR
+from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR, finished_with
 from policies.mlp import MLPPolicy, MLPSpec
 
 LEARNERS = ("preferred", "ppo")
@@ -257,6 +257,10 @@ class ProgressBar(BaseCallback):
         self.bar.close()
 
 
+LEARNER_INDEPENDENT = frozenset({"progress", "overwrite", "learners", "preferred_policy", "ppo_policy", "made_by"})
+"""Settings a learner's run does not depend on: a folder holding the run made with others is reused."""
+
+
 TRAINERS = {"preferred": train_preferred, "ppo": train_ppo}
 
 
@@ -271,7 +275,7 @@ def plan(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, bool]:
     reuse = {}
     for learner in validate(cfg):
         folder = folder_of(cfg, learner)
-        reuse[learner] = (folder / EVAL_FILE).is_file() and _same(folder, settings)
+        reuse[learner] = finished_with(folder, settings, LEARNER_INDEPENDENT)
         if not reuse[learner]:
             checkpoint.check_replaceable(folder, cfg.overwrite)
     return reuse
@@ -295,15 +299,6 @@ def main(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, dict[st
         checkpoint.write_json(folder / EVAL_FILE, result)
         results[learner] = result
     return results
-
-
-def _same(folder: Path, settings: dict[str, Any]) -> bool:
-    config = folder / CONFIG_FILE
-    if not config.is_file():
-        return False
-    saved = json.loads(config.read_text()).get("training", {})
-    ignored = {"progress", "overwrite", "learners", "preferred_policy", "ppo_policy", "made_by"}
-    return all(saved.get(name) == value for name, value in settings.items() if name not in ignored)
 
 
 def print_results(cfg: TutorialConfig, results: dict[str, dict[str, Any]]) -> None:

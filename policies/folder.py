@@ -1,12 +1,16 @@
-"""A checkpoint folder's file names and the torch-free check that a folder is one.
+"""A checkpoint folder's file names, the torch-free check that a folder is one, and what a run recorded there.
 
-The recorder checks a controller name with `is_checkpoint` without paying for torch; the files'
-content is read by `policies.checkpoint`.
+The recorder checks a controller name with `is_checkpoint` without paying for torch; the weights are read by
+`policies.checkpoint`, the settings a run recorded by `training_settings`, which every stage that reuses a finished
+run reads (`finished_with`).
 """
 
 from __future__ import annotations
 
+import json
+from collections.abc import Collection
 from pathlib import Path
+from typing import Any
 
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
@@ -40,3 +44,27 @@ def checkpoint_problem(path: Path) -> str | None:
 def is_checkpoint(path: Path) -> bool:
     """Whether `path` is a folder with a checkpoint's files."""
     return checkpoint_problem(path) is None
+
+
+def json_object(path: Path) -> dict[str, Any]:
+    """The JSON object in `path`; {} if it is missing, unreadable or not an object (an older version's, a kill's)."""
+    try:
+        content = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return content if isinstance(content, dict) else {}
+
+
+def training_settings(path: Path) -> dict[str, Any]:
+    """The settings the run that made checkpoint folder `path` recorded (config.json's "training"); {} if none."""
+    training = json_object(path / CONFIG_FILE).get("training")
+    return training if isinstance(training, dict) else {}
+
+
+def finished_with(path: Path, settings: dict[str, Any], ignored: Collection[str] = ()) -> bool:
+    """Whether `path` holds a finished run (its eval.json written) that recorded `settings`, those named in
+    `ignored` aside: what a stage asked for the same run again reuses rather than runs."""
+    if not (path / EVAL_FILE).is_file():
+        return False
+    saved = training_settings(path)
+    return all(saved.get(name) == value for name, value in settings.items() if name not in ignored)

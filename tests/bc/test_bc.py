@@ -185,6 +185,23 @@ def test_config_json_holds_every_setting_and_the_datasets_fingerprint(trained: T
     assert json.loads((folder / policy_files.DATASET_FILE).read_text())["fingerprint"] == fingerprint(recorded)
 
 
+def test_a_finished_run_is_known_by_its_recorded_settings(trained: TrainResult, tmp_path: Path) -> None:
+    """`finished_with`, which every stage that reuses a run asks: the settings recorded, those ignored aside, and the
+    evaluation written; a config.json cut short reads as no settings."""
+    folder = tmp_path / "policy"
+    shutil.copytree(trained.policy_dir, folder)
+    settings = policy_files.training_settings(folder)
+    assert settings["lr"] == 1e-3 and settings["made_by"] == "bc.train"
+    assert not policy_files.finished_with(folder, settings)  # no eval.json: not finished
+    (folder / policy_files.EVAL_FILE).write_text("{}")
+    assert policy_files.finished_with(folder, settings)
+    assert not policy_files.finished_with(folder, {**settings, "lr": 3e-4})
+    assert policy_files.finished_with(folder, {**settings, "lr": 3e-4}, ignored={"lr"})
+    (folder / policy_files.CONFIG_FILE).write_text('{"training": {"lr"')
+    assert policy_files.training_settings(folder) == {}
+    assert not policy_files.finished_with(folder, {"lr": 1e-3})
+
+
 def test_tensorboard_holds_the_config_as_text(trained: TrainResult) -> None:
     """The run's settings are in its TensorBoard logs as text: the JSON of config.json's settings."""
     settings = json.loads(textwrap.dedent(tensorboard_text(trained.policy_dir / TENSORBOARD_DIR, CONFIG_TAG)))
