@@ -142,9 +142,12 @@ class LeRobotWriter:
         writer = cls(root, info, tasks, stats, last_file)
         if len(tasks) < len(stored_tasks):
             writer._write_tasks()
-        if episodes and (stats is None or int(stats["index"]["count"][0]) != info["total_frames"]):
-            # stats.json is written just before info.json: a kill between the two leaves it counting an
-            # episode that was never committed, so rebuild it from the committed episodes' own statistics.
+        # stats.json is written just before info.json: a kill between the two leaves it counting an episode that
+        # was never committed, so rebuild it from the committed episodes' own statistics (none: no stats).
+        if not episodes and stats is not None:
+            writer.stats = None
+            stats_path.unlink()
+        elif episodes and (stats is None or int(stats["index"]["count"][0]) != info["total_frames"]):
             writer.stats = aggregate_stats([unflatten_stats(row) for row in episodes])
             _write_stats(writer.stats, stats_path)
         return writer

@@ -65,6 +65,34 @@ def test_crash_before_commit_keeps_the_committed_episodes(
     assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
 
 
+def test_a_crash_in_the_first_commit_leaves_no_statistics_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Killed between the first episode's stats.json and its info.json, a new dataset's statistics count no episode
+    once reopened: the next episode's are its own, not merged with the lost one's."""
+    root = tmp_path / "dataset"
+    env = make_env(60)
+    store = EpisodeStore(root, DatasetSpec.from_env(env))
+    episode = run_episode(env, store_controller(env), seed=7)
+    real_replace = os.replace
+
+    def replace_unless_info(source: str | Path, target: str | Path) -> None:
+        if Path(target).name == "info.json":
+            raise SimulatedCrash(target)
+        real_replace(source, target)
+
+    monkeypatch.setattr(os, "replace", replace_unless_info)
+    with pytest.raises(SimulatedCrash):
+        store.append(episode)
+    monkeypatch.undo()
+    store.close()
+    assert (root / "meta/stats.json").is_file()  # the lost episode's statistics
+
+    main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
+    assert_consistent(root, 1)
+    assert_no_leftovers(root, 1)
+
+
 def store_controller(env):
     return make_controller("expert", env)
 
