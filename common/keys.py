@@ -47,6 +47,8 @@ PUSH_NAMES = ("push_x", "push_y")
 
 # Columns of meta/episodes/*.parquet that this project adds beside LeRobot's own.
 EPISODE_SEED = "seed"
+SEED_LIMIT = 2**63
+"""Seeds a dataset can hold: below this (an int64 column)."""
 EPISODE_CONTROLLER = "controller"
 EPISODE_LABELLER = "labeller"
 EPISODE_DAGGER_ROUND = "dagger_round"

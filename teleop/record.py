@@ -200,8 +200,8 @@ def validate(cfg: RecordConfig) -> None:
             raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
     if not (math.isfinite(cfg.noise) and cfg.noise >= 0):
         raise UserError(f"--noise must be >= 0, got {cfg.noise}")
-    if cfg.seed is not None and cfg.seed < 0:
-        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
+    if cfg.seed is not None and not 0 <= cfg.seed <= keys.SEED_LIMIT - cfg.episodes:
+        raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
     if cfg.live and (workers(cfg) != 1 or cfg.backend != "local"):
         raise UserError(

@@ -106,6 +106,8 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--episodes", "-3"], "--episodes must be positive"),
         (["--noise", "-0.1"], "--noise must be >= 0"),
         (["--noise", "inf"], "--noise must be >= 0"),
+        (["--seed", "-1"], "--seed must be >= 0"),
+        (["--seed", str(2**63 - 1), "--episodes", "2"], "below 2**63"),
     ],
 )
 def test_bad_settings_are_refused_before_touching_the_disk(
