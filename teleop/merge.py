@@ -124,11 +124,17 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
         if not (shard / INFO_PATH).is_file():
             raise UserError(f"{shard} is not a dataset (no {INFO_PATH})")
         check_finished(shard)
-        info = read_info(shard)
+        try:
+            info = read_info(shard)
+        except (OSError, ValueError) as error:
+            raise UserError(f"{shard / INFO_PATH} is unreadable ({error}): copy the shard again") from None
         if features is not None and info["features"] != features:
             raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")
         features = info["features"]
         rows = read_episodes(shard).to_pylist()
+        missing = [row[keys.EPISODE_MCAP] for row in rows if not (shard / row[keys.EPISODE_MCAP]).is_file()]
+        if missing:
+            raise UserError(f"{shard} lacks {missing[0]}, one of its episodes' MCAP files: copy the shard again")
         drawn = tuple(keys.drawn_parameters(rows[0])) if rows else None
         if drawn is not None and parameters is not None and set(drawn) != set(parameters):
             raise UserError(f"{shard} draws other physical parameters than {shards[0]}")

@@ -84,6 +84,8 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
         ("itself", "a shard cannot be merged into itself"),
         ("no episode", "no episode was committed to it"),
         ("killed", "holds what a killed run left (its mark, .spool)"),
+        ("cut-short info", "meta/info.json is unreadable"),
+        ("missing MCAP", "lacks mcap/"),
     ],
 )
 def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
@@ -98,7 +100,15 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
         "itself": [first, target],
         "no episode": [first, tmp_path / "opened"],  # what a first session refused or killed early leaves
         "killed": [first, tmp_path / "killed"],  # a parallel recording killed with an episode finished past a gap
+        "cut-short info": [first, tmp_path / "copied"],  # copies between nodes cut short
+        "missing MCAP": [first, tmp_path / "copied"],
     }[which]
+    if which in ("cut-short info", "missing MCAP"):
+        shutil.copytree(second, tmp_path / "copied")
+        if which == "cut-short info":
+            (tmp_path / "copied/meta/info.json").write_text('{"codebase_version": ')
+        else:
+            next((tmp_path / "copied/mcap").rglob("*.mcap")).unlink()
     if which == "killed":
         shutil.copytree(second, tmp_path / "killed")
         recordings.mark(tmp_path / "killed", "teleop.record", {}, episodes=3)
