@@ -257,6 +257,8 @@ class Worker:
         context = forkserver_context(preload)
         self.name = name
         self.failed = False  # a fatal failure or the child's death was raised: nothing more will come
+        self.unread: list[Any] = []
+        """The child's messages that `send` read on its way to the child's failure: answers its caller has not had."""
         self.exitcode: int | None = None
         self._outlives_parent = outlives_parent
         self._closed = False
@@ -277,12 +279,13 @@ class Worker:
             child_out.close()
 
     def send(self, message: Any) -> None:
-        """Send `message` to the child; if it stopped, raise why (its failure, or that it died)."""
+        """Send `message` to the child; if it stopped, raise why (its failure, or that it died), keeping what it
+        said before in `unread`."""
         try:
             self._outgoing.send(message)
         except (BrokenPipeError, ConnectionResetError):
             while True:
-                self.recv()  # raises once the child's failure or end is reached
+                self.unread.append(self.recv())  # raises once the child's failure or end is reached
 
     def recv(self) -> Any:
         """The child's next message (blocks); raises its failure, or WorkerError if it ended or died."""

@@ -63,7 +63,9 @@ class WriterProcess:
         """Signal the end of the recording and wait until every episode sent is committed."""
         if self._worker.exitcode is not None or self._worker.failed:
             self._worker.close()
-            return []
+            committed, self._worker.unread = self._worker.unread, []  # what it committed before it failed
+            self.num_episodes += len(committed)
+            return committed
         try:
             self._worker.stop_sending()
             rest = self._worker.rest()  # the child has closed the dataset when its channel ends

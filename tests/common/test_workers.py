@@ -35,6 +35,11 @@ def raise_user_error(channel: Channel) -> None:
     raise DatasetError("the dataset is locked")
 
 
+def answer_once_then_fail(channel: Channel) -> None:
+    channel.send(("answered", channel.recv()))
+    raise ValueError("bad value")
+
+
 def report_pid_then_wait(channel: Channel) -> None:
     channel.send(os.getpid())
     channel.recv()
@@ -226,3 +231,13 @@ def test_worker_counts_default_to_the_cores_this_process_may_use(cores: int, def
     if len(os.sched_getaffinity(0)) < cores:
         pytest.skip(f"needs {cores} cores")
     assert defaults_by_cores[cores] == [str(cores), "1", str(cores), str(cores), str(cores), str(cores), "1", "1", "3"]
+
+
+def test_a_send_to_a_child_that_failed_keeps_its_last_answers() -> None:
+    """What the child said before it failed (a writer's committed episodes) is in `unread` when `send` raises why."""
+    with Worker(answer_once_then_fail, name="test worker") as worker:
+        worker.send(1)
+        worker.process.join(10)  # failed and gone: the next send finds the pipe broken
+        with pytest.raises(WorkerError, match="bad value"):
+            worker.send(2)
+        assert worker.unread == [("answered", 1)]
