@@ -39,6 +39,7 @@ from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, config_dict, run_cli, setting
+from common.figures import save_figure
 from common.threads import one_blas_thread
 from common.workers import forkserver_context
 from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
@@ -210,8 +211,7 @@ def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) ->
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title(f"{episode.controller}, seed {episode.seed}: commanded and achieved posture")
     axes[-1].set_xlabel("time (s)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=100)
+    save_figure(figure, path)
 
 
 def main(cfg: EvalConfig) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from tqdm import tqdm
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool, init_worker
 from common import paths
 from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.figures import save_figure
 from common.keys import COMMAND_NAMES
 from common.workers import default_workers
 from humanoid.commands import combine_tracking
@@ -238,7 +239,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
     seeds = result["seeds"]
     figure.suptitle(f"{result['policy']}: {len(seeds)} episodes per condition, seeds {seeds[0]}..{seeds[-1]}")
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    save_figure(figure, path)
 
 
 def table(result: dict[str, Any]) -> str:

@@ -37,6 +37,7 @@ from bc.data import Demonstrations, episode_delays, load_demonstrations, split_b
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from common import keys, paths
 from common.cli import DatasetError, UserError, config_dict, config_text, flag, run_cli, setting
+from common.figures import save_figure
 from common.workers import available_cores, default_workers
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
@@ -295,7 +296,7 @@ def plot_learning_curve(result: TrainResult, path: Path) -> None:
     axes.set_title(f"{result.policy_dir.name}: {result.train_frames} training frames")
     axes.legend()
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    save_figure(figure, path)
 
 
 def main(cfg: TrainConfig, made_by: str = "bc.train") -> TrainResult:

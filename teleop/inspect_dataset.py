@@ -39,6 +39,7 @@ from mcap.reader import make_reader
 
 from common import keys, paths
 from common.cli import DatasetError, one_line, run_cli, setting
+from common.figures import save_figure
 from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
@@ -920,8 +921,7 @@ def plot(dataset: Dataset, path: Path) -> None:
                 axes.legend(fontsize="x-small")
     figure.suptitle(f"{dataset.root}: {n} episodes, {len(frames['index']):,} frames")
     figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=80)
+    save_figure(figure, path, dpi=80)
 
 
 def _plotted_episodes(returns: np.ndarray) -> list[int]:

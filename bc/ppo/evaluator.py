@@ -15,6 +15,7 @@ from tqdm import tqdm
 from bc.evaluate import evaluate_each
 from bc.robustness import summarise
 from common.cli import config_text
+from common.figures import save_figure
 from humanoid.commands import tracking_score
 from policies import checkpoint
 from policies.folder import CONFIG_TAG
@@ -191,4 +192,4 @@ def plot_curves(curves: dict[str, list[dict[str, float]]], bc_return: float | No
         axes.legend(fontsize="small")
     figure.suptitle(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    save_figure(figure, path)

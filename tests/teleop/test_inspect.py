@@ -126,6 +126,15 @@ def test_plot_writes_a_png(clean: CleanRun) -> None:
     assert pixels.shape[0] > 300 and pixels.shape[1] > 300 and pixels.std() > 0.05
 
 
+def test_a_plot_path_that_cannot_be_written_is_refused_in_one_line(recorded: Path, tmp_path: Path) -> None:
+    """--plot-path through a file: one line naming the path, a non-zero exit, no traceback."""
+    (tmp_path / "a_file").write_text("")
+    path = tmp_path / "a_file/x.png"
+    run = inspect("--dataset", recorded, "--lerobot", "false", "--plot", "true", "--plot-path", path)
+    err = run.err.strip().splitlines()
+    assert run.code != 0 and len(err) == 1 and err[0].startswith(f"error: cannot write {path}: ")
+
+
 def test_inspection_writes_nothing_but_the_png(clean: CleanRun) -> None:
     """Every file of the dataset is left byte for byte as it was; the PNG is the only new one."""
     assert set(clean.after) - set(clean.before) == {PLOT_NAME}
