@@ -26,8 +26,9 @@ import numpy as np
 
 from common.cli import UserError
 from common.keys import COMMAND_NAMES
-from humanoid.env import nominal_model
+from humanoid.env import QPOS_OBS, nominal_model
 from humanoid.posture import ARM_JOINTS, NEUTRAL, Posture, move_seconds, posture_reference
+from humanoid.sensors import body_axes
 
 COMMAND_SIZE = len(COMMAND_NAMES)
 DEFAULT_TASK = "Stand still on both feet."
@@ -121,9 +122,8 @@ ARM_NAMES = ("neutral", "forward", "up", "out")
 """`Posture.arms` presets by name (`humanoid.posture.ARM_POSES`)."""
 
 
-# Tracking. The achieved posture is read from the observation's first 22 entries (qpos without root x, y): the
-# root's height and orientation and the joint angles, in both the full observation and a recorded frame.
-QPOS_IN_OBS = slice(0, 22)
+# Tracking. The achieved posture is read from the observation's qpos part (`QPOS_OBS`), in both the full observation
+# and a recorded frame.
 TOLERANCE = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
 """Settled means every field's error within this (rad; height m; arms: mean over the arm joints, rad): about one
 key press (`Posture.STEP`), half of one for the twist."""
@@ -131,17 +131,6 @@ SETTLED_SECONDS = 1.0
 """The error once settled is the mean over the last this-many seconds of each command held, after the setpoint's move
 to it (`move_seconds`), at least twice as long: as a schedule holds every command (`HOLD_SECONDS`) but the one the
 episode's end cuts short, which may still be on its way."""
-
-
-def _rotation(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) (w, x, y, z), C-contiguous."""
-    w, x, y, z = np.moveaxis(quat, -1, 0)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return np.ascontiguousarray(np.moveaxis(np.array(rows), (0, 1), (-2, -1)))
 
 
 class Tracking:
@@ -165,7 +154,7 @@ class Tracking:
         half = abdomen_z / 2
         zero = np.zeros_like(half)
         unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
-        frame = _rotation(qpos[..., 1:5]) @ _rotation(unyaw)
+        frame = np.swapaxes(body_axes(unyaw) @ body_axes(qpos[..., 1:5]), -1, -2)  # R(root) R(unyaw)
         pitch = np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))
         lean_left = -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])
         return np.concatenate([np.stack([pitch, lean_left, qpos[..., 0], -abdomen_z], -1), qpos[..., self.arms_at]], -1)
@@ -181,7 +170,7 @@ class Tracking:
     def achieved(self, observations: np.ndarray) -> np.ndarray:
         """(T, 4) the achieved lean_forward, lean_left, height (from the neutral pose's) and twist of observations
         (T, >=22): what Foxglove plots beside the command (the `/command` channel)."""
-        coordinates = self.coordinates(np.asarray(observations[:, QPOS_IN_OBS], np.float64))[:, :4]
+        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))[:, :4]
         return coordinates - [0.0, 0.0, self.target(np.zeros(COMMAND_SIZE))[2], 0.0]
 
     def errors(self, observations: np.ndarray, commands: np.ndarray) -> np.ndarray:
@@ -190,7 +179,7 @@ class Tracking:
         changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
         for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
             targets[start:end] = self.target(commands[start])
-        return _fields(np.abs(self.coordinates(np.asarray(observations[:, QPOS_IN_OBS], np.float64)) - targets))
+        return _fields(np.abs(self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64)) - targets))
 
     def error(self, qpos: np.ndarray, command: np.ndarray) -> np.ndarray:
         """`errors` of one state, (COMMAND_SIZE,) from qpos without x and y (22,) under `command`: the same numbers,

@@ -25,7 +25,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from humanoid.env import model_and_data
+from humanoid.env import QPOS_OBS, QVEL_OBS, model_and_data
 from humanoid.perturbations import TorsoPushes
 
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
@@ -34,10 +34,7 @@ LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's tr
 # (seed, 6): the schedules of PPO's training episodes on commands (humanoid.commands.SCHEDULE_STREAM)
 LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
-# Where the sensed parts sit in the 348-dim observation: qpos[2:] (22) then qvel (23). The rest
-# (cinert, cvel, qfrc_actuator, cfrc_ext) is simulator state no sensor measures: left noiseless.
-QPOS_PART = slice(0, 22)
-QVEL_PART = slice(22, 45)
+# The sensed parts of the observation are its qpos and qvel (`QPOS_OBS`, `QVEL_OBS`); the rest is left noiseless.
 OBS_NOISE_STD = {"qpos": 0.002, "qvel": 0.02}
 """Sensor noise std: joint angles and root orientation (rad; root height m), joint and root rates (rad/s; m/s)."""
 
@@ -307,8 +304,8 @@ class ObservationNoise(gym.Wrapper):
         if not (math.isfinite(scale) and scale >= 0):
             raise ValueError(f"observation noise scale must be >= 0, got {scale}")
         self.std = np.zeros(env.observation_space.shape)
-        self.std[QPOS_PART] = scale * OBS_NOISE_STD["qpos"]
-        self.std[QVEL_PART] = scale * OBS_NOISE_STD["qvel"]
+        self.std[QPOS_OBS] = scale * OBS_NOISE_STD["qpos"]
+        self.std[QVEL_OBS] = scale * OBS_NOISE_STD["qvel"]
         self.episodes = EpisodeShare("observation noise", OBS_NOISE_STREAM, share)
         self.noisy = True
 

@@ -77,6 +77,14 @@ def actuator_names(model: mujoco.MjModel) -> list[str]:
     return _names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu)
 
 
+QPOS_OBS = slice(0, 22)
+"""Where qpos[2:] sits in the 348-dim observation (root x, y are excluded by default): the root's height and
+orientation, then the joint angles; a recorded frame's observation too."""
+QVEL_OBS = slice(22, 45)
+"""Where qvel sits in the observation; the rest (cinert, cvel, qfrc_actuator, cfrc_ext) is simulator state no sensor
+measures."""
+
+
 def observation_names(model: mujoco.MjModel) -> list[str]:
     """One name per observation entry, following gymnasium's Humanoid-v5 `_get_obs` order."""
     joints = _names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt, start=1)  # joint 0 is the free root

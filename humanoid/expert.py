@@ -15,12 +15,10 @@ import mujoco
 import numpy as np
 
 from humanoid.commands import command_posture, command_vector
-from humanoid.env import nominal_model
+from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.estimator import LegOdometry
 from humanoid.landing import Landing, load_or_design_landing
 from humanoid.lqr import (
-    QPOS_OBS,
-    QVEL_OBS,
     ROOT_XY,
     LQRDesign,
     LQRGains,

@@ -42,11 +42,6 @@ T = TypeVar("T")  # what load_or_build caches (a TypeVar, not 3.12's syntax: tes
 CTRL_LIMIT = 0.4
 """Every Humanoid-v5 motor accepts ctrl in [-CTRL_LIMIT, CTRL_LIMIT]."""
 
-QPOS_OBS = slice(0, 22)
-"""Where qpos[2:] sits in the 348-dim observation (root x, y are excluded by default)."""
-QVEL_OBS = slice(22, 45)
-"""Where qvel sits in the observation."""
-
 _CACHE_FORMAT = 1  # bump when design_lqr changes what it computes, so old cache files go stale
 ROOT_XY = 2  # the free joint's leading x, y coordinates, left out of the LQR state
 HEIGHT = 0  # index of the root height error in the position part of the state
