@@ -30,7 +30,7 @@ import numpy as np
 
 from common.cli import UserError
 from humanoid.commands import ARM_NAMES, command_vector, task_for
-from humanoid.controllers import Controller
+from humanoid.controllers import Controller, make_controller
 from humanoid.env import model_and_data
 from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
 from humanoid.physics import TORSO_BODY, torso_height
@@ -366,7 +366,7 @@ def run_viewer(session: TeleopSession, out: TextIO) -> None:
         with mujoco.viewer.launch_passive(session.model, session.data, key_callback=on_key) as viewer:
             with viewer.lock():  # follow the torso from 4 m, slightly above: the whole body in view
                 viewer.cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-                viewer.cam.trackbodyid = session.model.body("torso").id
+                viewer.cam.trackbodyid = session.torso
                 viewer.cam.distance, viewer.cam.elevation, viewer.cam.azimuth = 4.0, -10.0, 135.0
             next_step = time.monotonic()
             while viewer.is_running() and not session.finished:
@@ -416,10 +416,8 @@ def run_session(
     The keys command `controller` (a policy that takes a command: `make play`), by default the expert."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
-    from humanoid.expert import LQRExpert  # noqa: PLC0415
-
     front_end = front_end_here(front_end)
-    controller = LQRExpert(model_and_data(env)[0]) if controller is None else controller
+    controller = make_controller("expert", env) if controller is None else controller
     session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer)
     if front_end == "viewer":
         run_viewer(session, sys.stderr)

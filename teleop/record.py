@@ -33,7 +33,6 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -290,12 +289,6 @@ def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
     return summary
 
 
-def _seeds(root: Path) -> list[int]:
-    from teleop.dataset_reader import read_episodes  # noqa: PLC0415 - pyarrow, only after a kill
-
-    return read_episodes(root, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
-
-
 def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
     """The randomisation's ranges for the session's line: what a preset's name stands for is this version's code."""
     try:
@@ -358,9 +351,8 @@ def _record(
         if clash:
             raise DatasetError(f"--seed {cfg.seed}: {clash} (leave --seed unset to start there)")
         if made_by is not None:
-            recorded_seeds = partial(_seeds, cfg.dataset)
             recordings.take_over(
-                cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, recorded_seeds, _logged_ranges(cfg)
+                cfg.dataset, made_by, config_dict(cfg), sink.num_episodes, lambda: recorded, _logged_ranges(cfg)
             )
             summary.marked = True
         if interactive:
