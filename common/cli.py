@@ -136,10 +136,15 @@ def check_removed(config_class: type, argv: Sequence[str]) -> None:
             raise UserError(REMOVED_VALUES[name, value].message())
 
 
+def first_line(error: BaseException) -> str:
+    """The first line of an exception's text (a library's message may span many), or its type if it has none."""
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__
+
+
 def one_line(error: BaseException) -> str:
     """An exception as one line of a message: its type and the first line of its text."""
-    text = str(error).strip().splitlines()
-    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+    return f"{type(error).__name__}: {first_line(error)}" if str(error).strip() else type(error).__name__
 
 
 def setting(default: Any, help: str, **kwargs: Any) -> Any:

@@ -24,7 +24,7 @@ import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from common.cli import UserError
+from common.cli import UserError, first_line
 from common.workers import WorkerError
 
 log = logging.getLogger(__name__)
@@ -108,7 +108,7 @@ class RayWorker:
             raise error.cause from None
         except (ray.exceptions.RayActorError, ray.exceptions.ObjectLostError) as error:
             # ObjectLostError: the call finished, but its result was in the object store of a node now gone.
-            raise WorkerLost(f"{self.name} was lost: {_first_line(error)}") from None
+            raise WorkerLost(f"{self.name} was lost: {first_line(error)}") from None
 
     def send(self, message: tuple[str, tuple]) -> None:
         """`common.workers.Worker` protocol: the command (`target.handle(command, *data)`) starts at once."""
@@ -118,11 +118,6 @@ class RayWorker:
     def recv(self) -> Any:
         ref, self._pending = self._pending, None
         return self.get(ref)
-
-
-def _first_line(error: BaseException) -> str:
-    text = str(error).strip().splitlines()
-    return text[0] if text else type(error).__name__
 
 
 class RaySession:

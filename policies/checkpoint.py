@@ -28,7 +28,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
-from common.cli import UserError
+from common.cli import UserError, first_line
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
 
@@ -95,8 +95,7 @@ def load(path: Path) -> MLPPolicy:
         policy.load_state_dict(load_file(path / WEIGHTS_FILE))
     except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError, OSError) as error:
         # load_state_dict's message spans many lines; the first says what is wrong.
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise CheckpointError(f"{path} is not a loadable checkpoint: {reason}") from None
+        raise CheckpointError(f"{path} is not a loadable checkpoint: {first_line(error)}") from None
     return policy.eval()
 
 
