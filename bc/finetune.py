@@ -300,7 +300,7 @@ def stages(cfg: FinetuneConfig) -> list[float]:
 
 def randomization(cfg: FinetuneConfig) -> Randomization:
     try:
-        return parse_randomization(cfg.randomize, "--randomize")
+        return parse_randomization(cfg.randomize)
     except ValueError as error:
         raise UserError(str(error)) from None
 

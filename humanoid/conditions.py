@@ -44,10 +44,14 @@ SCALE_SUFFIX = "_scale"  # a drawn value is named after its parameter: mass -> m
 
 
 def check_range(name: str, bounds: Range) -> None:
-    """ValueError unless `bounds` is a finite scale range 0 <= low <= high."""
+    """ValueError, saying which rule fails, unless `bounds` is a finite scale range 0 <= low <= high."""
     low, high = bounds
-    if not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high):
-        raise ValueError(f"{name} range must be finite with 0 <= low <= high, got {low}..{high}")
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ValueError(f"{name} scales must be finite, got {low:g}:{high:g}")
+    if low < 0:
+        raise ValueError(f"{name} scales must be >= 0, got {low:g}")
+    if low > high:
+        raise ValueError(f"{name} range has low {low:g} > high {high:g}")
 
 
 @dataclass(frozen=True)
@@ -388,7 +392,6 @@ def condition(name: str) -> Condition:
 
 
 # Domain randomisation as a setting (`make record RANDOMIZE=...`; later PPO): a preset or a list of ranges.
-RANDOMIZE_FLAG = "--randomize"
 NO_RANDOMIZATION = "none"
 PRESETS: dict[str, Randomization] = {
     NO_RANDOMIZATION: Randomization(),
@@ -405,15 +408,15 @@ PRESETS: dict[str, Randomization] = {
 RANDOMIZE_EXAMPLE = "mass=0.8:1.2,friction=0.5:1.5"
 
 
-def parse_randomization(text: str, option: str = RANDOMIZE_FLAG) -> Randomization:
+def parse_randomization(text: str) -> Randomization:
     """`text` as a randomisation: a name of PRESETS ("none" randomises nothing) or a list NAME=LOW:HIGH,...
 
     NAME is a field of `Randomization` (mass, friction, strength) and LOW:HIGH the range of its
-    scale factor. ValueError, one line naming `option`, for an unknown preset or parameter, a
+    scale factor. ValueError, one line naming --randomize, for an unknown preset or parameter, a
     parameter given twice, a malformed item, a non-finite or negative scale, or LOW > HIGH.
     """
     spec = text.strip()
-    where = f"{option} {text!r}"
+    where = f"--randomize {text!r}"
     if "=" not in spec:
         if spec in PRESETS:
             return PRESETS[spec]
@@ -433,11 +436,9 @@ def parse_randomization(text: str, option: str = RANDOMIZE_FLAG) -> Randomizatio
             low, high = float(low_text), float(high_text)
         except ValueError:
             raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH with numbers LOW and HIGH") from None
-        if not (math.isfinite(low) and math.isfinite(high)):
-            raise ValueError(f"{where}: {name} scales must be finite, got {low_text}:{high_text}")
-        if low < 0:
-            raise ValueError(f"{where}: {name} scales must be >= 0, got {low:g}")
-        if low > high:
-            raise ValueError(f"{where}: {name} range has low {low:g} > high {high:g}")
+        try:
+            check_range(name, (low, high))
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
         ranges[name] = (low, high)
     return Randomization(**ranges)
