@@ -26,7 +26,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from common import keys
 from common.cli import DatasetError
 from humanoid.sensors import observation_index
-from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH
+from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
@@ -68,7 +68,7 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     """One row per committed episode: `columns`, or LeRobot's and this project's (seed, return, ...) without stats."""
     committed = read_info(root)["total_episodes"]
     wanted = None if columns is None else list(dict.fromkeys([*columns, "episode_index"]))
-    paths = sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+    paths = episode_files(root)
     if not paths:
         raise DatasetError(f"{root} has no episode metadata ({EPISODES_DIR}): no episode was committed to it")
     # Hundreds of stats/ columns per file: reading only the wanted ones is most of the speed.
@@ -99,7 +99,7 @@ def fingerprint(root: Path) -> str:
     (dataset.json), and `make pipeline` compares it with the dataset's to decide what to re-make.
     """
     info = read_info(root)
-    paths = sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+    paths = episode_files(root)
     rows = pa.concat_tables(list(_read_in_order(paths, None)), promote_options="default") if paths else None
     episodes = [] if rows is None else _rows_before(rows, "episode_index", info["total_episodes"]).to_pylist()
     episodes.sort(key=lambda row: row["episode_index"])

@@ -43,7 +43,16 @@ from common.figures import save_figure
 from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
-from teleop.lerobot_io.format import CODEBASE_VERSION, EPISODES_DIR, INFO_PATH, STATS_PATH, TASKS_PATH, read_footer
+from teleop.lerobot_io.format import (
+    CODEBASE_VERSION,
+    EPISODES_DIR,
+    INFO_PATH,
+    STATS_PATH,
+    TASKS_PATH,
+    data_files,
+    episode_files,
+    read_footer,
+)
 from teleop.mcap_io.writer import FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOLS, Spool
 from teleop.store import MCAP_DIR, mcap_name
@@ -341,7 +350,7 @@ def _open(root: Path) -> dict:
     for path in (root / TASKS_PATH, root / STATS_PATH):
         if not path.is_file():
             raise DatasetError(f"{root} has no {path.relative_to(root)}")
-    if not any((root / EPISODES_DIR).glob("*/*.parquet")):
+    if not episode_files(root):
         raise DatasetError(f"{root} has no episode metadata ({EPISODES_DIR}/*/*.parquet)")
     return info
 
@@ -480,11 +489,8 @@ def _mcap_file(path: Path) -> McapFile:
 def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Path]) -> list[str]:
     """What an interrupted recording left behind: harmless, and removed or committed by the next `make record`."""
     notes = []
-    extra_rows = (
-        sum(pq.read_metadata(path).num_rows for path in (root / EPISODES_DIR).glob("*/*.parquet"))
-        - info["total_episodes"]
-    )
-    stray_data = [path for path in (root / "data").glob("*/*.parquet") if path not in data_paths]
+    extra_rows = sum(pq.read_metadata(path).num_rows for path in episode_files(root)) - info["total_episodes"]
+    stray_data = [path for path in data_files(root) if path not in data_paths]
     stray_mcap = [path for path in (root / MCAP_DIR).glob("*.mcap") if path not in mcap_paths]
     partial = [path for path in root.rglob("*.partial") if path.parent.name not in SPOOLS]  # a spool's: below
     if extra_rows > 0 or stray_data or stray_mcap or partial:

@@ -42,6 +42,18 @@ DEFAULT_FEATURES = {
     "task_index": {"dtype": "int64", "shape": (1,), "names": None},
 }
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+
+
+def episode_files(root: Path) -> list[Path]:
+    """The episode metadata's parquet files on disk (`EPISODES_DIR`), committed or not, in order."""
+    return sorted((root / EPISODES_DIR).glob("*/*.parquet"))
+
+
+def data_files(root: Path) -> list[Path]:
+    """The frames' parquet files on disk (`DATA_DIR`), committed or not, in order."""
+    return sorted((root / DATA_DIR).glob("*/*.parquet"))
+
+
 Stats = dict[str, dict[str, np.ndarray]]
 
 
@@ -60,7 +72,7 @@ def check_destination(root: Path) -> None:
             )
         return
     # Appending to a dataset that LeRobot and training cannot read would only add episodes nobody can use.
-    for path in sorted([*(root / DATA_DIR).glob("*/*.parquet"), *(root / "meta").rglob("*.parquet")]):
+    for path in sorted([*data_files(root), *(root / INFO_PATH).parent.rglob("*.parquet")]):
         read_footer(path)
 
 

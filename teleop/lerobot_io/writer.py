@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,7 +32,6 @@ from common import keys
 from common.cli import DatasetError
 from teleop.lerobot_io.format import (
     DEFAULT_FEATURES,
-    EPISODES_DIR,
     EPISODES_PATH,
     INFO_PATH,
     STATS_PATH,
@@ -40,6 +39,8 @@ from teleop.lerobot_io.format import (
     Stats,
     aggregate_stats,
     check_destination,
+    data_files,
+    episode_files,
     episode_stats,
     flatten_stats,
     hf_features,
@@ -225,7 +226,7 @@ class LeRobotWriter:
     def episode_column(self, name: str) -> list[Any]:
         """Values of an episode-level column (e.g. `seed`) over the committed episodes that have it."""
         values = []
-        for path in _episode_files(self.root):
+        for path in episode_files(self.root):
             if name in pq.read_schema(path).names:
                 table = pq.read_table(path, columns=["episode_index", name])
                 values += [
@@ -269,17 +270,13 @@ def _empty_tasks() -> pd.DataFrame:
     return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name=keys.TASK, dtype="object"))
 
 
-def _episode_files(root: Path) -> list[Path]:
-    return sorted((root / EPISODES_DIR).glob("*/*.parquet"))
-
-
 def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
     """Delete partial files and every file of an episode >= total_episodes; the committed episode rows."""
     committed = info["total_episodes"]
     for partial in root.rglob(f"*{PARTIAL_SUFFIX}"):
         partial.unlink()
     rows: list[dict[str, Any]] = []
-    for path in _episode_files(root):
+    for path in episode_files(root):
         file_rows = pq.read_table(path).to_pylist()
         indices = [row["episode_index"] for row in file_rows]
         if min(indices) >= committed:
@@ -296,14 +293,10 @@ def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
         root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
         for row in rows
     }
-    for data_file in _data_files(root):
+    for data_file in data_files(root):
         if data_file not in referenced:
             _remove(root, data_file)
     return rows
-
-
-def _data_files(root: Path) -> Iterable[Path]:
-    return sorted((root / "data").glob("*/*.parquet"))
 
 
 def _remove(root: Path, path: Path) -> None:
