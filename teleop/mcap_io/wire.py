@@ -200,10 +200,9 @@ class StepEncoder:
         terminated: np.ndarray,
         truncated: np.ndarray,
         tasks: np.ndarray,
-        first_frame: int = 0,
     ) -> list[bytes]:
-        """Messages for T steps: (T,) times, (T, n) observation, state and actions, (T,) reward, flags and tasks;
-        frame indices from `first_frame` (a live stream sends one step at a time)."""
+        """Messages for an episode's T steps: (T,) times, (T, n) observation, state and actions, (T,) reward, flags
+        and tasks; frame indices from 0."""
         steps = len(times_ns)
         parts: list[bytes | np.ndarray] = []
         for name, values, dtype in (
@@ -221,7 +220,7 @@ class StepEncoder:
         head = self._episode_key + varint(episode_index)
         task_fields = {task: length_delimited(self._task_key, task.encode()) for task in set(tasks.tolist())}
         return [
-            stamp + head + self._frame_key + varint(first_frame + t) + row.tobytes() + task_fields[task]
+            stamp + head + self._frame_key + varint(t) + row.tobytes() + task_fields[task]
             for t, (stamp, row, task) in enumerate(
                 zip(timestamp_fields(self._timestamp_key, times_ns), rows, tasks.tolist(), strict=True)
             )
