@@ -42,7 +42,7 @@ import torch
 from stable_baselines3.common.callbacks import CallbackList
 from tqdm import tqdm
 
-from bc.dagger import OPERATOR_EPISODES, DaggerConfig
+from bc.dagger import OPERATOR_EPISODES, OPERATOR_EPOCHS, DaggerConfig
 from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from bc.ppo import resume
@@ -76,7 +76,7 @@ STUDENT_RECIPE = (
     f"`make pipeline` makes the command-conditioned student, or `make record CONTROLLER=expert-sensed SCHEDULES=1 "
     f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make dagger "
     f"INPUTS=pending+ramp EXPERT=expert-sensed ROUNDS={DaggerConfig().rounds} EPISODES={OPERATOR_EPISODES} "
-    f"NOISE={SENSED_NOISE} "
+    f"EPOCHS={OPERATOR_EPOCHS} NOISE={SENSED_NOISE} "
     f"DATASET={paths.OPERATOR_DATASET} OUTPUT={paths.OPERATOR_DAGGER_DATASET} POLICY={paths.DAGGER_STUDENT_POLICY}`"
 )
 """How to make the default BC checkpoint, said when it is missing."""
@@ -207,7 +207,7 @@ class FinetuneConfig:
         "episodes of the final evaluation (seeds 1000...); 0 = skip it (`make pipeline` does: its table evaluates "
         "every controller on those seeds)",
     )
-    seed: int = setting(0, "seed of PPO, the environments and the demonstration minibatches")
+    seed: int = setting(0, "seed of PPO and the environments")
     update_threads: int = setting(
         0,
         "torch threads of PPO's updates (0: one per core; the workers are idle then). "

@@ -139,6 +139,7 @@ TARGETS: dict[str, Target] = {
             "noise",
             "rounds",
             "episodes",
+            "epochs",
             "workers",
             "seed",
             "overwrite",

@@ -26,7 +26,7 @@ request/answer child that goes on serving) is raised in the parent as the except
 the child's traceback as a note, so that a caller can catch it as it would in-process.
 
 Shutdown, one path: `close` ends the child's input and stops reading its output, so a child waiting
-for a message or blocked on sending one returns, then waits `close_timeout` seconds for it to exit
+for a message or blocked on sending one returns, then waits `timeout` seconds (`CLOSE_TIMEOUT`) for it to exit
 and kills it after that (or at once with `kill=True`); it reaps the child and is idempotent, and
 `with Worker(...)` closes on exit. A child ignores Ctrl-C by default (it reaches the whole process
 group; the parent decides what stops). With `outlives_parent` a child is not a daemon, keeps doing

@@ -93,7 +93,7 @@ class Posture:
         "twist": 0.1,
         "arms": 1.0,
     }
-    """One key press's change of each field (`teleop.keyboard`: four to six presses reach the limits), and the grid
+    """One key press's change of each field (`teleop.keyboard`: three to nine presses reach the limits), and the grid
     that scripted schedules draw from (`humanoid.commands`), so both ask for the same postures."""
 
     def clipped(self) -> Posture:

@@ -66,7 +66,7 @@ STEP_ARRAYS = ("observations", "actions", "rewards", "episode_starts", "values",
 
 
 def without_optimiser(policy: ActorCriticPolicy) -> ActorCriticPolicy:
-    """A copy of `policy` to act with: no optimiser, nor its arguments (which may hold the demonstrations)."""
+    """A copy of `policy` to act with, light to send to the workers: no optimiser, nor its arguments."""
     saved = policy.optimizer, policy.optimizer_kwargs
     policy.optimizer, policy.optimizer_kwargs = None, {}
     try:
