@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import shutil
 import sys
 import time
@@ -43,9 +42,19 @@ import numpy as np
 from tqdm import tqdm
 
 from bc.data import Demonstrations, cache_demonstrations, episode_rows, load_demonstrations
-from bc.train import MIN_UPDATES, TrainConfig, TrainResult, fit_demonstrations, train_and_save
+from bc.train import MIN_UPDATES, TrainConfig, TrainResult, check_taught, fit_demonstrations, train_and_save
 from common import keys, paths
-from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
+from common.cli import (
+    DatasetError,
+    UserError,
+    check_non_negative,
+    check_positive,
+    check_share,
+    config_dict,
+    flag,
+    run_cli,
+    setting,
+)
 from common.workers import default_workers
 from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
@@ -53,6 +62,7 @@ from humanoid.env import make_env, nominal_model
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS, input_set
 from policies import checkpoint
+from policies.folder import json_object
 from policies.mlp import MLPPolicy
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
@@ -166,12 +176,8 @@ class DaggerResult:
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
     input_set(cfg.inputs)
-    for name in ("rounds", "episodes", "epochs", *(("workers",) if cfg.workers is not None else ())):
-        if getattr(cfg, name) <= 0:
-            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    for name in ("patience", "min_updates", "eval_episodes", "noise", "seed"):
-        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
-            raise UserError(f"{flag(name)} must be >= 0, got {getattr(cfg, name)}")
+    check_positive(cfg, "rounds", "episodes", "epochs", "workers")
+    check_non_negative(cfg, "patience", "min_updates", "eval_episodes", "noise", "seed")
     if cfg.latency is not None:
         check_share(cfg, "latency")
     if cfg.randomize is not None:
@@ -212,12 +218,13 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
     """`cfg` with RANDOMIZE and LATENCY filled in from the aggregate's recordings where not given; DatasetError if
     its episodes draw other parameters than rollouts under them would (the store could not append them)."""
     root = cfg.output if cfg.output.exists() else cfg.dataset
-    randomize, latency = recorded_conditions(root)
-    cfg = dataclasses.replace(
-        cfg,
-        randomize=randomize if cfg.randomize is None else cfg.randomize,
-        latency=latency if cfg.latency is None else cfg.latency,
-    )
+    if cfg.randomize is None or cfg.latency is None:  # given, they stand: the drawn parameters are checked below
+        randomize, latency = recorded_conditions(root)
+        cfg = dataclasses.replace(
+            cfg,
+            randomize=randomize if cfg.randomize is None else cfg.randomize,
+            latency=latency if cfg.latency is None else cfg.latency,
+        )
     episodes = read_parameters(root)
     drawn = set(episodes[0]) if episodes else set()
     rolled = set(recorded_parameters(parse_randomization(cfg.randomize), cfg.latency))
@@ -254,11 +261,7 @@ def copy_demonstrations(cfg: DaggerConfig, made_by: str) -> None:
 
 def copied_from(output: Path) -> dict[str, Any]:
     """OUTPUT's SOURCE_FILE; {} if it has none (a copy made before it existed, or no DAgger copy)."""
-    try:
-        source = json.loads((output / SOURCE_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
-    return source if isinstance(source, dict) else {}
+    return json_object(output / SOURCE_FILE)
 
 
 def check_resume(cfg: DaggerConfig) -> None:
@@ -405,6 +408,8 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
     cfg = resolved(cfg)
+    # What train-bc refuses (inputs the data cannot teach), before any copy or rollout rather than at the first fit.
+    check_taught(TrainConfig(dataset=cfg.output if cfg.output.exists() else cfg.dataset, inputs=cfg.inputs))
     if not cfg.output.exists():
         copy_demonstrations(cfg, made_by)
     check_resume(cfg)

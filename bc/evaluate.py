@@ -38,7 +38,7 @@ import torch
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, config_dict, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, run_cli, setting
 from common.figures import save_figure
 from common.threads import one_blas_thread
 from common.workers import forkserver_context
@@ -86,15 +86,12 @@ class EvalConfig:
 
 def validate(cfg: EvalConfig) -> None:
     """Reject bad settings before anything runs."""
-    if cfg.episodes <= 0:
-        raise UserError(f"--episodes must be positive, got {cfg.episodes}")
+    check_positive(cfg, "episodes")
     check_port(cfg.live_port)
-    if cfg.seed < 0:
-        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
+    check_non_negative(cfg, "seed")
     if not (math.isfinite(cfg.push) and cfg.push >= 0):
         raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
-    if not (math.isfinite(cfg.noise) and cfg.noise >= 0):
-        raise UserError(f"--noise must be >= 0, got {cfg.noise}")
+    check_non_negative(cfg, "noise")
     if cfg.condition not in SUITE:
         raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")
     if cfg.condition != "clean" and (cfg.push or cfg.noise):

@@ -34,7 +34,7 @@ import numpy as np
 
 from bc.evaluate import EVAL_SEED, evaluate
 from common import keys, paths
-from common.cli import DatasetError, UserError, run_cli, setting
+from common.cli import DatasetError, UserError, check_non_negative, check_positive, run_cli, setting
 from common.keys import COMMAND_NAMES
 from humanoid.env import ENV_ID, make_env
 from humanoid.posture import Posture
@@ -128,8 +128,8 @@ def to_minari(transitions: list[Transitions], with_command: bool = False) -> lis
 
 
 def validate(cfg: ExportConfig) -> None:
-    if cfg.reference_episodes <= 0:
-        raise UserError(f"--reference-episodes must be positive, got {cfg.reference_episodes}")
+    check_positive(cfg, "reference_episodes")
+    check_non_negative(cfg, "seed")
     if not (cfg.dataset / INFO_PATH).is_file():
         raise DatasetError(f"no recorded dataset at {cfg.dataset} (no {INFO_PATH})")
     what = "a Minari datasets root" if cfg.format == MINARI else "a LeRobot dataset"

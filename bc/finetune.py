@@ -47,13 +47,13 @@ from bc.data import load_demonstrations
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from bc.ppo import resume
 from bc.ppo.curriculum import PushCurriculum, parse_stages, stage_width
-from bc.ppo.evaluator import CURVE_FILE, CURVE_PNG, Evaluator, falls_back, plot_curves, selection_score
+from bc.ppo.evaluator import CURVE_FILE, Evaluator, falls_back, plot_curves, selection_score
 from bc.ppo.guards import Guards
 from bc.ppo.learner import build_model, fresh_actor, make_vec_env
 from bc.ppo.rollouts import WorkerRolloutPPO
 from bc.ppo.vec_env import WorkerGroupVecEnv
 from common import paths
-from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
 from common.ray_backend import BACKENDS, check_backend
 from common.workers import default_workers
 from humanoid.conditions import Randomization, parse_randomization
@@ -64,6 +64,7 @@ from policies import checkpoint
 from policies.folder import (
     DATASET_FILE,
     EVAL_FILE,
+    LEARNING_CURVE_FILE,
     TENSORBOARD_DIR,
     WEIGHTS_FILE,
     finished_with,
@@ -240,7 +241,8 @@ def workers(cfg: FinetuneConfig) -> int:
 
 def validate(cfg: FinetuneConfig) -> None:
     """Reject bad settings before anything is read or written; messages name the flags."""
-    for name in (
+    check_positive(
+        cfg,
         "timesteps",
         "envs",
         "rollout_steps",
@@ -254,27 +256,14 @@ def validate(cfg: FinetuneConfig) -> None:
         "tracking_width",
         "clip_range",
         "curriculum_episodes",
-    ):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{flag(name)} must be positive, got {value}")
+    )
     if cfg.batch_size < 2:  # PPO normalises each minibatch's advantages: one sample has no spread
         raise UserError(f"--batch-size must be at least 2, got {cfg.batch_size}")
-    if cfg.seed < 0:
-        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
     if workers(cfg) <= 0:
         raise UserError(f"--workers must be positive, got {workers(cfg)}")
-    for name in (
-        "push",
-        "target_kl",
-        "critic_warmup",
-        "final_eval_episodes",
-        "update_threads",
-        "tracking_weight",
-    ):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value >= 0):
-            raise UserError(f"{flag(name)} must be >= 0, got {value}")
+    check_non_negative(
+        cfg, "push", "target_kl", "critic_warmup", "final_eval_episodes", "update_threads", "tracking_weight", "seed"
+    )
     check_backend(cfg.backend, cfg.ray_address)
     if workers(cfg) > cfg.envs:
         raise UserError(f"--workers ({workers(cfg)}) must not exceed --envs ({cfg.envs})")
@@ -503,7 +492,7 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
                 bar.update(model.num_timesteps)
                 print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
             snapshots = resume.Snapshots(folder, evaluator, settings, saved, curriculum)
-            start = time.perf_counter()
+            start, started_at = time.perf_counter(), model.num_timesteps  # past 0 when resumed
             model.learn(
                 total_timesteps=cfg.timesteps - model.num_timesteps,
                 # The curriculum after the guards (both act at a rollout's end) and before the snapshots.
@@ -526,31 +515,36 @@ def main(cfg: FinetuneConfig, made_by: str = "bc.finetune") -> dict[str, Any]:
             bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
             figures = {
                 "timesteps": steps,
-                "seconds": seconds,
-                "steps_per_s": steps / seconds,
+                "seconds": seconds,  # this process's: a resumed run's from where it resumed
+                "steps_per_s": (model.num_timesteps - started_at) / seconds,
+                "resumed_at": started_at,
                 "bc_mean_return": None if bc is None else bc.get("mean_return"),  # none if its evaluation was skipped
                 "expert_mean_return": None if bc is None else bc.get("expert_mean_return"),
                 "training_curve": evaluator.curve,
                 "kept": kept,
             }
+            plot_training(cfg, evaluator.curve, folder / LEARNING_CURVE_FILE)
             # Published with the weights: a kill during the final evaluation leaves a finished run (`finished_result`).
             checkpoint.write_json(folder / EVAL_FILE, figures)
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
-        result = final_evaluation(cfg, schedules, figures, pool)
+        return final_evaluation(cfg, schedules, figures, pool)
+
+
+def plot_training(cfg: FinetuneConfig, curve: list[dict[str, Any]], path: Path) -> None:
+    """The run's validation curve at `path`, beside scratch's (BASELINE's, if it has one) when fine-tuning."""
     fine_tuning = not cfg.fresh
-    curves = {"PPO fine-tuning" if fine_tuning else "PPO from scratch": evaluator.curve}
+    curves = {"PPO fine-tuning" if fine_tuning else "PPO from scratch": curve}
     baseline_curve = cfg.baseline / CURVE_FILE
     if cfg.baseline.resolve() != cfg.policy.resolve() and baseline_curve.is_file():
         curves["PPO from scratch"] = json.loads(baseline_curve.read_text())
     plot_curves(
         curves,
-        evaluator.curve[0]["mean_return"] if fine_tuning else None,
+        curve[0]["mean_return"] if fine_tuning else None,
         f"{cfg.policy.name}: validation on seeds {VALIDATION_SEED}.."
         f"{VALIDATION_SEED + cfg.eval_episodes - 1}"
         f"{f', {validation_push(cfg):g} N pushes' if validation_push(cfg) else ''}",
-        cfg.policy / CURVE_PNG,
+        path,
     )
-    return result
 
 
 def print_summary(cfg: FinetuneConfig, result: dict[str, Any]) -> None:

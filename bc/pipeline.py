@@ -63,6 +63,7 @@ import shutil
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -249,6 +250,11 @@ def check(cfg: PipelineConfig) -> list[str]:
         )
     if cfg.robustness_episodes < 1:
         raise UserError(f"--robustness-episodes must be at least 1, got {cfg.robustness_episodes}")
+    if cfg.latency == 0:  # what `bc.train.check_taught` would refuse after the recording
+        raise UserError(
+            f"--latency 0: the students read {BLIND_INPUTS}'s inputs, which learn to act through action latency, and "
+            "a recording without it never shows it: give a share above 0"
+        )
     return robustness.selected(RobustnessConfig(conditions=cfg.conditions))
 
 
@@ -315,13 +321,16 @@ def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) 
     module = f"python -m {config_class.__module__}"
     printed = io.StringIO()
     try:
-        with contextlib.redirect_stderr(printed):  # argparse's usage and message: the one line below says why
+        # argparse's usage and message (or its help): the one line below says why
+        with contextlib.redirect_stderr(printed), contextlib.redirect_stdout(printed):
             given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
     except ValueError as error:  # shlex: an unclosed quote
         raise UserError(f"--args {args!r}: {error}") from None
     except UserError as error:  # a removed flag or value (`common.cli.REMOVED_FLAGS`)
         raise UserError(f"--args {args!r}: {error}") from None
-    except SystemExit:  # an unknown flag, a bad value
+    except SystemExit as error:  # an unknown flag, a bad value; --help
+        if error.code == 0:
+            raise UserError(f"--args {args!r}: the flags it takes are `{module} --help`'s") from None
         why = printed.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
         raise UserError(f"--args {args!r} holds something other than flags of {module}: {why}") from None
     defaults = config_class()
@@ -485,26 +494,25 @@ def checkpoint_decision(
     )
 
 
+def dataset_fingerprint(root: Path) -> str | None:
+    """The fingerprint of the dataset at `root` (`teleop.dataset_reader.fingerprint`), or None where there is none."""
+    return fingerprint(root) if (root / INFO_PATH).is_file() else None
+
+
 def bc_decision(
     cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False, option: str = "--bc-policy"
 ) -> Decision:
     """A train-bc stage's decision: its input is the dataset, identified by its fingerprint."""
-
-    def current() -> str | None:
-        return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
-
     saved = json_object(cfg.policy / DATASET_FILE).get("fingerprint")
+    current = partial(dataset_fingerprint, cfg.dataset)
     return checkpoint_decision(cfg, "training", option, "dataset", saved, current, overwrite, dataset_remade)
 
 
 def dagger_decision(cfg: DaggerConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
     """The DAgger stage's decision: its input is the dataset, identified by the fingerprint the checkpoint records
     (`demonstrations`: of the copy its aggregate began as)."""
-
-    def current() -> str | None:
-        return fingerprint(cfg.dataset) if (cfg.dataset / INFO_PATH).is_file() else None
-
     saved = training_settings(cfg.policy).get("demonstrations")
+    current = partial(dataset_fingerprint, cfg.dataset)
     return checkpoint_decision(
         cfg, "DAgger", "--dagger-policy", "dataset", saved, current, overwrite, dataset_remade, settings_key="dagger"
     )
@@ -518,7 +526,8 @@ def aggregate_problem(cfg: DaggerConfig) -> str | None:
     source = bc_dagger.copied_from(cfg.output)
     if not source:
         return f"has no {bc_dagger.SOURCE_FILE} saying which demonstrations it copied"
-    if not (cfg.dataset / INFO_PATH).is_file() or source.get("fingerprint") != fingerprint(cfg.dataset):
+    now = dataset_fingerprint(cfg.dataset)
+    if now is None or source.get("fingerprint") != now:
         return f"is a copy of another dataset than {cfg.dataset} now"
     killed = recordings.marked(cfg.output)
     runs = [line for line in recordings.read(cfg.output) if bc_dagger.is_dagger_run(line)]

@@ -9,8 +9,19 @@ from common.keys import COMMAND_NAMES
 from humanoid.commands import tracking_score
 
 
+def survivors(row: dict[str, Any]) -> int:
+    """Episodes of an evaluation (`bc.evaluate.evaluate`'s result, a suite's condition) that ran to the end."""
+    return round(row["survival_rate"] * row["episodes"])
+
+
+def mean_return(result: dict[str, Any]) -> float:
+    """A suite's mean return over its conditions (`bc.robustness`'s result): what "× scratch" compares."""
+    conditions = result["conditions"]
+    return sum(c["mean_return"] for c in conditions.values()) / len(conditions)
+
+
 def _survivors(row: dict[str, Any]) -> str:
-    return f"{round(row['survival_rate'] * row['episodes'])}/{row['episodes']}"
+    return f"{survivors(row)}/{row['episodes']}"
 
 
 def _number(value: float, digits: int) -> str:
@@ -31,8 +42,9 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
     for controller, result in tracked.items():
         conditions = result["conditions"]
         cells = [f"{_survivors(c)} · {tracking_score(c['tracking']):.2f}" for c in conditions.values()]
-        mean_return = sum(c["mean_return"] for c in conditions.values()) / len(conditions)
-        rows.append(f"| {controller} | {_survivors(standing[controller])} | {' | '.join(cells)} | {mean_return:,.1f} |")
+        rows.append(
+            f"| {controller} | {_survivors(standing[controller])} | {' | '.join(cells)} | {mean_return(result):,.1f} |"
+        )
     seeds = first["seeds"]
     rows += [
         "",

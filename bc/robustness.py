@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool, init_worker
 from common import paths
-from common.cli import UserError, config_dict, flag, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
 from common.figures import save_figure
 from common.keys import COMMAND_NAMES
 from common.workers import default_workers
@@ -89,11 +89,8 @@ def selected(cfg: RobustnessConfig) -> list[str]:
 
 def validate(cfg: RobustnessConfig) -> list[str]:
     """Reject bad settings before anything runs; returns the conditions to run."""
-    for name in ("episodes", "workers"):
-        if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
-            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    if cfg.seed < 0:
-        raise UserError(f"--seed must be >= 0, got {cfg.seed}")
+    check_positive(cfg, "episodes", "workers")
+    check_non_negative(cfg, "seed")
     try:
         check_controller(cfg.policy, interactive=False)
     except ValueError as error:

@@ -36,13 +36,22 @@ from tqdm import tqdm
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
 from common import keys, paths
-from common.cli import DatasetError, UserError, config_dict, config_text, flag, run_cli, setting
+from common.cli import (
+    DatasetError,
+    UserError,
+    check_non_negative,
+    check_positive,
+    config_dict,
+    config_text,
+    run_cli,
+    setting,
+)
 from common.figures import save_figure
 from common.workers import available_cores, default_workers
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
 from policies import checkpoint
-from policies.folder import CONFIG_TAG, EVAL_FILE, TENSORBOARD_DIR
+from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
 from teleop.dataset_reader import read_frames
 
@@ -51,7 +60,6 @@ LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
     "l1": F.l1_loss,
     "huber": F.smooth_l1_loss,
 }
-LEARNING_CURVE_FILE = "learning_curve.png"
 
 
 MIN_UPDATES = 5000
@@ -179,14 +187,8 @@ class TrainResult:
 def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
     input_set(cfg.inputs)
-    for name in ("hidden", "layers", "batch_size", "epochs", "lr", "std_floor"):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{flag(name)} must be positive, got {value}")
-    for name in ("weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed", "seed"):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value >= 0):
-            raise UserError(f"{flag(name)} must be >= 0, got {value}")
+    check_positive(cfg, "hidden", "layers", "batch_size", "epochs", "lr", "std_floor")
+    check_non_negative(cfg, "weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed", "seed")
     if not 0 < cfg.val_fraction < 1:
         raise UserError(f"--val-fraction must be between 0 and 1, got {cfg.val_fraction}")
 

@@ -20,7 +20,6 @@ and end), the choice and the measured result are in docs/log.md, "The tutorial's
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -39,7 +38,7 @@ from tqdm import tqdm
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.finetune import FinetuneConfig
 from common import paths
-from common.cli import UserError, config_dict, config_text, flag, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, config_text, flag, run_cli, setting
 from humanoid.env import make_env
 from humanoid.inputs import FullInputs
 from policies import checkpoint
@@ -47,6 +46,8 @@ from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSOR
 from policies.mlp import MLPPolicy, MLPSpec
 
 LEARNERS = ("preferred", "ppo")
+MADE_BY = "bc.tutorial"
+"""Who a run names as its maker in config.json (`make tutorial-rl`; outside `make pipeline`)."""
 LOG_EVERY = 2048  # steps between the preferred learner's TensorBoard points: one SB3 PPO rollout
 
 
@@ -78,10 +79,10 @@ class TutorialConfig:
     """PPO: entropy coefficient (the tutorial's)."""
 
 
-def run_settings(cfg: TutorialConfig, made_by: str) -> dict[str, Any]:
+def run_settings(cfg: TutorialConfig) -> dict[str, Any]:
     """What a run saves as its settings: every field, the fixed values and who ran it."""
     fixed = {name: getattr(cfg, name) for name in ("step_size", "noise_start", "noise_end", "ent_coef")}
-    return {**config_dict(cfg), **fixed, "made_by": made_by}
+    return {**config_dict(cfg), **fixed, "made_by": MADE_BY}
 
 
 def selected(cfg: TutorialConfig) -> list[str]:
@@ -94,10 +95,8 @@ def selected(cfg: TutorialConfig) -> list[str]:
 
 def validate(cfg: TutorialConfig) -> list[str]:
     """The learners to run; UserError in one line for a bad setting."""
-    for name in ("timesteps", "learning_rate", "final_eval_episodes"):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{flag(name)} must be positive, got {value}")
+    check_positive(cfg, "timesteps", "learning_rate", "final_eval_episodes")
+    check_non_negative(cfg, "seed")
     return selected(cfg)
 
 
@@ -189,7 +188,8 @@ class PreferredActionLearner:
         return policy
 
 
-def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
+def train_preferred(cfg: TutorialConfig, settings: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """Train the preferred-action learner and save its checkpoint into `folder`; its figures."""
     env = make_env()
     learner = PreferredActionLearner(
         env.action_space.low,
@@ -200,41 +200,40 @@ def train_preferred(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, 
         cfg.timesteps,
         cfg.seed,
     )
-    with checkpoint.staged(cfg.preferred_policy, cfg.overwrite) as folder:
-        start = time.perf_counter()
-        with progress_bar(cfg.timesteps, "preferred action", cfg.progress) as bar, tensorboard(folder) as writer:
-            writer.add_text(CONFIG_TAG, config_text(settings), 0)
-            stats = learner.train(env, cfg.timesteps, cfg.seed, bar, writer)
-        env.close()
-        seconds = time.perf_counter() - start
-        record = {**settings, "learner": "preferred", "seconds": seconds, **stats, "mean_action": learner.mean.tolist()}
-        checkpoint.save(learner.policy(), folder, record, {})
+    start = time.perf_counter()
+    with progress_bar(cfg.timesteps, "preferred action", cfg.progress) as bar, tensorboard(folder) as writer:
+        writer.add_text(CONFIG_TAG, config_text(settings), 0)
+        stats = learner.train(env, cfg.timesteps, cfg.seed, bar, writer)
+    env.close()
+    seconds = time.perf_counter() - start
+    record = {**settings, "learner": "preferred", "seconds": seconds, **stats, "mean_action": learner.mean.tolist()}
+    checkpoint.save(learner.policy(), folder, record, {})
     return {"seconds": seconds, **stats}
 
 
-def train_ppo(cfg: TutorialConfig, settings: dict[str, Any]) -> dict[str, Any]:
+def train_ppo(cfg: TutorialConfig, settings: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """Train SB3's PPO as the tutorial does and save it into `folder`; its figures."""
     torch.set_num_threads(1)  # one environment in-process: SB3's own default set-up, as the tutorial runs it
-    with checkpoint.staged(cfg.ppo_policy, cfg.overwrite) as folder:
-        model = PPO(
-            "MlpPolicy",
-            make_env(),
-            learning_rate=cfg.learning_rate,
-            ent_coef=cfg.ent_coef,
-            seed=cfg.seed,
-            device="cpu",
-            verbose=0,
-            # Also keeps SB3 from making an empty log folder under /tmp, as it does without one.
-            tensorboard_log=str(folder / TENSORBOARD_DIR),
-        )
-        start = time.perf_counter()
-        callback = ProgressBar(cfg.timesteps, cfg.progress, settings)
-        model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=callback, tb_log_name="ppo")
-        seconds = time.perf_counter() - start
-        model.save(folder / SB3_FILE)
-        checkpoint.write_json(
-            folder / CONFIG_FILE,
-            {"format": "stable-baselines3/PPO", "training": {**settings, "learner": "ppo", "seconds": seconds}},
-        )
+    model = PPO(
+        "MlpPolicy",
+        make_env(),
+        learning_rate=cfg.learning_rate,
+        ent_coef=cfg.ent_coef,
+        seed=cfg.seed,
+        device="cpu",
+        verbose=0,
+        # Also keeps SB3 from making an empty log folder under /tmp, as it does without one.
+        tensorboard_log=str(folder / TENSORBOARD_DIR),
+    )
+    start = time.perf_counter()
+    callback = ProgressBar(cfg.timesteps, cfg.progress, settings)
+    model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=callback, tb_log_name="ppo")
+    seconds = time.perf_counter() - start
+    model.save(folder / SB3_FILE)
+    checkpoint.write_json(
+        folder / CONFIG_FILE,
+        {"format": "stable-baselines3/PPO", "training": {**settings, "learner": "ppo", "seconds": seconds}},
+    )
     return {"seconds": seconds}
 
 
@@ -268,10 +267,10 @@ def folder_of(cfg: TutorialConfig, learner: str) -> Path:
     return cfg.preferred_policy if learner == "preferred" else cfg.ppo_policy
 
 
-def plan(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, bool]:
+def plan(cfg: TutorialConfig) -> dict[str, bool]:
     """{learner: whether its folder holds this run, finished (reused)}; CheckpointError in one line, before any
     work, for a folder holding another run that may not be replaced (no `overwrite`) or not a policy at all."""
-    settings = run_settings(cfg, made_by)
+    settings = run_settings(cfg)
     reuse = {}
     for learner in validate(cfg):
         folder = folder_of(cfg, learner)
@@ -281,22 +280,24 @@ def plan(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, bool]:
     return reuse
 
 
-def main(cfg: TutorialConfig, made_by: str = "bc.tutorial") -> dict[str, dict[str, Any]]:
+def main(cfg: TutorialConfig) -> dict[str, dict[str, Any]]:
     """Train each selected learner (unless its folder holds this run, finished: reused), evaluate it on seeds
     1000..; returns {learner: final evaluation}, also written to each folder's eval.json. `overwrite` lets a
     folder holding another run be replaced."""
-    settings = run_settings(cfg, made_by)
+    settings = run_settings(cfg)
     results = {}
-    for learner, reuse in plan(cfg, made_by).items():
+    for learner, reuse in plan(cfg).items():
         folder = folder_of(cfg, learner)
         if reuse:
             print(f"{folder} already holds this run, finished: not run again", file=sys.stderr)
             results[learner] = json.loads((folder / EVAL_FILE).read_text())
             continue
-        stats = TRAINERS[learner](cfg, settings)
-        result = evaluate(str(folder), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
-        result.update(timesteps=cfg.timesteps, **stats)
-        checkpoint.write_json(folder / EVAL_FILE, result)
+        # Trained and evaluated before it is published: a kill in the evaluation costs no finished training.
+        with checkpoint.staged(folder, cfg.overwrite) as staging:
+            stats = TRAINERS[learner](cfg, settings, staging)
+            result = evaluate(str(staging), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
+            result.update(policy=str(folder), timesteps=cfg.timesteps, **stats)
+            checkpoint.write_json(staging / EVAL_FILE, result)
         results[learner] = result
     return results
 

@@ -28,11 +28,19 @@ from bc.dagger import main as dagger
 from bc.evaluate import evaluate
 from bc.train import TrainConfig
 from bc.train import main as train
+from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import RecordConfig
 from teleop.record import main as record
 
 CONDITIONS = {"clean": {}, "NOISE=0.05": {"noise": 0.05}, "PUSH=10": {"push": 10.0}}
 RESULTS = Path("bench/results")
+"""Where the benchmarks keep what they record and train (git-ignored)."""
+
+
+def dart_policy(noise: float) -> Path:
+    """The BC policy this benchmark trains on demonstrations at DART `noise`: the PPO benchmarks' start."""
+    return RESULTS / "policies" / f"bc_dart_{noise:g}"
+
 
 # One load in a fresh process, as `bc.train` does it: no memory or imports left warm by an earlier load.
 _LOAD_ONCE = (
@@ -63,9 +71,9 @@ def cell(evaluation: dict[str, Any]) -> str:
 def bench_noise(noise: float, episodes: int, repeats: int) -> tuple[str, str]:
     """The DART-table row and the timing row of BC trained on demonstrations recorded at `noise`."""
     root = RESULTS / "data" / f"dart_{noise:g}"
-    if not (root / "meta/info.json").exists():
+    if not (root / INFO_PATH).exists():
         record(RecordConfig(dataset=root, episodes=episodes, seed=0, noise=noise, progress=False))
-    policy = RESULTS / "policies" / f"bc_dart_{noise:g}"
+    policy = dart_policy(noise)
     loading = loading_rows_per_s(root, repeats)
     start = time.perf_counter()
     trained = train(TrainConfig(dataset=root, policy=policy, overwrite=True, eval_episodes=0, progress=False))

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import statistics
 import tempfile
 from pathlib import Path
 
 from bc.dagger import main
+from bc.finetune import weights_digest
 from bc.pipeline import PipelineConfig, stages
-from policies.folder import WEIGHTS_FILE
 from teleop.dataset_reader import fingerprint
 from teleop.record import record
 
@@ -41,7 +40,7 @@ def dagger(demonstrations: Path, folder: Path, rounds: int, episodes: int, worke
     )
     rounds_run = main(config).rounds
     rate = sum(report.frames for report in rounds_run) / sum(report.seconds for report in rounds_run)
-    weights = hashlib.sha256((config.policy / WEIGHTS_FILE).read_bytes()).hexdigest()
+    weights = weights_digest(config.policy)
     return rate, fingerprint(config.output), weights
 
 

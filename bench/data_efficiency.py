@@ -35,9 +35,11 @@ from typing import Any
 from bc.evaluate import EVAL_SEED, evaluate
 from bc.train import TrainConfig
 from bc.train import main as train
+from bench.bc_benchmark import RESULTS
 from common import keys
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_episodes
+from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import DEFAULT_NOISE, RecordConfig
 from teleop.record import main as record
 
@@ -53,7 +55,6 @@ expert's noise here, not the pipeline's lower SENSED_NOISE: from 5 and 10 demons
 recoveries from its falls at 0.05 are what made students stand (docs/log.md, "BC data efficiency")."""
 INPUTS = tuple(TEACHERS)
 EVAL_EPISODES = 20
-RESULTS = Path("bench/results")
 
 
 @dataclass
@@ -100,7 +101,7 @@ def recorded(
     Anything else in `root` (an interrupted run, other seeds) is removed first: the recorder would append to it.
     """
     wanted = list(range(first_seed, first_seed + demos))
-    if (root / "meta/info.json").exists():
+    if (root / INFO_PATH).exists():
         try:
             episodes = read_episodes(root, [keys.EPISODE_SEED, keys.EPISODE_TERMINATED]).to_pydict()
         except FileNotFoundError:  # created, nothing committed yet

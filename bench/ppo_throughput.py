@@ -25,7 +25,9 @@ from typing import Any
 
 import torch
 
-from bc.finetune import FinetuneConfig, learner, vec_env
+from bc.finetune import FinetuneConfig, follows_commands, learner, vec_env
+from bench.bc_benchmark import dart_policy
+from teleop.record import DEFAULT_NOISE
 
 
 @dataclass
@@ -52,7 +54,7 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
 def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
     torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
-    env = vec_env(config)
+    env = vec_env(config, follows_commands(config))
     try:
         model = learner(config, env)
         simulation: list[float] = []
@@ -70,7 +72,7 @@ def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     # The policy bench.bc_benchmark trains (make bench runs it first) on the default recipe.
-    parser.add_argument("--bc-policy", type=Path, default=Path("bench/results/policies/bc_dart_0.05"))
+    parser.add_argument("--bc-policy", type=Path, default=dart_policy(DEFAULT_NOISE))
     parser.add_argument("--timesteps", type=int, default=32_768)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--envs", type=int, default=FinetuneConfig.envs)

@@ -25,14 +25,13 @@ from pathlib import Path
 
 import torch
 
-from bc.finetune import FinetuneConfig, learner, vec_env
+from bc.finetune import FinetuneConfig, follows_commands, learner, vec_env
+from bench.bc_benchmark import dart_policy
 from bench.ppo_throughput import timed
-from common.ray_backend import RaySession
+from common.ray_backend import BACKENDS, RaySession
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import DEFAULT_NOISE, RecordConfig, RecordSummary
 from teleop.record import main as record
-
-BACKENDS = ("local", "ray")
 
 
 class CommitTimes(list):
@@ -70,7 +69,7 @@ def ppo(backend: str, bc_policy: Path, timesteps: int) -> tuple[float, float, fl
     config = FinetuneConfig(bc_policy=bc_policy, workers=2, backend=backend, timesteps=timesteps)
     torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
     start = time.perf_counter()
-    env = vec_env(config)
+    env = vec_env(config, follows_commands(config))
     startup = time.perf_counter() - start
     try:
         model = learner(config, env)
@@ -124,7 +123,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--repeats", type=int, default=3)
     # The policy bench.bc_benchmark trains (make bench runs it first) on the default recipe.
-    parser.add_argument("--bc-policy", type=Path, default=Path("bench/results/policies/bc_dart_0.05"))
+    parser.add_argument("--bc-policy", type=Path, default=dart_policy(DEFAULT_NOISE))
     parser.add_argument("--timesteps", type=int, default=32_768)
     args = parser.parse_args()
     frames: dict[str, list[float]] = {b: [] for b in BACKENDS}

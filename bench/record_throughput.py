@@ -13,6 +13,7 @@ noisy, so only side-by-side ratios mean something.
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing as mp
 import os
 import statistics
@@ -27,6 +28,7 @@ from typing import Any
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
+from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import DEFAULT_NOISE, RecordConfig, main
 
 
@@ -107,10 +109,11 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
         path = timed("spool write", store.spool.put, episode)
         loaded = timed("spool read", Spool.load, path)
         spec = store.spec
-        mcap_args = (
+        mcap_args = (  # as EpisodeStore.append calls it
             root / "scratch.mcap",
             loaded,
             spec.split(loaded.observation)[0],
+            spec.split(loaded.final_observation)[0],
             0,
             spec.scene,
             spec.body_frames,
@@ -153,8 +156,8 @@ class MemorySampler(threading.Thread):
 
     def run(self) -> None:
         while not self.stop.wait(0.1):
-            info = self.root / "meta/info.json"
-            committed = int(info.read_text().split('"total_episodes": ')[1].split(",")[0]) if info.exists() else 0
+            info = self.root / INFO_PATH  # written by a rename: whole whenever it is there
+            committed = json.loads(info.read_text())["total_episodes"] if info.exists() else 0
             writers = [grandchild for child in children(os.getpid()) for grandchild in children(child)]
             self.samples.append((committed, rss_mib(os.getpid()), sum(rss_mib(k) for k in writers)))
 

@@ -75,14 +75,13 @@ def spread_table(seeds: list[int], runs: list[tuple[dict[str, dict], dict[str, d
         "|---|---|" + "---|" * len(names) + "---|",
     ]
     for role in ROLES:
-        standing = [round(run[0][role]["survival_rate"] * run[0][role]["episodes"]) for run in runs]
+        standing = [report.survivors(run[0][role]) for run in runs]
         cells = []
         for name in names:
             rows = [run[1][role]["conditions"][name] for run in runs]
-            survivors = [round(row["survival_rate"] * row["episodes"]) for row in rows]
             scores = [tracking_score(row["tracking"]) for row in rows]
-            cells.append(f"{_range(survivors, 0)} · {_range(scores, 2)}")
-        returns = [sum(c["mean_return"] for c in run[1][role]["conditions"].values()) / len(names) for run in runs]
+            cells.append(f"{_range([report.survivors(row) for row in rows], 0)} · {_range(scores, 2)}")
+        returns = [report.mean_return(run[1][role]) for run in runs]
         lines.append(f"| {role} | {_range(standing, 0)} | " + " | ".join(cells) + f" | {_range(returns, 0)} |")
     return "\n".join(lines)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import types
 import typing
@@ -155,6 +156,22 @@ def setting(default: Any, help: str, **kwargs: Any) -> Any:
 def flag(name: str) -> str:
     """The command-line flag of config field `name`, for messages that tell the user what to type."""
     return "--" + name.replace("_", "-")
+
+
+def check_positive(config: Any, *names: str) -> None:
+    """UserError in one line unless each setting `names` of `config` is finite and above 0 (None, unset, passes)."""
+    for name in names:
+        value = getattr(config, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UserError(f"{flag(name)} must be positive, got {value}")
+
+
+def check_non_negative(config: Any, *names: str) -> None:
+    """UserError in one line unless each setting `names` of `config` is finite and at least 0 (None passes)."""
+    for name in names:
+        value = getattr(config, name)
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise UserError(f"{flag(name)} must be >= 0, got {value}")
 
 
 def check_share(config: Any, name: str) -> None:

@@ -118,6 +118,7 @@ def running_folder(path: Path) -> Path:
 def running(path: Path, overwrite: bool) -> Iterator[Path]:
     """Like `staged`, but the folder is always the same one and survives a failure or a kill, so that the run
     can resume from what it holds (`bc.ppo.resume`); it becomes `path` when the block succeeds."""
+    _recover(path)
     check_replaceable(path, overwrite)
     folder = running_folder(path)
     try:
@@ -128,14 +129,31 @@ def running(path: Path, overwrite: bool) -> Iterator[Path]:
     _publish(folder, path, overwrite)
 
 
+def _replaced(path: Path) -> Path:
+    """Where `_publish` moves the checkpoint it replaces until the new one is in place."""
+    return path.parent / f".{path.name}.replaced"
+
+
+def _recover(path: Path) -> None:
+    """Undo what a kill inside `_publish` left: the replaced checkpoint back at `path` if nothing took its place, else
+    removed (the new one was in place)."""
+    replaced = _replaced(path)
+    if replaced.is_dir():
+        if path.exists():
+            shutil.rmtree(replaced)
+        else:
+            replaced.rename(path)
+
+
 def _publish(folder: Path, path: Path, overwrite: bool) -> None:
     """Rename the finished `folder` to `path`, replacing what is there only if that may be replaced."""
+    _recover(path)
     check_replaceable(path, overwrite)  # something may have appeared there in the meantime
     if path.exists():
-        old = folder.with_suffix(".old")
-        path.rename(old)
+        replaced = _replaced(path)
+        path.rename(replaced)
         folder.rename(path)
-        shutil.rmtree(old)
+        shutil.rmtree(replaced)
     else:
         folder.rename(path)
 
@@ -170,6 +188,7 @@ def _remove_abandoned(path: Path) -> None:
 def staged(path: Path, overwrite: bool) -> Iterator[Path]:
     """A fresh hidden folder beside `path` to write into (named after its owner: `_remove_abandoned`); it becomes
     `path` when the block succeeds."""
+    _recover(path)
     check_replaceable(path, overwrite)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -28,7 +28,6 @@ with -9 gets its line from the next one (the mark it left, `teleop.recordings.ma
 from __future__ import annotations
 
 import logging
-import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -40,7 +39,16 @@ import numpy as np
 from tqdm import tqdm
 
 from common import keys, paths
-from common.cli import DatasetError, UserError, check_share, config_dict, flag, run_cli, setting
+from common.cli import (
+    DatasetError,
+    UserError,
+    check_non_negative,
+    check_positive,
+    check_share,
+    config_dict,
+    run_cli,
+    setting,
+)
 from common.ray_backend import BACKENDS, check_backend
 from common.workers import default_workers
 from humanoid.conditions import (
@@ -194,11 +202,8 @@ def validate(cfg: RecordConfig) -> None:
         check_controller(cfg.controller)
     except ValueError as error:
         raise UserError(str(error)) from None
-    for name in ("episodes", "max_steps", "workers"):
-        if getattr(cfg, name) is not None and getattr(cfg, name) <= 0:
-            raise UserError(f"{flag(name)} must be positive, got {getattr(cfg, name)}")
-    if not (math.isfinite(cfg.noise) and cfg.noise >= 0):
-        raise UserError(f"--noise must be >= 0, got {cfg.noise}")
+    check_positive(cfg, "episodes", "max_steps", "workers")
+    check_non_negative(cfg, "noise")
     if cfg.seed is not None and not 0 <= cfg.seed <= keys.SEED_LIMIT - cfg.episodes:
         raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)

@@ -32,6 +32,9 @@ from teleop.record import RecordConfig, main
 
 SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
 
+SMALL_BC = {"hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False, "tensorboard": False}
+"""A small BC training on the 3-episode recording: 5 passes exactly."""
+
 TINY_PPO = {
     "curriculum": "",
     "randomize": "none",

@@ -25,18 +25,21 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 
-def parse_stages(text: str, option: str = "--curriculum") -> list[float]:
-    """`text` ("10,20,40") as non-decreasing push forces in newtons, [] for 'none' or ''; ValueError naming `option`."""
+def parse_stages(text: str) -> list[float]:
+    """`text` ("10,20,40") as non-decreasing push forces in newtons, [] for 'none' or ''; ValueError naming
+    --curriculum."""
     if text.strip() in ("", "none"):
         return []
     try:
         stages = [float(part) for part in text.split(",")]
     except ValueError:
-        raise ValueError(f"{option} {text!r}: give push forces in newtons separated by commas, e.g. 10,20,40") from None
+        raise ValueError(
+            f"--curriculum {text!r}: give push forces in newtons separated by commas, e.g. 10,20,40"
+        ) from None
     if not all(0 <= force < float("inf") for force in stages):
-        raise ValueError(f"{option} {text!r}: forces must be finite and >= 0")
+        raise ValueError(f"--curriculum {text!r}: forces must be finite and >= 0")
     if any(later < earlier for earlier, later in zip(stages, stages[1:], strict=False)):
-        raise ValueError(f"{option} {text!r}: forces must not decrease")
+        raise ValueError(f"--curriculum {text!r}: forces must not decrease")
     return stages
 
 

@@ -21,7 +21,6 @@ from policies import checkpoint
 from policies.folder import CONFIG_TAG
 
 CURVE_FILE = "learning_curve.json"
-CURVE_PNG = "learning_curve.png"
 CHECKPOINTS_DIR = "checkpoints"
 
 
@@ -38,13 +37,13 @@ CLEAN_FLOOR = 0.9
 score (the RL issues' floor)."""
 
 
-def holds_floor(curve: Sequence[dict[str, float]], floor: float = CLEAN_FLOOR) -> bool:
+def holds_floor(curve: Sequence[dict[str, float]]) -> bool:
     """Whether the last evaluation's clean return (the validation return where `clean` is not evaluated), and its
-    tracking score where commands are evaluated, are at least `floor` of step 0's: what a run asks of its last actor
+    tracking score where commands are evaluated, are at least CLEAN_FLOOR of step 0's: what a run asks of its last actor
     before keeping it, else it keeps the best (docs/decisions/keep-policy.md)."""
     keys = ["clean_mean_return" if "clean_mean_return" in curve[0] else "mean_return"]
     keys += ["tracking_score"] if "tracking_score" in curve[0] else []
-    return all(curve[-1][key] >= floor * curve[0][key] for key in keys)
+    return all(curve[-1][key] >= CLEAN_FLOOR * curve[0][key] for key in keys)
 
 
 def falls_back(curve: Sequence[dict[str, float]], fresh: bool) -> bool:

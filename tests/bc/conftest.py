@@ -9,10 +9,8 @@ import pytest
 
 from bc.train import TrainConfig
 from bc.train import main as train_bc
+from support import SMALL_BC
 from teleop.record import RecordConfig, record
-
-SMALL_BC = {"hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False, "tensorboard": False}
-"""A small BC training on the 3-episode recording: 5 passes exactly."""
 
 
 @pytest.fixture(scope="session")

@@ -22,7 +22,6 @@ from safetensors.torch import load_file
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import evaluate
 from bc.train import (
-    LEARNING_CURVE_FILE,
     TrainConfig,
     TrainResult,
     cli,
@@ -171,7 +170,7 @@ def test_checkpoint_records_config_dataset_and_curves(trained: TrainResult, reco
     dataset = json.loads((folder / policy_files.DATASET_FILE).read_text())
     assert dataset["path"] == str(recorded.resolve()) and dataset["episodes"] == 3
     assert dataset["frames"] == trained.train_frames + trained.val_frames
-    assert (folder / LEARNING_CURVE_FILE).stat().st_size > 0
+    assert (folder / policy_files.LEARNING_CURVE_FILE).stat().st_size > 0
     assert list((folder / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
 
 
@@ -230,6 +229,24 @@ def test_failed_save_keeps_the_old_checkpoint(trained: TrainResult, tmp_path: Pa
         checkpoint.save(trained.policy, staging, {}, {})
         raise RuntimeError("interrupted")
     assert snapshot(folder) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
+
+
+def test_a_kill_between_the_replacements_renames_loses_no_checkpoint(trained: TrainResult, tmp_path: Path) -> None:
+    """Killed after moving the old checkpoint aside and before the new one took its place: the next run finds the old
+    one back where it was (refused without --overwrite, replaced with it), and nothing left aside."""
+    folder = tmp_path / "policy"
+    shutil.copytree(trained.policy_dir, folder)
+    before = snapshot(folder)
+    folder.rename(tmp_path / ".policy.replaced")  # what the kill leaves
+    with pytest.raises(checkpoint.CheckpointError, match="already holds a checkpoint"):
+        with checkpoint.staged(folder, overwrite=False):
+            pass
+    assert snapshot(folder) == before
+    folder.rename(tmp_path / ".policy.replaced")
+    with checkpoint.staged(folder, overwrite=True) as staging:
+        checkpoint.save(trained.policy, staging, {"new": True}, {})
+    assert json.loads((folder / policy_files.CONFIG_FILE).read_text())["training"] == {"new": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
 
 

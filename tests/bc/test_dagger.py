@@ -24,6 +24,7 @@ from bc.dagger import (
     cli,
     main,
     recorded_conditions,
+    resolved,
     settle_spool,
 )
 from bc.data import load_demonstrations
@@ -117,8 +118,9 @@ def sensed_run(dataset: Path, folder: Path, inputs: str) -> DaggerConfig:
 
 @pytest.fixture(scope="module")
 def sensed_dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One round of 2 episodes labelled by the expert on leg odometry, a "pending" student: the aggregate."""
-    config = sensed_run(recorded, tmp_path_factory.mktemp("sensed_dagger"), "pending")
+    """One round of 2 episodes labelled by the expert on leg odometry, a "proprio" student (the recording has no
+    delay for "pending" to learn from): the aggregate."""
+    config = sensed_run(recorded, tmp_path_factory.mktemp("sensed_dagger"), "proprio")
     main(config)
     return config.output
 
@@ -134,8 +136,8 @@ def test_the_sensed_expert_labels_each_episode_from_its_start(sensed_dagger: Pat
 def test_the_aggregate_loads_from_the_cache_as_computed(sensed_dagger: Path) -> None:
     """The run leaves its aggregate's rows (held in memory) in the decoded-frames cache: the next load as the student's
     inputs reads them from there, equal to the rows computed from the files."""
-    cached = load_demonstrations(sensed_dagger, make_env(), inputs="pending")
-    computed = load_demonstrations(sensed_dagger, make_env(), cache=False, inputs="pending")
+    cached = load_demonstrations(sensed_dagger, make_env(), inputs="proprio")
+    computed = load_demonstrations(sensed_dagger, make_env(), cache=False, inputs="proprio")
     assert cached.from_cache and not computed.from_cache
     torch.testing.assert_close(cached.inputs, computed.inputs, rtol=0, atol=0)
     torch.testing.assert_close(cached.actions, computed.actions, rtol=0, atol=0)
@@ -373,6 +375,20 @@ def test_recordings_under_several_conditions_need_them_given(tmp_path: Path) -> 
         recorded_conditions(root)
 
 
+def test_conditions_given_stand_whatever_the_recordings_say(recorded: Path, tmp_path: Path) -> None:
+    """RANDOMIZE and LATENCY given are not read from the recordings, which may hold several (a DAgger run under
+    other settings drawing the same parameters): only the episodes' drawn parameters are checked against them."""
+    root = tmp_path / "dataset"
+    shutil.copytree(recorded, root)
+    for index, randomize in enumerate(("mild", "suite")):  # both draw the same parameters
+        episode = CommittedEpisode(3 + index, 3 + index, 1, 0.0, False)
+        recordings.append(root, "teleop.record", {"randomize": randomize}, [episode], True)
+    given = DaggerConfig(dataset=root, output=tmp_path / "out", randomize="none", latency=0.0)
+    assert resolved(given) == given
+    with pytest.raises(DatasetError, match="several conditions"):
+        resolved(dataclasses.replace(given, latency=None))
+
+
 def test_a_merged_dataset_is_read_by_its_shards_recordings(tmp_path: Path) -> None:
     """A merge's line carries each shard's lines: their conditions are the merged dataset's."""
     root = tmp_path / "dataset"
@@ -402,6 +418,8 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
         ("--latency", "1.5"),
         ("--randomize", "heavy"),
         ("--workers", "0"),
+        ("--inputs", "pending"),  # learns to act through latency: the recording has none
+        ("--inputs", "full+command"),  # learns to follow a command: the recording's never changes
     ],
 )
 def test_bad_rollout_settings_are_refused(

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bc.evaluate import EVAL_SEED, evaluate
-from bc.export import ExportConfig, dataset_id, main
+from bc.export import ExportConfig, cli, dataset_id, main
 from common import keys
 from common.keys import COMMAND_NAMES
 from humanoid.posture import Posture
@@ -126,6 +126,14 @@ def test_existing_out_is_refused_and_left_alone(recorded: Path, tmp_path: Path) 
 def test_unknown_format_is_refused(recorded: Path, tmp_path: Path) -> None:
     run = export_cli("--dataset", str(recorded), "--out", str(tmp_path / "out"), "--format", "d4rl")
     assert run.returncode == 2 and len(run.stderr.splitlines()) == 1 and "'d4rl'" in run.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_negative_seed_is_refused_before_the_dataset_is_read(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = cli(["--dataset", str(recorded), "--out", str(tmp_path / "out"), "--seed", "-1"])
+    assert (code, capsys.readouterr().err.strip().splitlines()) == (1, ["error: --seed must be >= 0, got -1"])
     assert not (tmp_path / "out").exists()
 
 

@@ -163,8 +163,9 @@ def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
     assert snapshot(checkpoint.running_folder(broken)) == saved and not broken.exists()
     assert "resuming" in kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
     # The last resume in this process: the command's own code path, without paying for its imports once more.
-    main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
+    resumed = main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
     assert "resuming" in capsys.readouterr().err
+    assert 0 < resumed["resumed_at"] < resumed["timesteps"]  # its steps per second count the steps it ran
     for name in (policy_files.WEIGHTS_FILE, CURVE_FILE):
         assert (broken / name).read_bytes() == (reference / name).read_bytes(), name
     assert not checkpoint.running_folder(broken).exists() and not (broken / "resume.pt").exists()

@@ -556,6 +556,8 @@ def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
             "--args '--bogus' holds something other than flags of python -m bc.baseline: unrecognized",
         ),
         ({"args": "--keep last"}, "--args '--keep last': --keep was removed; the run keeps the guarded actor"),
+        ({"args": "--help"}, "--args '--help': the flags it takes are `python -m bc.baseline --help`'s"),
+        ({"latency": 0.0}, "--latency 0: the students read pending's inputs, which learn to act through action"),
     ],
 )
 def test_bad_pipeline_settings_are_refused_naming_them(settings: dict, message: str) -> None:

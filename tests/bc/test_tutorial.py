@@ -119,6 +119,7 @@ def test_a_finished_run_is_reused(trained: tuple[TutorialConfig, dict], capsys: 
         (["--learners", "preferred,dqn"], "--learners 'preferred,dqn': choose from preferred, ppo"),
         (["--timesteps", "0"], "--timesteps must be positive"),
         (["--learning-rate", "-1"], "--learning-rate must be positive"),
+        (["--seed", "-1"], "--seed must be >= 0"),
         (["--step-size", "2"], "--step-size was removed; it is fixed at the value every run used"),
     ],
 )

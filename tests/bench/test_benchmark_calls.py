@@ -1,0 +1,28 @@
+"""The benchmarks' timed calls against today's code, each on the smallest run: a benchmark whose call drifted from
+the code it times fails here, not hours into `make bench`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bc.train import TrainConfig
+from bc.train import main as train_bc
+from bench.ppo_throughput import learn
+from bench.record_throughput import cpu_per_episode
+from support import SMALL_BC
+
+pytestmark = pytest.mark.slow  # a whole episode, a whole PPO rollout: seconds
+
+
+def test_record_throughput_times_each_stage_of_an_append(tmp_path: Path) -> None:
+    costs = cpu_per_episode(1, tmp_path / "dataset")
+    assert set(costs) == {"simulate", "spool write", "spool read", "append (both formats)", "of which MCAP"}
+    assert 0 < costs["of which MCAP"] < costs["append (both formats)"]
+
+
+def test_ppo_throughput_times_one_rollout_and_its_update(recorded: Path, tmp_path: Path) -> None:
+    train_bc(TrainConfig(dataset=recorded, policy=tmp_path / "bc", **SMALL_BC))
+    run = learn(tmp_path / "bc", workers=1, envs=4, timesteps=1)
+    assert run.steps_per_s > 0 and run.simulation_s > 0 and run.update_s > 0
