@@ -41,6 +41,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import socket
 import sys
 import traceback
 from collections.abc import Callable, Iterable, Iterator
@@ -207,6 +208,27 @@ def start_server() -> None:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+def process_owner() -> str:
+    """This process as "host-pid": who holds a folder or a dataset's mark, so that another process can tell whether
+    it still runs (`owner_gone`)."""
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+def owner_gone(owner: str) -> bool:
+    """Whether `owner` (`process_owner`) is a process of this machine that no longer runs; another machine's, or one
+    that still runs, is not known to be gone."""
+    host, _, pid = owner.rpartition("-")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # another user's process
+        return False
+    return False
 
 
 def available_cores() -> int:

@@ -17,7 +17,6 @@ import glob
 import json
 import os
 import shutil
-import socket
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -29,6 +28,7 @@ from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
 from common.cli import UserError, first_line
+from common.workers import owner_gone, process_owner
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
 
@@ -158,29 +158,12 @@ def _publish(folder: Path, path: Path, overwrite: bool) -> None:
         folder.rename(path)
 
 
-def _owner() -> str:
-    """Who stages a checkpoint: this machine and process, so that a later run can tell an abandoned folder."""
-    return f"{socket.gethostname()}-{os.getpid()}"
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)  # signal 0: only asks whether the process exists
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
 def _remove_abandoned(path: Path) -> None:
     """Remove the staging folders of `path` (`staged`) whose run is gone (killed before it could clean up): those of
     a process of this machine that no longer runs. Another machine's, a live run's, or an unnamed one stays."""
-    prefix, host = f".{path.name}.", socket.gethostname()
+    prefix = f".{path.name}."
     for folder in path.parent.glob(f"{glob.escape(prefix)}*{STAGING_SUFFIX}"):
-        owner = folder.name.removeprefix(prefix).removesuffix(STAGING_SUFFIX).rpartition(".")[0]
-        owner_host, _, pid = owner.rpartition("-")
-        if owner_host == host and pid.isdigit() and not _alive(int(pid)):
+        if owner_gone(folder.name.removeprefix(prefix).removesuffix(STAGING_SUFFIX).rpartition(".")[0]):
             shutil.rmtree(folder, ignore_errors=True)
 
 
@@ -194,7 +177,7 @@ def staged(path: Path, overwrite: bool) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_abandoned(path)
         # Not tempfile.mkdtemp: its 0700 mode would stay on the published checkpoint.
-        staging = path.parent / f".{path.name}.{_owner()}.{uuid.uuid4().hex[:8]}{STAGING_SUFFIX}"
+        staging = path.parent / f".{path.name}.{process_owner()}.{uuid.uuid4().hex[:8]}{STAGING_SUFFIX}"
         staging.mkdir()
     except OSError as error:
         raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None

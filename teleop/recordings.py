@@ -24,11 +24,14 @@ import datetime
 import json
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
+
+from common.workers import owner_gone, process_owner
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +41,8 @@ SESSIONS_KEY = "sessions"
 RUN_FILE = ".run.json"
 """The mark of a run writing episodes into the dataset (`mark`); a dataset copied for another run leaves it out
 (and its staging file, `RUN_FILE` + ".partial")."""
+MARK_WAIT = 5.0
+"""Seconds a run starting on a dataset waits for the line of a run that let the dataset go but still runs."""
 
 
 class Committed(Protocol):
@@ -126,7 +131,14 @@ def mark(root: Path, made_by: str, config: dict[str, Any], episodes: int, extra:
     """Mark `root` as written by this run, which found `episodes` episodes there; atomic, so a kill leaves the old
     mark or the new one."""
     staging = root / (RUN_FILE + ".partial")
-    mark = {"made_by": made_by, "time": _now(), "config": config, "episodes": episodes, "extra": extra or {}}
+    mark = {
+        "made_by": made_by,
+        "time": _now(),
+        "config": config,
+        "episodes": episodes,
+        "extra": extra or {},
+        "owner": process_owner(),
+    }
     staging.write_text(json.dumps(mark, default=str))
     os.replace(staging, root / RUN_FILE)
 
@@ -172,11 +184,24 @@ def take_over(
     extra: dict[str, Any] | None = None,
 ) -> None:
     """Under `root`'s lock, as a run starts on its `episodes` episodes: the line of a run killed there, if it added
-    any (`seeds()` as for `sessions`), then this run's mark."""
+    any (`seeds()` as for `sessions`), then this run's mark. A mark whose run still runs here is that of a run that
+    let the dataset go and is writing its line (`teleop.record` does after closing it): waited for, up to
+    MARK_WAIT seconds, rather than logged as killed."""
     killed = marked(root)
+    deadline = time.monotonic() + MARK_WAIT
+    while killed is not None and _finishing(killed) and time.monotonic() < deadline:
+        time.sleep(0.02)
+        killed = marked(root)
     if killed is not None and episodes > killed["episodes"]:
         log_killed(root, killed, seeds())
     mark(root, made_by, config, episodes, extra)
+
+
+def _finishing(mark: dict[str, Any]) -> bool:
+    """Whether the run that left `mark` may still be writing its line: another process that runs (a mark from before
+    marks named their owner, or this process's own, is a killed run's)."""
+    owner = mark.get("owner")
+    return owner is not None and owner != process_owner() and not owner_gone(owner)
 
 
 @contextmanager

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -62,3 +68,36 @@ def test_a_line_cut_short_hides_no_later_session(tmp_path: Path) -> None:
         stream.write('{"made_by": "teleop.rec')
     recordings.append(tmp_path, "teleop.record", {"n": 3}, [recordings.Episode(2, 2)], complete=True)
     assert [line["config"] for line in recordings.read(tmp_path)] == [{"n": 1}, {"n": 3}]
+
+
+def mark_of(root: Path, process: subprocess.Popen, episodes: int) -> None:
+    """`root` marked by `process`'s run, which started on `episodes` episodes."""
+    recordings.mark(root, "teleop.record", {}, episodes=episodes)
+    path = root / recordings.RUN_FILE
+    path.write_text(json.dumps({**json.loads(path.read_text()), "owner": f"{socket.gethostname()}-{process.pid}"}))
+
+
+def test_a_run_still_writing_its_line_is_waited_for_not_logged_as_killed(tmp_path: Path) -> None:
+    """The run before let the dataset go and still runs (writing its line): the next run waits for its mark to go
+    rather than logging it as killed, and marks the dataset as its own."""
+    finishing = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        mark_of(tmp_path, finishing, episodes=0)
+        threading.Timer(0.3, recordings.unmark, [tmp_path]).start()  # its line written, its mark gone
+        start = time.monotonic()
+        recordings.take_over(tmp_path, "teleop.record", {"n": 2}, 1, lambda: [0])
+        assert 0.3 <= time.monotonic() - start < recordings.MARK_WAIT
+        assert recordings.read(tmp_path) == [] and recordings.marked(tmp_path)["config"] == {"n": 2}
+    finally:
+        finishing.kill()
+        finishing.wait()
+
+
+def test_a_run_whose_process_is_gone_is_logged_as_killed_at_once(tmp_path: Path) -> None:
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    mark_of(tmp_path, gone, episodes=0)
+    start = time.monotonic()
+    recordings.take_over(tmp_path, "teleop.record", {}, 1, lambda: [0])
+    assert time.monotonic() - start < 1.0
+    assert [line["episodes"] for line in recordings.read(tmp_path)] == [[0, 0]]
