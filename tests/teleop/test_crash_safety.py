@@ -33,6 +33,27 @@ class SimulatedCrash(Exception):
     """Raised in place of a rename: the process 'dies' with the disk exactly as it stands."""
 
 
+def append_crashing(root: Path, monkeypatch: pytest.MonkeyPatch, crash: Callable[[int, Path], bool]) -> None:
+    """An episode appended to `root` as a crash leaves it: the append's rename to `target` after `renamed` others
+    raises instead where `crash(renamed, target)`."""
+    env = make_env(60)
+    store = EpisodeStore(root, DatasetSpec.from_env(env))
+    episode = run_episode(env, store_controller(env), seed=7)
+    real_replace, renamed = os.replace, []
+
+    def replace_or_crash(source: str | Path, target: str | Path) -> None:
+        if crash(len(renamed), Path(target)):
+            raise SimulatedCrash(target)
+        renamed.append(target)
+        real_replace(source, target)
+
+    monkeypatch.setattr(os, "replace", replace_or_crash)
+    with pytest.raises(SimulatedCrash):
+        store.append(episode)
+    monkeypatch.undo()
+    store.close()
+
+
 @pytest.mark.parametrize("renames_before_crash", range(FILES_PER_EPISODE))
 def test_crash_before_commit_keeps_the_committed_episodes(
     recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, renames_before_crash: int
@@ -40,23 +61,7 @@ def test_crash_before_commit_keeps_the_committed_episodes(
     """Killed after any of an append's file writes but the last, the dataset still holds exactly the committed ones."""
     root = tmp_path / "dataset"
     shutil.copytree(recorded, root)
-    env = make_env(60)
-    store = EpisodeStore(root, DatasetSpec.from_env(env))
-    episode = run_episode(env, store_controller(env), seed=7)
-    real_replace = os.replace
-    calls = []
-
-    def replace_then_crash(source: str | Path, target: str | Path) -> None:
-        if len(calls) == renames_before_crash:
-            raise SimulatedCrash(target)
-        calls.append(target)
-        real_replace(source, target)
-
-    monkeypatch.setattr(os, "replace", replace_then_crash)
-    with pytest.raises(SimulatedCrash):
-        store.append(episode)
-    monkeypatch.undo()
-    store.close()
+    append_crashing(root, monkeypatch, lambda renamed, _: renamed == renames_before_crash)
     assert_consistent(root, 3)  # readable as it lies, before any recovery
 
     main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
@@ -71,21 +76,7 @@ def test_a_crash_in_the_first_commit_leaves_no_statistics_behind(
     """Killed between the first episode's stats.json and its info.json, a new dataset's statistics count no episode
     once reopened: the next episode's are its own, not merged with the lost one's."""
     root = tmp_path / "dataset"
-    env = make_env(60)
-    store = EpisodeStore(root, DatasetSpec.from_env(env))
-    episode = run_episode(env, store_controller(env), seed=7)
-    real_replace = os.replace
-
-    def replace_unless_info(source: str | Path, target: str | Path) -> None:
-        if Path(target).name == "info.json":
-            raise SimulatedCrash(target)
-        real_replace(source, target)
-
-    monkeypatch.setattr(os, "replace", replace_unless_info)
-    with pytest.raises(SimulatedCrash):
-        store.append(episode)
-    monkeypatch.undo()
-    store.close()
+    append_crashing(root, monkeypatch, lambda _, target: target.name == "info.json")
     assert (root / "meta/stats.json").is_file()  # the lost episode's statistics
 
     main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
