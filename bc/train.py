@@ -413,22 +413,25 @@ def train_and_save(
         }
         checkpoint.save(result.policy, folder, training, dataset)
         plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
-
-    if cfg.eval_episodes:
-        # A policy that takes a command is evaluated on held-out schedules (their seeds never recorded).
-        schedules = input_set(cfg.inputs).takes_command
-        settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
-        # The expert is the reference on the same seeds; the two side by side.
-        runs = [((result.policy, str(cfg.policy)), settings), ("expert", settings)]
-        with evaluation_pool(default_workers(len(runs))) as pool:
-            evaluation, expert = evaluate_each(runs, pool)
-        evaluation["expert_mean_return"] = expert["mean_return"]
-        evaluation["expert_survival_rate"] = expert["survival_rate"]
-        evaluation["expert_tracking"] = expert["tracking"]
-        evaluation["return_vs_expert"] = evaluation["mean_return"] / expert["mean_return"]
-        checkpoint.write_json(cfg.policy / EVAL_FILE, evaluation)
-        result.evaluation = evaluation
+        if cfg.eval_episodes:  # before publishing: a kill in the evaluation leaves the old checkpoint, or none
+            result.evaluation = evaluation_of(result.policy, cfg)
+            checkpoint.write_json(folder / EVAL_FILE, result.evaluation)
     return result
+
+
+def evaluation_of(policy: MLPPolicy, cfg: TrainConfig) -> dict[str, Any]:
+    """`policy` (the checkpoint `cfg.policy` becomes) and the expert side by side on the same EVAL_EPISODES seeds,
+    held-out schedules for a policy that takes a command (their seeds never recorded): what eval.json holds."""
+    schedules = input_set(cfg.inputs).takes_command
+    settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
+    runs = [((policy, str(cfg.policy)), settings), ("expert", settings)]
+    with evaluation_pool(default_workers(len(runs))) as pool:
+        evaluation, expert = evaluate_each(runs, pool)
+    evaluation["expert_mean_return"] = expert["mean_return"]
+    evaluation["expert_survival_rate"] = expert["survival_rate"]
+    evaluation["expert_tracking"] = expert["tracking"]
+    evaluation["return_vs_expert"] = evaluation["mean_return"] / expert["mean_return"]
+    return evaluation
 
 
 def _main_and_print(cfg: TrainConfig) -> None:

@@ -19,6 +19,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from bc import train as bc_train
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
 from bc.evaluate import evaluate
 from bc.train import (
@@ -248,6 +249,20 @@ def test_a_kill_between_the_replacements_renames_loses_no_checkpoint(trained: Tr
         checkpoint.save(trained.policy, staging, {"new": True}, {})
     assert json.loads((folder / policy_files.CONFIG_FILE).read_text())["training"] == {"new": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy"]
+
+
+def test_a_run_stopped_in_its_evaluation_publishes_nothing(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The evaluation runs before the checkpoint is published: stopped there, no checkpoint without its eval.json."""
+
+    def stopped(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bc_train, "evaluation_of", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        main(TrainConfig(dataset=recorded, policy=tmp_path / "policy", **{**TINY, "epochs": 1, "eval_episodes": 1}))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(
