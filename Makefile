@@ -24,7 +24,7 @@ export PYTHONUNBUFFERED := 1
 # passed only when set, so an unset one keeps the default of the stage's config: no default is typed
 # here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
-# of the PPO stages (`python -m bc.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
+# of the PPO stages (`python -m rl.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
 # REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
 # line saying what to use instead (common/cli.py's REMOVED_FLAGS) rather than make ignoring them.
 VARS.record := DATASET EPISODES SEED CONTROLLER SCHEDULES NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS FRONT_END LIVE LIVE_PORT LIVE_HOST
@@ -53,7 +53,7 @@ flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo
 help:  ## list the targets and their variables
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
 	@echo
-	@if [ -x $(PY) ]; then $(PY) -m bc.targets; \
+	@if [ -x $(PY) ]; then $(PY) -m pipeline.targets; \
 	else echo "Each target's variables are listed here once .venv exists (make venv)."; fi
 
 # Installed from the lock (exact versions and hashes), never by resolving pyproject.toml afresh;
@@ -86,32 +86,32 @@ inspect: $(STAMP)  ## summarise and verify a dataset (LeRobot + MCAP); PLOT=1 al
 	$(PY) -m teleop.inspect_dataset $(flags)
 
 export: $(STAMP)  ## write a dataset in another format (FORMAT=minari: a new Minari datasets root at OUT)
-	$(PY) -m bc.export $(flags)
+	$(PY) -m teleop.export $(flags)
 
 train-bc: $(STAMP)  ## behaviour cloning, then evaluation
 	$(PY) -m bc.train $(flags)
 
 eval: $(STAMP)  ## evaluate a policy (or POLICY=expert), print JSON
-	$(PY) -m bc.evaluate $(flags)
+	$(PY) -m evaluation.evaluate $(flags)
 
 robustness: $(STAMP)  ## a policy (or POLICY=expert) under every condition of the robustness suite
-	$(PY) -m bc.robustness $(flags)
+	$(PY) -m evaluation.robustness $(flags)
 
 dagger: $(STAMP)  ## DAgger with the expert as oracle, on a copy of the dataset
 	$(PY) -m bc.dagger $(flags)
 
 finetune-rl: $(STAMP)  ## PPO refinement of the BC policy
-	$(PY) -m bc.finetune $(flags) $(ARGS)
+	$(PY) -m rl.finetune $(flags) $(ARGS)
 
 baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget
-	$(PY) -m bc.baseline $(flags) $(ARGS)
+	$(PY) -m rl.scratch $(flags) $(ARGS)
 
 tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PPO), same budget
-	$(PY) -m bc.tutorial $(flags)
+	$(PY) -m rl.tutorial $(flags)
 
-# Reuses an output only if it was made from the same inputs (`python -m bc.pipeline --help`).
+# Reuses an output only if it was made from the same inputs (`python -m pipeline.run --help`).
 pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command), dagger -> baseline-rl, finetune-rl -> the table
-	$(PY) -m bc.pipeline $(flags)
+	$(PY) -m pipeline.run $(flags)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
 # on these 2-core machines 2 finish first (docs/benchmarks.md, "The test suite").
@@ -147,7 +147,7 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 # The flag reference is generated from the stages' configs, as `make help` is; tests/test_docs.py checks it is current.
 .PHONY: docs
 docs: $(STAMP)  ## regenerate docs/reference/flags.md from the stages' configs
-	$(PY) -m bc.targets --markdown > docs/reference/flags.md.tmp
+	$(PY) -m pipeline.targets --markdown > docs/reference/flags.md.tmp
 	mv docs/reference/flags.md.tmp docs/reference/flags.md
 
 clean-venv:  ## remove .venv

@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from bc.data import Demonstrations, cache_demonstrations, episode_rows, load_demonstrations
 from bc.train import MIN_UPDATES, TrainConfig, TrainResult, check_taught, fit_demonstrations, train_and_save
-from common import keys, paths
+from common import columns, paths
 from common.cli import (
     DatasetError,
     UserError,
@@ -403,7 +403,7 @@ def settle_spool(output: Path, committed: int) -> None:
 
 def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     """Bring `cfg.output` to `cfg.rounds` DAgger rounds of `cfg.episodes` episodes and save the final policy at
-    `cfg.policy`. `made_by` (bc.dagger, bc.pipeline) goes with what the run writes: OUTPUT's copy, its
+    `cfg.policy`. `made_by` (bc.dagger, pipeline.run) goes with what the run writes: OUTPUT's copy, its
     recordings.jsonl line, the checkpoint's config.json."""
     validate(cfg)
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
@@ -442,16 +442,18 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     )
     trainer: DAggerTrainer | None = None
     try:
-        table = read_episodes(cfg.output, ["episode_index", keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND]).to_pydict()
+        table = read_episodes(
+            cfg.output, ["episode_index", columns.EPISODE_SEED, columns.EPISODE_DAGGER_ROUND]
+        ).to_pydict()
         demos = load_demonstrations(cfg.output, env, inputs=cfg.inputs)
-        rounds = table[keys.EPISODE_DAGGER_ROUND]
+        rounds = table[columns.EPISODE_DAGGER_ROUND]
         quiet = dataclasses.replace(training, progress=False)
         trainer = DAggerTrainer(demos, quiet, rollouts, env.action_space, workers(cfg), cfg.policy.name)
         trainer.round_of = dict(zip(table["episode_index"], rounds, strict=True))
         last = max(rounds)
         # A last round with fewer than EPISODES episodes was cut short (a killed run): it is finished first.
         first = last if last and rounds.count(last) < cfg.episodes else last + 1
-        seeds = table[keys.EPISODE_SEED]
+        seeds = table[columns.EPISODE_SEED]
         # Under the store's lock: one run at a time marks OUTPUT; a killed run's episodes get their line first.
         with recordings.logged(cfg.output, made_by, config_dict(cfg), len(seeds), lambda: seeds) as added:
             for round_index in range(first, cfg.rounds + 1):

@@ -29,7 +29,7 @@ import numpy as np
 import pyarrow as pa
 import torch
 
-from common import keys
+from common import columns
 from common.cli import DatasetError, UserError
 from common.paths import cache_dir
 from humanoid.conditions import LATENCY_PARAMETER
@@ -47,7 +47,7 @@ from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 _CACHE_FORMAT = 4  # bump when what the cache holds changes
 MIN_EPISODES = 2  # the split is by episode, and at least one is held out for validation
 _ARRAYS = ("inputs", "actions", "episode_index")
-_DECODED = {keys.ACTION: "actions", keys.EXECUTED_ACTION: "executed"}
+_DECODED = {columns.ACTION: "actions", columns.EXECUTED_ACTION: "executed"}
 
 
 @dataclass
@@ -129,12 +129,11 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
         raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
-    columns = kind.columns
-    missing = [key for key in (*columns, keys.ACTION) if key not in features]
+    missing = [key for key in (*kind.columns, columns.ACTION) if key not in features]
     if missing:
-        needed = ", ".join((*columns, keys.ACTION))
+        needed = ", ".join((*kind.columns, columns.ACTION))
         raise DatasetError(f"{root} has no {', '.join(missing)} feature (it needs {needed})")
-    recorded_action_dim = features[keys.ACTION]["shape"][0]
+    recorded_action_dim = features[columns.ACTION]["shape"][0]
     if recorded_action_dim != env.action_space.shape[0]:
         raise DatasetError(
             f"{root} records {recorded_action_dim} action dimensions; {ENV_ID} has {env.action_space.shape[0]}"
@@ -145,7 +144,8 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
     if not set(wanted) <= position.keys():
         raise DatasetError(
             f"{root}: its {' + '.join(kind.observed_columns)} do not name every entry INPUTS={inputs} is computed "
-            f"from (recorded before this version? its {keys.OBS_STATE} has {features[keys.OBS_STATE]['shape'][0]} "
+            f"from (recorded before this version? its {columns.OBS_STATE} has "
+            f"{features[columns.OBS_STATE]['shape'][0]} "
             f"entries); record a new dataset, or train on it with INPUTS=full if it holds the whole observation"
         )
     index = np.array([position[name] for name in wanted])
@@ -175,24 +175,24 @@ def _cache_folder(root: Path, info_text: str, inputs: str) -> Path:
 
 
 def _decode(
-    root: Path, info: dict[str, Any], columns: tuple[str, ...], index: np.ndarray, ran: bool = False
+    root: Path, info: dict[str, Any], input_columns: tuple[str, ...], index: np.ndarray, ran: bool = False
 ) -> dict[str, np.ndarray]:
-    """The arrays read from the parquet files in float32, rows placed by frame index: the input `columns`
+    """The arrays read from the parquet files in float32, rows placed by frame index: the `input_columns`
     side by side, entries ordered by `index`; with `ran`, what ran too ("executed")."""
     features = info["features"]
     rows = info["total_frames"]
-    actions = [keys.ACTION, keys.EXECUTED_ACTION] if ran else [keys.ACTION]
+    actions = [columns.ACTION, columns.EXECUTED_ACTION] if ran else [columns.ACTION]
     arrays = {
         "inputs": np.empty((rows, len(index)), np.float32),
         **{_DECODED[key]: np.empty((rows, features[key]["shape"][0]), np.float32) for key in actions},
         "episode_index": np.empty(rows, np.int64),
     }
     filled = 0
-    for batch in iter_frames(root, [*columns, *actions, "episode_index"]):
+    for batch in iter_frames(root, [*input_columns, *actions, "episode_index"]):
         frame = batch["index"]
         # Recorded files hold consecutive frames: a slice assigns faster than an index array.
         at = slice(frame[0], frame[-1] + 1) if len(frame) and frame[-1] - frame[0] + 1 == len(frame) else frame
-        arrays["inputs"][at] = np.concatenate([batch[key] for key in columns], axis=1)[:, index]
+        arrays["inputs"][at] = np.concatenate([batch[key] for key in input_columns], axis=1)[:, index]
         for key in actions:
             arrays[_DECODED[key]][at] = batch[key]
         arrays["episode_index"][at] = batch["episode_index"]
@@ -290,9 +290,9 @@ def episode_rows(episode: Episode, inputs: str, model: mujoco.MjModel) -> tuple[
 def labelled_by_another(root: Path) -> np.ndarray:
     """Per committed episode, whether its labels are another controller's than the one that ran (DAgger's rounds):
     the action in flight under latency was then what ran (`executed_action`), not the label."""
-    table = read_episodes(root, [keys.EPISODE_CONTROLLER, keys.EPISODE_LABELLER])
+    table = read_episodes(root, [columns.EPISODE_CONTROLLER, columns.EPISODE_LABELLER])
     return np.array(
-        [row[keys.EPISODE_CONTROLLER] != row[keys.EPISODE_LABELLER] for row in table.to_pylist()], dtype=bool
+        [row[columns.EPISODE_CONTROLLER] != row[columns.EPISODE_LABELLER] for row in table.to_pylist()], dtype=bool
     )
 
 

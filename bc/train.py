@@ -34,8 +34,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
-from bc.evaluate import EVAL_SEED, evaluate_each, evaluation_pool
-from common import keys, paths
+from common import columns, paths
 from common.cli import (
     DatasetError,
     UserError,
@@ -47,7 +46,9 @@ from common.cli import (
     setting,
 )
 from common.figures import save_figure
+from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
+from evaluation.evaluate import evaluate_each, evaluation_pool
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, input_set
 from policies import checkpoint
@@ -327,7 +328,7 @@ def check_taught(cfg: TrainConfig) -> None:
         )
     if kind.takes_command:
         try:
-            commands = read_frames(cfg.dataset, [keys.OBS_COMMAND])[keys.OBS_COMMAND]
+            commands = read_frames(cfg.dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
         except (OSError, KeyError, ValueError) as error:
             raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
         if len(np.unique(commands, axis=0)) < 2:
@@ -384,7 +385,7 @@ def train_and_save(
     """Fit a policy to `demos` (`fit_demonstrations`), write its checkpoint to `cfg.policy`, and evaluate it.
 
     config.json's `training` holds every setting, `made_by` (the command that ran: bc.train,
-    bc.dagger, bc.pipeline) and `context` (e.g. the DAgger settings), and so does TensorBoard's text.
+    bc.dagger, pipeline.run) and `context` (e.g. the DAgger settings), and so does TensorBoard's text.
     """
     settings = {**config_dict(cfg), "made_by": made_by, **(context or {})}
     with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:

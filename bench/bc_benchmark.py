@@ -25,9 +25,9 @@ from typing import Any
 
 from bc.dagger import DaggerConfig
 from bc.dagger import main as dagger
-from bc.evaluate import evaluate
 from bc.train import TrainConfig
 from bc.train import main as train
+from evaluation.evaluate import evaluate
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import RecordConfig
 from teleop.record import main as record

@@ -2,7 +2,7 @@
 
     .venv/bin/python -m bench.dagger_workers [--demonstrations 50] [--rounds 2] [--episodes 20] [--repeats 3]
 
-A recording in the pipeline's recipe, then the pipeline's DAgger stage on it (`bc.pipeline.stages`: its student's
+A recording in the pipeline's recipe, then the pipeline's DAgger stage on it (`pipeline.run.stages`: its student's
 inputs, its labelling expert, its noise and conditions) for ROUNDS rounds of EPISODES rollouts, once with WORKERS=1
 and once with WORKERS=2 in each repeat: labelled frames per second of the rounds' rollouts (the worker processes'
 start-up included, the fits not: `RoundReport.seconds`), and the median of the per-repeat ratios. Each repeat also
@@ -18,8 +18,8 @@ import tempfile
 from pathlib import Path
 
 from bc.dagger import main
-from bc.finetune import weights_digest
-from bc.pipeline import PipelineConfig, stages
+from pipeline.run import PipelineConfig, stages
+from rl.finetune import weights_digest
 from teleop.dataset_reader import fingerprint
 from teleop.record import record
 

@@ -32,11 +32,12 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from bc.evaluate import EVAL_SEED, evaluate
 from bc.train import TrainConfig
 from bc.train import main as train
 from bench.bc_benchmark import RESULTS
-from common import keys
+from common import columns
+from common.seed_ranges import EVAL_SEED
+from evaluation.evaluate import evaluate
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_episodes
 from teleop.lerobot_io.format import INFO_PATH
@@ -103,11 +104,11 @@ def recorded(
     wanted = list(range(first_seed, first_seed + demos))
     if (root / INFO_PATH).exists():
         try:
-            episodes = read_episodes(root, [keys.EPISODE_SEED, keys.EPISODE_TERMINATED]).to_pydict()
+            episodes = read_episodes(root, [columns.EPISODE_SEED, columns.EPISODE_TERMINATED]).to_pydict()
         except FileNotFoundError:  # created, nothing committed yet
-            episodes = {keys.EPISODE_SEED: []}
-        if episodes[keys.EPISODE_SEED] == wanted:
-            return sum(episodes[keys.EPISODE_TERMINATED])
+            episodes = {columns.EPISODE_SEED: []}
+        if episodes[columns.EPISODE_SEED] == wanted:
+            return sum(episodes[columns.EPISODE_TERMINATED])
     shutil.rmtree(root, ignore_errors=True)
     cfg = RecordConfig(
         dataset=root,

@@ -25,10 +25,11 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from bc.evaluate import EVAL_SEED, evaluate
 from bc.train import TrainConfig
 from bc.train import main as train
 from bench.data_efficiency import EVAL_EPISODES, RESULTS, check_seeds, dataset_dir, recorded
+from common.seed_ranges import EVAL_SEED
+from evaluation.evaluate import evaluate
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_parameters

@@ -25,8 +25,8 @@ from typing import Any
 
 import torch
 
-from bc.finetune import FinetuneConfig, follows_commands, learner, vec_env
 from bench.bc_benchmark import dart_policy
+from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
 from teleop.record import DEFAULT_NOISE
 
 
@@ -53,7 +53,7 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
 
 def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
-    torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
+    torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     env = vec_env(config, follows_commands(config))
     try:
         model = learner(config, env)

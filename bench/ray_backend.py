@@ -25,10 +25,10 @@ from pathlib import Path
 
 import torch
 
-from bc.finetune import FinetuneConfig, follows_commands, learner, vec_env
 from bench.bc_benchmark import dart_policy
 from bench.ppo_throughput import timed
 from common.ray_backend import BACKENDS, RaySession
+from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import DEFAULT_NOISE, RecordConfig, RecordSummary
 from teleop.record import main as record
@@ -67,7 +67,7 @@ def recording(backend: str, episodes: int, root: Path) -> tuple[float, float]:
 def ppo(backend: str, bc_policy: Path, timesteps: int) -> tuple[float, float, float]:
     """(steps/s of sampling, steps/s of the whole `learn`, seconds to start the workers) with 2 workers."""
     config = FinetuneConfig(bc_policy=bc_policy, workers=2, backend=backend, timesteps=timesteps)
-    torch.set_num_threads(1)  # as bc.finetune.main: WorkerRolloutPPO raises it for its updates
+    torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     start = time.perf_counter()
     env = vec_env(config, follows_commands(config))
     startup = time.perf_counter() - start

@@ -23,7 +23,7 @@ import numpy as np
 from lerobot.datasets.aggregate import aggregate_datasets
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from common import keys
+from common import columns
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.merge import MergeConfig
@@ -45,9 +45,9 @@ def record(root: Path, episodes: int, seed: int) -> None:
 def checks(merged: Path, whole: Path) -> dict[str, bool]:
     """Each property of the one-go recording that the merge has (True) or lost (False)."""
     ours, theirs = read_frames(merged), read_frames(whole)
-    columns = [keys.ACTION, keys.OBS_STATE, keys.OBS_ENV_STATE]
+    compared = [columns.ACTION, columns.OBS_STATE, columns.OBS_ENV_STATE]
     # A merged (multi-episode) parquet file comes back as one array per row: stacked, the values compare.
-    ours = {c: np.stack(list(ours[c])) if ours[c].dtype == object else ours[c] for c in columns}
+    ours = {c: np.stack(list(ours[c])) if ours[c].dtype == object else ours[c] for c in compared}
     ours_episodes, whole_episodes = read_episodes(merged), read_episodes(whole)
     extra = [name for name in whole_episodes.column_names if name not in ours_episodes.column_names]
     try:
@@ -57,10 +57,10 @@ def checks(merged: Path, whole: Path) -> dict[str, bool]:
         loads = False
     return {
         "LeRobot loads it, every frame": loads,
-        "frames equal (action, both observations)": all(np.array_equal(ours[c], theirs[c]) for c in columns),
+        "frames equal (action, both observations)": all(np.array_equal(ours[c], theirs[c]) for c in compared),
         f"our episode columns ({len(whole_episodes.column_names)})": not extra,
         "MCAP files copied": (merged / "mcap").is_dir(),
-        "MCAP paths unique": len(set(ours_episodes[keys.EPISODE_MCAP].to_pylist())) == len(ours_episodes),
+        "MCAP paths unique": len(set(ours_episodes[columns.EPISODE_MCAP].to_pylist())) == len(ours_episodes),
         "one data file per episode (what appending and crash safety assume)": len(
             list((merged / "data").rglob("*.parquet"))
         )

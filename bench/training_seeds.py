@@ -20,10 +20,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from bc import pipeline, report
-from bc.pipeline import PipelineConfig, stages
 from humanoid.commands import tracking_score
 from humanoid.conditions import SUITE
+from pipeline import report
+from pipeline import run as pipeline
+from pipeline.run import PipelineConfig, stages
 
 ROLES = ("blind", "student", "dagger", "fine-tuned", "scratch")
 """The learned rows of the pipeline's table, in its order (`pipeline.run_stages`)."""

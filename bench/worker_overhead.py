@@ -34,11 +34,11 @@ import mujoco
 import numpy as np
 import torch
 
-from bc.finetune import FinetuneConfig
-from bc.ppo.learner import build_model, make_vec_env
 from humanoid.env import humanoid_model, model_and_data
 from humanoid.inputs import FullInputs
 from policies.mlp import MLPPolicy, MLPSpec
+from rl.finetune import FinetuneConfig
+from rl.learner import build_model, make_vec_env
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import DEFAULT_NOISE
 from teleop.spool import Spool

@@ -1,7 +1,7 @@
 """Worker processes: one way to start a child, talk to it, hear that it failed, and stop it.
 
 The recorder's simulation workers (`teleop.parallel`), its writer process (`teleop.writer_process`)
-and PPO's environment workers (`bc.ppo.vec_env`) all run on this; docs/concepts/processes.md says why
+and PPO's environment workers (`rl.vec_env`) all run on this; docs/concepts/processes.md says why
 each property is the one it is, with the measurements.
 
 Start: multiprocessing's forkserver, always. The server is a fresh interpreter (it inherits no

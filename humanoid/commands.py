@@ -2,7 +2,7 @@
 well a controller tracks it (docs/concepts/commands.md).
 
 A command is a `humanoid.posture.Posture` (lean forward, lean left, height, twist, arms), carried as a vector
-of `common.keys.COMMAND_NAMES` (the dataset's `observation.command`, a commanded policy's last inputs).
+of `common.columns.COMMAND_NAMES` (the dataset's `observation.command`, a commanded policy's last inputs).
 Standing still is the zero command.
 
 - `command_schedule(seed, steps)`: a scripted operator (`make record CONTROLLER=operator`, and the held-out
@@ -25,7 +25,8 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.keys import COMMAND_NAMES
+from common.columns import COMMAND_NAMES
+from common.seed_ranges import TRAINING_SEEDS
 from humanoid.env import QPOS_OBS, nominal_model
 from humanoid.posture import ARM_JOINTS, NEUTRAL, Posture, move_seconds, posture_reference
 from humanoid.sensors import body_axes
@@ -262,9 +263,6 @@ def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
 COMMAND_INFO = "command"
 """The info key under which `CommandedTask` gives the command in force (`humanoid.inputs.InputObservation` reads it)."""
 SCHEDULE_STREAM = 6  # random stream of the training schedules' seeds: (seed, 6); humanoid.conditions lists the others
-TRAINING_SEEDS = (1_000_000, 2**31 - 1)
-"""Training episodes draw their schedule's seed from here: never a recording's (0 on) or a held-out evaluation's
-(1000 on, 2000 on for PPO's validation)."""
 
 
 class CommandedTask(gym.Wrapper):
@@ -288,7 +286,7 @@ class CommandedTask(gym.Wrapper):
         self.t = 0
 
     def random_state(self) -> dict:
-        """The stream the next unseeded reset draws its schedule from (`bc.ppo.vec_env` saves it to resume)."""
+        """The stream the next unseeded reset draws its schedule from (`rl.vec_env` saves it to resume)."""
         return {"schedules": self._rng.bit_generator.state}
 
     def set_random_state(self, state: dict) -> None:

@@ -142,7 +142,7 @@ class DomainRandomization(gym.Wrapper):
 
     def random_state(self) -> dict:
         """What the next draw depends on: the random stream and the width, to resume a PPO run exactly
-        (`bc.ppo.vec_env` saves it at episode starts)."""
+        (`rl.vec_env` saves it at episode starts)."""
         return {"draws": self._rng.bit_generator.state, "width": self.width}
 
     def set_random_state(self, state: dict) -> None:

@@ -43,7 +43,7 @@ class Controller(Protocol):
         """Start a new episode; stochastic controllers reseed from `seed`."""
 
     def set_command(self, command: np.ndarray) -> None:
-        """The operator's command (`common.keys.COMMAND_NAMES`) from this step on, until the next."""
+        """The operator's command (`common.columns.COMMAND_NAMES`) from this step on, until the next."""
 
     def setpoint(self) -> np.ndarray | None:
         """Where it steers now on its way to the command (the expert's setpoint), or None without one of its own."""

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.keys import COMMAND_NAMES, PUSH_NAMES
+from common.columns import COMMAND_NAMES, PUSH_NAMES
 from humanoid.commands import DEFAULT_TASK, command_posture, command_schedule, task_for
 from humanoid.conditions import action_delay
 from humanoid.controllers import Controller
@@ -44,9 +44,9 @@ class Episode:
     truncated: np.ndarray  # (T,) bool
     body_position: np.ndarray  # (T, 13, 3) float64, world frame
     body_orientation: np.ndarray  # (T, 13, 4) float64, w-x-y-z
-    command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the operator's command in force (keys.OBS_COMMAND)
-    setpoint: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the expert's setpoint toward it (keys.SETPOINT)
-    push: np.ndarray  # (T, len(PUSH_NAMES)) float32: the push applied to the torso (keys.PUSH)
+    command: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the operator's command in force (columns.OBS_COMMAND)
+    setpoint: np.ndarray  # (T, len(COMMAND_NAMES)) float32: the expert's setpoint toward it (columns.SETPOINT)
+    push: np.ndarray  # (T, len(PUSH_NAMES)) float32: the push applied to the torso (columns.PUSH)
     tasks: np.ndarray  # (T,) str: the task string in force, which names the command
     final_observation: np.ndarray  # (348,) float64: o_T, after the last step
     dagger_round: int = 0  # 0 for demonstrations, k for the k-th round of DAgger

@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 
 from common.cli import REMOVED_VALUES, Removed, UserError
-from common.keys import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
+from common.columns import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
 from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
 from humanoid.conditions import LATENCY_PARAMETER, action_delay

@@ -1,7 +1,7 @@
 """A saved policy as a `humanoid.controllers.Controller`, so the recorder and the evaluator run it.
 
 Two kinds: this project's `MLPPolicy` checkpoints (`PolicyController`), and policies stable-baselines3
-saved itself (`SB3Controller`, the tutorial's PPO baseline of `bc.tutorial`).
+saved itself (`SB3Controller`, the tutorial's PPO baseline of `rl.tutorial`).
 
 The policy's checkpoint says what it reads (`MLPSpec.inputs`, see `humanoid.sensors`): the
 controller computes that from each gymnasium observation, so a policy on the sensed features runs

@@ -40,7 +40,7 @@ class TorsoPushes(gym.Wrapper):
 
     The first push comes one period after reset, once the body has settled from its drop. Each
     push draws its direction from a stream seeded by the reset's seed, so episodes repeat exactly.
-    `set_force` changes the force from the next reset on (a curriculum, `bc.ppo.curriculum`): an
+    `set_force` changes the force from the next reset on (a curriculum, `rl.curriculum`): an
     episode is pushed with one force throughout, so it can be replayed from its start. `pushes` lists
     the episode's pushes so far: (start step, direction relative to where the torso faced then,
     `relative_direction`).
@@ -69,7 +69,7 @@ class TorsoPushes(gym.Wrapper):
 
     def random_state(self) -> dict:
         """What the next episode's pushes depend on: the directions' random stream and the force, to resume a
-        run exactly (`bc.ppo.vec_env` saves it at episode starts)."""
+        run exactly (`rl.vec_env` saves it at episode starts)."""
         return {"directions": self._rng.bit_generator.state, "force": self.next_force}
 
     def set_random_state(self, state: dict) -> None:

@@ -117,7 +117,7 @@ def running_folder(path: Path) -> Path:
 @contextmanager
 def running(path: Path, overwrite: bool) -> Iterator[Path]:
     """Like `staged`, but the folder is always the same one and survives a failure or a kill, so that the run
-    can resume from what it holds (`bc.ppo.resume`); it becomes `path` when the block succeeds."""
+    can resume from what it holds (`rl.resume`); it becomes `path` when the block succeeds."""
     _recover(path)
     check_replaceable(path, overwrite)
     folder = running_folder(path)

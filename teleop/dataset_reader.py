@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from common import keys
+from common import columns
 from common.cli import DatasetError
 from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
@@ -82,12 +82,12 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
 def read_parameters(root: Path) -> list[dict[str, Any]]:
     """Each committed episode's drawn physical parameters, e.g. {"friction_scale": 1.2}; {} if not randomised.
 
-    From the episode columns `randomization.*` (`keys.RANDOMIZATION_PREFIX`), in episode order.
+    From the episode columns `randomization.*` (`columns.RANDOMIZATION_PREFIX`), in episode order.
     """
     table = read_episodes(root)
-    columns = [name for name in table.column_names if name.startswith(keys.RANDOMIZATION_PREFIX)]
-    rows = table.select(columns).to_pylist() if columns else [{} for _ in range(table.num_rows)]
-    return [keys.drawn_parameters(row) for row in rows]
+    drawn = [name for name in table.column_names if name.startswith(columns.RANDOMIZATION_PREFIX)]
+    rows = table.select(drawn).to_pylist() if drawn else [{} for _ in range(table.num_rows)]
+    return [columns.drawn_parameters(row) for row in rows]
 
 
 def fingerprint(root: Path) -> str:
@@ -199,40 +199,40 @@ class Transitions:
 
 def read_transitions(root: Path) -> list[Transitions]:
     """Every committed episode's transitions, in episode order: the frames' observations joined by name into the
-    gymnasium one, then the final observation the episode columns keep (`keys.EPISODE_FINAL_STATE`), each with the
+    gymnasium one, then the final observation the episode columns keep (`columns.EPISODE_FINAL_STATE`), each with the
     command in force (the final one under the last frame's: no key acts after the last step)."""
-    final_columns = [keys.EPISODE_FINAL_STATE, keys.EPISODE_FINAL_ENV_STATE]
+    final_columns = [columns.EPISODE_FINAL_STATE, columns.EPISODE_FINAL_ENV_STATE]
     episodes = read_episodes(root)
     if not set(final_columns) <= set(episodes.column_names):
         raise DatasetError(f"{root} has no final observations (recorded before they were kept); record it again")
-    names = [read_info(root)["features"][key]["names"] for key in (keys.OBS_STATE, keys.OBS_ENV_STATE)]
+    names = [read_info(root)["features"][key]["names"] for key in (columns.OBS_STATE, columns.OBS_ENV_STATE)]
     index = observation_index(names[0] + names[1])
     if index is None:
         raise DatasetError(f"{root}'s observation features do not name every gymnasium observation entry")
-    columns = [
-        keys.OBS_STATE,
-        keys.OBS_ENV_STATE,
-        keys.OBS_COMMAND,
-        keys.ACTION,
-        keys.REWARD,
-        keys.TERMINATED,
-        keys.TRUNCATED,
+    wanted = [
+        columns.OBS_STATE,
+        columns.OBS_ENV_STATE,
+        columns.OBS_COMMAND,
+        columns.ACTION,
+        columns.REWARD,
+        columns.TERMINATED,
+        columns.TRUNCATED,
     ]
-    frames = read_frames(root, [*columns, "episode_index"])
-    observations = np.concatenate([frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE]], axis=1)[:, index]
+    frames = read_frames(root, [*wanted, "episode_index"])
+    observations = np.concatenate([frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE]], axis=1)[:, index]
     finals = episodes.select(final_columns).to_pylist()
     result = []
     for episode, final in enumerate(finals):
         rows = frames["episode_index"] == episode
-        last = np.concatenate([final[keys.EPISODE_FINAL_STATE], final[keys.EPISODE_FINAL_ENV_STATE]])[index]
+        last = np.concatenate([final[columns.EPISODE_FINAL_STATE], final[columns.EPISODE_FINAL_ENV_STATE]])[index]
         result.append(
             Transitions(
                 observations=np.vstack([observations[rows], last]),
-                actions=frames[keys.ACTION][rows],
-                rewards=frames[keys.REWARD][rows].reshape(-1),
-                terminated=frames[keys.TERMINATED][rows].reshape(-1),
-                truncated=frames[keys.TRUNCATED][rows].reshape(-1),
-                commands=np.vstack([frames[keys.OBS_COMMAND][rows], frames[keys.OBS_COMMAND][rows][-1:]]),
+                actions=frames[columns.ACTION][rows],
+                rewards=frames[columns.REWARD][rows].reshape(-1),
+                terminated=frames[columns.TERMINATED][rows].reshape(-1),
+                truncated=frames[columns.TRUNCATED][rows].reshape(-1),
+                commands=np.vstack([frames[columns.OBS_COMMAND][rows], frames[columns.OBS_COMMAND][rows][-1:]]),
             )
         )
     return result

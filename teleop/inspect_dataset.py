@@ -37,7 +37,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
-from common import keys, paths
+from common import columns, paths
 from common.cli import DatasetError, one_line, run_cli, setting
 from common.figures import save_figure
 from humanoid.sensors import observation_index
@@ -80,17 +80,17 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"  # opens and closes every finished MCAP file
 ONCE_TOPICS = (SCENE_TOPIC, FINAL_TOPIC)  # one message per file; every other topic has one per frame
 
 # The /step fields and the parquet columns they were written from (the observation: joined by name).
-OBSERVATION_COLUMNS = (keys.OBS_STATE, keys.OBS_ENV_STATE)
+OBSERVATION_COLUMNS = (columns.OBS_STATE, columns.OBS_ENV_STATE)
 STEP_COLUMNS: dict[str, tuple[str, ...]] = {
     "episode_index": ("episode_index",),
     "frame_index": ("frame_index",),
     "observation": OBSERVATION_COLUMNS,
-    "state": (keys.OBS_STATE,),
-    "action": (keys.ACTION,),
-    "executed_action": (keys.EXECUTED_ACTION,),
-    "reward": (keys.REWARD,),
-    "terminated": (keys.TERMINATED,),
-    "truncated": (keys.TRUNCATED,),
+    "state": (columns.OBS_STATE,),
+    "action": (columns.ACTION,),
+    "executed_action": (columns.EXECUTED_ACTION,),
+    "reward": (columns.REWARD,),
+    "terminated": (columns.TERMINATED,),
+    "truncated": (columns.TRUNCATED,),
 }
 
 # Run by the child process that lets LeRobot itself load the metadata. LeRobot's errors span several
@@ -149,7 +149,7 @@ class Dataset:
 
     def returns(self) -> np.ndarray:
         """The sum of each episode's rewards (NaN for a dataset without the reward column)."""
-        rewards = self.frames.get(keys.REWARD)
+        rewards = self.frames.get(columns.REWARD)
         return np.array(
             [rewards[self.rows(e)].sum() if rewards is not None else math.nan for e in range(self.num_episodes)]
         )
@@ -381,7 +381,7 @@ def _read(root: Path, info: dict) -> Dataset:
         root / path if path else root / MCAP_DIR / mcap_name(index)
         for index, path in zip(
             episodes["episode_index"],
-            episodes.get(keys.EPISODE_MCAP, [None] * len(episodes["episode_index"])),
+            episodes.get(columns.EPISODE_MCAP, [None] * len(episodes["episode_index"])),
             strict=True,
         )
     ]
@@ -453,9 +453,9 @@ def _read_tasks(root: Path, info: dict) -> list[str]:
         table = pq.read_table(root / TASKS_PATH)
     except (OSError, pa.ArrowException) as error:
         raise DatasetError(f"{TASKS_PATH} is not readable ({one_line(error)})") from None
-    if "task_index" not in table.column_names or keys.TASK not in table.column_names:
+    if "task_index" not in table.column_names or columns.TASK not in table.column_names:
         raise DatasetError(f"{TASKS_PATH} has no 'task' and 'task_index' columns")
-    indices, names = table["task_index"].to_pylist(), table[keys.TASK].to_pylist()
+    indices, names = table["task_index"].to_pylist(), table[columns.TASK].to_pylist()
     counted = sorted((index, name) for index, name in zip(indices, names, strict=True) if index < info["total_tasks"])
     if [index for index, _ in counted] != list(range(info["total_tasks"])):
         raise DatasetError(
@@ -511,10 +511,10 @@ def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Pa
 
 def _summarise(dataset: Dataset) -> Report:
     episodes, frames, n = dataset.episodes, dataset.frames, dataset.num_episodes
-    if keys.TERMINATED in frames:
-        fell: int | None = sum(bool(frames[keys.TERMINATED][dataset.rows(e)].any()) for e in range(n))
-    elif keys.EPISODE_TERMINATED in episodes:
-        fell = sum(bool(value) for value in episodes[keys.EPISODE_TERMINATED])
+    if columns.TERMINATED in frames:
+        fell: int | None = sum(bool(frames[columns.TERMINATED][dataset.rows(e)].any()) for e in range(n))
+    elif columns.EPISODE_TERMINATED in episodes:
+        fell = sum(bool(value) for value in episodes[columns.EPISODE_TERMINATED])
     else:
         fell = None
     task_frames = (
@@ -524,15 +524,15 @@ def _summarise(dataset: Dataset) -> Report:
     )
     tasks = {task: int(task_frames[i]) for i, task in enumerate(dataset.tasks)}
     controllers = None
-    if keys.EPISODE_CONTROLLER in episodes:
-        noise = episodes.get(keys.EPISODE_NOISE_STD, [None] * n)
+    if columns.EPISODE_CONTROLLER in episodes:
+        noise = episodes.get(columns.EPISODE_NOISE_STD, [None] * n)
         controllers = dict(
             Counter(
                 f"{name} (noise {sigma:g})" if sigma is not None else str(name)
-                for name, sigma in zip(episodes[keys.EPISODE_CONTROLLER], noise, strict=True)
+                for name, sigma in zip(episodes[columns.EPISODE_CONTROLLER], noise, strict=True)
             )
         )
-    randomized = {name: _drawn_range(values) for name, values in keys.drawn_parameters(episodes).items()}
+    randomized = {name: _drawn_range(values) for name, values in columns.drawn_parameters(episodes).items()}
     readable = [m for m in dataset.mcap if m.problem is None]
     topics: Counter[str] = Counter()
     for m in readable:
@@ -545,7 +545,7 @@ def _summarise(dataset: Dataset) -> Report:
         tasks=tasks,
         controllers=controllers,
         randomized=randomized,
-        seeds=[seed for seed in episodes.get(keys.EPISODE_SEED, []) if seed is not None],
+        seeds=[seed for seed in episodes.get(columns.EPISODE_SEED, []) if seed is not None],
         lengths=np.array(episodes["length"]),
         returns=dataset.returns(),
         fell=fell,
@@ -557,7 +557,7 @@ def _summarise(dataset: Dataset) -> Report:
             for m, length in zip(dataset.mcap, episodes["length"], strict=True)
         ),
         leftovers=dataset.leftovers,
-        runs=recordings.sessions(dataset.root, lambda: episodes.get(keys.EPISODE_SEED, [])),
+        runs=recordings.sessions(dataset.root, lambda: episodes.get(columns.EPISODE_SEED, [])),
     )
 
 
@@ -754,15 +754,18 @@ def _verify_episode_facts(dataset: Dataset) -> None:
     frames, episodes = dataset.frames, dataset.episodes
     for e in range(dataset.num_episodes):
         rows = dataset.rows(e)
-        if keys.EPISODE_RETURN in episodes and keys.REWARD in frames:
-            stated, summed = episodes[keys.EPISODE_RETURN][e], float(frames[keys.REWARD][rows].sum())
+        if columns.EPISODE_RETURN in episodes and columns.REWARD in frames:
+            stated, summed = episodes[columns.EPISODE_RETURN][e], float(frames[columns.REWARD][rows].sum())
             # Summed from the same float64 rewards, in the same order: only the last bits may differ.
             if stated is None or not math.isclose(stated, summed, rel_tol=1e-9, abs_tol=1e-9):
                 raise DatasetError(
-                    f"episode {e}: {EPISODES_DIR} return is {stated}, but its {keys.REWARD} "
+                    f"episode {e}: {EPISODES_DIR} return is {stated}, but its {columns.REWARD} "
                     f"sums to {summed} ({dataset.where(e)})"
                 )
-        for column, flag in ((keys.EPISODE_TERMINATED, keys.TERMINATED), (keys.EPISODE_TRUNCATED, keys.TRUNCATED)):
+        for column, flag in (
+            (columns.EPISODE_TERMINATED, columns.TERMINATED),
+            (columns.EPISODE_TRUNCATED, columns.TRUNCATED),
+        ):
             if column in episodes and flag in frames:
                 last = bool(frames[flag][rows][-1])
                 if episodes[column][e] != last:
@@ -807,9 +810,9 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
     if len(steps["task"]) != length:
         return f"holds {len(steps['task'])} {STEP_TOPIC} messages, but the episode has {length} frames"
     expected = {
-        name: np.concatenate([frames[c][rows].reshape(length, -1) for c in columns], axis=1)
-        for name, columns in STEP_COLUMNS.items()
-        if all(c in frames for c in columns)
+        name: np.concatenate([frames[c][rows].reshape(length, -1) for c in names], axis=1)
+        for name, names in STEP_COLUMNS.items()
+        if all(c in frames for c in names)
     }
     if "observation" in expected:
         order = dataset.observation_order
@@ -826,14 +829,14 @@ def _step_problem(dataset: Dataset, episode: int, path: Path) -> str | None:
         differs = np.flatnonzero((got != values).any(axis=1))
         if len(differs):
             return f"{what} at frame {differs[0]}"
-    final_state = dataset.episodes.get(keys.EPISODE_FINAL_STATE)
+    final_state = dataset.episodes.get(columns.EPISODE_FINAL_STATE)
     if final_state is not None:  # recorded with the final observation: /final_observation holds the same
         try:
             final = read_mcap_final(path)
         except Exception as error:
             return f"has no readable {FINAL_TOPIC} message ({one_line(error)})"
         if final["frame_index"] != length or not np.array_equal(final["state"], final_state[episode]):
-            return f"{FINAL_TOPIC} differs from the episode's {keys.EPISODE_FINAL_STATE}"
+            return f"{FINAL_TOPIC} differs from the episode's {columns.EPISODE_FINAL_STATE}"
     task_names = [dataset.tasks[i] for i in frames["task_index"][rows].tolist()]
     differs = [t for t, (got, want) in enumerate(zip(steps["task"], task_names, strict=True)) if got != want]
     if differs:
@@ -879,21 +882,21 @@ def plot(dataset: Dataset, path: Path) -> None:
     from matplotlib.figure import Figure  # noqa: PLC0415 - the object API draws to files without a GUI backend
 
     frames, info, n = dataset.frames, dataset.info, dataset.num_episodes
-    actions = frames.get(keys.ACTION)
-    action_names = info["features"].get(keys.ACTION, {}).get("names") or []
-    columns = 6
-    hist_rows = 0 if actions is None else math.ceil(actions.shape[1] / columns)
-    figure = Figure(figsize=(3 * columns, 4 + 2 * hist_rows))
-    grid = figure.add_gridspec(1 + hist_rows, columns, height_ratios=[2] + [1] * hist_rows)
+    actions = frames.get(columns.ACTION)
+    action_names = info["features"].get(columns.ACTION, {}).get("names") or []
+    per_row = 6
+    hist_rows = 0 if actions is None else math.ceil(actions.shape[1] / per_row)
+    figure = Figure(figsize=(3 * per_row, 4 + 2 * hist_rows))
+    grid = figure.add_gridspec(1 + hist_rows, per_row, height_ratios=[2] + [1] * hist_rows)
 
     returns = np.nan_to_num(dataset.returns())
-    axes = figure.add_subplot(grid[0, : columns // 2])
+    axes = figure.add_subplot(grid[0, : per_row // 2])
     axes.bar(np.arange(n), returns, color="tab:blue")
     axes.set_xlabel("episode")
     axes.set_ylabel("return")
     axes.set_title(f"return per episode ({n} episodes)")
 
-    axes = figure.add_subplot(grid[0, columns // 2 :])
+    axes = figure.add_subplot(grid[0, per_row // 2 :])
     holder = next(
         (key for key in OBSERVATION_COLUMNS if TORSO_HEIGHT in (info["features"].get(key, {}).get("names") or [])),
         None,
@@ -911,17 +914,17 @@ def plot(dataset: Dataset, path: Path) -> None:
     axes.set_ylabel(f"{TORSO_HEIGHT} (m)")
 
     if actions is not None:
-        executed = frames.get(keys.EXECUTED_ACTION)
+        executed = frames.get(columns.EXECUTED_ACTION)
         both = executed is not None and executed.shape == actions.shape
         for d in range(actions.shape[1]):
             axes = figure.add_subplot(grid[1 + d // columns, d % columns])
             # Shared bins: the executed action's wider spread is the injected noise, to be compared by eye.
             values = np.concatenate([actions[:, d], executed[:, d]]) if both else actions[:, d]
             bins = np.histogram_bin_edges(values, bins=50)
-            axes.hist(actions[:, d], bins=bins, color="tab:blue", label=keys.ACTION)
+            axes.hist(actions[:, d], bins=bins, color="tab:blue", label=columns.ACTION)
             if both:
-                axes.hist(executed[:, d], bins=bins, histtype="step", color="tab:orange", label=keys.EXECUTED_ACTION)
-            axes.set_title(action_names[d] if d < len(action_names) else f"{keys.ACTION}[{d}]", fontsize="small")
+                axes.hist(executed[:, d], bins=bins, histtype="step", color="tab:orange", label=columns.EXECUTED_ACTION)
+            axes.set_title(action_names[d] if d < len(action_names) else f"{columns.ACTION}[{d}]", fontsize="small")
             axes.tick_params(labelsize="x-small")
             if d == 0:
                 axes.legend(fontsize="x-small")

@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from tqdm import tqdm
 
-from common import keys, paths
+from common import columns, paths
 from common.cli import UserError, config_dict, run_cli, setting
 from humanoid.env import make_env
 from humanoid.episode import Episode
@@ -66,21 +66,21 @@ def read_body_poses(path: Path, body_frames: list[str]) -> tuple[np.ndarray, np.
     return np.array(positions, np.float64), np.array(orientations, np.float64)
 
 
-FRAME_COLUMNS = (keys.OBS_COMMAND, keys.SETPOINT, keys.PUSH)
+FRAME_COLUMNS = (columns.OBS_COMMAND, columns.SETPOINT, columns.PUSH)
 """The per-frame columns that only the dataset holds (the MCAP files hold the rest of an episode)."""
 
 
-def read_episode(root: Path, row: dict, columns: dict[str, np.ndarray], body_frames: list[str]) -> Episode:
-    """The episode of `row` (its episode columns) as the recorder had it; `columns` holds its frames' commands,
+def read_episode(root: Path, row: dict, arrays: dict[str, np.ndarray], body_frames: list[str]) -> Episode:
+    """The episode of `row` (its episode columns) as the recorder had it; `arrays` holds its frames' commands,
     setpoints and pushes (`FRAME_COLUMNS`)."""
-    path = root / row[keys.EPISODE_MCAP]
+    path = root / row[columns.EPISODE_MCAP]
     steps = read_steps(path)
     body_position, body_orientation = read_body_poses(path, body_frames)
     return Episode(
-        seed=row[keys.EPISODE_SEED],
-        controller=row[keys.EPISODE_CONTROLLER],
-        labeller=row[keys.EPISODE_LABELLER],
-        noise_std=row[keys.EPISODE_NOISE_STD],
+        seed=row[columns.EPISODE_SEED],
+        controller=row[columns.EPISODE_CONTROLLER],
+        labeller=row[columns.EPISODE_LABELLER],
+        noise_std=row[columns.EPISODE_NOISE_STD],
         observation=steps["observation"],
         action=steps["action"],
         executed_action=steps["executed_action"],
@@ -89,13 +89,13 @@ def read_episode(root: Path, row: dict, columns: dict[str, np.ndarray], body_fra
         truncated=steps["truncated"],
         body_position=body_position,
         body_orientation=body_orientation,
-        command=columns[keys.OBS_COMMAND],
-        setpoint=columns[keys.SETPOINT],
-        push=columns[keys.PUSH],
+        command=arrays[columns.OBS_COMMAND],
+        setpoint=arrays[columns.SETPOINT],
+        push=arrays[columns.PUSH],
         tasks=steps["task"],
         final_observation=read_mcap_final(path)["observation"],
-        dagger_round=row[keys.EPISODE_DAGGER_ROUND],
-        parameters=keys.drawn_parameters(row),
+        dagger_round=row[columns.EPISODE_DAGGER_ROUND],
+        parameters=columns.drawn_parameters(row),
     )
 
 
@@ -132,18 +132,18 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
             raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")
         features = info["features"]
         rows = read_episodes(shard).to_pylist()
-        missing = [row[keys.EPISODE_MCAP] for row in rows if not (shard / row[keys.EPISODE_MCAP]).is_file()]
+        missing = [row[columns.EPISODE_MCAP] for row in rows if not (shard / row[columns.EPISODE_MCAP]).is_file()]
         if missing:
             raise UserError(f"{shard} lacks {missing[0]}, one of its episodes' MCAP files: copy the shard again")
-        drawn = tuple(keys.drawn_parameters(rows[0])) if rows else None
+        drawn = tuple(columns.drawn_parameters(rows[0])) if rows else None
         if drawn is not None and parameters is not None and set(drawn) != set(parameters):
             raise UserError(f"{shard} draws other physical parameters than {shards[0]}")
         parameters = parameters if drawn is None else drawn
         earlier = ", ".join(map(str, shards[:number])) or str(shard)
-        clash = seed_clash([row[keys.EPISODE_SEED] for row in rows], [seed for seed, _, _ in episodes], earlier)
+        clash = seed_clash([row[columns.EPISODE_SEED] for row in rows], [seed for seed, _, _ in episodes], earlier)
         if clash:
             raise UserError(f"shard {shard}: {clash}; record it again from there")
-        episodes += [(row[keys.EPISODE_SEED], shard, row) for row in rows]
+        episodes += [(row[columns.EPISODE_SEED], shard, row) for row in rows]
     episodes.sort(key=lambda episode: episode[0])
     return episodes, parameters or (), features or {}
 
@@ -159,7 +159,7 @@ def main(cfg: MergeConfig) -> int:
     sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
     store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))
     try:
-        have = read_episodes(cfg.dataset)[keys.EPISODE_SEED].to_pylist() if store.num_episodes else []
+        have = read_episodes(cfg.dataset)[columns.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
             raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
         commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's FRAME_COLUMNS, read once
@@ -169,8 +169,8 @@ def main(cfg: MergeConfig) -> int:
                     commands[shard] = read_frames(shard, [*FRAME_COLUMNS, "episode_index"])
                 frames = commands[shard]
                 mine = frames["episode_index"] == row["episode_index"]
-                columns = {key: frames[key][mine] for key in FRAME_COLUMNS}
-                added.append(store.append(read_episode(shard, row, columns, store.spec.body_frames)))
+                arrays = {key: frames[key][mine] for key in FRAME_COLUMNS}
+                added.append(store.append(read_episode(shard, row, arrays, store.spec.body_frames)))
     finally:
         store.close()
     return len(added)

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from common import keys, paths
+from common import columns, paths
 from common.cli import (
     DatasetError,
     UserError,
@@ -50,6 +50,7 @@ from common.cli import (
     setting,
 )
 from common.ray_backend import BACKENDS, check_backend
+from common.seed_ranges import SEED_LIMIT
 from common.workers import default_workers
 from humanoid.conditions import (
     LATENCY_PARAMETER,
@@ -119,7 +120,7 @@ class RecordConfig:
     latency: float = setting(
         0.0,
         "share of the episodes whose actions execute one env step late, drawn per episode from its seed; the delay "
-        f"is stored with the episode ({keys.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
+        f"is stored with the episode ({columns.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(
@@ -204,7 +205,7 @@ def validate(cfg: RecordConfig) -> None:
         raise UserError(str(error)) from None
     check_positive(cfg, "episodes", "max_steps", "workers")
     check_non_negative(cfg, "noise")
-    if cfg.seed is not None and not 0 <= cfg.seed <= keys.SEED_LIMIT - cfg.episodes:
+    if cfg.seed is not None and not 0 <= cfg.seed <= SEED_LIMIT - cfg.episodes:
         raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
     if cfg.live and (workers(cfg) != 1 or cfg.backend != "local"):

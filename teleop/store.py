@@ -9,7 +9,7 @@ kill at any moment leaves the committed episodes readable in both formats, and t
 removes the rest. Episodes a parallel recording finished but had not committed yet wait in the
 spool (`teleop.spool`); the next `open` commits them. A recorder holds an exclusive lock on the
 folder while it appends; a second one refuses. Episodes recorded with domain randomisation carry
-their draw as episode columns (`keys.RANDOMIZATION_PREFIX`); a dataset holds either none or the
+their draw as episode columns (`columns.RANDOMIZATION_PREFIX`); a dataset holds either none or the
 same ones in every episode (LeRobot loads episode rows of one schema only), so a store for other
 parameters than the dataset's refuses to open. `WriterProcess` runs a store in a child process,
 so that writing overlaps with simulation instead of stalling it.
@@ -28,7 +28,7 @@ from typing import Protocol
 import gymnasium as gym
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from common import keys
+from common import columns
 from common.cli import DatasetError
 from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
@@ -78,20 +78,20 @@ class DatasetSpec:
         model, _ = model_and_data(env)
         sensed, privileged = proprioception_names(model), privileged_names(model)
         actions = actuator_names(model)
-        commands = list(keys.COMMAND_NAMES)
+        commands = list(columns.COMMAND_NAMES)
         flag = {"dtype": "bool", "shape": (1,), "names": None}
         features = {
-            keys.OBS_STATE: {"dtype": "float64", "shape": (len(sensed),), "names": sensed},
-            keys.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(privileged),), "names": privileged},
-            keys.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
-            keys.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
-            keys.OBS_COMMAND: {"dtype": "float32", "shape": (len(commands),), "names": commands},
-            keys.SETPOINT: {"dtype": "float32", "shape": (len(commands),), "names": commands},
-            keys.PUSH: {"dtype": "float32", "shape": (len(keys.PUSH_NAMES),), "names": list(keys.PUSH_NAMES)},
-            keys.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
-            keys.DONE: flag,
-            keys.TERMINATED: flag,
-            keys.TRUNCATED: flag,
+            columns.OBS_STATE: {"dtype": "float64", "shape": (len(sensed),), "names": sensed},
+            columns.OBS_ENV_STATE: {"dtype": "float64", "shape": (len(privileged),), "names": privileged},
+            columns.ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
+            columns.EXECUTED_ACTION: {"dtype": "float32", "shape": (len(actions),), "names": actions},
+            columns.OBS_COMMAND: {"dtype": "float32", "shape": (len(commands),), "names": commands},
+            columns.SETPOINT: {"dtype": "float32", "shape": (len(commands),), "names": commands},
+            columns.PUSH: {"dtype": "float32", "shape": (len(columns.PUSH_NAMES),), "names": list(columns.PUSH_NAMES)},
+            columns.REWARD: {"dtype": "float64", "shape": (1,), "names": None},
+            columns.DONE: flag,
+            columns.TERMINATED: flag,
+            columns.TRUNCATED: flag,
         }
         frames = body_names(model)
         scene = scene_update(model, frames)
@@ -153,7 +153,7 @@ class EpisodeStore:
             raise
         self.root = root
         self.spec = spec
-        if len(self.lerobot.episode_column(keys.EPISODE_FINAL_STATE)) != self.num_episodes:
+        if len(self.lerobot.episode_column(columns.EPISODE_FINAL_STATE)) != self.num_episodes:
             self.close()
             # Its episode rows lack the final observation's columns; LeRobot loads rows of one set of columns only.
             raise DatasetError(
@@ -184,7 +184,7 @@ class EpisodeStore:
 
     def seeds(self) -> list[int]:
         """The seeds of the committed episodes, in episode order."""
-        return list(self.lerobot.episode_column(keys.EPISODE_SEED))
+        return list(self.lerobot.episode_column(columns.EPISODE_SEED))
 
     def next_seed(self) -> int:
         """One past the largest seed recorded so far (0 for a new dataset): appending never repeats one."""
@@ -198,48 +198,48 @@ class EpisodeStore:
         """Write `episode` to both formats and commit it; `spooled` is its spool file, removed exactly once."""
         state, environment_state = self.spec.split(episode.observation)
         final_state, final_environment_state = self.spec.split(episode.final_observation)
-        columns = {
-            keys.OBS_STATE: state,
-            keys.OBS_ENV_STATE: environment_state,
-            keys.ACTION: episode.action,
-            keys.EXECUTED_ACTION: episode.executed_action,
-            keys.OBS_COMMAND: episode.command,
-            keys.SETPOINT: episode.setpoint,
-            keys.PUSH: episode.push,
-            keys.REWARD: episode.reward,
-            keys.DONE: episode.terminated | episode.truncated,
-            keys.TERMINATED: episode.terminated,
-            keys.TRUNCATED: episode.truncated,
+        frame_columns = {
+            columns.OBS_STATE: state,
+            columns.OBS_ENV_STATE: environment_state,
+            columns.ACTION: episode.action,
+            columns.EXECUTED_ACTION: episode.executed_action,
+            columns.OBS_COMMAND: episode.command,
+            columns.SETPOINT: episode.setpoint,
+            columns.PUSH: episode.push,
+            columns.REWARD: episode.reward,
+            columns.DONE: episode.terminated | episode.truncated,
+            columns.TERMINATED: episode.terminated,
+            columns.TRUNCATED: episode.truncated,
         }
-        drawn = {keys.RANDOMIZATION_PREFIX + name: value for name, value in episode.parameters.items()}
+        drawn = {columns.RANDOMIZATION_PREFIX + name: value for name, value in episode.parameters.items()}
         self._check_parameters(frozenset(episode.parameters))
         index = self.num_episodes
         mcap_path = Path(MCAP_DIR) / mcap_name(index)
         facts = {
-            keys.EPISODE_SEED: episode.seed,
-            keys.EPISODE_CONTROLLER: episode.controller,
-            keys.EPISODE_LABELLER: episode.labeller,
-            keys.EPISODE_DAGGER_ROUND: episode.dagger_round,
-            keys.EPISODE_NOISE_STD: float(episode.noise_std),
-            keys.EPISODE_RETURN: episode.episode_return,
-            keys.EPISODE_TERMINATED: bool(episode.terminated[-1]),
-            keys.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
-            keys.EPISODE_MCAP: str(mcap_path),
+            columns.EPISODE_SEED: episode.seed,
+            columns.EPISODE_CONTROLLER: episode.controller,
+            columns.EPISODE_LABELLER: episode.labeller,
+            columns.EPISODE_DAGGER_ROUND: episode.dagger_round,
+            columns.EPISODE_NOISE_STD: float(episode.noise_std),
+            columns.EPISODE_RETURN: episode.episode_return,
+            columns.EPISODE_TERMINATED: bool(episode.terminated[-1]),
+            columns.EPISODE_TRUNCATED: bool(episode.truncated[-1]),
+            columns.EPISODE_MCAP: str(mcap_path),
         }
         final = {
-            keys.EPISODE_FINAL_STATE: final_state.tolist(),
-            keys.EPISODE_FINAL_ENV_STATE: final_environment_state.tolist(),
+            columns.EPISODE_FINAL_STATE: final_state.tolist(),
+            columns.EPISODE_FINAL_ENV_STATE: final_environment_state.tolist(),
         }
         metadata = {
             "episode_index": str(index),
             "env_id": ENV_ID,
             "step_duration_ns": str(self.spec.step_ns),
-            STATE_NAMES_METADATA: json.dumps(self.spec.features[keys.OBS_STATE]["names"]),
-            **{key: str(value) for key, value in facts.items() if key != keys.EPISODE_MCAP},
+            STATE_NAMES_METADATA: json.dumps(self.spec.features[columns.OBS_STATE]["names"]),
+            **{key: str(value) for key, value in facts.items() if key != columns.EPISODE_MCAP},
             **{key: json.dumps(value) for key, value in drawn.items()},
         }
         try:
-            staged = self.lerobot.stage(columns, episode.tasks, {**facts, **final, **drawn})
+            staged = self.lerobot.stage(frame_columns, episode.tasks, {**facts, **final, **drawn})
             write_episode_mcap(
                 self.root / mcap_path,
                 episode,
@@ -282,7 +282,7 @@ class EpisodeStore:
 
     def _drawn_parameters(self) -> frozenset[str]:
         """The drawn parameters of the last committed episode, from its metadata row's columns."""
-        return frozenset(keys.drawn_parameters(dict.fromkeys(self.lerobot.last_episode_columns())))
+        return frozenset(columns.drawn_parameters(dict.fromkeys(self.lerobot.last_episode_columns())))
 
     def _check_parameters(self, parameters: frozenset[str]) -> None:
         """DatasetError unless episodes drawing `parameters` fit the dataset's (any do while it is empty)."""

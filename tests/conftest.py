@@ -9,10 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from bc.train import TrainConfig
+from bc.train import main as train_bc
 from common import workers
-from support import SHORT_EPISODE, RayCluster
+from support import SHORT_EPISODE, SMALL_BC, RayCluster
 from teleop.parallel import WORKER_MODULES
-from teleop.record import RecordConfig, main
+from teleop.record import RecordConfig, main, record
 from teleop.writer_process import WRITER_MODULES
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
@@ -32,7 +34,7 @@ os.environ.setdefault("RAY_AUTH_TOKEN", uuid.uuid4().hex)
 # robustness-suite or tutorial worker starts in milliseconds whichever test started the server, instead of
 # importing torch, SB3 and MuJoCo anew (seconds each).
 workers.declare_preload(
-    [*WORKER_MODULES, *WRITER_MODULES, "bc.ppo.learner", "bc.ppo.vec_env", "bc.robustness", "bc.pipeline"]
+    [*WORKER_MODULES, *WRITER_MODULES, "rl.learner", "rl.vec_env", "evaluation.robustness", "pipeline.run"]
 )
 
 
@@ -69,3 +71,29 @@ def ray_cluster() -> Iterator[RayCluster]:
         yield cluster
     finally:
         cluster.shutdown()
+
+
+@pytest.fixture(scope="session")
+def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint trained on the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("bc") / "policy"
+    train_bc(TrainConfig(dataset=recorded, policy=folder, **SMALL_BC))
+    return folder
+
+
+@pytest.fixture(scope="session")
+def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
+    folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
+    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="proprio", **SMALL_BC))
+    return folder
+
+
+@pytest.fixture(scope="session")
+def pending_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small BC checkpoint on the "pending" inputs of 3 short noisy expert episodes, each delayed by one step."""
+    root = tmp_path_factory.mktemp("delayed") / "dataset"
+    record(RecordConfig(dataset=root, episodes=3, max_steps=60, latency=1.0, writer="inline", progress=False))
+    folder = tmp_path_factory.mktemp("bc_pending") / "policy"
+    train_bc(TrainConfig(dataset=root, policy=folder, inputs="pending", **SMALL_BC))
+    return folder

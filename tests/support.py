@@ -21,8 +21,8 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from common import keys
-from common.keys import COMMAND_NAMES, PUSH_NAMES
+from common import columns
+from common.columns import COMMAND_NAMES, PUSH_NAMES
 from humanoid.conditions import ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
@@ -135,7 +135,7 @@ def read_mcap_episode(path: Path) -> McapEpisode:
 
 def mcap_parameters(path: Path) -> dict[str, object]:
     """The drawn physical parameters in the MCAP metadata record of episode file `path` (JSON text, decoded)."""
-    return {name: json.loads(text) for name, text in keys.drawn_parameters(read_mcap_episode(path).metadata).items()}
+    return {name: json.loads(text) for name, text in columns.drawn_parameters(read_mcap_episode(path).metadata).items()}
 
 
 class Terminal:
@@ -233,15 +233,15 @@ def committed_episodes(root: Path) -> int:
 def assert_consistent(root: Path, episodes: int) -> None:
     """LeRobot loads `episodes` episodes, every frame counted once, every MCAP file readable and matching."""
     dataset = LeRobotDataset("local/crashed", root=root)
-    frames = read_frames(root, ["episode_index", "index", keys.ACTION])
+    frames = read_frames(root, ["episode_index", "index", columns.ACTION])
     assert dataset.meta.total_episodes == episodes
     assert len(dataset) == len(frames["index"])
     np.testing.assert_array_equal(frames["index"], np.arange(len(frames["index"])))
     np.testing.assert_array_equal(np.unique(frames["episode_index"]), np.arange(episodes))
     for row in read_episodes(root).to_pylist():
-        mcap = read_mcap_episode(root / row[keys.EPISODE_MCAP])
+        mcap = read_mcap_episode(root / row[columns.EPISODE_MCAP])
         np.testing.assert_array_equal(
-            mcap.steps["action"], frames[keys.ACTION][frames["episode_index"] == row["episode_index"]]
+            mcap.steps["action"], frames[columns.ACTION][frames["episode_index"] == row["episode_index"]]
         )
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from bc.targets import markdown_text
+from pipeline.targets import markdown_text
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -99,7 +99,7 @@ def sources() -> list[Path]:
 
 
 def test_the_flag_reference_is_generated_from_the_configs() -> None:
-    """docs/reference/flags.md is `python -m bc.targets --markdown`'s output: `make docs` regenerates it."""
+    """docs/reference/flags.md is `python -m pipeline.targets --markdown`'s output: `make docs` regenerates it."""
     assert FLAGS.read_text(encoding="utf-8") == markdown_text(), "docs/reference/flags.md is stale: run `make docs`"
 
 

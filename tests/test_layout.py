@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("common", "policies", "humanoid", "teleop", "bc", "bench", "tests")
+PACKAGES = ("common", "policies", "humanoid", "teleop", "evaluation", "bc", "rl", "pipeline", "bench", "tests")
 """Bottom to top: a package may import only those before it (and itself)."""
 
 

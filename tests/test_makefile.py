@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from bc.targets import ARGS, TARGETS, Target, help_text
 from common.cli import REMOVED_FLAGS, UserError, flag, parse_config
+from pipeline.targets import ARGS, TARGETS, Target, help_text
 
 ROOT = Path(__file__).resolve().parent.parent
 MAKEFILE = ROOT / "Makefile"

@@ -28,7 +28,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from common import keys
+from common import columns
 from common.cli import DatasetError
 from teleop.lerobot_io.format import (
     DEFAULT_FEATURES,
@@ -158,19 +158,19 @@ class LeRobotWriter:
         if self._schema is None:
             self._schema = hf_features(self.info["features"]).arrow_schema
 
-    def stage(self, columns: dict[str, np.ndarray], tasks: np.ndarray, extra: dict[str, Any]) -> StagedEpisode:
+    def stage(self, arrays: dict[str, np.ndarray], tasks: np.ndarray, extra: dict[str, Any]) -> StagedEpisode:
         """Write the frames and metadata row of the next episode, uncommitted.
 
-        `columns` holds every non-default feature and `tasks` the task string, one row per frame;
+        `arrays` holds every non-default feature and `tasks` the task string, one row per frame;
         `extra` adds episode-level columns (seed, controller, ...) to the metadata row.
         """
         index, start = self.info["total_episodes"], self.info["total_frames"]
-        length = len(next(iter(columns.values())))
+        length = len(next(iter(arrays.values())))
         frame_index = np.arange(length, dtype=np.int64)
         episode_tasks = list(dict.fromkeys(tasks.tolist()))  # in order of first use, as LeRobot lists them
         task_index = {task: self._task_index(task) for task in episode_tasks}
         frames = {
-            **columns,
+            **arrays,
             "timestamp": (frame_index / self.info["fps"]).astype(np.float32),
             "frame_index": frame_index,
             "episode_index": np.full(length, index, dtype=np.int64),
@@ -179,7 +179,7 @@ class LeRobotWriter:
         }
         chunk, file = (0, 0) if self._last_file is None else next_chunk_file(*self._last_file)
         data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
-        # Dictionary encoding, parquet's default, makes writing float columns 40 times slower; one page
+        # Dictionary encoding, parquet's default, makes writing float frames 40 times slower; one page
         # per column (an episode's column is at most a few MB) instead of 1 MB pages saves a third more.
         write_atomically(
             data_path,
@@ -267,7 +267,7 @@ class LeRobotWriter:
 
 
 def _empty_tasks() -> pd.DataFrame:
-    return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name=keys.TASK, dtype="object"))
+    return pd.DataFrame({"task_index": pd.Series(dtype="int64")}, index=pd.Index([], name=columns.TASK, dtype="object"))
 
 
 def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from common.keys import COMMAND_NAMES, PUSH_NAMES
+from common.columns import COMMAND_NAMES, PUSH_NAMES
 
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"

@@ -21,7 +21,6 @@ from safetensors.torch import load_file
 
 from bc import train as bc_train
 from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
-from bc.evaluate import evaluate
 from bc.train import (
     TrainConfig,
     TrainResult,
@@ -30,8 +29,9 @@ from bc.train import (
     main,
     planned_epochs,
 )
-from common import keys
+from common import columns
 from common.cli import UserError, config_dict
+from evaluation.evaluate import evaluate
 from humanoid.controllers import make_controller
 from humanoid.env import observation_names
 from humanoid.inputs import FullInputs
@@ -376,15 +376,15 @@ def test_proprio_checkpoint_records_what_it_reads(proprio: TrainResult) -> None:
 def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult, recorded: Path, env: gym.Env) -> None:
     """Run on the gymnasium observation, the controller acts as the policy does on the stored observation.state:
     what the recorder stored is what the controller computes."""
-    frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE])
-    observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    frames = read_frames(recorded, [columns.OBS_STATE, columns.OBS_ENV_STATE])
+    observations = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
     controller = make_controller(str(proprio.policy_dir), env)
     with torch.no_grad():
-        expected = proprio.policy(torch.from_numpy(frames[keys.OBS_STATE]).float()).numpy()
+        expected = proprio.policy(torch.from_numpy(frames[columns.OBS_STATE]).float()).numpy()
     sensed = np.array(
         [controller.features(controller.features.observe(obs, controller.command)) for obs in observations]
     )
-    np.testing.assert_array_equal(sensed, frames[keys.OBS_STATE])
+    np.testing.assert_array_equal(sensed, frames[columns.OBS_STATE])
     # One row at a time against a batch: float32 matmuls may differ in the last bits.
     actions = np.array([controller.act(obs) for obs in observations[::20]])
     np.testing.assert_allclose(actions, expected[::20], rtol=0, atol=1e-6)
@@ -415,8 +415,8 @@ def test_pending_inputs_in_training_are_what_the_controller_computes_live(
     # The sensed features but the forces (42), the estimated height and velocity (4), the inertias (130), the command
     # in flight (17), the delay (1).
     assert config["policy"]["inputs"] == "pending" and config["policy"]["input_dim"] == 42 + 4 + 130 + 17 + 1
-    frames = read_frames(delayed_recording, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, "episode_index"])
-    observations = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    frames = read_frames(delayed_recording, [columns.OBS_STATE, columns.OBS_ENV_STATE, columns.ACTION, "episode_index"])
+    observations = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
     delays = episode_delays(delayed_recording)
     assert delays.tolist() == [1, 1, 1]
     trained = load_demonstrations(delayed_recording, env, cache=False, inputs="pending").inputs.numpy()
@@ -428,7 +428,7 @@ def test_pending_inputs_in_training_are_what_the_controller_computes_live(
             controller.set_delay(int(delays[episode]))
             controller.reset()
         live.append(controller.features(controller.features.observe(obs, controller.command)))
-        controller.features.sent(frames[keys.ACTION][row])
+        controller.features.sent(frames[columns.ACTION][row])
     live = np.array(live)
     assert np.abs(live[:, -18:-1]).max() > 0  # the command in flight is there, not zeros
     np.testing.assert_allclose(trained, live, rtol=0, atol=1e-4)

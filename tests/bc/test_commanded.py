@@ -1,6 +1,6 @@
 """Commanded policies through the stages (issues 42, 43): bc.train refuses a command input the dataset cannot teach,
-trains one it can; bc.evaluate and bc.robustness report tracking under schedules and plot it; bc.finetune trains one
-on schedules; the bad input of the commands (one line, non-zero exit, nothing written)."""
+trains one it can; evaluation.evaluate and evaluation.robustness report tracking under schedules and plot it;
+rl.finetune trains one on schedules; the bad input of the commands (one line, non-zero exit, nothing written)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,11 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from bc import evaluate as evaluate_stage
-from bc import finetune, robustness
 from bc import train as train_stage
-from bc.evaluate import plot_tracking, tracking
-from bc.ppo.learner import training_env
-from common.keys import COMMAND_NAMES
+from common.columns import COMMAND_NAMES
+from evaluation import evaluate as evaluate_stage
+from evaluation import robustness
+from evaluation.evaluate import plot_tracking, tracking
 from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
 from humanoid.env import make_env
 from humanoid.episode import run_episode
@@ -24,6 +23,8 @@ from humanoid.expert import LQRExpert
 from humanoid.learned import PolicyController, takes_command
 from policies import checkpoint
 from policies.mlp import MLPPolicy, MLPSpec
+from rl import finetune
+from rl.learner import training_env
 from support import SHORT_EPISODE, TINY_PPO, record_short, snapshot
 from teleop import record as record_stage
 
@@ -150,7 +151,7 @@ def test_play_refuses_a_policy_that_takes_no_command(tmp_path: Path, capsys: pyt
     assert not (tmp_path / "new").exists()
 
 
-# bc.evaluate
+# evaluation.evaluate
 
 
 @pytest.mark.parametrize(
@@ -221,7 +222,7 @@ def test_eval_under_schedules_reports_tracking_and_plots_it(tmp_path: Path, caps
     assert matplotlib.image.imread(path).shape[:2] == (900, 800)
 
 
-# bc.robustness
+# evaluation.robustness
 
 
 def test_robustness_under_schedules_adds_tracking_to_the_rows(
@@ -241,7 +242,7 @@ def test_robustness_under_schedules_adds_tracking_to_the_rows(
     )
 
 
-# bc.finetune
+# rl.finetune
 
 
 def test_a_commanded_actor_reads_the_command_its_training_episode_follows() -> None:

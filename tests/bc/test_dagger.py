@@ -30,7 +30,7 @@ from bc.dagger import (
 from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
-from common import keys
+from common import columns
 from common.cli import DatasetError, config_dict
 from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_env
@@ -75,11 +75,11 @@ def test_rounds_are_appended_after_the_demonstrations(dagger: tuple) -> None:
     """The aggregate holds the demonstrations (round 0) then the round's policy episodes, seeds continuing."""
     _, output, result, _, _ = dagger
     episodes = read_episodes(output).to_pylist()
-    assert [e[keys.EPISODE_DAGGER_ROUND] for e in episodes] == [0, 0, 0, 1, 1]
-    assert [e[keys.EPISODE_SEED] for e in episodes] == [0, 1, 2, 3, 4]
-    assert [e[keys.EPISODE_LABELLER] for e in episodes] == ["expert"] * 5
-    assert episodes[0][keys.EPISODE_CONTROLLER] == "expert"
-    assert all(e[keys.EPISODE_CONTROLLER] != "expert" for e in episodes[3:])  # the policy drove
+    assert [e[columns.EPISODE_DAGGER_ROUND] for e in episodes] == [0, 0, 0, 1, 1]
+    assert [e[columns.EPISODE_SEED] for e in episodes] == [0, 1, 2, 3, 4]
+    assert [e[columns.EPISODE_LABELLER] for e in episodes] == ["expert"] * 5
+    assert episodes[0][columns.EPISODE_CONTROLLER] == "expert"
+    assert all(e[columns.EPISODE_CONTROLLER] != "expert" for e in episodes[3:])  # the policy drove
     assert [r.round for r in result.rounds] == [1]
     assert result.rounds[0].frames == sum(e["length"] for e in episodes[3:])
 
@@ -89,10 +89,10 @@ def assert_labelled_by(expert: LQRExpert | SensedExpert, frames: dict[str, np.nd
     episode's start as the rollout resets it (its landing plan and estimator run from there)."""
     for episode in episodes:
         rows = frames["episode_index"] == episode["episode_index"]
-        expert.reset(episode[keys.EPISODE_SEED])
-        observations = join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows])
+        expert.reset(episode[columns.EPISODE_SEED])
+        observations = join_observation(frames[columns.OBS_STATE][rows], frames[columns.OBS_ENV_STATE][rows])
         labels = np.stack([expert.act(obs) for obs in observations])
-        np.testing.assert_array_equal(frames[keys.ACTION][rows], labels)
+        np.testing.assert_array_equal(frames[columns.ACTION][rows], labels)
 
 
 def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> None:
@@ -101,7 +101,7 @@ def test_labels_are_the_experts_actions_in_the_policys_states(dagger: tuple) -> 
     frames = read_frames(output)
     assert_labelled_by(LQRExpert(), frames, read_episodes(output).to_pylist()[3:])
     rows = frames["episode_index"] >= 3
-    assert not np.array_equal(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows])
+    assert not np.array_equal(frames[columns.EXECUTED_ACTION][rows], frames[columns.ACTION][rows])
 
 
 def sensed_run(dataset: Path, folder: Path, inputs: str) -> DaggerConfig:
@@ -129,7 +129,7 @@ def test_the_sensed_expert_labels_each_episode_from_its_start(sensed_dagger: Pat
     """EXPERT=expert-sensed: each round episode's labels are the sensed expert's actions along it, its estimator
     reset at the episode's start; the labeller column names it."""
     episodes = read_episodes(sensed_dagger).to_pylist()
-    assert [e[keys.EPISODE_LABELLER] for e in episodes] == ["expert"] * 3 + ["expert-sensed"] * 2
+    assert [e[columns.EPISODE_LABELLER] for e in episodes] == ["expert"] * 3 + ["expert-sensed"] * 2
     assert_labelled_by(SensedExpert(), read_frames(sensed_dagger), episodes[3:])
 
 
@@ -180,7 +180,7 @@ def test_another_training_seed_fits_other_policies_from_the_same_rollout_seeds(d
     demonstrations, output, result, _, config = dagger
     other = dataclasses.replace(config, output=tmp_path / "aggregate", policy=tmp_path / "policy", seed=1)
     weights = main(other).final.policy.state_dict()
-    seeds = [keys.EPISODE_SEED]
+    seeds = [columns.EPISODE_SEED]
     assert read_episodes(other.output, seeds).to_pylist() == read_episodes(output, seeds).to_pylist()
     assert any(not torch.equal(weights[name], value) for name, value in result.final.policy.state_dict().items())
 
@@ -302,10 +302,10 @@ def test_an_episode_left_waiting_is_committed_in_its_turn(delayed: Path, tmp_pat
     unbroken = one_round(delayed, tmp_path / "unbroken", "pending", 0.5, "expert-sensed", episodes=2)
     resumed = one_round(delayed, tmp_path / "resumed", "pending", 0.5, "expert-sensed", episodes=2, waiting=[5])
     assert not (tmp_path / "resumed" / DAGGER_SPOOL).exists()
-    columns = [keys.EPISODE_SEED, "length", keys.EPISODE_RETURN, keys.EPISODE_CONTROLLER]
-    episodes = [read_episodes(tmp_path / name, columns).to_pylist() for name in ("unbroken", "resumed")]
-    assert episodes[0] == episodes[1] and [e[keys.EPISODE_SEED] for e in episodes[1]] == [0, 1, 2, 3, 4, 5]
-    for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):
+    names = [columns.EPISODE_SEED, "length", columns.EPISODE_RETURN, columns.EPISODE_CONTROLLER]
+    episodes = [read_episodes(tmp_path / name, names).to_pylist() for name in ("unbroken", "resumed")]
+    assert episodes[0] == episodes[1] and [e[columns.EPISODE_SEED] for e in episodes[1]] == [0, 1, 2, 3, 4, 5]
+    for key in (columns.ACTION, columns.EXECUTED_ACTION, columns.OBS_STATE):
         np.testing.assert_array_equal(read_frames(tmp_path / "resumed")[key], read_frames(tmp_path / "unbroken")[key])
     torch.testing.assert_close(resumed.demos.inputs, unbroken.demos.inputs, rtol=0, atol=0)
 
@@ -329,9 +329,9 @@ def test_a_delayed_rounds_action_in_flight_is_what_the_policy_sent(delayed: Path
     in_flight = [i for i, name in enumerate(names) if name.startswith("pending.")]
     rows = trainer.demos.episode_index == 4
     pending = trainer.demos.inputs[rows][:, in_flight].numpy()
-    frames = read_frames(root, [keys.ACTION, keys.EXECUTED_ACTION])
+    frames = read_frames(root, [columns.ACTION, columns.EXECUTED_ACTION])
     episode = read_frames(root, ["episode_index"])["episode_index"] == 4
-    sent, labels = frames[keys.EXECUTED_ACTION][episode], frames[keys.ACTION][episode]
+    sent, labels = frames[columns.EXECUTED_ACTION][episode], frames[columns.ACTION][episode]
     np.testing.assert_array_equal(pending[0], 0.0)  # as ActionLatency: nothing sent before the first step
     np.testing.assert_array_equal(pending[1:], sent[:-1])
     assert np.abs(sent - labels).max() > 1e-3  # the policy's actions are not the expert's
@@ -342,7 +342,7 @@ def test_rollouts_run_under_the_conditions_the_dataset_was_recorded_in(delayed: 
     as `make record LATENCY=0.5` does, and the settings it logs say so."""
     config = sensed_run(delayed, tmp_path, "pending")
     main(config)
-    seeds = read_episodes(config.output, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+    seeds = read_episodes(config.output, [columns.EPISODE_SEED])[columns.EPISODE_SEED].to_pylist()
     delays = [drawn[LATENCY_PARAMETER] for drawn in read_parameters(config.output)]
     assert delays == [drawn_delay(seed) for seed in seeds] and len(seeds) > 4  # the round's rollouts too
     line = recordings.read(config.output)[-1]
@@ -405,7 +405,7 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
     config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", noise=0.05)
     main(dataclasses.replace(config, **ONE_ROUND))
     rounds = read_episodes(config.output).to_pylist()[3:]
-    assert [e[keys.EPISODE_NOISE_STD] for e in rounds] == [0.05, 0.05]
+    assert [e[columns.EPISODE_NOISE_STD] for e in rounds] == [0.05, 0.05]
 
 
 @pytest.mark.parametrize(
@@ -486,9 +486,9 @@ def test_a_run_killed_mid_round_and_run_again_ends_as_an_unbroken_run(
     killed, finishing = recordings.read(broken.output)  # the killed run's episodes get their line too
     assert (killed["complete"], killed["episodes"], finishing["complete"]) == (False, [3, killed_at - 1], True)
     assert finishing["episodes"] == [killed_at, 3 + 2 * 3 - 1] and not (broken.output / recordings.RUN_FILE).exists()
-    columns = [keys.EPISODE_SEED, keys.EPISODE_DAGGER_ROUND, "length", keys.EPISODE_RETURN]
-    assert read_episodes(broken.output, columns).to_pylist() == read_episodes(unbroken.output, columns).to_pylist()
-    for key in (keys.ACTION, keys.EXECUTED_ACTION, keys.OBS_STATE):
+    names = [columns.EPISODE_SEED, columns.EPISODE_DAGGER_ROUND, "length", columns.EPISODE_RETURN]
+    assert read_episodes(broken.output, names).to_pylist() == read_episodes(unbroken.output, names).to_pylist()
+    for key in (columns.ACTION, columns.EXECUTED_ACTION, columns.OBS_STATE):
         np.testing.assert_array_equal(read_frames(broken.output)[key], read_frames(unbroken.output)[key])
     for name, weights in expected.items():
         torch.testing.assert_close(resumed[name], weights, rtol=0, atol=0)

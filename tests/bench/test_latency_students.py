@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from bc.evaluate import EVAL_SEED
 from bench.data_efficiency import EVAL_EPISODES, check_seeds
 from bench.latency_students import DEMOS, FIRST_SEEDS, Cell, table
+from common.seed_ranges import EVAL_SEED
 
 
 def test_default_seed_ranges_miss_each_other_and_the_evaluation_seeds() -> None:

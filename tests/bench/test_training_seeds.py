@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bc.pipeline import PipelineConfig
 from bench.training_seeds import ROLES, seed_config, spread_table
-from common.keys import COMMAND_NAMES
+from common.columns import COMMAND_NAMES
 from humanoid.conditions import SUITE
+from pipeline.run import PipelineConfig
 
 
 def test_seed_zero_is_the_pipelines_run_and_other_seeds_train_apart() -> None:

@@ -9,9 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from bc import evaluate, finetune, pipeline
-from bc.targets import TARGETS
 from common.cli import REMOVED_FLAGS, REMOVED_VALUES, parse_config
+from evaluation import evaluate
+from pipeline import run as pipeline
+from pipeline.targets import TARGETS
+from rl import finetune
 from teleop import record
 from teleop.record import RecordConfig
 

@@ -198,7 +198,8 @@ DEFAULTS = """
 import os, sys
 counts = [int(cores) for cores in sys.argv[1:]]
 os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: counts[0]])
-from bc import finetune, robustness
+from rl import finetune
+from evaluation import robustness
 from common.workers import default_workers
 from teleop import record
 for cores in counts:

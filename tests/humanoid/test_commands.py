@@ -13,9 +13,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from common import keys
+from common import columns
 from common.cli import UserError
-from common.keys import COMMAND_NAMES
+from common.columns import COMMAND_NAMES
+from common.seed_ranges import TRAINING_SEEDS
 from humanoid.commands import (
     COMMAND_INFO,
     DEFAULT_TASK,
@@ -24,7 +25,6 @@ from humanoid.commands import (
     SCALE,
     SCHEDULE_STREAM,
     TOLERANCE,
-    TRAINING_SEEDS,
     CommandedTask,
     Tracking,
     command_posture,
@@ -280,20 +280,20 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
     seed = 5
     record_short(tmp_path / "operator", controller="operator", episodes=1, seed=seed, max_steps=SHORT, noise=0.0)
     root = tmp_path / "operator"
-    frames = read_frames(root, [keys.OBS_COMMAND, keys.SETPOINT, keys.TERMINATED])
-    command, setpoint = frames[keys.OBS_COMMAND], frames[keys.SETPOINT]
+    frames = read_frames(root, [columns.OBS_COMMAND, columns.SETPOINT, columns.TERMINATED])
+    command, setpoint = frames[columns.OBS_COMMAND], frames[columns.SETPOINT]
     np.testing.assert_array_equal(command, command_schedule(seed, SHORT, DT))
-    assert command.any() and not frames[keys.TERMINATED].any()
+    assert command.any() and not frames[columns.TERMINATED].any()
     episode = read_episodes(root).to_pylist()[0]
-    assert episode[keys.EPISODE_CONTROLLER] == "operator"
-    mcap = read_mcap_episode(root / episode[keys.EPISODE_MCAP])
+    assert episode[columns.EPISODE_CONTROLLER] == "operator"
+    mcap = read_mcap_episode(root / episode[columns.EPISODE_MCAP])
     assert mcap.command_tasks == [task_for(command_posture(row)) for row in command]
     np.testing.assert_array_equal(mcap.command, command)
     # /command also carries the setpoint and the achieved posture, which Foxglove plots beside the command.
-    mcap_setpoint, mcap_achieved = command_extras(root / episode[keys.EPISODE_MCAP])
+    mcap_setpoint, mcap_achieved = command_extras(root / episode[columns.EPISODE_MCAP])
     np.testing.assert_array_equal(mcap_setpoint, setpoint)
-    observed = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE])
-    observation = join_observation(observed[keys.OBS_STATE], observed[keys.OBS_ENV_STATE])
+    observed = read_frames(root, [columns.OBS_STATE, columns.OBS_ENV_STATE])
+    observation = join_observation(observed[columns.OBS_STATE], observed[columns.OBS_ENV_STATE])
     np.testing.assert_allclose(mcap_achieved, Tracking(humanoid_model()).achieved(observation), atol=1e-12)
     assert episode["tasks"][0] == DEFAULT_TASK and len(episode["tasks"]) >= 2
     changes = np.flatnonzero(np.r_[True, (np.diff(command, axis=0) != 0).any(axis=1)])

@@ -12,8 +12,7 @@ import pytest
 from bc import dagger
 from bc import train as bc_train
 from bc.data import load_demonstrations
-from bc.ppo.learner import training_env
-from common import keys
+from common import columns
 from common.cli import UserError
 from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
@@ -26,6 +25,7 @@ from humanoid.learned import PolicyController
 from humanoid.posture import arm_angles
 from policies.checkpoint import CheckpointError
 from policies.mlp import MLPPolicy, MLPSpec
+from rl.learner import training_env
 from support import record_short
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 
@@ -59,9 +59,9 @@ def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: P
     bit for bit, that computation run on the frames as recorded (float32), and the live ones to the recording's
     float32 rounding (carried through the estimator's memory for "pending", hence the tolerance)."""
     offline = load_demonstrations(delayed, make_env(), cache=False, inputs=inputs).inputs.numpy()
-    frames = read_frames(delayed, [keys.EXECUTED_ACTION, keys.ACTION, keys.OBS_COMMAND, "episode_index"])
-    assert len(np.unique(frames[keys.OBS_COMMAND], axis=0)) > 1  # the command changes within the recording
-    seeds = read_episodes(delayed, [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist()
+    frames = read_frames(delayed, [columns.EXECUTED_ACTION, columns.ACTION, columns.OBS_COMMAND, "episode_index"])
+    assert len(np.unique(frames[columns.OBS_COMMAND], axis=0)) > 1  # the command changes within the recording
+    seeds = read_episodes(delayed, [columns.EPISODE_SEED])[columns.EPISODE_SEED].to_pylist()
     assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(delayed)] == [1, 1]
     env = training_env(None, inputs=inputs, latency=1.0)
     command = env.get_wrapper_attr("command")  # the array PPO's environment appends the inputs under
@@ -69,13 +69,13 @@ def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: P
     appended, computed, observed = [], [], []
     for episode, seed in enumerate(seeds):
         rows = frames["episode_index"] == episode
-        commands = frames[keys.OBS_COMMAND][rows]
+        commands = frames[columns.OBS_COMMAND][rows]
         command[:] = commands[0]
         obs, _ = env.reset(seed=seed)
         np.testing.assert_array_equal(obs[:OBSERVATION], make_env().reset(seed=seed)[0])  # the env's, as it is
         live.set_delay(1)
         live.reset()
-        steps = zip(frames[keys.EXECUTED_ACTION][rows], frames[keys.ACTION][rows], commands, strict=True)
+        steps = zip(frames[columns.EXECUTED_ACTION][rows], frames[columns.ACTION][rows], commands, strict=True)
         for t, (executed, label, now) in enumerate(steps):
             np.testing.assert_array_equal(executed, label)  # no noise: the action sent is the one executed
             frame = live.observe(obs[:OBSERVATION], now)
@@ -88,7 +88,9 @@ def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: P
     np.testing.assert_array_equal(np.array(appended), np.array(computed))
     recorded = np.array(observed, np.float32)
     delays = np.ones(len(recorded), np.int64)
-    replayed = episode_inputs(inputs, recorded, frames[keys.ACTION], frames["episode_index"], delays, humanoid_model())
+    replayed = episode_inputs(
+        inputs, recorded, frames[columns.ACTION], frames["episode_index"], delays, humanoid_model()
+    )
     np.testing.assert_array_equal(offline, replayed)
     np.testing.assert_allclose(offline, np.array(computed), rtol=0, atol=1e-4)
     assert offline.shape == (2 * SCHEDULED_STEPS, len(INPUT_SETS[inputs].input_names(humanoid_model())))
@@ -156,7 +158,7 @@ def test_the_removed_odometry_inputs_are_refused_naming_pending(
 def test_a_checkpoint_on_the_removed_odometry_inputs_is_refused_naming_pending() -> None:
     """A policy saved reading "odometry" (as an earlier version wrote them): the live controller and PPO's start
     (`input_set` of its spec) refuse it in one line naming pending, as the command line does."""
-    spec = MLPSpec((keys.OBS_STATE,), len(odometry_names(humanoid_model())), 17, (8,), inputs="odometry")
+    spec = MLPSpec((columns.OBS_STATE,), len(odometry_names(humanoid_model())), 17, (8,), inputs="odometry")
     policy = MLPPolicy(spec, -np.ones(17, np.float32), np.ones(17, np.float32))
     with pytest.raises(CheckpointError, match=rf"^policies/old must be retrained: {re.escape(ODOMETRY_REMOVED)}$"):
         PolicyController(policy, "policies/old")  # in an env of its own, which it closes
@@ -175,7 +177,7 @@ def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
     inputs = commanded(frame)
     np.testing.assert_array_equal(inputs[:-5], base(base.observe(episode.observation[5], command)))
     np.testing.assert_array_equal(inputs[-5:], command)
-    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in keys.COMMAND_NAMES]
+    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in columns.COMMAND_NAMES]
     assert commanded.takes_command and not base.takes_command
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from common import keys
+from common import columns
 from common.cli import DatasetError
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
@@ -67,7 +67,7 @@ def test_crash_before_commit_keeps_the_committed_episodes(
     main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
     assert_consistent(root, 4)
     assert_no_leftovers(root, 4)
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
 
 
 def test_a_crash_in_the_first_commit_leaves_no_statistics_behind(
@@ -104,7 +104,7 @@ def test_kill_9_of_the_whole_recording_keeps_every_committed_episode(tmp_path: P
     main(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False))
     assert_consistent(root, survived + 2)
     assert_no_leftovers(root, survived + 2)
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == list(range(survived + 2))
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == list(range(survived + 2))
 
 
 def kill_after_two_episodes(root: Path, kill: Callable[[subprocess.Popen], None]) -> int:

@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 from matplotlib import image
 
-from common import keys
+from common import columns
 from humanoid.env import make_env
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert
@@ -112,7 +112,7 @@ def test_clean_dataset_passes_with_a_summary(clean: CleanRun) -> None:
     out = clean.run.out
     assert "episodes    3 (seeds 0..2)" in out
     assert f"frames      {read_info(clean.root)['total_frames']:,}" in out
-    for feature in (keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.EXECUTED_ACTION, keys.REWARD):
+    for feature in (columns.OBS_STATE, columns.OBS_ENV_STATE, columns.ACTION, columns.EXECUTED_ACTION, columns.REWARD):
         assert feature in out
     assert "LeRobot loads it" in out and "3/3 files readable" in out
 
@@ -166,13 +166,13 @@ def test_each_spool_is_named_with_what_the_next_run_makes_of_it(copy: Path) -> N
 
 def test_nan_in_a_frame_is_named(copy: Path) -> None:
     """A NaN in one frame's observation.state fails, naming the episode, frame and column."""
-    rewrite_column(data_file(copy, 1), keys.OBS_STATE, lambda values: values.__setitem__((5, 3), np.nan))
+    rewrite_column(data_file(copy, 1), columns.OBS_STATE, lambda values: values.__setitem__((5, 3), np.nan))
     assert_fails(inspect("--dataset", copy), "episode 1, frame 5", "observation.state[3]", "nan")
 
 
 def test_failure_still_prints_the_summary(copy: Path) -> None:
     """The summary goes to stdout before the problem, so the user sees both."""
-    rewrite_column(data_file(copy, 0), keys.ACTION, lambda values: values.__setitem__((0, 0), np.inf))
+    rewrite_column(data_file(copy, 0), columns.ACTION, lambda values: values.__setitem__((0, 0), np.inf))
     run = inspect("--dataset", copy)
     assert_fails(run, "episode 0, frame 0", "action[0]", "inf")
     assert "episodes    3" in run.out and "verified" not in run.out
@@ -202,10 +202,10 @@ def test_total_frames_off_by_one_is_named(copy: Path) -> None:
 def test_parquet_reward_differing_from_mcap_is_named(copy: Path) -> None:
     """One reward moved by one ulp in parquet (the episode's return still agrees) fails on the exact MCAP comparison."""
     rewrite_column(
-        data_file(copy, 0), keys.REWARD, lambda values: values.__setitem__(10, np.nextafter(values[10], np.inf))
+        data_file(copy, 0), columns.REWARD, lambda values: values.__setitem__(10, np.nextafter(values[10], np.inf))
     )
     assert_fails(
-        inspect("--dataset", copy), "episode 0", "mcap/episode_000000.mcap", "/step.reward", keys.REWARD, "frame 10"
+        inspect("--dataset", copy), "episode 0", "mcap/episode_000000.mcap", "/step.reward", columns.REWARD, "frame 10"
     )
 
 

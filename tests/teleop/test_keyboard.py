@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
+from common import columns
 from humanoid.commands import task_for
 from humanoid.env import make_env
 from humanoid.episode import DEFAULT_TASK
@@ -60,8 +60,8 @@ def phases(command: np.ndarray) -> list[int]:
 def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -> None:
     """observation.command steps through crouch, lean, arms up and neutral, then records the push."""
     root, _ = teleoperated
-    frames = read_frames(root, [keys.OBS_COMMAND, keys.PUSH, keys.SETPOINT, "episode_index"])
-    command = frames[keys.OBS_COMMAND]
+    frames = read_frames(root, [columns.OBS_COMMAND, columns.PUSH, columns.SETPOINT, "episode_index"])
+    command = frames[columns.OBS_COMMAND]
     held = command[phases(command)][:, POSTURE]
     # Two presses that arrive together both act before the next step: the command jumps two notches.
     np.testing.assert_allclose(
@@ -70,12 +70,12 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
         atol=1e-6,
     )
     # The expert's setpoint starts where the command does, moves toward each command and gets there.
-    setpoint = frames[keys.SETPOINT]
+    setpoint = frames[columns.SETPOINT]
     np.testing.assert_array_equal(setpoint[0], command[0])
     changes = phases(command)
     assert any((setpoint[start] != command[start]).any() for start in changes[1:])  # on its way
     np.testing.assert_allclose(setpoint[changes[2] - 1], command[changes[2] - 1], atol=1e-6)  # there
-    pushed = np.flatnonzero(frames[keys.PUSH][:, 0] > 0)
+    pushed = np.flatnonzero(frames[columns.PUSH][:, 0] > 0)
     assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[4]
     assert np.all(frames["episode_index"] == 0)  # the discarded episode left nothing
 
@@ -83,9 +83,9 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
 def test_the_body_follows_the_commands(teleoperated: tuple[Path, str]) -> None:
     """The torso is lower after the crouch, tilts forward after the lean, and the body stays up."""
     root, _ = teleoperated
-    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.TERMINATED])
-    observation = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
-    command = frames[keys.OBS_COMMAND]
+    frames = read_frames(root, [columns.OBS_STATE, columns.OBS_ENV_STATE, columns.OBS_COMMAND, columns.TERMINATED])
+    observation = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
+    command = frames[columns.OBS_COMMAND]
     starts = phases(command)
     height = observation[:, 0]  # root z
     w, x, y, z = observation[:, 1:5].T
@@ -95,7 +95,7 @@ def test_the_body_follows_the_commands(teleoperated: tuple[Path, str]) -> None:
     before_arms = slice(starts[3] - 30, starts[3])
     assert height[before_lean].mean() < height[before_crouch].mean() - 0.02
     assert forward_tilt[before_arms].mean() > forward_tilt[before_lean].mean() + 0.05
-    assert not frames[keys.TERMINATED].any()
+    assert not frames[columns.TERMINATED].any()
 
 
 def test_tasks_name_the_commands_in_dataset_and_mcap(teleoperated: tuple[Path, str]) -> None:
@@ -108,10 +108,10 @@ def test_tasks_name_the_commands_in_dataset_and_mcap(teleoperated: tuple[Path, s
         "Lean forward, crouch while standing.",
         "Lean forward, crouch, arms up while standing.",
     ]  # and back to the first
-    assert episode[keys.EPISODE_CONTROLLER] == "keyboard"
-    mcap = read_mcap_episode(root / episode[keys.EPISODE_MCAP])
-    frames = read_frames(root, [keys.OBS_COMMAND])
-    np.testing.assert_array_equal(mcap.command, frames[keys.OBS_COMMAND])
+    assert episode[columns.EPISODE_CONTROLLER] == "keyboard"
+    mcap = read_mcap_episode(root / episode[columns.EPISODE_MCAP])
+    frames = read_frames(root, [columns.OBS_COMMAND])
+    np.testing.assert_array_equal(mcap.command, frames[columns.OBS_COMMAND])
     assert list(dict.fromkeys(mcap.command_tasks)) == episode["tasks"]
 
 
@@ -181,4 +181,4 @@ def test_a_keyboard_session_skips_the_seeds_its_dataset_holds(tmp_path: Path) ->
     while session.recording:
         session.tick()
     store.close()
-    assert read_episodes(tmp_path / "dataset", [keys.EPISODE_SEED])[keys.EPISODE_SEED].to_pylist() == [8, 9]
+    assert read_episodes(tmp_path / "dataset", [columns.EPISODE_SEED])[columns.EPISODE_SEED].to_pylist() == [8, 9]

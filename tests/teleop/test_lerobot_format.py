@@ -14,7 +14,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils import constants
 from lerobot.utils.constants import DEFAULT_FEATURES
 
-from common import keys
+from common import columns
 from humanoid.env import make_env
 from support import join_observation
 from teleop.dataset_reader import read_episodes, read_frames
@@ -22,30 +22,30 @@ from teleop.lerobot_io import format as lerobot_format
 from teleop.store import DatasetSpec
 
 USER_KEYS = [
-    keys.OBS_STATE,
-    keys.OBS_ENV_STATE,
-    keys.OBS_COMMAND,
-    keys.SETPOINT,
-    keys.PUSH,
-    keys.ACTION,
-    keys.EXECUTED_ACTION,
-    keys.REWARD,
-    keys.DONE,
-    keys.TERMINATED,
-    keys.TRUNCATED,
+    columns.OBS_STATE,
+    columns.OBS_ENV_STATE,
+    columns.OBS_COMMAND,
+    columns.SETPOINT,
+    columns.PUSH,
+    columns.ACTION,
+    columns.EXECUTED_ACTION,
+    columns.REWARD,
+    columns.DONE,
+    columns.TERMINATED,
+    columns.TRUNCATED,
 ]
 PROJECT_EPISODE_COLUMNS = {
-    keys.EPISODE_SEED,
-    keys.EPISODE_CONTROLLER,
-    keys.EPISODE_LABELLER,
-    keys.EPISODE_DAGGER_ROUND,
-    keys.EPISODE_NOISE_STD,
-    keys.EPISODE_RETURN,
-    keys.EPISODE_TERMINATED,
-    keys.EPISODE_TRUNCATED,
-    keys.EPISODE_MCAP,
-    keys.EPISODE_FINAL_STATE,
-    keys.EPISODE_FINAL_ENV_STATE,
+    columns.EPISODE_SEED,
+    columns.EPISODE_CONTROLLER,
+    columns.EPISODE_LABELLER,
+    columns.EPISODE_DAGGER_ROUND,
+    columns.EPISODE_NOISE_STD,
+    columns.EPISODE_RETURN,
+    columns.EPISODE_TERMINATED,
+    columns.EPISODE_TRUNCATED,
+    columns.EPISODE_MCAP,
+    columns.EPISODE_FINAL_STATE,
+    columns.EPISODE_FINAL_ENV_STATE,
 }
 
 
@@ -68,8 +68,15 @@ def lerobot_copy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
 
 
 def test_key_names_are_lerobots() -> None:
-    """The key constants spelled out in common.keys are LeRobot's own."""
-    assert (keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.REWARD, keys.DONE, keys.TRUNCATED) == (
+    """The key constants spelled out in common.columns are LeRobot's own."""
+    assert (
+        columns.OBS_STATE,
+        columns.OBS_ENV_STATE,
+        columns.ACTION,
+        columns.REWARD,
+        columns.DONE,
+        columns.TRUNCATED,
+    ) == (
         constants.OBS_STATE,
         constants.OBS_ENV_STATE,
         constants.ACTION,
@@ -174,18 +181,18 @@ def test_lerobot_dataset_loads_offline_and_serves_our_values(recorded: Path) -> 
     for i in (0, len(dataset) // 2, len(dataset) - 1):
         item = dataset[i]
         assert item["task"] == "Stand still on both feet."
-        for key in (keys.OBS_STATE, keys.OBS_ENV_STATE, keys.ACTION, keys.EXECUTED_ACTION):
+        for key in (columns.OBS_STATE, columns.OBS_ENV_STATE, columns.ACTION, columns.EXECUTED_ACTION):
             np.testing.assert_allclose(item[key].numpy(), frames[key][i], rtol=1e-6, atol=1e-6, err_msg=key)
-    assert dataset.meta.episodes[keys.EPISODE_SEED] == [0, 1, 2]
+    assert dataset.meta.episodes[columns.EPISODE_SEED] == [0, 1, 2]
 
 
 def test_observation_is_exactly_reconstructible(recorded: Path) -> None:
     """observation.state + observation.environment_state is the gymnasium observation, bit for bit."""
-    frames = read_frames(recorded, [keys.OBS_STATE, keys.OBS_ENV_STATE, "episode_index", "frame_index"])
+    frames = read_frames(recorded, [columns.OBS_STATE, columns.OBS_ENV_STATE, "episode_index", "frame_index"])
     env = make_env()
     first_of_episode_1 = np.flatnonzero((frames["episode_index"] == 1) & (frames["frame_index"] == 0))[0]
     obs, _ = env.reset(seed=1)
-    stored = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
+    stored = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
     assert stored.dtype == np.float64 and stored.shape[1] == 348
     np.testing.assert_array_equal(stored[first_of_episode_1], obs)
 
@@ -193,12 +200,12 @@ def test_observation_is_exactly_reconstructible(recorded: Path) -> None:
 def test_episode_facts_are_readable(recorded: Path) -> None:
     """Seed, controller, return, length and how each episode ended are in the episode metadata."""
     episodes = read_episodes(recorded).to_pylist()
-    frames = read_frames(recorded, [keys.REWARD, "episode_index"])
+    frames = read_frames(recorded, [columns.REWARD, "episode_index"])
     for episode in episodes:
-        rewards = frames[keys.REWARD][frames["episode_index"] == episode["episode_index"]]
-        assert episode[keys.EPISODE_CONTROLLER] == "expert"
-        assert episode[keys.EPISODE_NOISE_STD] == 0.05
+        rewards = frames[columns.REWARD][frames["episode_index"] == episode["episode_index"]]
+        assert episode[columns.EPISODE_CONTROLLER] == "expert"
+        assert episode[columns.EPISODE_NOISE_STD] == 0.05
         assert episode["length"] == len(rewards)
-        assert episode[keys.EPISODE_RETURN] == pytest.approx(rewards.sum(), rel=1e-12)
-        assert episode[keys.EPISODE_TERMINATED] != episode[keys.EPISODE_TRUNCATED]
-    assert [e[keys.EPISODE_SEED] for e in episodes] == [0, 1, 2]
+        assert episode[columns.EPISODE_RETURN] == pytest.approx(rewards.sum(), rel=1e-12)
+        assert episode[columns.EPISODE_TERMINATED] != episode[columns.EPISODE_TRUNCATED]
+    assert [e[columns.EPISODE_SEED] for e in episodes] == [0, 1, 2]

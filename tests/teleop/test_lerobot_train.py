@@ -16,7 +16,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.policies.factory import make_pre_post_processors
 
-from common import keys
+from common import columns
 from support import run_lerobot_train, snapshot
 from teleop.lerobot_io import format as lerobot_format
 
@@ -100,9 +100,9 @@ def test_checkpoint_holds_the_trained_act_model(recorded: Path, train_run: Train
     assert (model / "model.safetensors").stat().st_size > 0
     config = json.loads((model / "config.json").read_text())
     assert config["type"] == "act"
-    assert {keys.OBS_STATE, keys.OBS_ENV_STATE} <= set(config["input_features"])
+    assert {columns.OBS_STATE, columns.OBS_ENV_STATE} <= set(config["input_features"])
     assert set(config["input_features"]) == {key for key in features if key.startswith("observation.")}
-    assert config["output_features"][keys.ACTION]["shape"] == [17]
+    assert config["output_features"][columns.ACTION]["shape"] == [17]
     assert (model / "policy_preprocessor.json").is_file()
     assert (model / "policy_postprocessor.json").is_file()
 

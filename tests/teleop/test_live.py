@@ -17,8 +17,8 @@ import pytest
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from websockets.sync.client import connect
 
-from bc.evaluate import cli as evaluate_cli
-from common import keys
+from common import columns
+from evaluation.evaluate import cli as evaluate_cli
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer
 from humanoid.expert import LQRExpert
@@ -95,7 +95,7 @@ def test_live_poses_equal_the_simulations_at_those_steps(watched: tuple) -> None
     bit for bit the poses the episode's MCAP file stores for that step."""
     root, _, _, received = watched
     steps = {log_time: Step.FromString(payload) for log_time, payload in received[2]}
-    recorded = [read_mcap_episode(root / row[keys.EPISODE_MCAP]) for row in read_episodes(root).to_pylist()]
+    recorded = [read_mcap_episode(root / row[columns.EPISODE_MCAP]) for row in read_episodes(root).to_pylist()]
     compared = 0
     for log_time, payload in received[1]:
         if log_time not in steps:
@@ -159,6 +159,6 @@ def test_keyboard_sessions_show_every_step_they_record(tmp_path: Path) -> None:
     while session.recording:
         session.tick()
     store.close()
-    frames = read_frames(tmp_path / "dataset", [keys.OBS_ENV_STATE])
+    frames = read_frames(tmp_path / "dataset", [columns.OBS_ENV_STATE])
     assert seen.seeds == [7] and len(seen.heights) == 40
-    assert seen.heights == frames[keys.OBS_ENV_STATE][:, 0].tolist()  # root z, the first privileged entry
+    assert seen.heights == frames[columns.OBS_ENV_STATE][:, 0].tolist()  # root z, the first privileged entry

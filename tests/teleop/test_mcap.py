@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from common import keys
+from common import columns
 from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
 from support import McapEpisode, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
@@ -23,7 +23,7 @@ STEP_NS = 15_000_000  # Humanoid-v5: timestep 0.003 s x frame_skip 5
 @pytest.fixture(scope="module")
 def episodes(recorded: Path) -> list[McapEpisode]:
     """Every MCAP file of the recorded dataset, decoded, in episode order."""
-    return [read_mcap_episode(recorded / row[keys.EPISODE_MCAP]) for row in read_episodes(recorded).to_pylist()]
+    return [read_mcap_episode(recorded / row[columns.EPISODE_MCAP]) for row in read_episodes(recorded).to_pylist()]
 
 
 def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: list[McapEpisode]) -> None:
@@ -34,31 +34,31 @@ def test_every_step_value_equals_the_lerobot_frame(recorded: Path, episodes: lis
         np.testing.assert_array_equal(episode.steps["frame_index"], frames["frame_index"][rows])
         np.testing.assert_array_equal(
             episode.steps["observation"],
-            join_observation(frames[keys.OBS_STATE][rows], frames[keys.OBS_ENV_STATE][rows]),
+            join_observation(frames[columns.OBS_STATE][rows], frames[columns.OBS_ENV_STATE][rows]),
         )
         for step_field, key in [
-            ("state", keys.OBS_STATE),
-            ("action", keys.ACTION),
-            ("executed_action", keys.EXECUTED_ACTION),
-            ("reward", keys.REWARD),
-            ("terminated", keys.TERMINATED),
-            ("truncated", keys.TRUNCATED),
+            ("state", columns.OBS_STATE),
+            ("action", columns.ACTION),
+            ("executed_action", columns.EXECUTED_ACTION),
+            ("reward", columns.REWARD),
+            ("terminated", columns.TERMINATED),
+            ("truncated", columns.TRUNCATED),
         ]:
             np.testing.assert_array_equal(episode.steps[step_field], frames[key][rows], err_msg=step_field)
 
 
 def test_metadata_names_the_state_as_the_dataset_does(recorded: Path, episodes: list[McapEpisode]) -> None:
     """The `state_names` metadata entry is observation.state's `names` in meta/info.json: Foxglove plots by index."""
-    names = json.loads((recorded / "meta/info.json").read_text())["features"][keys.OBS_STATE]["names"]
+    names = json.loads((recorded / "meta/info.json").read_text())["features"][columns.OBS_STATE]["names"]
     assert all(json.loads(episode.metadata[STATE_NAMES_METADATA]) == names for episode in episodes)
     assert len(names) == episodes[0].steps["state"].shape[1] == 48
 
 
 def test_command_channel_equals_the_command_feature_and_tasks(recorded: Path, episodes: list[McapEpisode]) -> None:
     """/command holds observation.command and the task of every step, at the /step times."""
-    frames = read_frames(recorded, [keys.OBS_COMMAND, "episode_index"])
+    frames = read_frames(recorded, [columns.OBS_COMMAND, "episode_index"])
     for index, episode in enumerate(episodes):
-        np.testing.assert_array_equal(episode.command, frames[keys.OBS_COMMAND][frames["episode_index"] == index])
+        np.testing.assert_array_equal(episode.command, frames[columns.OBS_COMMAND][frames["episode_index"] == index])
         np.testing.assert_array_equal(episode.command_times_ns, episode.step_times_ns)
         assert episode.command_tasks == episode.tasks == ["Stand still on both feet."] * len(episode.tasks)
 

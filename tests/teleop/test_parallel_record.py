@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
+from common import columns
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
@@ -49,7 +49,7 @@ def test_two_workers_write_the_files_one_process_writes_with_randomisation(tmp_p
     record(tmp_path / "one", workers=1, randomize="suite")
     record(tmp_path / "two", workers=2, randomize="suite")
     assert snapshot(tmp_path / "two") == snapshot(tmp_path / "one")
-    assert keys.RANDOMIZATION_PREFIX + "mass_scale" in read_episodes(tmp_path / "two").column_names
+    assert columns.RANDOMIZATION_PREFIX + "mass_scale" in read_episodes(tmp_path / "two").column_names
 
 
 def test_more_workers_than_episodes_still_commit_in_seed_order(tmp_path: Path) -> None:
@@ -57,7 +57,7 @@ def test_more_workers_than_episodes_still_commit_in_seed_order(tmp_path: Path) -
     root = tmp_path / "dataset"
     record(root, workers=1, episodes=2)
     record(root, workers=3, episodes=2)
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
     assert not (root / ".spool").exists()
 
 
@@ -75,11 +75,11 @@ def test_opening_a_dataset_commits_its_spool_in_seed_order(recorded: Path, tmp_p
     shutil.copytree(recorded, root)
     spool_episodes(root, [6, 4])
     EpisodeStore(root, DatasetSpec.from_env(make_env())).close()
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 4, 6]
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == [0, 1, 2, 4, 6]
     assert not (root / ".spool").exists()
     record(tmp_path / "fresh", workers=1, episodes=1, seed=6)
     fresh, merged = read_frames(tmp_path / "fresh"), read_frames(root)
-    np.testing.assert_array_equal(merged[keys.ACTION][merged["episode_index"] == 4], fresh[keys.ACTION])
+    np.testing.assert_array_equal(merged[columns.ACTION][merged["episode_index"] == 4], fresh[columns.ACTION])
 
 
 @pytest.mark.parametrize("already_committed", [True, False])
@@ -94,7 +94,7 @@ def test_an_episode_killed_mid_commit_is_committed_exactly_once(
     spool.begin_commit(spool.ready()[0], episode_index=2 if already_committed else 3)
     EpisodeStore(root, DatasetSpec.from_env(make_env())).close()
     expected = [0, 1, 2] if already_committed else [0, 1, 2, 5]
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == expected
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == expected
     assert not (root / ".spool").exists()
 
 
@@ -119,7 +119,7 @@ def test_kill_9_of_a_parallel_recording_loses_no_finished_episode(tmp_path: Path
     record(root, workers=2, episodes=2, max_steps=150)
     assert_consistent(root, finished + 2)
     assert_no_leftovers(root, finished + 2)
-    seeds = read_episodes(root)[keys.EPISODE_SEED].to_pylist()
+    seeds = read_episodes(root)[columns.EPISODE_SEED].to_pylist()
     assert seeds == sorted(seeds) and len(set(seeds)) == len(seeds)
     assert seeds[:committed] == list(range(committed))
 

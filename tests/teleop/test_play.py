@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bc.finetune import FinetuneConfig
-from bc.finetune import main as finetune
-from bc.targets import TARGETS
 from bc.train import TrainConfig
 from bc.train import main as train
-from common import keys
+from common import columns
 from humanoid.commands import Tracking
 from humanoid.env import humanoid_model, make_env, model_and_data
 from humanoid.expert import LQRExpert
+from pipeline.targets import TARGETS
 from policies.folder import WEIGHTS_FILE
+from rl.finetune import FinetuneConfig
+from rl.finetune import main as finetune
 from support import Terminal, join_observation, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
@@ -178,9 +178,11 @@ def way_travelled(achieved: np.ndarray, start: int, goal: float, steps: int) -> 
 def test_the_keys_lean_the_policys_trunk_and_back_within_3_s(played: Played) -> None:
     """The issue's target: the trunk's pitch gets at least 60 % of the way to the commanded lean within 3 s of the
     keys, and 60 % of the way back within 3 s of Space; the body stays up."""
-    frames = read_frames(played.root, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.TERMINATED])
-    observation = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
-    command = frames[keys.OBS_COMMAND]
+    frames = read_frames(
+        played.root, [columns.OBS_STATE, columns.OBS_ENV_STATE, columns.OBS_COMMAND, columns.TERMINATED]
+    )
+    observation = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
+    command = frames[columns.OBS_COMMAND]
     changes = np.flatnonzero((np.diff(command, axis=0) != 0).any(axis=1)) + 1
     assert len(changes) == 2, changes  # the lean, then neutral
     env = make_env()
@@ -204,19 +206,19 @@ def test_the_keys_lean_the_policys_trunk_and_back_within_3_s(played: Played) -> 
     )
     assert forward.max() >= SHARE, forward.max()
     assert returned.max() >= SHARE, returned.max()
-    assert not frames[keys.TERMINATED].any()
+    assert not frames[columns.TERMINATED].any()
 
 
 def test_the_play_dataset_names_the_keyboard_and_the_policy(played: Played) -> None:
     """Recorded like any keyboard episode, the controller named `keyboard:POLICY`; with no setpoint of its own,
     the policy's setpoint column is the command."""
     episode = read_episodes(played.root).to_pylist()[0]
-    assert episode[keys.EPISODE_CONTROLLER] == f"keyboard:{played.policy}"
-    assert episode[keys.EPISODE_LABELLER] == f"keyboard:{played.policy}"
-    assert episode[keys.EPISODE_NOISE_STD] == 0.0  # `make play` drives the policy as it is
+    assert episode[columns.EPISODE_CONTROLLER] == f"keyboard:{played.policy}"
+    assert episode[columns.EPISODE_LABELLER] == f"keyboard:{played.policy}"
+    assert episode[columns.EPISODE_NOISE_STD] == 0.0  # `make play` drives the policy as it is
     assert episode["tasks"] == ["Stand still on both feet.", "Lean forward while standing."]
-    frames = read_frames(played.root, [keys.OBS_COMMAND, keys.SETPOINT])
-    np.testing.assert_array_equal(frames[keys.SETPOINT], frames[keys.OBS_COMMAND])
+    frames = read_frames(played.root, [columns.OBS_COMMAND, columns.SETPOINT])
+    np.testing.assert_array_equal(frames[columns.SETPOINT], frames[columns.OBS_COMMAND])
     assert "added 1 episodes" in played.output
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from common import keys
+from common import columns
 from humanoid.conditions import PRESETS, DomainRandomization
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
@@ -66,17 +66,17 @@ def test_the_draw_round_trips_through_parquet_mcap_and_lerobot(randomized: Path)
     assert all(len(p["mass_scale"]) == 13 and len(p["strength_scale"]) == 17 for p in drawn)
     assert all(isinstance(p["friction_scale"], float) for p in drawn)
     rows = read_episodes(randomized).to_pylist()
-    assert [mcap_parameters(randomized / row[keys.EPISODE_MCAP]) for row in rows] == drawn
+    assert [mcap_parameters(randomized / row[columns.EPISODE_MCAP]) for row in rows] == drawn
     loaded = LeRobotDataset("local/randomized", root=randomized)
     for name in drawn[0]:
-        assert list(loaded.meta.episodes[keys.RANDOMIZATION_PREFIX + name]) == [p[name] for p in drawn]
+        assert list(loaded.meta.episodes[columns.RANDOMIZATION_PREFIX + name]) == [p[name] for p in drawn]
     assert len(loaded) == len(read_frames(randomized, ["index"])["index"])
 
 
 def test_the_recorded_episode_is_the_rollout_in_the_randomised_body(randomized: Path) -> None:
     """The stored frames are those of the expert under `DomainRandomization`, and differ from the nominal body's."""
-    frames = read_frames(randomized, [keys.ACTION, "episode_index"])
-    stored = frames[keys.ACTION][frames["episode_index"] == 0]
+    frames = read_frames(randomized, [columns.ACTION, "episode_index"])
+    stored = frames[columns.ACTION][frames["episode_index"] == 0]
     env = DomainRandomization(make_env(STEPS), SUITE)
     episode = run_episode(env, make_controller("expert", env), seed=0, noise_std=0.05)
     np.testing.assert_array_equal(stored, episode.action)
@@ -89,9 +89,9 @@ def test_the_recorded_episode_is_the_rollout_in_the_randomised_body(randomized: 
 def test_a_plain_recording_gains_no_column_nor_metadata(recorded: Path) -> None:
     """RANDOMIZE=none (the default): no randomization.* column, no such MCAP metadata key."""
     rows = read_episodes(recorded).to_pylist()
-    assert not [name for name in rows[0] if name.startswith(keys.RANDOMIZATION_PREFIX)]
-    metadata = read_mcap_episode(recorded / rows[0][keys.EPISODE_MCAP]).metadata
-    assert not [name for name in metadata if name.startswith(keys.RANDOMIZATION_PREFIX)]
+    assert not [name for name in rows[0] if name.startswith(columns.RANDOMIZATION_PREFIX)]
+    metadata = read_mcap_episode(recorded / rows[0][columns.EPISODE_MCAP]).metadata
+    assert not [name for name in metadata if name.startswith(columns.RANDOMIZATION_PREFIX)]
     assert read_parameters(recorded) == [{}, {}, {}]
 
 

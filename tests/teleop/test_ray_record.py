@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
+from common import columns
 from support import RayCluster, record_short, snapshot, wait_for_episodes
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.record import cli
@@ -39,7 +39,7 @@ def recording_command(root: Path, episodes: int, address: str) -> list[str]:
 
 def assert_recorded_as_one_process(root: Path, reference: Path, episodes: int) -> None:
     """`root` holds seeds 0.. once each, in order, file for file what one process records for them."""
-    assert read_episodes(root)[keys.EPISODE_SEED].to_pylist() == list(range(episodes))
+    assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == list(range(episodes))
     record(reference, episodes=episodes)
     ours = {name: content for name, content in snapshot(root).items() if name != "recordings.jsonl"}
     assert ours == snapshot(reference)
@@ -87,16 +87,16 @@ def test_kill_9_of_the_recorder_loses_no_finished_episode(ray_cluster: RayCluste
     wait_for_episodes(root, 3, recorder)
     recorder.kill()
     recorder.wait()
-    finished = {*read_episodes(root)[keys.EPISODE_SEED].to_pylist(), *(int(p.stem) for p in Spool(root).ready())}
+    finished = {*read_episodes(root)[columns.EPISODE_SEED].to_pylist(), *(int(p.stem) for p in Spool(root).ready())}
     again = subprocess.run(recording_command(root, 2, ray_cluster.address), capture_output=True, text=True)
     assert again.returncode == 0, again.stderr[-2000:]
-    seeds = read_episodes(root)[keys.EPISODE_SEED].to_pylist()
+    seeds = read_episodes(root)[columns.EPISODE_SEED].to_pylist()
     assert finished <= set(seeds) and len(seeds) == len(finished) + 2 and seeds == sorted(set(seeds))
     reference = tmp_path / "reference"
     record(reference, episodes=seeds[-1] + 1)
     ours, theirs = read_frames(root), read_frames(reference)
     for index, seed in enumerate(seeds):
-        for key in (keys.ACTION, keys.OBS_STATE):
+        for key in (columns.ACTION, columns.OBS_STATE):
             np.testing.assert_array_equal(
                 ours[key][ours["episode_index"] == index], theirs[key][theirs["episode_index"] == seed], f"seed {seed}"
             )

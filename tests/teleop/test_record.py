@@ -11,7 +11,7 @@ import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 import teleop.record
-from common import keys
+from common import columns
 from common.cli import config_dict, parse_config
 from humanoid.env import make_env
 from humanoid.episode import injected_noise, run_episode
@@ -42,7 +42,7 @@ def test_recording_again_appends_new_seeds(recorded: Path, tmp_path: Path) -> No
     record(root)
     episodes = read_episodes(root)
     assert episodes["episode_index"].to_pylist() == [0, 1, 2, 3, 4]
-    assert episodes[keys.EPISODE_SEED].to_pylist() == [0, 1, 2, 3, 4]
+    assert episodes[columns.EPISODE_SEED].to_pylist() == [0, 1, 2, 3, 4]
     assert read_info(root)["total_frames"] == len(read_frames(root, ["index"])["index"])
     after = snapshot(root / "data") | snapshot(root / "mcap")
     assert {name: after[name] for name in before} == before
@@ -58,11 +58,11 @@ def test_same_seed_and_controller_give_identical_arrays(recorded: Path, tmp_path
 
 def test_noise_is_the_only_difference_between_executed_and_label(recorded: Path) -> None:
     """Executed action = clip(label + the seed's injected noise), and the noise has the requested spread."""
-    frames = read_frames(recorded, [keys.ACTION, keys.EXECUTED_ACTION, "episode_index"])
+    frames = read_frames(recorded, [columns.ACTION, columns.EXECUTED_ACTION, "episode_index"])
     deviations = []
     for seed in range(3):
         rows = frames["episode_index"] == seed
-        label, executed = frames[keys.ACTION][rows], frames[keys.EXECUTED_ACTION][rows]
+        label, executed = frames[columns.ACTION][rows], frames[columns.EXECUTED_ACTION][rows]
         noise = injected_noise(seed, len(label), 0.05, label.shape[1])
         np.testing.assert_array_equal(executed, np.clip(label + noise, -0.4, 0.4).astype(np.float32))
         inside = np.abs(label + noise) < 0.4
@@ -74,16 +74,16 @@ def test_noise_is_the_only_difference_between_executed_and_label(recorded: Path)
 def test_clean_recording_executes_the_labels(tmp_path: Path) -> None:
     """With NOISE=0 the executed actions are the labels."""
     record(tmp_path / "clean", episodes=1, noise=0.0)
-    frames = read_frames(tmp_path / "clean", [keys.ACTION, keys.EXECUTED_ACTION])
-    np.testing.assert_array_equal(frames[keys.ACTION], frames[keys.EXECUTED_ACTION])
+    frames = read_frames(tmp_path / "clean", [columns.ACTION, columns.EXECUTED_ACTION])
+    np.testing.assert_array_equal(frames[columns.ACTION], frames[columns.EXECUTED_ACTION])
 
 
 def test_random_controller_records_falls(tmp_path: Path) -> None:
     """The random baseline falls early; the episode is kept with terminated set."""
     record(tmp_path / "random", episodes=1, controller="random", max_steps=1000, noise=0.0)
     (episode,) = read_episodes(tmp_path / "random").to_pylist()
-    assert episode[keys.EPISODE_TERMINATED] and episode["length"] < 100
-    assert episode[keys.EPISODE_CONTROLLER] == "random"
+    assert episode[columns.EPISODE_TERMINATED] and episode["length"] < 100
+    assert episode[columns.EPISODE_CONTROLLER] == "random"
 
 
 def test_cli_records_with_the_writer_process_and_prints_a_summary(

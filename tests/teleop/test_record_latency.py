@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bc.data import load_demonstrations
-from common import keys
+from common import columns
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
@@ -39,16 +39,16 @@ def test_each_episode_stores_its_drawn_delay_in_both_formats(delayed: Path) -> N
     assert {d[LATENCY_PARAMETER] for d in expected} == {0, 1}  # both kinds among these seeds
     assert read_parameters(delayed) == expected
     rows = read_episodes(delayed).to_pylist()
-    assert [mcap_parameters(delayed / row[keys.EPISODE_MCAP]) for row in rows] == expected
+    assert [mcap_parameters(delayed / row[columns.EPISODE_MCAP]) for row in rows] == expected
 
 
 def test_the_expert_is_told_each_episodes_delay(delayed: Path) -> None:
     """A delayed episode's labels are those of the expert built for one step of latency, the others the plain one's."""
-    frames = read_frames(delayed, [keys.ACTION, "episode_index"])
+    frames = read_frames(delayed, [columns.ACTION, "episode_index"])
     for episode, drawn in enumerate(read_parameters(delayed)):
         env = ActionLatency(make_env(STEPS), 1) if drawn[LATENCY_PARAMETER] else make_env(STEPS)
         reference = run_episode(env, make_controller("expert", env), seed=episode, noise_std=0.05)
-        np.testing.assert_array_equal(frames[keys.ACTION][frames["episode_index"] == episode], reference.action)
+        np.testing.assert_array_equal(frames[columns.ACTION][frames["episode_index"] == episode], reference.action)
 
 
 def test_pending_inputs_read_each_episodes_recorded_delay(delayed: Path) -> None:

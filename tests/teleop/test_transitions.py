@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from common import keys
+from common import columns
 from common.cli import DatasetError
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
@@ -62,10 +62,10 @@ def test_mcap_holds_the_same_final_observation(fallen: Path) -> None:
     transitions = read_transitions(fallen)
     rows = read_episodes(fallen).to_pylist()
     for t, row in zip(transitions, rows, strict=True):
-        final = read_mcap_final(fallen / row[keys.EPISODE_MCAP])
+        final = read_mcap_final(fallen / row[columns.EPISODE_MCAP])
         assert final["frame_index"] == len(t.actions)
         np.testing.assert_array_equal(final["observation"], t.observations[-1])
-        np.testing.assert_array_equal(final["state"], row[keys.EPISODE_FINAL_STATE])
+        np.testing.assert_array_equal(final["state"], row[columns.EPISODE_FINAL_STATE])
 
 
 def test_lerobot_still_loads_t_frames_per_episode(fallen: Path) -> None:
@@ -73,7 +73,7 @@ def test_lerobot_still_loads_t_frames_per_episode(fallen: Path) -> None:
     dataset = LeRobotDataset("local/fallen", root=fallen)
     lengths = [len(t.actions) for t in read_transitions(fallen)]
     assert len(dataset) == sum(lengths) and dataset.meta.total_episodes == 2
-    assert len(dataset.meta.episodes[keys.EPISODE_FINAL_STATE][0]) == 48
+    assert len(dataset.meta.episodes[columns.EPISODE_FINAL_STATE][0]) == 48
 
 
 @pytest.fixture()
@@ -83,7 +83,7 @@ def without_finals(recorded: Path, tmp_path: Path) -> Path:
     shutil.copytree(recorded, copy)
     for path in (copy / "meta/episodes").rglob("*.parquet"):
         table = pq.read_table(path)
-        pq.write_table(table.drop_columns([keys.EPISODE_FINAL_STATE, keys.EPISODE_FINAL_ENV_STATE]), path)
+        pq.write_table(table.drop_columns([columns.EPISODE_FINAL_STATE, columns.EPISODE_FINAL_ENV_STATE]), path)
     return copy
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image, ImageGrab
 
-from common import keys
+from common import columns
 from support import join_observation
 from teleop.dataset_reader import read_frames
 
@@ -102,7 +102,7 @@ def teleoperated(display: str, tmp_path_factory: pytest.TempPathFactory) -> tupl
 def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, Path]) -> None:
     """observation.command goes from neutral to the crouch, then to the crouch leaning forward."""
     root, _ = teleoperated
-    command = read_frames(root, [keys.OBS_COMMAND])[keys.OBS_COMMAND][:, POSTURE]
+    command = read_frames(root, [columns.OBS_COMMAND])[columns.OBS_COMMAND][:, POSTURE]
     changes = [0, *(np.flatnonzero(np.any(np.diff(command, axis=0) != 0, axis=1)) + 1)]
     held = [tuple(np.round(row, 6)) for row in command[changes]]
     assert held[0] == (0, 0, 0, 0, 0) and held[-1] == (0.1, 0, -0.04, 0, 0)
@@ -112,16 +112,16 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, Path]) 
 def test_the_body_follows_the_commands(teleoperated: tuple[Path, Path]) -> None:
     """The torso is lower after the crouch, tilts forward after the lean, and the body stays up."""
     root, _ = teleoperated
-    frames = read_frames(root, [keys.OBS_STATE, keys.OBS_ENV_STATE, keys.OBS_COMMAND, keys.TERMINATED])
-    observation = join_observation(frames[keys.OBS_STATE], frames[keys.OBS_ENV_STATE])
-    height_command = frames[keys.OBS_COMMAND][:, keys.COMMAND_NAMES.index("height")]
-    lean_command = frames[keys.OBS_COMMAND][:, keys.COMMAND_NAMES.index("lean_forward")]
+    frames = read_frames(root, [columns.OBS_STATE, columns.OBS_ENV_STATE, columns.OBS_COMMAND, columns.TERMINATED])
+    observation = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
+    height_command = frames[columns.OBS_COMMAND][:, columns.COMMAND_NAMES.index("height")]
+    lean_command = frames[columns.OBS_COMMAND][:, columns.COMMAND_NAMES.index("lean_forward")]
     crouch, lean = int(np.argmax(height_command < 0)), int(np.argmax(lean_command > 0))
     w, x, y, z = observation[:, 1:5].T
     forward_tilt = 2 * (x * z + w * y)  # world x of the torso's up axis
     assert observation[lean - 30 : lean, 0].mean() < observation[crouch - 30 : crouch, 0].mean() - 0.02
     assert forward_tilt[-30:].mean() > forward_tilt[lean - 30 : lean].mean() + 0.05
-    assert not frames[keys.TERMINATED].any()
+    assert not frames[columns.TERMINATED].any()
 
 
 def test_the_screenshot_shows_the_humanoid(teleoperated: tuple[Path, Path]) -> None:

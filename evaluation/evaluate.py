@@ -1,0 +1,311 @@
+"""`make eval`: run a saved policy (or the expert) on Humanoid-v5 and print the outcome as JSON.
+
+Episodes start from the environment's own reset on seeds SEED..SEED+EPISODES-1; the default
+SEED 1000 keeps clear of the recorder's seeds (0, 1, 2, ...). Survival is the fraction of
+episodes that reach the 1000-step time limit without falling. The last line printed is one JSON
+object, with the run's full settings under "config"; `evaluate()` returns the same dict (without
+them) to callers such as `bc.train`.
+
+    PUSH=F     a horizontal push of F newtons on the torso for 0.1 s every 2 s, random direction
+    NOISE=σ    Gaussian noise of std σ added to every executed action (then clipped)
+    CONDITION=name  a condition of the robustness suite instead (`humanoid.conditions.SUITE`:
+               masses, friction, motor strength, latency, sensor noise, pushes; docs/concepts/robustness-suite.md)
+    VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
+               (docs/how-to/evaluate.md); use a few episodes
+    SCHEDULES=1  the operator's command follows the schedule drawn from each seed (held out: seeds from 1000 are
+               never recorded); the JSON adds "tracking": per command field the error once settled, and the time
+               to settle (`humanoid.commands`; docs/how-to/follow-commands.md)
+    PLOT=f.png commanded against achieved posture over the first episode, a panel per field
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import threading
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from common import paths
+from common.cli import UserError, check_non_negative, check_positive, config_dict, run_cli, setting
+from common.figures import save_figure
+from common.seed_ranges import EVAL_SEED
+from common.threads import one_blas_thread
+from common.workers import forkserver_context
+from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
+from humanoid.conditions import SUITE
+from humanoid.controllers import CONTROLLERS, Controller, make_controller
+from humanoid.env import EPISODE_STEPS, make_env, nominal_model
+from humanoid.episode import Episode, EpisodeBuffer, run_episode
+from humanoid.learned import PolicyController
+from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
+from humanoid.video import CAMERA, VideoRecorder
+from policies.mlp import MLPPolicy
+from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
+
+
+@dataclass
+class EvalConfig:
+    """Settings of one evaluation."""
+
+    policy: str = setting(
+        str(paths.BC_POLICY),
+        f"policy checkpoint folder, or a registered controller ({', '.join(CONTROLLERS)})",
+    )
+    episodes: int = setting(20, "number of episodes")
+    seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
+    push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")
+    noise: float = setting(0.0, "std of the Gaussian noise added to every executed action; 0 = none")
+    condition: str = setting(
+        "clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/concepts/robustness-suite.md)"
+    )
+    video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
+    schedules: bool = setting(
+        False,
+        "the operator's command follows the schedule drawn from each episode's seed; the JSON adds the tracking "
+        "error per command field (a policy that takes no command is run blind to it)",
+    )
+    plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
+    progress: bool = setting(True, "show a progress bar")
+    live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")
+    live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
+    live_host: str = setting(DEFAULT_HOST, "address the live view's server binds to (0.0.0.0: every interface)")
+
+
+def validate(cfg: EvalConfig) -> None:
+    """Reject bad settings before anything runs."""
+    check_positive(cfg, "episodes")
+    check_port(cfg.live_port)
+    check_non_negative(cfg, "seed")
+    if not (math.isfinite(cfg.push) and cfg.push >= 0):
+        raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
+    check_non_negative(cfg, "noise")
+    if cfg.condition not in SUITE:
+        raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")
+    if cfg.condition != "clean" and (cfg.push or cfg.noise):
+        raise UserError("--condition brings its own perturbation: leave --push and --noise at 0 with it")
+    if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
+        raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
+    if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
+        raise UserError(f"--plot must be a .png path, got {cfg.plot}")
+
+
+def evaluate(
+    controller: Controller | str,
+    episodes: int = 20,
+    seed: int = EVAL_SEED,
+    push: float = 0.0,
+    noise: float = 0.0,
+    video: Path | None = None,
+    progress: bool = False,
+    condition: str = "clean",
+    live: tuple[str, int] | None = None,
+    schedules: bool = False,
+    plot: Path | None = None,
+) -> dict[str, Any]:
+    """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
+
+    `push` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
+    publishes every step to a Foxglove WebSocket server there (`teleop.live`). With `schedules` the operator's
+    command follows each seed's schedule and the summary adds "tracking" (`tracking`); `plot` draws the first
+    episode's commanded and achieved posture.
+    """
+    env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
+    suite_condition = SUITE[condition]
+    env = suite_condition.wrap(env)
+    noise = noise + suite_condition.action_noise
+    if push > 0:
+        env = TorsoPushes(env, push)
+    if video is not None:
+        env = VideoRecorder(env, video)
+    publisher = None
+    try:
+        publisher = None if live is None else start_live(env, *live)
+        if isinstance(controller, str):
+            try:
+                controller = make_controller(controller, env)
+            except ValueError as error:
+                raise UserError(str(error)) from None
+        seeds = list(range(seed, seed + episodes))
+        buffer = EpisodeBuffer(env, EPISODE_STEPS)
+        pusher = torso_pushes(env)
+        results, directions, toppled = [], [], []
+        for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
+            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules))
+            if pusher is not None:
+                directions += [direction for _, direction in pusher.pushes]
+                toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
+    finally:
+        if publisher is not None:
+            publisher.close()
+        env.close()
+    measure = Tracking(nominal_model())  # the nominal body's targets, solved once per process
+    if plot is not None:
+        plot_tracking(results[0], measure, env.unwrapped.dt, plot)
+    returns = np.array([episode.episode_return for episode in results])
+    lengths = np.array([episode.length for episode in results])
+    survived = [episode.length == EPISODE_STEPS and not episode.fell for episode in results]
+    return {
+        "policy": controller.name,
+        "episodes": episodes,
+        "seeds": seeds,
+        "mean_return": float(returns.mean()),
+        "std_return": float(returns.std()),
+        "mean_length": float(lengths.mean()),
+        "survival_rate": float(np.mean(survived)),
+        "survived": int(sum(survived)),
+        "push_newtons": push,
+        "noise_std": noise,
+        "condition": condition,
+        "returns": [round(float(r), 3) for r in returns],
+        "survivals": survived,
+        "lengths": lengths.tolist(),
+        # Every push in seed order: its direction seen from the torso (0 forward, 90 left, 180 back) and
+        # whether it was the last before a fall (`humanoid.perturbations.toppling`); empty when unpushed.
+        "pushes": {"direction": [round(d, 2) for d in directions], "toppled": toppled},
+        # Each episode's drawn body (scale factors, `humanoid.conditions.DomainRandomization`), to see which draws fell.
+        "parameters": [episode.parameters for episode in results],
+        "video": None if video is None else str(video),
+        "takes_command": controller.takes_command,
+        "tracking": tracking(results, measure, env.unwrapped.dt) if schedules else None,
+    }
+
+
+def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str, Any]:
+    """Over `episodes` (until each ends): per command field the mean error once settled, the mean time to settle
+    (`humanoid.commands.tracking_summary`), and each episode's."""
+    each = [tracking_summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
+    return {**combine_tracking(each), "episodes": each}
+
+
+def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) -> None:
+    """A PNG of `episode`'s commanded (and the setpoint toward it) against achieved posture, a panel per field."""
+    from matplotlib.figure import Figure  # noqa: PLC0415 - the object API draws to files without a GUI backend
+
+    achieved = measure.achieved(episode.observation)
+    arms_error = measure.errors(episode.observation, episode.command)[:, -1]
+    time = np.arange(episode.length) * dt
+    figure = Figure(figsize=(8, 9), layout="constrained")
+    axes = figure.subplots(COMMAND_SIZE, 1, sharex=True)
+    names = ("lean forward (rad)", "lean left (rad)", "height (m)", "twist (rad)", "arms: preset; error (rad)")
+    for field, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        ax.step(time, episode.command[:, field], where="post", label="commanded", color="C0")
+        ax.plot(time, episode.setpoint[:, field], label="setpoint", color="C0", alpha=0.4, linestyle="--")
+        ax.plot(time, achieved[:, field] if field < 4 else arms_error, label="achieved", color="C1")
+        ax.set_ylabel(name, fontsize=8)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].set_title(f"{episode.controller}, seed {episode.seed}: commanded and achieved posture")
+    axes[-1].set_xlabel("time (s)")
+    save_figure(figure, path)
+
+
+def main(cfg: EvalConfig) -> dict[str, Any]:
+    """Evaluate `cfg.policy` as configured; returns the summary `cli` prints, `cfg` under "config"."""
+    validate(cfg)
+    result = evaluate(
+        cfg.policy,
+        cfg.episodes,
+        cfg.seed,
+        cfg.push,
+        cfg.noise,
+        cfg.video,
+        cfg.progress,
+        condition=cfg.condition,
+        live=(cfg.live_host, cfg.live_port) if cfg.live else None,
+        schedules=cfg.schedules,
+        plot=cfg.plot,
+    )
+    return {**result, "config": config_dict(cfg)}
+
+
+def init_worker() -> None:
+    """Set up a process that evaluates: one torch and one BLAS thread, since a forward pass or an LQR product of one
+    row gains nothing from more and the processes share the cores (docs/decisions/blas-threads.md)."""
+    torch.set_num_threads(1)
+    one_blas_thread()
+
+
+def _init_pool_worker() -> None:
+    """`init_worker`, and the worker ends with the process that started its pool (`_exit_with_parent`)."""
+    init_worker()
+    threading.Thread(target=_exit_with_parent, daemon=True).start()
+
+
+def _exit_with_parent() -> None:
+    """End this worker once the process that started its pool is gone: the workers wait on a queue that never closes,
+    and would otherwise outlive a killed run (kill -9), holding its forkserver too."""
+    parent = mp.parent_process()  # its sentinel: a pipe from the starting process, at its end once that one is gone
+    if parent is not None:
+        parent.join()
+        os._exit(1)
+
+
+_open_pools: dict[int, Executor] = {}  # the pools of the `evaluation_pool` blocks now open, by size
+
+
+@contextlib.contextmanager
+def evaluation_pool(workers: int) -> Iterator[Executor | None]:
+    """A pool of `workers` evaluation processes (forkserver, `_init_pool_worker`) for `evaluate_each`, for the block:
+    the outermost block of a size starts it and shuts it down, the blocks inside it reuse it (the pipeline's table holds
+    one open over every controller's suite, so the workers' start-up, seconds each, is paid once). None for one
+    worker: evaluations run here. No pool outlives its block: idle ones beside BC's training halved its speed."""
+    if workers <= 1:
+        yield None
+    elif workers in _open_pools:
+        yield _open_pools[workers]
+    else:
+        context = forkserver_context()
+        with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_pool_worker) as pool:
+            _open_pools[workers] = pool
+            try:
+                yield pool
+            finally:
+                del _open_pools[workers]
+
+
+Evaluated = str | tuple[MLPPolicy, str]
+"""What `evaluate_each` evaluates: a registered controller's name or a checkpoint folder, or a policy in memory and
+the name its results go by (the policy travels to a worker pickled; its inputs are rebuilt there)."""
+
+
+def _evaluate(what: Evaluated, settings: dict[str, Any]) -> dict[str, Any]:
+    return evaluate(what if isinstance(what, str) else PolicyController(*what), **settings)
+
+
+def evaluate_each(runs: Sequence[tuple[Evaluated, dict[str, Any]]], pool: Executor | None = None) -> Iterator[dict]:
+    """`evaluate` of each (what, its keyword arguments) of `runs`: all submitted to `pool` at once (the first first),
+    else one after the other here; the results in order. They are the same either way: an episode depends on its
+    seed alone."""
+    if pool is None:
+        yield from (_evaluate(what, settings) for what, settings in runs)
+        return
+    futures = [pool.submit(_evaluate, what, settings) for what, settings in runs]
+    try:
+        for future in futures:
+            yield future.result()
+    finally:
+        for future in futures:
+            future.cancel()  # the caller stopped early or failed: nothing more to run
+
+
+def _main_and_print(cfg: EvalConfig) -> None:
+    print(json.dumps(main(cfg)))
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, EvalConfig, argv, description=__doc__)
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
