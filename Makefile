@@ -22,7 +22,7 @@ export PYTHONUNBUFFERED := 1
 
 # A stage target's Make variables are its config's fields in capitals (MAX_STEPS=v is --max-steps v),
 # passed only when set, so an unset one keeps the default of the stage's config: no default is typed
-# here. Which target takes which variable is bc/targets.py's table (`make help` prints it, with each
+# here. Which target takes which variable is pipeline/targets.py's table (`make help` prints it, with each
 # flag's help and default); tests/test_makefile.py holds the lists below to it. ARGS: any other flag
 # of the PPO stages (`python -m rl.finetune --help`), e.g. ARGS="--learning-rate 1e-4 --target-kl 0.01".
 # REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
@@ -37,7 +37,7 @@ VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
 VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES EPOCHS WORKERS SEED OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
-VARS.baseline-rl := $(VARS.finetune-rl)
+VARS.scratch-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
 VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY \
 	BLIND_POLICY EPOCHS DAGGER_OUTPUT DAGGER_POLICY ROUNDS DAGGER_EPISODES DAGGER_EPOCHS SCRATCH_POLICY PPO_POLICY TIMESTEPS ENVS \
@@ -47,9 +47,9 @@ REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY 
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record play merge inspect export train-bc eval robustness dagger finetune-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record play merge inspect export train-bc eval robustness dagger finetune-rl scratch-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 
-# The variables come from the stages' configs (bc/targets.py), so they need .venv.
+# The variables come from the stages' configs (pipeline/targets.py), so they need .venv.
 help:  ## list the targets and their variables
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
 	@echo
@@ -75,7 +75,7 @@ venv: $(STAMP)  ## build .venv and install the project
 record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to the dataset
 	$(PY) -m teleop.record $(flags)
 
-# The keys command a learned policy (one that takes a command): bc/targets.py's preset flags, then the variables.
+# The keys command a learned policy (one that takes a command): pipeline/targets.py's preset flags, then the variables.
 play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
 	$(PY) -m teleop.record --controller=keyboard --dataset=datasets/play --noise=0 $(flags)
 
@@ -103,14 +103,18 @@ dagger: $(STAMP)  ## DAgger with the expert as oracle, on a copy of the dataset
 finetune-rl: $(STAMP)  ## PPO refinement of the BC policy
 	$(PY) -m rl.finetune $(flags) $(ARGS)
 
-baseline-rl: $(STAMP)  ## PPO from scratch, same network and budget
+scratch-rl: $(STAMP)  ## PPO from scratch, same network and budget
 	$(PY) -m rl.scratch $(flags) $(ARGS)
 
 tutorial-rl: $(STAMP)  ## the seed tutorial's learners (preferred action, SB3 PPO), same budget
 	$(PY) -m rl.tutorial $(flags)
 
+# A target an earlier version had: refused in one line naming the new one, rather than make's "No rule".
+baseline-rl:
+	@echo "error: make baseline-rl is now make scratch-rl (PPO from scratch, same task and budget)" >&2; exit 2
+
 # Reuses an output only if it was made from the same inputs (`python -m pipeline.run --help`).
-pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command), dagger -> baseline-rl, finetune-rl -> the table
+pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command), dagger -> scratch-rl, finetune-rl -> the table
 	$(PY) -m pipeline.run $(flags)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);

@@ -60,7 +60,7 @@ from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
 from humanoid.env import make_env, nominal_model
 from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUTS, input_set
+from humanoid.inputs import INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import json_object
 from policies.mlp import MLPPolicy
@@ -175,7 +175,7 @@ class DaggerResult:
 
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
-    input_set(cfg.inputs)
+    input_set_named(cfg.inputs)
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
     check_non_negative(cfg, "patience", "min_updates", "eval_episodes", "noise", "seed")
     if cfg.latency is not None:
@@ -305,7 +305,7 @@ class DAggerTrainer:
         ":roundN" for the round whose aggregate trained it."""
         self.demos = demos
         self.training = training
-        self.rollouts = dataclasses.replace(rollouts, schedules=input_set(training.inputs).takes_command)
+        self.rollouts = dataclasses.replace(rollouts, schedules=input_set_named(training.inputs).takes_command)
         self.action_space = action_space
         self.workers = workers
         self.name = name

@@ -35,7 +35,7 @@ from common.paths import cache_dir
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
 from humanoid.episode import Episode
-from humanoid.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set
+from humanoid.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set_named
 from teleop.dataset_reader import fingerprint, iter_frames, read_episodes, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
@@ -55,14 +55,14 @@ class Demonstrations:
     """Every committed frame of a dataset as tensors, in index order."""
 
     root: Path
-    inputs: torch.Tensor  # (N, input_dim) float32: what the policy reads (see `kind`)
+    inputs: torch.Tensor  # (N, input_dim) float32: what the policy reads (see `input_set_name`)
     actions: torch.Tensor  # (N, action_dim) float32: the label actions
     episode_index: np.ndarray  # (N,) int64
     info: dict[str, Any]
     seconds: float  # time to load, from files to tensors
     from_cache: bool
     fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
-    kind: str = "full"  # humanoid.inputs.INPUT_SETS: which input `inputs` holds
+    input_set_name: str = "full"  # humanoid.inputs.INPUT_SETS: which input set `inputs` holds
 
     @property
     def frames(self) -> int:
@@ -118,7 +118,7 @@ class Demonstrations:
 def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[dict[str, Any], np.ndarray]:
     """(meta/info.json, where each frame entry sits among the observed columns' entries) of the dataset at
     `root`; DatasetError says in one line why it cannot train a policy on `inputs` for `env`."""
-    kind = input_set(inputs)
+    input_set = input_set_named(inputs)
     if not (root / INFO_PATH).is_file():
         reason = "no such folder" if not root.exists() else f"no {INFO_PATH}"
         raise DatasetError(f"no LeRobot dataset at {root} ({reason}); record one with `make record DATASET={root}`")
@@ -129,21 +129,21 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
         raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
-    missing = [key for key in (*kind.columns, columns.ACTION) if key not in features]
+    missing = [key for key in (*input_set.columns, columns.ACTION) if key not in features]
     if missing:
-        needed = ", ".join((*kind.columns, columns.ACTION))
+        needed = ", ".join((*input_set.columns, columns.ACTION))
         raise DatasetError(f"{root} has no {', '.join(missing)} feature (it needs {needed})")
     recorded_action_dim = features[columns.ACTION]["shape"][0]
     if recorded_action_dim != env.action_space.shape[0]:
         raise DatasetError(
             f"{root} records {recorded_action_dim} action dimensions; {ENV_ID} has {env.action_space.shape[0]}"
         )
-    recorded = [name for key in kind.observed_columns for name in features[key].get("names") or []]
+    recorded = [name for key in input_set.observed_columns for name in features[key].get("names") or []]
     position = {name: i for i, name in enumerate(recorded)}
-    wanted = kind.observed_names(env.unwrapped.model)
+    wanted = input_set.observed_names(env.unwrapped.model)
     if not set(wanted) <= position.keys():
         raise DatasetError(
-            f"{root}: its {' + '.join(kind.observed_columns)} do not name every entry INPUTS={inputs} is computed "
+            f"{root}: its {' + '.join(input_set.observed_columns)} do not name every entry INPUTS={inputs} is computed "
             f"from (recorded before this version? its {columns.OBS_STATE} has "
             f"{features[columns.OBS_STATE]['shape'][0]} "
             f"entries); record a new dataset, or train on it with INPUTS=full if it holds the whole observation"
@@ -225,7 +225,7 @@ def cache_demonstrations(demos: Demonstrations) -> None:
     """Put `demos` (every committed frame of its dataset as `load_demonstrations` reads them, rows made elsewhere)
     into the decoded-frames cache, so that the next load of the dataset as these inputs reads them back: DAgger's
     aggregate, whose rows it holds in memory, for PPO's critic."""
-    folder = _cache_folder(demos.root, (demos.root / INFO_PATH).read_text(), demos.kind)
+    folder = _cache_folder(demos.root, (demos.root / INFO_PATH).read_text(), demos.input_set_name)
     arrays = {"inputs": demos.inputs.numpy(), "actions": demos.actions.numpy(), "episode_index": demos.episode_index}
     _store(folder, arrays)
 
@@ -272,7 +272,7 @@ def load_demonstrations(root: Path, env: gym.Env, cache: bool = True, inputs: st
         seconds=time.perf_counter() - start,
         from_cache=from_cache,
         fingerprint=digest,
-        kind=inputs,
+        input_set_name=inputs,
     )
 
 

@@ -50,7 +50,7 @@ from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
 from humanoid.env import make_env
-from humanoid.inputs import INPUTS, input_set
+from humanoid.inputs import INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
@@ -187,7 +187,7 @@ class TrainResult:
 
 def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
-    input_set(cfg.inputs)
+    input_set_named(cfg.inputs)
     check_positive(cfg, "hidden", "layers", "batch_size", "epochs", "lr", "std_floor")
     check_non_negative(cfg, "weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed", "seed")
     if not 0 < cfg.val_fraction < 1:
@@ -320,13 +320,13 @@ def check_taught(cfg: TrainConfig) -> None:
     a step of action latency, which a dataset without a delayed episode never shows
     (docs/decisions/pending-inputs.md); a commanded set teaches following the command, which a dataset whose
     command never changes never shows."""
-    kind = input_set(cfg.inputs)
-    if kind.reads_latency and not episode_delays(cfg.dataset).any():
+    input_set = input_set_named(cfg.inputs)
+    if input_set.reads_latency and not episode_delays(cfg.dataset).any():
         raise UserError(
             f"--inputs {cfg.inputs} learns to act through action latency, and no episode of {cfg.dataset} was "
             "recorded with it: record the dataset with LATENCY>0 (make record LATENCY=0.5), or train on other --inputs"
         )
-    if kind.takes_command:
+    if input_set.takes_command:
         try:
             commands = read_frames(cfg.dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
         except (OSError, KeyError, ValueError) as error:
@@ -348,7 +348,7 @@ def fit_demonstrations(
     train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
     spec = MLPSpec(
-        input_keys=input_set(cfg.inputs).columns,
+        input_keys=input_set_named(cfg.inputs).columns,
         inputs=cfg.inputs,
         input_dim=demos.inputs.shape[1],
         action_dim=demos.actions.shape[1],
@@ -423,7 +423,7 @@ def train_and_save(
 def evaluation_of(policy: MLPPolicy, cfg: TrainConfig) -> dict[str, Any]:
     """`policy` (the checkpoint `cfg.policy` becomes) and the expert side by side on the same EVAL_EPISODES seeds,
     held-out schedules for a policy that takes a command (their seeds never recorded): what eval.json holds."""
-    schedules = input_set(cfg.inputs).takes_command
+    schedules = input_set_named(cfg.inputs).takes_command
     settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
     runs = [((policy, str(cfg.policy)), settings), ("expert", settings)]
     with evaluation_pool(default_workers(len(runs))) as pool:

@@ -70,9 +70,9 @@ REMOVED_FLAGS: dict[str, Removed] = {
             "ppo-start",
         ),
         Removed(
-            "--init", "make baseline-rl trains from fresh weights, make finetune-rl from the BC policy's", _FIXED_RECORD
+            "--init", "make scratch-rl trains from fresh weights, make finetune-rl from the BC policy's", _FIXED_RECORD
         ),
-        Removed("--reward-scale", f"{_FIXED}: 0.01 for make finetune-rl, 1 for make baseline-rl", _FIXED_RECORD),
+        Removed("--reward-scale", f"{_FIXED}: 0.01 for make finetune-rl, 1 for make scratch-rl", _FIXED_RECORD),
         Removed("--log-std-init", f"{_FIXED}: log(0.05), the DART noise of the demonstrations", _FIXED_RECORD),
         Removed("--eval-conditions", f"{_FIXED}: clean, push20, mass", _FIXED_RECORD),
         Removed("--validation-seed", f"{_FIXED}: 2000", _FIXED_RECORD),

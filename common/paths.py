@@ -29,7 +29,7 @@ BLIND_POLICY = Path("policies/bc_operator_blind")
 PPO_POLICY = Path("policies/ppo_operator")
 """The PPO-refined policy of `make finetune-rl`."""
 SCRATCH_POLICY = Path("policies/ppo_scratch_operator")
-"""PPO from scratch on the same task and budget (`make baseline-rl`)."""
+"""PPO from scratch on the same task and budget (`make scratch-rl`)."""
 TUTORIAL_PREFERRED_POLICY = Path("policies/tutorial_preferred")
 """The seed tutorial's "preferred action" learner (`make tutorial-rl`)."""
 TUTORIAL_PPO_POLICY = Path("policies/tutorial_ppo")

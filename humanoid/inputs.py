@@ -2,8 +2,8 @@
 
     full      the gymnasium observation (348 floats), as is
     proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
-    pending   the sensed features but the feet's forces, then what `humanoid.estimator` computes from the sensed
-              features alone (the torso's height and linear velocity, the nominal model's body inertias), then
+    pending   the sensed input_set but the feet's forces, then what `humanoid.estimator` computes from the sensed
+              input_set alone (the torso's height and linear velocity, the nominal model's body inertias), then
               the action sent but not yet executed under one step of action latency (zeros without latency)
               and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
               delay (docs/decisions/pending-inputs.md)
@@ -11,7 +11,7 @@
               that follows posture commands; standing still is the zero command (docs/concepts/commands.md)
     pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
-              move the teacher's labels are (docs/decisions/command-features.md)
+              move the teacher's labels are (docs/decisions/command-input_set.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -136,7 +136,7 @@ class ProprioInputs(InputSet):
 class PendingInputs(InputSet):
     """`OdometryFeatures` of the sensed features, the action still in flight, the delay.
 
-    Why: a student on the sensed features alone does not stand, one that also reads the estimator's does
+    Why: a student on the sensed input_set alone does not stand, one that also reads the estimator's does
     (docs/log.md, "The deployable observation"); and one step of action latency topples a policy that
     acts as if its action ran at once, while told the delay and what it sent, a student learns to act
     through it (docs/decisions/pending-inputs.md).
@@ -226,7 +226,7 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
 
     Why: the expert's labels follow its setpoint, which reaches a new command over seconds; a policy that reads only
     the command cannot tell how far along that move it is, a policy reading the ramp can, and it is computed from the
-    command alone, as a robot's command filter would (docs/decisions/command-features.md). The arm preset is read as
+    command alone, as a robot's command filter would (docs/decisions/command-input_set.md). The arm preset is read as
     the six angles the setpoint's arms have on the way: a preset's number halfway between two presets names a third.
     Stateful: the ramp runs along the episode's frames, one env step per frame.
     """
@@ -268,7 +268,8 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
 
 _BASES = (FullInputs, ProprioInputs, PendingInputs)
 INPUT_SETS: dict[str, type[InputSet]] = {
-    kind.name: kind for kind in (*_BASES, *(commanded_set(base) for base in _BASES), ramped_set(PendingInputs))
+    input_set.name: input_set
+    for input_set in (*_BASES, *(commanded_set(base) for base in _BASES), ramped_set(PendingInputs))
 }
 INPUTS = tuple(INPUT_SETS)
 
@@ -279,7 +280,7 @@ def removed_inputs(inputs: str) -> Removed | None:
     return REMOVED_VALUES.get(("inputs", inputs))
 
 
-def input_set(inputs: str) -> type[InputSet]:
+def input_set_named(inputs: str) -> type[InputSet]:
     """The input set named `inputs`; UserError in one line for a name it is not (saying what replaced a removed one)."""
     removed = removed_inputs(inputs)
     if removed is not None:
@@ -308,14 +309,14 @@ def episode_inputs(
     the set's computation run along each episode as a rollout runs it, told each episode's delay (`delays`, per
     frame) and each frame's action sent (`actions`: the recorded labels, or what ran where another controller
     labelled, as in DAgger's rounds)."""
-    features = INPUT_SETS[inputs](model)
-    out = np.empty((len(frames), features.size), frames.dtype)
+    input_set = INPUT_SETS[inputs](model)
+    out = np.empty((len(frames), input_set.size), frames.dtype)
     for row, frame in enumerate(frames):
         if row == 0 or episode_index[row] != episode_index[row - 1]:
-            features.set_delay(int(delays[row]))
-            features.reset()
-        out[row] = features(frame)
-        features.sent(actions[row])
+            input_set.set_delay(int(delays[row]))
+            input_set.reset()
+        out[row] = input_set(frame)
+        input_set.sent(actions[row])
     return out
 
 
@@ -332,28 +333,28 @@ class InputObservation(gym.Wrapper):
 
     def __init__(self, env: gym.Env, inputs: str) -> None:
         super().__init__(env)
-        self.features = INPUT_SETS[inputs](nominal_model())
+        self.input_set = INPUT_SETS[inputs](nominal_model())
         self.command = np.zeros(COMMAND_SIZE, np.float32)
         """The operator's command the inputs carry (a commanded set's): an inner `humanoid.commands.CommandedTask`'s,
         which it gives in the info at the reset and after every step; without one, zero (standing still) unless set."""
         space = env.observation_space
-        extra = np.full(self.features.size, np.inf)
+        extra = np.full(self.input_set.size, np.inf)
         self.observation_space = gym.spaces.Box(
             np.concatenate([space.low, -extra]), np.concatenate([space.high, extra]), dtype=space.dtype
         )
 
     def _with_inputs(self, obs: np.ndarray) -> np.ndarray:
-        return np.concatenate([obs, self.features(self.features.observe(obs, self.command))]).astype(obs.dtype)
+        return np.concatenate([obs, self.input_set(self.input_set.observe(obs, self.command))]).astype(obs.dtype)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self._told(info)
-        self.features.set_delay(action_delay(self.env))
-        self.features.reset()
+        self.input_set.set_delay(action_delay(self.env))
+        self.input_set.reset()
         return self._with_inputs(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        self.features.sent(action)
+        self.input_set.sent(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._told(info)
         return self._with_inputs(obs), reward, terminated, truncated, info

@@ -37,13 +37,13 @@ class PolicyController:
         env = make_env() if env is None else env
         try:
             check_fits(policy, env, name)
-            self.features: InputSet = INPUT_SETS[policy.spec.inputs](nominal_model())
+            self.input_set: InputSet = INPUT_SETS[policy.spec.inputs](nominal_model())
         finally:
             if own:
                 env.close()
         self.policy = policy.eval()
         self.name = name
-        self.takes_command = self.features.takes_command
+        self.takes_command = self.input_set.takes_command
         self.command = np.zeros(COMMAND_SIZE, np.float32)
 
     @classmethod
@@ -53,11 +53,11 @@ class PolicyController:
 
     def reset(self, seed: int | None = None) -> None:
         """The policy is deterministic and has no memory; its inputs may (the "pending" inputs' estimator)."""
-        self.features.reset()
+        self.input_set.reset()
 
     def set_delay(self, steps: int) -> None:
         """The episode's action latency, told by the rollout (`humanoid.episode.tell_delay`) to the inputs."""
-        self.features.set_delay(steps)
+        self.input_set.set_delay(steps)
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """A policy acts on what it reads, whatever the body."""
@@ -71,14 +71,14 @@ class PolicyController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            inputs = self.features(self.features.observe(obs, self.command))
+            inputs = self.input_set(self.input_set.observe(obs, self.command))
             action = self.policy(torch.from_numpy(inputs).float()).numpy()
-        self.features.sent(action)
+        self.input_set.sent(action)
         return action
 
     def ran(self, action: np.ndarray) -> None:
         """Its inputs carry what ran as the action in flight."""
-        self.features.sent(action)
+        self.input_set.sent(action)
 
 
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
@@ -91,7 +91,7 @@ def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
         # e.g. a policy conditioned on a command needs a command source besides the observation.
         raise CheckpointError(
             f"{name} reads {spec.inputs!r} from {list(spec.input_keys)}; a controller computes only "
-            + ", ".join(f"{kind!r} from {list(inputs.columns)}" for kind, inputs in INPUT_SETS.items())
+            + ", ".join(f"{name!r} from {list(input_set.columns)}" for name, input_set in INPUT_SETS.items())
         )
     inputs, action_dim = len(INPUT_SETS[spec.inputs].input_names(env.unwrapped.model)), env.action_space.shape[0]
     if (spec.input_dim, spec.action_dim) != (inputs, action_dim):

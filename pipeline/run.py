@@ -1,7 +1,7 @@
 """`make pipeline`: the operator-following task end to end. The expert on leg odometry follows the scripted
 operator's command schedules (record), students clone it on what a robot senses with and without the command
 (train-bc), DAgger lets the expert label where a commanded student goes (dagger), PPO refines that student and PPO
-from scratch gets the same task and budget (finetune-rl, baseline-rl); then one table: survival and tracking per
+from scratch gets the same task and budget (finetune-rl, scratch-rl); then one table: survival and tracking per
 command field on held-out schedules, clean and under every condition of the robustness suite, and survival with the
 command zero (standing), for the expert that records the demonstrations and every policy.
 
@@ -37,7 +37,7 @@ A stage is skipped only if its output exists and was made from the same inputs:
   seeds and conditions (a registered controller's always).
 
 Settings that change only speed, display or permissions are not compared (NOT_COMPARED; the worker
-counts among them, since tests/teleop/test_parallel_record.py and tests/bc/test_finetune.py show
+counts among them, since tests/teleop/test_parallel_record.py and tests/rl/test_finetune.py show
 they change nothing else). An output whose saved settings lack one of this version's was made by an
 older version: it differs (docs/decisions/added-since.md). Otherwise the pipeline says in one line why
 the stage runs, and what happens to an output that differs depends on who made it:
@@ -98,7 +98,7 @@ from policies.folder import (
 from rl.finetune import FinetuneConfig, print_summary, weights_digest
 from rl.finetune import main as ppo_main
 from rl.finetune import validate as validate_ppo
-from rl.scratch import BaselineConfig
+from rl.scratch import ScratchConfig
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
@@ -193,7 +193,7 @@ class PipelineConfig:
     rounds: int = _like(DaggerConfig, "rounds", "DAgger rounds (docs/decisions/pipeline-student.md)")
     dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", bc_dagger.OPERATOR_EPISODES)
     dagger_epochs: int = _like(DaggerConfig, "epochs", "training epochs of every DAgger fit", bc_dagger.OPERATOR_EPOCHS)
-    scratch_policy: Path = _like(BaselineConfig, "policy", "checkpoint folder of PPO from scratch (baseline-rl)")
+    scratch_policy: Path = _like(ScratchConfig, "policy", "checkpoint folder of PPO from scratch (scratch-rl)")
     ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
     timesteps: int = _like(FinetuneConfig, "timesteps")
     envs: int = _like(FinetuneConfig, "envs")
@@ -225,7 +225,7 @@ class Stages:
     student: TrainConfig
     blind: TrainConfig
     dagger: DaggerConfig
-    baseline: BaselineConfig
+    scratch: ScratchConfig
     finetune: FinetuneConfig
 
     def outputs(self) -> dict[str, Path]:
@@ -236,7 +236,7 @@ class Stages:
             "--blind-policy": self.blind.policy,
             "--dagger-output": self.dagger.output,
             "--dagger-policy": self.dagger.policy,
-            "--scratch-policy": self.baseline.policy,
+            "--scratch-policy": self.scratch.policy,
             "--ppo-policy": self.finetune.policy,
         }
 
@@ -272,7 +272,7 @@ def stages(cfg: PipelineConfig) -> Stages:
         "push": cfg.push,
         "curriculum": cfg.curriculum,
         "randomize": cfg.randomize,
-        "baseline": cfg.scratch_policy,
+        "scratch_policy": cfg.scratch_policy,
         "final_eval_episodes": STAGE_EVALUATION,
         **workers,
     }
@@ -312,7 +312,7 @@ def stages(cfg: PipelineConfig) -> Stages:
             epochs=cfg.dagger_epochs,
             eval_episodes=STAGE_EVALUATION,
         ),
-        baseline=_with_args(BaselineConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
+        scratch=_with_args(ScratchConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
         finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
     )
 
@@ -558,7 +558,7 @@ def validate(run: Stages) -> None:
     bc_train.validate(run.student)
     bc_train.validate(run.blind)
     bc_dagger.check_settings(run.dagger)
-    validate_ppo(run.baseline)
+    validate_ppo(run.scratch)
     validate_ppo(run.finetune)
     seen: dict[Path, str] = {}
     for option, folder in run.outputs().items():
@@ -580,7 +580,7 @@ def foresee(run: Stages, overwrite: bool) -> None:
         if dataset_remade and run.dagger.output.exists():
             problem = "is a copy of the dataset the pipeline records again"
         check_aggregate(run.dagger, problem)
-    for config, option in ((run.baseline, "--scratch-policy"), (run.finetune, "--ppo-policy")):
+    for config, option in ((run.scratch, "--scratch-policy"), (run.finetune, "--ppo-policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
 
@@ -604,7 +604,7 @@ def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
     bc_stage(stages.blind, overwrite, "--blind-policy")
     bc_stage(stages.student, overwrite, "--bc-policy")
     dagger_stage(stages.dagger, overwrite)
-    for config, option in ((stages.baseline, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
+    for config, option in ((stages.scratch, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
         decision = ppo_decision(config, option, overwrite)
         print(f"pipeline: {decision.line}", flush=True)
         if decision.action != REUSE:
@@ -614,7 +614,7 @@ def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
         stages.student.policy,
         stages.dagger.policy,
         stages.finetune.policy,
-        stages.baseline.policy,
+        stages.scratch.policy,
     ]
 
 

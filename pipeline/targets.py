@@ -34,7 +34,7 @@ from evaluation.evaluate import EvalConfig
 from evaluation.robustness import RobustnessConfig
 from pipeline.run import PipelineConfig
 from rl.finetune import FinetuneConfig
-from rl.scratch import BaselineConfig
+from rl.scratch import ScratchConfig
 from rl.tutorial import TutorialConfig
 from teleop.export import ExportConfig
 from teleop.inspect_dataset import InspectConfig
@@ -146,7 +146,7 @@ TARGETS: dict[str, Target] = {
         ),
     ),
     "finetune-rl": Target("rl.finetune", FinetuneConfig, _PPO, passes_args=True),
-    "baseline-rl": Target("rl.scratch", BaselineConfig, _PPO, passes_args=True),
+    "scratch-rl": Target("rl.scratch", ScratchConfig, _PPO, passes_args=True),
     "tutorial-rl": Target("rl.tutorial", TutorialConfig, ("learners", "timesteps", "overwrite")),
     "pipeline": Target(
         "pipeline.run",

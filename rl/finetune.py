@@ -14,11 +14,11 @@ Data flow:
    learn (its own rate, scaled rewards, clipped inputs). The actor kept is the last one unless its
    clean return fell below the floor (`rl.validation.falls_back`; never for scratch): then the best evaluated.
 3. The final actor is saved in the BC checkpoint format (`make eval` and `make record` run it),
-   with eval.json and a learning curve beside BC's level and the scratch baseline's curve. Its
+   with eval.json and a learning curve beside BC's level and the curve of PPO from scratch. Its
    config.json holds every setting, who ran it and the BC weights' digest (`bc_policy_sha256`);
    TensorBoard gets the same as text.
 
-`make baseline-rl` (`rl.scratch`) runs the same with fresh weights and without the guards against forgetting (the
+`make scratch-rl` (`rl.scratch`) runs the same with fresh weights and without the guards against forgetting (the
 same clip range and target KL). Why each default is what it is: docs/how-to/finetune-ppo.md; what was tried and
 removed: docs/decisions/.
 """
@@ -52,7 +52,7 @@ from common.workers import default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
 from humanoid.conditions import Randomization, parse_randomization
 from humanoid.env import make_env
-from humanoid.inputs import input_set
+from humanoid.inputs import input_set_named
 from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import (
@@ -70,7 +70,7 @@ from rl.curriculum import PushCurriculum, parse_stages, stage_width
 from rl.guards import Guards
 from rl.learner import build_model, fresh_actor, make_vec_env
 from rl.rollouts import WorkerRolloutPPO
-from rl.validation import CURVE_FILE, Evaluator, falls_back, plot_curves, selection_score
+from rl.validation import CURVE_FILE, Validator, falls_back, plot_curves, selection_score
 from rl.vec_env import WorkerGroupVecEnv
 from teleop.record import SENSED_LATENCY, SENSED_NOISE
 
@@ -104,7 +104,7 @@ class FinetuneConfig:
 
     bc_policy: Path = setting(
         paths.DAGGER_STUDENT_POLICY,
-        "BC checkpoint: the actor to refine (`make baseline-rl`: only its shape and normalisation, and its inputs); "
+        "BC checkpoint: the actor to refine (`make scratch-rl`: only its shape and normalisation, and its inputs); "
         "by default the DAgger student that follows the operator's command on what a robot senses (`make pipeline` "
         "makes it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
     )
@@ -212,13 +212,13 @@ class FinetuneConfig:
         "The rollouts use one: idle torch threads spin and slow the simulation "
         "(docs/log.md, 'How it got here')",
     )
-    baseline: Path = setting(
+    scratch_policy: Path = setting(
         paths.SCRATCH_POLICY, "PPO-from-scratch run whose learning curve the figure shows beside this one, if present"
     )
     progress: bool = setting(True, "show a progress bar")
 
     fresh: ClassVar[bool] = False
-    """Whether the actor starts from fresh weights (`make baseline-rl`) rather than the BC checkpoint's."""
+    """Whether the actor starts from fresh weights (`make scratch-rl`) rather than the BC checkpoint's."""
     reward_scale: ClassVar[float] = 0.01
     """Factor on the rewards PPO learns from (the returns reported are the environment's own): keeps the value loss
     below 1, not in the 1,000s, under the gradient-norm clip actor and critic share
@@ -337,7 +337,7 @@ def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
 
 def follows_commands(cfg: FinetuneConfig) -> bool:
     """Whether the BC policy takes a command: the task is then following the operator's schedules."""
-    return input_set(checkpoint.load(cfg.bc_policy).spec.inputs).takes_command
+    return input_set_named(checkpoint.load(cfg.bc_policy).spec.inputs).takes_command
 
 
 def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | None = None) -> WorkerRolloutPPO:
@@ -464,7 +464,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
             # SB3 stops after the first whole rollout that reaches TIMESTEPS.
             steps = math.ceil(cfg.timesteps / cfg.rollout_steps) * cfg.rollout_steps
             bar = tqdm(total=steps, unit="step", disable=not cfg.progress, file=sys.stderr, dynamic_ncols=True)
-            evaluator = Evaluator(
+            validator = Validator(
                 episodes=cfg.eval_episodes,
                 floor_episodes=cfg.floor_episodes,
                 seed=VALIDATION_SEED,
@@ -485,29 +485,29 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
                 else None
             )
             if saved is not None:
-                resume.restore(saved, model, env, evaluator, curriculum)
+                resume.restore(saved, model, env, validator, curriculum)
                 bar.update(model.num_timesteps)
                 print(f"resuming {folder} at step {model.num_timesteps:,}", file=sys.stderr)
-            snapshots = resume.Snapshots(folder, evaluator, settings, saved, curriculum)
+            snapshots = resume.Snapshots(folder, validator, settings, saved, curriculum)
             start, started_at = time.perf_counter(), model.num_timesteps  # past 0 when resumed
             model.learn(
                 total_timesteps=cfg.timesteps - model.num_timesteps,
                 # The curriculum after the guards (both act at a rollout's end) and before the snapshots.
-                callback=CallbackList([guards, *([curriculum] if curriculum else []), evaluator, snapshots]),
+                callback=CallbackList([guards, *([curriculum] if curriculum else []), validator, snapshots]),
                 reset_num_timesteps=saved is None,
             )
             seconds = time.perf_counter() - start
             bar.close()
             actor = model.policy.actor
-            keep_best = falls_back(evaluator.curve, cfg.fresh)  # the guarded actor
-            kept = evaluator.best if keep_best else evaluator.curve[-1]
+            keep_best = falls_back(validator.curve, cfg.fresh)  # the guarded actor
+            kept = validator.best if keep_best else validator.curve[-1]
             if keep_best:
-                actor.load_state_dict(evaluator.best_state)
+                actor.load_state_dict(validator.best_state)
             record = {**settings, "seconds": seconds, "kept": kept}
             if curriculum is not None:
                 record["curriculum_stages"] = curriculum.history
             checkpoint.save(actor, folder, record, demonstrations)
-            (folder / CURVE_FILE).write_text(json.dumps(evaluator.curve, indent=1))
+            (folder / CURVE_FILE).write_text(json.dumps(validator.curve, indent=1))
             bc_eval = cfg.bc_policy / EVAL_FILE
             bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
             figures = {
@@ -517,10 +517,10 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
                 "resumed_at": started_at,
                 "bc_mean_return": None if bc is None else bc.get("mean_return"),  # none if its evaluation was skipped
                 "expert_mean_return": None if bc is None else bc.get("expert_mean_return"),
-                "training_curve": evaluator.curve,
+                "training_curve": validator.curve,
                 "kept": kept,
             }
-            plot_training(cfg, evaluator.curve, folder / LEARNING_CURVE_FILE)
+            plot_training(cfg, validator.curve, folder / LEARNING_CURVE_FILE)
             # Published with the weights: a kill during the final evaluation leaves a finished run (`finished_result`).
             checkpoint.write_json(folder / EVAL_FILE, figures)
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
@@ -531,9 +531,9 @@ def plot_training(cfg: FinetuneConfig, curve: list[dict[str, Any]], path: Path) 
     """The run's validation curve at `path`, beside scratch's (BASELINE's, if it has one) when fine-tuning."""
     fine_tuning = not cfg.fresh
     curves = {"PPO fine-tuning" if fine_tuning else "PPO from scratch": curve}
-    baseline_curve = cfg.baseline / CURVE_FILE
-    if cfg.baseline.resolve() != cfg.policy.resolve() and baseline_curve.is_file():
-        curves["PPO from scratch"] = json.loads(baseline_curve.read_text())
+    scratch_curve = cfg.scratch_policy / CURVE_FILE
+    if cfg.scratch_policy.resolve() != cfg.policy.resolve() and scratch_curve.is_file():
+        curves["PPO from scratch"] = json.loads(scratch_curve.read_text())
     plot_curves(
         curves,
         curve[0]["mean_return"] if fine_tuning else None,

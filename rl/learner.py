@@ -100,7 +100,7 @@ def make_vec_env(
 
 
 def fresh_actor(like: MLPPolicy, seed: int) -> MLPPolicy:
-    """`like`'s shape re-initialised from `seed`, keeping its input normalisation (the scratch baseline's actor)."""
+    """`like`'s shape re-initialised from `seed`, keeping its input normalisation (the actor of PPO from scratch)."""
     torch.manual_seed(seed)
     fresh = MLPPolicy(like.spec)
     fresh.load_state_dict({**fresh.state_dict(), **dict(like.named_buffers())})

@@ -8,7 +8,7 @@ atomically, with everything the rest of the run depends on:
                NumPy's, torch's and Python's global random states (minibatch order, ...)
     workers:   each environment's episode in progress, as its start and its actions since
                (`rl.vec_env`), and each sampler's noise streams
-    callbacks: the evaluator's curve and best actor, the push curriculum's stage
+    callbacks: the validator's curve and best actor, the push curriculum's stage
 
 Started again with the same settings, `rl.finetune` rebuilds the learner and the environments as
 before and `restore`s the snapshot: the workers replay their episodes (and check that they arrive
@@ -29,7 +29,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from rl.curriculum import PushCurriculum
 from rl.rollouts import WorkerRolloutPPO
-from rl.validation import Evaluator
+from rl.validation import Validator
 from rl.vec_env import WorkerGroupVecEnv
 
 RESUME_FILE = "resume.pt"
@@ -46,7 +46,7 @@ def comparable(settings: dict[str, Any]) -> dict[str, Any]:
 def snapshot(
     model: WorkerRolloutPPO,
     env: WorkerGroupVecEnv,
-    evaluator: Evaluator,
+    validator: Validator,
     settings: dict[str, Any],
     curriculum: PushCurriculum | None = None,
 ) -> dict[str, Any]:
@@ -63,11 +63,11 @@ def snapshot(
         "optimizer": model.policy.optimizer.state_dict(),
         "rng": {"numpy": np.random.get_state(), "torch": torch.get_rng_state(), "python": random.getstate()},
         "workers": env.get_state(),
-        "evaluator": {
-            "curve": evaluator.curve,
-            "best": evaluator.best,
-            "best_state": evaluator.best_state,
-            "next_at": evaluator.next_at,
+        "validator": {
+            "curve": validator.curve,
+            "best": validator.best,
+            "best_state": validator.best_state,
+            "next_at": validator.next_at,
         },
         "curriculum": None if curriculum is None else curriculum.get_state(),
     }
@@ -96,7 +96,7 @@ def restore(
     state: dict[str, Any],
     model: WorkerRolloutPPO,
     env: WorkerGroupVecEnv,
-    evaluator: Evaluator,
+    validator: Validator,
     curriculum: PushCurriculum | None = None,
 ) -> None:
     """Put a freshly built run where `state` was taken; `model.learn` then continues it (with `Snapshots`
@@ -107,8 +107,8 @@ def restore(
     model._last_obs, model._last_episode_starts = state["last_obs"], state["last_episode_starts"]
     model.ensure_samplers(env)  # before their noise streams are set
     env.set_state(state["workers"])
-    evaluator.curve, evaluator.best = state["evaluator"]["curve"], state["evaluator"]["best"]
-    evaluator.best_state, evaluator.next_at = state["evaluator"]["best_state"], state["evaluator"]["next_at"]
+    validator.curve, validator.best = state["validator"]["curve"], state["validator"]["best"]
+    validator.best_state, validator.next_at = state["validator"]["best_state"], state["validator"]["next_at"]
     if curriculum is not None:  # same settings, so the snapshot has its state
         curriculum.set_state(state["curriculum"])
     np.random.set_state(state["rng"]["numpy"])
@@ -117,18 +117,18 @@ def restore(
 
 
 class Snapshots(BaseCallback):
-    """Saves a snapshot at the start of every rollout (after the evaluator's turn: its evaluation is kept)."""
+    """Saves a snapshot at the start of every rollout (after the validator's turn: its evaluation is kept)."""
 
     def __init__(
         self,
         folder: Path,
-        evaluator: Evaluator,
+        validator: Validator,
         settings: dict[str, Any],
         restored: dict[str, Any] | None = None,
         curriculum: PushCurriculum | None = None,
     ) -> None:
         super().__init__()
-        self.folder, self.evaluator, self.settings = folder, evaluator, settings
+        self.folder, self.validator, self.settings = folder, validator, settings
         self.restored, self.curriculum = restored, curriculum
 
     def _on_training_start(self) -> None:
@@ -139,7 +139,7 @@ class Snapshots(BaseCallback):
     def _on_rollout_start(self) -> None:
         save(
             self.folder,
-            snapshot(self.model, self.training_env, self.evaluator, self.settings, self.curriculum),
+            snapshot(self.model, self.training_env, self.validator, self.settings, self.curriculum),
         )
 
     def _on_step(self) -> bool:

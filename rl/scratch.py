@@ -1,4 +1,4 @@
-"""`make baseline-rl`: PPO from scratch, the yardstick of `make finetune-rl`.
+"""`make scratch-rl`: PPO from scratch, the yardstick of `make finetune-rl`.
 
 The same network shape, environments and budget as the fine-tuning run, fresh weights (the input
 normalisation still comes from the BC checkpoint's data), and the same PPO clip range, target KL and
@@ -22,7 +22,7 @@ from rl.finetune import FinetuneConfig, main, print_summary
 
 
 @dataclass
-class BaselineConfig(FinetuneConfig):
+class ScratchConfig(FinetuneConfig):
     """Settings of PPO from scratch: `rl.finetune`'s, with the guards against forgetting off."""
 
     policy: Path = setting(paths.SCRATCH_POLICY, "checkpoint folder to write")
@@ -34,12 +34,12 @@ class BaselineConfig(FinetuneConfig):
     reward_scale: ClassVar[float] = 1.0  # the environment's own rewards
 
 
-def _main_and_print(cfg: BaselineConfig) -> None:
+def _main_and_print(cfg: ScratchConfig) -> None:
     print_summary(cfg, main(cfg, made_by="rl.scratch"))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:
-    return run_cli(_main_and_print, BaselineConfig, argv, description=__doc__, prog="python -m rl.scratch")
+    return run_cli(_main_and_print, ScratchConfig, argv, description=__doc__, prog="python -m rl.scratch")
 
 
 if __name__ == "__main__":

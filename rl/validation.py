@@ -59,11 +59,11 @@ def better(point: dict[str, float], best: dict[str, float], start: dict[str, flo
     return holds_floor([start, point]) and selection_score(point) > selection_score(best)
 
 
-class Evaluator(BaseCallback):
+class Validator(BaseCallback):
     """Evaluates the deterministic actor at 0, after the first update past every `freq` steps, and at the end.
 
     Each evaluation saves a checkpoint (with `settings` as its training record); `settings` also go to
-    TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The evaluator also
+    TensorBoard as text (SB3's logger, so beside PPO's own curves) when training starts. The validator also
     remembers the best of them by `selection_score` (the first on ties) among those that hold the floor
     (`holds_floor`: step 0 does), so that a run that ends worse than it went, or worse than the BC policy it started
     from, can keep its best actor without giving up the floor. With a `pool` (`evaluation.evaluate.evaluation_pool`) an

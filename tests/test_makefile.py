@@ -1,4 +1,4 @@
-"""`make <stage> VAR=value` is `python -m <stage> --var value`, as bc/targets.py's table says, and nothing else.
+"""`make <stage> VAR=value` is `python -m <stage> --var value`, as pipeline/targets.py's table says, and nothing else.
 
 Every check runs the real `make -n` (which prints the command without running it) with the venv's
 install stamp satisfied, so the stage's command line is what `make` would run.
@@ -195,7 +195,7 @@ def test_a_preset_is_the_default_and_a_variable_overrides_it(target: str, stamp:
             assert getattr(given, field) == getattr(parse_config(spec.config, [f"{flag(field)}={value}"], ""), field)
 
 
-@pytest.mark.parametrize("target", ["finetune-rl", "baseline-rl"])
+@pytest.mark.parametrize("target", ["finetune-rl", "scratch-rl"])
 def test_args_reach_the_ppo_stages_as_typed(target: str, stamp: Path) -> None:
     """ARGS are appended word for word: any other flag of the PPO stage."""
     assert stage_command(target, stamp, ARGS=PPO_ARGS, TIMESTEPS="5") == ["--timesteps=5", *shlex.split(PPO_ARGS)]

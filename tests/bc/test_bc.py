@@ -382,7 +382,7 @@ def test_proprio_controller_computes_the_recorded_features(proprio: TrainResult,
     with torch.no_grad():
         expected = proprio.policy(torch.from_numpy(frames[columns.OBS_STATE]).float()).numpy()
     sensed = np.array(
-        [controller.features(controller.features.observe(obs, controller.command)) for obs in observations]
+        [controller.input_set(controller.input_set.observe(obs, controller.command)) for obs in observations]
     )
     np.testing.assert_array_equal(sensed, frames[columns.OBS_STATE])
     # One row at a time against a batch: float32 matmuls may differ in the last bits.
@@ -427,8 +427,8 @@ def test_pending_inputs_in_training_are_what_the_controller_computes_live(
         if row == 0 or episode != frames["episode_index"][row - 1]:
             controller.set_delay(int(delays[episode]))
             controller.reset()
-        live.append(controller.features(controller.features.observe(obs, controller.command)))
-        controller.features.sent(frames[columns.ACTION][row])
+        live.append(controller.input_set(controller.input_set.observe(obs, controller.command)))
+        controller.input_set.sent(frames[columns.ACTION][row])
     live = np.array(live)
     assert np.abs(live[:, -18:-1]).max() > 0  # the command in flight is there, not zeros
     np.testing.assert_allclose(trained, live, rtol=0, atol=1e-4)

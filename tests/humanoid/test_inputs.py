@@ -20,7 +20,7 @@ from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
 from humanoid.estimator import odometry_names
 from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs, input_set
+from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs, input_set_named
 from humanoid.learned import PolicyController
 from humanoid.posture import arm_angles
 from policies.checkpoint import CheckpointError
@@ -65,7 +65,7 @@ def test_live_offline_and_ppo_inputs_are_one_computation(inputs: str, delayed: P
     assert [drawn[LATENCY_PARAMETER] for drawn in read_parameters(delayed)] == [1, 1]
     env = training_env(None, inputs=inputs, latency=1.0)
     command = env.get_wrapper_attr("command")  # the array PPO's environment appends the inputs under
-    live = tiny_policy(inputs, env).features
+    live = tiny_policy(inputs, env).input_set
     appended, computed, observed = [], [], []
     for episode, seed in enumerate(seeds):
         rows = frames["episode_index"] == episode
@@ -121,8 +121,8 @@ def test_a_policy_on_pending_inputs_is_told_the_delay_and_remembers_its_command(
     env = ActionLatency(make_env(20), 1) if delay else make_env(20)
     controller = tiny_policy("pending", env)
     episode = run_episode(env, controller, seed=0)
-    assert controller.features.delay == delay
-    np.testing.assert_array_equal(controller.features.pending, episode.action[-1] if delay else 0.0)
+    assert controller.input_set.delay == delay
+    np.testing.assert_array_equal(controller.input_set.pending, episode.action[-1] if delay else 0.0)
 
 
 def test_a_delay_beyond_one_step_is_refused_in_one_line() -> None:
@@ -163,7 +163,7 @@ def test_a_checkpoint_on_the_removed_odometry_inputs_is_refused_naming_pending()
     with pytest.raises(CheckpointError, match=rf"^policies/old must be retrained: {re.escape(ODOMETRY_REMOVED)}$"):
         PolicyController(policy, "policies/old")  # in an env of its own, which it closes
     with pytest.raises(UserError, match=rf"^{re.escape(ODOMETRY_REMOVED)}$"):
-        input_set("odometry")
+        input_set_named("odometry")
 
 
 def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
@@ -224,5 +224,5 @@ def test_a_policy_made_after_a_drawn_body_estimates_on_the_nominal_one() -> None
     env = DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2)))
     env.reset(seed=0)
     controller = tiny_policy("pending", env)
-    assert controller.features.odometry.odometry.mass == pytest.approx(float(humanoid_model().body_mass.sum()), 1e-12)
-    assert controller.features.odometry.odometry.mass != pytest.approx(float(env.unwrapped.model.body_mass.sum()))
+    assert controller.input_set.odometry.odometry.mass == pytest.approx(float(humanoid_model().body_mass.sum()), 1e-12)
+    assert controller.input_set.odometry.odometry.mass != pytest.approx(float(env.unwrapped.model.body_mass.sum()))

@@ -52,7 +52,7 @@ from pipeline.run import (
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, EVAL_FILE
 from rl.finetune import FinetuneConfig
-from rl.scratch import BaselineConfig
+from rl.scratch import ScratchConfig
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
@@ -71,7 +71,7 @@ def tiny_stages(
     schedules' first command comes after a neutral start of 3 s (200 steps); one DAgger round of one rollout."""
     ppo = {
         "bc_policy": Path("dagger"),
-        "baseline": Path("scratch"),
+        "scratch_policy": Path("scratch"),
         "timesteps": 256,
         "envs": 4,
         "workers": 1,
@@ -133,7 +133,7 @@ def tiny_stages(
         student=TrainConfig(**train),
         blind=TrainConfig(**{**train, "policy": Path("blind"), "inputs": BLIND_INPUTS}),
         dagger=DaggerConfig(**dagger),
-        baseline=BaselineConfig(policy=Path("scratch"), **ppo),
+        scratch=ScratchConfig(policy=Path("scratch"), **ppo),
         finetune=FinetuneConfig(policy=Path("ppo"), **ppo),
     )
 
@@ -313,7 +313,7 @@ def test_retrained_dagger_student_makes_the_ppo_runs_again(outputs: Path) -> Non
     """PPO runs record the weights they started from: the DAgger student trained again on its aggregate (one epoch,
     nothing rolled out: its round is there), new weights, new runs."""
     bc_dagger.main(tiny_stages(dagger={"epochs": 1, "overwrite": True}).dagger)
-    for config in (tiny_stages().baseline, tiny_stages().finetune):
+    for config in (tiny_stages().scratch, tiny_stages().finetune):
         assert ppo_decision(config, "--ppo-policy", overwrite=False).line.endswith("it was made from another BC policy")
 
 
@@ -443,7 +443,7 @@ def test_folder_that_is_not_a_checkpoint_is_refused(outputs: Path) -> None:
     (outputs / "scratch").mkdir()
     (outputs / "scratch" / "notes.txt").write_text("mine")
     with pytest.raises(UserError, match="scratch is not a policy checkpoint"):
-        ppo_decision(tiny_stages().baseline, "--scratch-policy", overwrite=False)
+        ppo_decision(tiny_stages().scratch, "--scratch-policy", overwrite=False)
 
 
 def test_interrupted_recording_is_completed_into_the_same_dataset(outputs: Path, tmp_path: Path) -> None:
@@ -510,7 +510,7 @@ def test_pipeline_defaults_are_the_stages() -> None:
         student,
         dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
         dagger,
-        BaselineConfig(final_eval_episodes=0),
+        ScratchConfig(final_eval_episodes=0),
         FinetuneConfig(final_eval_episodes=0),
     )
     assert check(PipelineConfig()) == list(SUITE)
@@ -519,7 +519,7 @@ def test_pipeline_defaults_are_the_stages() -> None:
 def test_ppo_starts_from_the_dagger_student_by_default() -> None:
     """Fine-tuning refines the DAgger student, which takes the command, and scratch takes its shape and inputs."""
     run_stages = stages(PipelineConfig())
-    assert run_stages.baseline.bc_policy == run_stages.finetune.bc_policy == paths.DAGGER_STUDENT_POLICY
+    assert run_stages.scratch.bc_policy == run_stages.finetune.bc_policy == paths.DAGGER_STUDENT_POLICY
 
 
 def test_ppo_from_the_blind_student_makes_both_ppo_runs_again_with_its_actor(outputs: Path) -> None:
@@ -603,9 +603,9 @@ def test_pipeline_settings_and_args_reach_their_stages() -> None:
     assert (record_settings.episodes, record_settings.workers, record_settings.noise) == (3, 1, 0.01)
     assert (record_settings.latency, record_settings.schedules) == (0.25, True)
     assert (run_stages.student.epochs, run_stages.blind.epochs) == (4, 4)
-    for config in (run_stages.baseline, run_stages.finetune):
+    for config in (run_stages.scratch, run_stages.finetune):
         assert (config.workers, config.target_kl, config.eval_episodes) == (1, 0.01, 2)
-    assert run_stages.baseline.learning_rate == BaselineConfig().learning_rate  # each keeps its own defaults
+    assert run_stages.scratch.learning_rate == ScratchConfig().learning_rate  # each keeps its own defaults
 
 
 def test_args_may_not_repeat_a_pipeline_setting() -> None:

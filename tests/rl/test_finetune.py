@@ -27,7 +27,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 from rl.finetune import FinetuneConfig, cli, follows_commands, learner, main, print_summary, vec_env, weights_digest
 from rl.guards import Guards
 from rl.learner import training_env
-from rl.validation import Evaluator, better, falls_back, holds_floor, selection_score
+from rl.validation import Validator, better, falls_back, holds_floor, selection_score
 from rl.vec_env import WorkerGroupVecEnv
 from support import TINY_PPO, snapshot, tensorboard_text
 
@@ -279,13 +279,13 @@ def test_guarded_keeps_the_last_actor_unless_its_clean_return_fell_below_the_flo
 def test_the_clean_evaluation_which_holds_the_floor_runs_its_own_episodes(tmp_path: Path) -> None:
     """--floor-episodes for the clean condition (one fall in 5 episodes crossed the floor), in parts of at most
     --eval-episodes from the validation seed; --eval-episodes for the validation push and the other conditions."""
-    evaluator = Evaluator(
+    validator = Validator(
         episodes=5, floor_episodes=12, seed=2000, push=40.0, freq=1, settings={}, folder=tmp_path, bar=None
     )
-    clean = [(part["seed"], part["episodes"]) for part in evaluator.parts({"condition": "clean"})]
+    clean = [(part["seed"], part["episodes"]) for part in validator.parts({"condition": "clean"})]
     assert clean == [(2000, 5), (2005, 5), (2010, 2)]
-    assert [(part["seed"], part["episodes"]) for part in evaluator.parts({"push": 40.0})] == [(2000, 5)]
-    assert [(part["seed"], part["episodes"]) for part in evaluator.parts({"condition": "mass"})] == [(2000, 5)]
+    assert [(part["seed"], part["episodes"]) for part in validator.parts({"push": 40.0})] == [(2000, 5)]
+    assert [(part["seed"], part["episodes"]) for part in validator.parts({"condition": "mass"})] == [(2000, 5)]
 
 
 def test_scratch_keeps_its_last_actor_where_fine_tuning_falls_back() -> None:

@@ -74,6 +74,6 @@ def test_installed_version_is_the_pinned_minor() -> None:
 @pytest.mark.parametrize("function", list(FOLLOWED), ids=lambda f: f.__qualname__)
 def test_followed_sb3_code_is_unchanged(function: Callable) -> None:
     assert fingerprint(function) == FOLLOWED[function], (
-        f"stable-baselines3's {function.__qualname__} changed: re-check bc/ppo/rollouts.py, bc/ppo/vec_env.py and "
+        f"stable-baselines3's {function.__qualname__} changed: re-check rl/rollouts.py, rl/vec_env.py and "
         "policies/actor_critic.py against it, then update its fingerprint here and the pin in pyproject.toml"
     )
