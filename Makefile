@@ -4,17 +4,27 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 
-VENV := .venv
+# The checkout this Makefile is in: the stage targets run in the current folder (`make -f path/Makefile record` in
+# an empty one writes datasets/ and policies/ there), the project's own targets in the checkout.
+ROOT := $(patsubst %/,%,$(dir $(abspath $(lastword $(MAKEFILE_LIST)))))
+VENV := $(ROOT)/.venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 UV := $(VENV)/bin/uv
-LOCK := requirements.lock
+LOCK := $(ROOT)/requirements.lock
 UV_VERSION = $(shell sed -n 's/^uv==\([^ ]*\).*/\1/p' $(LOCK))
 # First interpreter >= 3.12 found: on PATH, then pyenv's versions (a pyenv shim alone may refuse).
 PYTHON312 ?= $(shell for p in python3.12 python3.13 python3 $(HOME)/.pyenv/versions/3.1[2-9]*/bin/python3; do \
 	command -v $$p >/dev/null 2>&1 && $$p -c 'import sys; sys.exit(sys.version_info < (3, 12))' 2>/dev/null \
 	&& { command -v $$p; break; }; done)
 
+# One OpenBLAS kernel and one MKL path on every x86-64 CPU with AVX2, so that results are the same on any of them
+# (common/threads.py's PINNED; docs/decisions/cpu-kernels.md). Set before the libraries load, hence here; a value
+# already in the environment wins.
+ifneq ($(shell grep -m1 -ow avx2 /proc/cpuinfo 2>/dev/null),)
+export OPENBLAS_CORETYPE ?= Haswell
+export MKL_CBWR ?= AVX2,STRICT
+endif
 export HF_HUB_OFFLINE := 1
 export HF_DATASETS_OFFLINE := 1
 export MUJOCO_GL ?= egl
@@ -31,19 +41,23 @@ VARS.record := DATASET EPISODES SEED CONTROLLER SCHEDULES NOISE RANDOMIZE LATENC
 VARS.inspect := DATASET PLOT
 VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
-VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES OVERWRITE
+VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES EVAL_EPISODES OVERWRITE
 VARS.eval := POLICY EPISODES SEED SCHEDULES PUSH NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
 VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS SCHEDULES WORKERS
-VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES EPOCHS WORKERS SEED OVERWRITE
+VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY NOISE ROUNDS EPISODES EPOCHS MIN_UPDATES \
+	EVAL_EPISODES WORKERS SEED OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH CURRICULUM RANDOMIZE OVERWRITE
 VARS.scratch-rl := $(VARS.finetune-rl)
 VARS.tutorial-rl := LEARNERS TIMESTEPS OVERWRITE
-VARS.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS BC_POLICY \
-	BLIND_POLICY EPOCHS DAGGER_OUTPUT DAGGER_POLICY ROUNDS DAGGER_EPISODES DAGGER_EPOCHS SCRATCH_POLICY PPO_POLICY TIMESTEPS ENVS \
-	PUSH CURRICULUM RANDOMIZE ARGS OVERWRITE ROBUSTNESS_EPISODES CONDITIONS
-REMOVED.pipeline := DEPLOYABLE PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY SENSED_DATASET SENSED_NOISE \
-	SENSED_LATENCY ODOMETRY_POLICY
+# The pipeline nests each stage's config: a stage's variable keeps its stage (RECORD.EPISODES is --record.episodes).
+VARS.pipeline := RECORD.DATASET RECORD.EPISODES RECORD.SEED RECORD.CONTROLLER RECORD.NOISE RECORD.LATENCY \
+	RECORD.MAX_STEPS BC.POLICY BC.EPOCHS BLIND_POLICY DAGGER.OUTPUT DAGGER.POLICY DAGGER.ROUNDS DAGGER.EPISODES \
+	DAGGER.EPOCHS PPO.POLICY PPO.TIMESTEPS PPO.ENVS PPO.PUSH PPO.CURRICULUM PPO.RANDOMIZE SCRATCH_POLICY WORKERS BACKEND \
+	RAY_ADDRESS OVERWRITE ROBUSTNESS_EPISODES CONDITIONS
+REMOVED.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS BC_POLICY EPOCHS DAGGER_OUTPUT \
+	DAGGER_POLICY ROUNDS DAGGER_EPISODES DAGGER_EPOCHS PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE DEPLOYABLE \
+	PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
@@ -61,13 +75,13 @@ help:  ## list the targets and their variables
 # left out of the lock (pyproject.toml's [tool.uv]), and removed from a .venv built before that.
 # --compile-bytecode, as pip does by default: where PYTHONDONTWRITEBYTECODE is set (as on these machines), every
 # Python process would otherwise compile torch, SB3 and the rest again (docs/decisions/bytecode.md).
-$(STAMP): $(LOCK) pyproject.toml
+$(STAMP): $(LOCK) $(ROOT)/pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: no Python >= 3.12 found (set PYTHON312=/path/to/python3.12)" >&2; exit 1; }
 	@test -x $(PY) || $(PYTHON312) -m venv $(VENV)
 	$(PY) -m pip install --quiet uv==$(UV_VERSION)
 	$(UV) pip install --quiet --python $(PY) --require-hashes --compile-bytecode -r $(LOCK)
 	$(UV) pip uninstall --quiet --python $(PY) torchcodec
-	$(UV) pip install --quiet --python $(PY) --no-deps -e .
+	$(UV) pip install --quiet --python $(PY) --no-deps -e $(ROOT)
 	@touch $@
 
 venv: $(STAMP)  ## build .venv and install the project
@@ -76,8 +90,8 @@ record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to th
 	$(PY) -m teleop.record $(flags)
 
 # The keys command a learned policy (one that takes a command): pipeline/targets.py's preset flags, then the variables.
-play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY=folder, trained with INPUTS=...+command)
-	$(PY) -m teleop.record --controller=keyboard --dataset=datasets/play --noise=0 $(flags)
+play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY: the newest of the chain's, or a folder)
+	$(PY) -m teleop.record --controller=keyboard --policy=newest --dataset=datasets/play --noise=0 $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
 	$(PY) -m teleop.merge $(flags)
@@ -115,23 +129,23 @@ baseline-rl:
 
 # Reuses an output only if it was made from the same inputs (`python -m pipeline.run --help`).
 pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with and without the command), dagger -> scratch-rl, finetune-rl -> the table
-	$(PY) -m pipeline.run $(flags)
+	$(PY) -m pipeline.run $(flags) $(ARGS)
 
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
 # on these 2-core machines 2 finish first (docs/benchmarks.md, "The test suite").
 TEST_WORKERS ?= 2
 test: $(STAMP)  ## run the whole test suite (about 4½ minutes on 2 cores; TEST_WORKERS processes)
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
+	cd $(ROOT) && $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 1 minute)
-	$(PY) -m pytest -m "not slow"
+	cd $(ROOT) && $(PY) -m pytest -m "not slow"
 
 lint: $(STAMP)  ## ruff: lint and format check (configured in pyproject.toml)
-	$(VENV)/bin/ruff check .
-	$(VENV)/bin/ruff format --check .
+	cd $(ROOT) && $(VENV)/bin/ruff check .
+	cd $(ROOT) && $(VENV)/bin/ruff format --check .
 
 lock: $(STAMP)  ## re-resolve requirements.lock from pyproject.toml at the newest allowed versions
-	$(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
+	cd $(ROOT) && $(UV) pip compile pyproject.toml --extra dev --python-version 3.12 --generate-hashes --upgrade --quiet \
 		--custom-compile-command "make lock" -o $(LOCK)
 
 bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
@@ -151,8 +165,8 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 # The flag reference is generated from the stages' configs, as `make help` is; tests/test_docs.py checks it is current.
 .PHONY: docs
 docs: $(STAMP)  ## regenerate docs/reference/flags.md from the stages' configs
-	$(PY) -m pipeline.targets --markdown > docs/reference/flags.md.tmp
-	mv docs/reference/flags.md.tmp docs/reference/flags.md
+	$(PY) -m pipeline.targets --markdown > $(ROOT)/docs/reference/flags.md.tmp
+	mv $(ROOT)/docs/reference/flags.md.tmp $(ROOT)/docs/reference/flags.md
 
 clean-venv:  ## remove .venv
 	rm -rf $(VENV)

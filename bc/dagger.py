@@ -56,11 +56,10 @@ from common.cli import (
     setting,
 )
 from common.workers import default_workers
-from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
 from humanoid.env import make_env, nominal_model
 from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUTS, input_set_named
+from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import json_object
 from policies.mlp import MLPPolicy
@@ -68,6 +67,7 @@ from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.parallel import ParallelRollouts, RolloutSettings
+from teleop.record import DART_NOISE
 from teleop.spool import DAGGER_SPOOL, Spool
 from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 
@@ -75,13 +75,7 @@ MADE_BY = "bc.dagger"
 SOURCE_FILE = "demonstrations.json"
 """In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
-OPERATOR_EPISODES = 20
-"""Rollouts per round of the operator's DAgger student (`make pipeline`): 6 rounds of 20 follow every held-out
-schedule where 10 a round did less (docs/decisions/pipeline-student.md)."""
-OPERATOR_EPOCHS = 15
-"""Epochs of every fit of the operator's DAgger student (`make pipeline`; more if MIN_UPDATES needs them): a sturdier
-student than at 30 over three training seeds, for fewer Adam steps (docs/decisions/pipeline-student.md)."""
-SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "patience", "seed")
+SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
 
@@ -93,12 +87,12 @@ class DaggerConfig:
     output: Path = setting(paths.DAGGER_DATASET, "aggregate dataset: a copy of DATASET, then every round appended")
     policy: Path = setting(paths.DAGGER_POLICY, "checkpoint folder of the final policy")
     inputs: str = setting(
-        "full",
-        "what the student reads (see `make train-bc`); EXPERT labels from the full state or the sensed features",
+        STUDENT_INPUTS,
+        "what the student reads (`make train-bc`'s INPUTS); EXPERT labels from the sensed features or the full state",
         metavar="{" + ",".join(INPUTS) + "}",
     )
     expert: str = setting(
-        LQRExpert.name,
+        SensedExpert.name,
         "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
         "whose law INPUTS=pending can read; docs/concepts/controllers.md)",
         choices=(LQRExpert.name, SensedExpert.name),
@@ -113,28 +107,31 @@ class DaggerConfig:
         "the share of rollouts run with one step of action latency, as `make record LATENCY=`; default: DATASET's",
     )
     noise: float = setting(
-        0.0,
+        DART_NOISE,
         "std of Gaussian noise on the actions the rollouts execute (DART within DAgger: the expert labels the states "
-        "the noise leads to as well); 0 = none",
+        "the noise leads to as well), the recording's by default; 0 = none",
     )
     rounds: int = setting(
         6,
         "rounds of roll out, label, aggregate, retrain that OUTPUT holds when the run ends (rounds already there, "
         "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first)",
     )
-    episodes: int = setting(10, "policy episodes rolled out and labelled per round")
+    episodes: int = setting(
+        20,
+        "policy episodes rolled out and labelled per round: 6 rounds of 20 follow every held-out schedule where 10 a "
+        "round did less (docs/decisions/pipeline-student.md)",
+    )
     workers: int | None = setting(
         None,
         "processes rolling a round's episodes out, each with its labelling expert (committed in seed order: the "
         "aggregate does not depend on it); default: the machine's cores, at most EPISODES",
     )
-    epochs: int = setting(30, "training epochs of every round's policy (more if MIN_UPDATES needs them)")
-    min_updates: int = setting(MIN_UPDATES, "at least this many Adam steps in every round's training (bc.train's)")
-    patience: int = setting(
-        0,
-        "early stopping patience of each training (0 = train all EPOCHS: on DAgger "
-        "data the validation loss says little about standing)",
+    epochs: int = setting(
+        15,
+        "training epochs of every round's policy (more if MIN_UPDATES needs them): a sturdier student than at 30 "
+        "over three training seeds, for fewer Adam steps (docs/decisions/pipeline-student.md)",
     )
+    min_updates: int = setting(MIN_UPDATES, "at least this many Adam steps in every round's training (bc.train's)")
     seed: int = setting(
         0,
         "training seed of every round's fit and of the final one (initial weights, validation split, minibatches); "
@@ -177,7 +174,7 @@ def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
     input_set_named(cfg.inputs)
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
-    check_non_negative(cfg, "patience", "min_updates", "eval_episodes", "noise", "seed")
+    check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "seed")
     if cfg.latency is not None:
         check_share(cfg, "latency")
     if cfg.randomize is not None:
@@ -426,7 +423,6 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         overwrite=cfg.overwrite,
         epochs=cfg.epochs,
         min_updates=cfg.min_updates,
-        patience=cfg.patience,
         eval_episodes=cfg.eval_episodes,
         progress=cfg.progress,
         seed=cfg.seed,
@@ -435,7 +431,6 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         controller=cfg.policy.name,  # each round's policy goes by it (`DAggerTrainer`)
         noise=cfg.noise,
         max_steps=env.spec.max_episode_steps,
-        task=DEFAULT_TASK,
         randomization=randomization,
         latency=cfg.latency,
         labeller=cfg.expert,

@@ -5,8 +5,8 @@
    identical, so a frame split would measure memorisation) for validation.
 3. Fit an MLP policy (`policies.mlp`) whose input normalisation comes from the training frames,
    with Adam on the mean squared error of the actions, minibatches drawn from tensors in memory,
-   for EPOCHS passes or, on a small dataset, as many as MIN_UPDATES Adam steps take; the last
-   epoch's weights are kept (with PATIENCE, the best epoch's, stopping early).
+   for EPOCHS passes or, on a small dataset, as many as MIN_UPDATES Adam steps take, the rate annealed on a
+   cosine; the last epoch's weights are kept (docs/decisions/bc-epochs.md).
 4. Write the checkpoint to POLICY (weights, the run's full config, the dataset's identity and
    fingerprint, learning curve, TensorBoard logs with the config as text) through a hidden
    staging folder: an existing checkpoint is replaced only with --overwrite and only once the new
@@ -16,11 +16,10 @@
 
 from __future__ import annotations
 
-import copy
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,20 +48,19 @@ from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
+from humanoid.controllers import CONTROLLERS
 from humanoid.env import make_env
-from humanoid.inputs import INPUTS, input_set_named
+from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
-from policies.mlp import ACTIVATIONS, STD_FLOOR, MLPPolicy, MLPSpec
-from teleop.dataset_reader import read_frames
+from policies.mlp import MLPPolicy, MLPSpec
+from teleop.dataset_reader import read_episodes, read_frames
+from teleop.record import TEACHER
 
-LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
-    "mse": F.mse_loss,
-    "l1": F.l1_loss,
-    "huber": F.smooth_l1_loss,
-}
-
-
+VAL_FRACTION = 0.1
+"""Share of the episodes held out for validation (at least one): whole episodes, never single frames."""
+ACTIVATION = "elu"
+"""Hidden units: students from a few demonstrations stand where ReLU ones fell (docs/decisions/activation.md)."""
 MIN_UPDATES = 5000
 """Adam steps that made the sensed-expert students stand from 10 and 20 demonstrations (docs/decisions/bc-epochs.md);
 30 epochs of 50 demonstrations are about as many."""
@@ -75,29 +73,17 @@ class TrainConfig:
     dataset: Path = setting(paths.DATASET, "LeRobot dataset folder recorded by `make record`")
     policy: Path = setting(paths.BC_POLICY, "checkpoint folder to write")
     inputs: str = setting(
-        "full",
-        "what the policy reads: the gymnasium observation (full), what a robot senses (proprio), or the leg "
-        "odometry computed from that with its command in flight under latency and the delay (pending: record with "
-        "LATENCY; humanoid/inputs.py); full by measurement, see docs/concepts/inputs.md",
+        STUDENT_INPUTS,
+        "what the policy reads (docs/concepts/inputs.md): by default what a robot senses, the leg odometry "
+        "computed from it, its command in flight under latency and the delay, and the operator's command as the "
+        "teacher's setpoint moves toward it (pending+ramp); full: the simulator's whole observation, which no robot "
+        "has (the standing recipe)",
         metavar="{" + ",".join(INPUTS) + "}",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY (once the new one is complete)")
     hidden: int = setting(256, "width of each hidden layer")
     layers: int = setting(2, "number of hidden layers")
-    activation: str = setting(
-        "elu",
-        "hidden activation; ELU by measurement: students from a few demonstrations stand where ReLU ones fell "
-        "(docs/decisions/activation.md)",
-        choices=tuple(ACTIVATIONS),
-    )
-    loss: str = setting("mse", "loss on the actions", choices=tuple(LOSSES))
-    lr: float = setting(1e-3, "Adam learning rate")
-    lr_schedule: str = setting(
-        "cosine",
-        "the learning rate over training: 'cosine' (from LR down to 0 at the last Adam step) or 'constant'",
-        choices=("constant", "cosine"),
-    )
-    weight_decay: float = setting(0.0, "Adam weight decay (L2)")
+    lr: float = setting(1e-3, "Adam's first learning rate, annealed to 0 on a cosine over training")
     batch_size: int = setting(256, "minibatch size")
     epochs: int = setting(30, "passes over the training frames (more if MIN_UPDATES needs them)")
     min_updates: int = setting(
@@ -105,22 +91,11 @@ class TrainConfig:
         "train for at least this many Adam steps, so fewer demonstrations do not mean less training: a small "
         "dataset gets more than EPOCHS passes (docs/decisions/bc-epochs.md); 0 = exactly EPOCHS",
     )
-    patience: int = setting(
-        0,
-        "stop after this many epochs without a better validation loss and keep the best epoch; 0 = train all "
-        "EPOCHS and keep the last (the default: the validation loss says little about standing, "
-        "docs/decisions/bc-epochs.md)",
-    )
-    val_fraction: float = setting(0.1, "fraction of the episodes held out for validation (at least one)")
-    std_floor: float = setting(
-        STD_FLOOR, "floor on the input standard deviations, in the observation's units (see policies/mlp.py)"
-    )
     seed: int = setting(0, "seed of the split, the initial weights and the minibatch order")
-    threads: int = setting(0, "torch CPU threads; 0 = one per core")
     cache: bool = setting(True, "cache the decoded frames (.npy) to load the same dataset faster next time")
-    eval_episodes: int = setting(20, "episodes of the evaluation after training; 0 = skip it")
-    eval_seed: int = setting(EVAL_SEED, "seed of the first evaluation episode")
-    tensorboard: bool = setting(True, f"write TensorBoard logs to POLICY/{TENSORBOARD_DIR}")
+    eval_episodes: int = setting(
+        20, f"episodes of the evaluation after training, on held-out seeds from {EVAL_SEED}; 0 = skip it"
+    )
     progress: bool = setting(True, "show a progress bar")
 
 
@@ -132,16 +107,10 @@ class LearningCurves:
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
     learning_rate: list[float] = field(default_factory=list)  # Adam's, at the end of each epoch
-    best_epoch: int = 0  # the lowest validation loss so far
-    kept_epoch: int = 0  # whose weights the policy holds: the best with early stopping, else the last
 
     @property
     def best_val_loss(self) -> float:
-        return self.val_loss[self.best_epoch]
-
-    @property
-    def kept_val_loss(self) -> float:
-        return self.val_loss[self.kept_epoch]
+        return min(self.val_loss)
 
 
 @dataclass
@@ -150,7 +119,6 @@ class TrainResult:
 
     policy_dir: Path
     policy: MLPPolicy
-    loss: str
     train_episodes: list[int]
     val_episodes: list[int]
     train_frames: int
@@ -165,9 +133,9 @@ class TrainResult:
     def describe(self) -> str:
         curves = self.curves
         line = (
-            f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, kept epoch "
-            f"{curves.kept_epoch + 1} (validation loss {curves.kept_val_loss:.3g}, untrained "
-            f"{curves.initial_val_loss:.3g}); {self.train_frames} training and {self.val_frames} validation "
+            f"{self.policy_dir}: {len(curves.val_loss)} epochs in {self.train_seconds:.1f} s, validation loss "
+            f"{curves.val_loss[-1]:.3g} (untrained {curves.initial_val_loss:.3g}); {self.train_frames} training and "
+            f"{self.val_frames} validation "
             f"frames loaded in {self.load_seconds:.2f} s ({self.load_rows_per_s:.3g} rows/s"
             f"{', cached' if self.loaded_from_cache else ''})"
         )
@@ -188,10 +156,8 @@ class TrainResult:
 def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
     input_set_named(cfg.inputs)
-    check_positive(cfg, "hidden", "layers", "batch_size", "epochs", "lr", "std_floor")
-    check_non_negative(cfg, "weight_decay", "patience", "min_updates", "threads", "eval_episodes", "eval_seed", "seed")
-    if not 0 < cfg.val_fraction < 1:
-        raise UserError(f"--val-fraction must be between 0 and 1, got {cfg.val_fraction}")
+    check_positive(cfg, "hidden", "layers", "batch_size", "epochs", "lr")
+    check_non_negative(cfg, "min_updates", "eval_episodes", "seed")
 
 
 def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -206,13 +172,11 @@ def planned_epochs(frames: int, cfg: TrainConfig) -> int:
     return max(cfg.epochs, math.ceil(cfg.min_updates / batches))
 
 
-def lr_factor(schedule: str, step: int, steps: int) -> float:
-    """The learning rate after `step` of `steps` Adam steps, as a fraction of LR. Cosine ends at 0, so the weights
-    kept are not one noisy step's: from few demonstrations, a constant rate's survival swung with the training seed
-    (docs/decisions/bc-epochs.md)."""
-    if schedule == "cosine":
-        return 0.5 * (1 + math.cos(math.pi * min(step, steps) / steps))
-    return 1.0
+def lr_factor(step: int, steps: int) -> float:
+    """The learning rate after `step` of `steps` Adam steps, as a fraction of LR: a cosine that ends at 0, so the
+    weights kept are not one noisy step's (a constant rate's students swung with the training seed:
+    docs/decisions/bc-epochs.md)."""
+    return 0.5 * (1 + math.cos(math.pi * min(step, steps) / steps))
 
 
 def fit(
@@ -222,10 +186,10 @@ def fit(
     cfg: TrainConfig,
     writer: SummaryWriter | None,
 ) -> LearningCurves:
-    """Minibatch Adam; with `cfg.patience`, early stopping that leaves the best epoch's weights in `policy`,
-    else every epoch and the last one's weights."""
-    loss_fn = LOSSES[cfg.loss]
-    optimiser = torch.optim.Adam(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    """Minibatch Adam on the mean squared error of the actions, every planned epoch; `policy` keeps the last one's
+    weights."""
+    loss_fn = F.mse_loss
+    optimiser = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
     order = torch.Generator().manual_seed(cfg.seed)
     x_train, y_train = train
     x_val, y_val = val
@@ -236,10 +200,9 @@ def fit(
             return loss_fn(policy(x_val), y_val).item()
 
     curves = LearningCurves(initial_val_loss=validation_loss())
-    best_state = copy.deepcopy(policy.state_dict())
     epochs = planned_epochs(len(x_train), cfg)
     steps = epochs * math.ceil(len(x_train) / cfg.batch_size)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: lr_factor(cfg.lr_schedule, step, steps))
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: lr_factor(step, steps))
     bar = tqdm(
         range(epochs),
         unit="epoch",
@@ -261,8 +224,6 @@ def fit(
         curves.train_loss.append(total / len(x_train))
         curves.val_loss.append(validation_loss())
         curves.learning_rate.append(schedule.get_last_lr()[0])
-        if curves.val_loss[-1] < curves.best_val_loss or epoch == 0:
-            curves.best_epoch, best_state = epoch, copy.deepcopy(policy.state_dict())
         samples_per_s = len(x_train) / (time.perf_counter() - start)
         bar.set_postfix(
             train=f"{curves.train_loss[-1]:.3g}", val=f"{curves.val_loss[-1]:.3g}", samples_per_s=f"{samples_per_s:.0f}"
@@ -274,28 +235,20 @@ def fit(
             writer.add_scalar("loss/validation", curves.val_loss[-1], epoch + 1)
             writer.add_scalar("throughput/samples_per_s", samples_per_s, epoch + 1)
             writer.add_scalar("train/learning_rate", curves.learning_rate[-1], epoch + 1)
-        if cfg.patience and epoch - curves.best_epoch >= cfg.patience:
-            break
     bar.close()
-    if cfg.patience:
-        curves.kept_epoch = curves.best_epoch
-        policy.load_state_dict(best_state)
-    else:
-        curves.kept_epoch = len(curves.val_loss) - 1
     return curves
 
 
 def plot_learning_curve(result: TrainResult, path: Path) -> None:
-    """Training and validation loss per epoch, log scale, the untrained loss at 0 and the kept epoch marked."""
+    """Training and validation loss per epoch, log scale, the untrained loss at 0."""
     curves = result.curves
     epochs = np.arange(1, len(curves.val_loss) + 1)
     figure = Figure(figsize=(6, 4))
     axes = figure.subplots()
     axes.semilogy(epochs, curves.train_loss, label="training")
     axes.semilogy([0, *epochs], [curves.initial_val_loss, *curves.val_loss], label="validation")
-    axes.axvline(curves.kept_epoch + 1, color="grey", linestyle=":", label=f"kept (epoch {curves.kept_epoch + 1})")
     axes.set_xlabel("epoch")
-    axes.set_ylabel(f"{result.loss} loss")
+    axes.set_ylabel("mean squared error")
     axes.set_title(f"{result.policy_dir.name}: {result.train_frames} training frames")
     axes.legend()
     figure.tight_layout()
@@ -334,7 +287,8 @@ def check_taught(cfg: TrainConfig) -> None:
         if len(np.unique(commands, axis=0)) < 2:
             raise UserError(
                 f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
-                "record commanded demonstrations (make record CONTROLLER=operator, or CONTROLLER=keyboard)"
+                "record commanded demonstrations (make record: its schedules, SCHEDULES=1, are the default; or "
+                "CONTROLLER=keyboard)"
             )
 
 
@@ -343,9 +297,9 @@ def fit_demonstrations(
 ) -> TrainResult:
     """A policy for `action_space` fitted to `demos` in memory as `cfg` says (its split, input normalisation and
     training); nothing is written but `writer`'s logs. The same `demos` and `cfg` give the same weights."""
-    torch.set_num_threads(cfg.threads or available_cores())
+    torch.set_num_threads(available_cores())
     torch.manual_seed(cfg.seed)
-    train_episodes, val_episodes = split_by_episode(demos.episodes, cfg.val_fraction, cfg.seed)
+    train_episodes, val_episodes = split_by_episode(demos.episodes, VAL_FRACTION, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
     spec = MLPSpec(
         input_keys=input_set_named(cfg.inputs).columns,
@@ -353,14 +307,13 @@ def fit_demonstrations(
         input_dim=demos.inputs.shape[1],
         action_dim=demos.actions.shape[1],
         hidden=(cfg.hidden,) * cfg.layers,
-        activation=cfg.activation,
+        activation=ACTIVATION,
     )
     policy = MLPPolicy(spec, action_space.low, action_space.high)
-    policy.fit_normalisation(train[0], cfg.std_floor)
+    policy.fit_normalisation(train[0])
     result = TrainResult(
         policy_dir=cfg.policy,
         policy=policy,
-        loss=cfg.loss,
         train_episodes=train_episodes,
         val_episodes=val_episodes,
         train_frames=len(train[0]),
@@ -389,19 +342,16 @@ def train_and_save(
     """
     settings = {**config_dict(cfg), "made_by": made_by, **(context or {})}
     with checkpoint.staged(cfg.policy, cfg.overwrite) as folder:
-        writer = SummaryWriter(str(folder / TENSORBOARD_DIR)) if cfg.tensorboard else None
-        if writer is not None:
-            writer.add_text(CONFIG_TAG, config_text(settings), 0)
+        writer = SummaryWriter(str(folder / TENSORBOARD_DIR))
+        writer.add_text(CONFIG_TAG, config_text(settings), 0)
         try:
             result = fit_demonstrations(demos, cfg, action_space, writer)
         finally:
-            if writer is not None:
-                writer.close()
+            writer.close()
         training = {
             **settings,
-            "kept_epoch": result.curves.kept_epoch + 1,
-            "kept_val_loss": result.curves.kept_val_loss,
             "epochs_run": len(result.curves.val_loss),
+            "val_loss": result.curves.val_loss[-1],
             "best_val_loss": result.curves.best_val_loss,
             "train_seconds": result.train_seconds,
         }
@@ -420,12 +370,19 @@ def train_and_save(
     return result
 
 
+def teacher_of(dataset: Path) -> str:
+    """Who labelled the dataset's actions (its episodes' labeller, a registered controller): the student's teacher."""
+    labellers = set(read_episodes(dataset, [columns.EPISODE_LABELLER])[columns.EPISODE_LABELLER].to_pylist())
+    return labellers.pop() if len(labellers) == 1 and labellers <= CONTROLLERS.keys() else TEACHER
+
+
 def evaluation_of(policy: MLPPolicy, cfg: TrainConfig) -> dict[str, Any]:
-    """`policy` (the checkpoint `cfg.policy` becomes) and the expert side by side on the same EVAL_EPISODES seeds,
-    held-out schedules for a policy that takes a command (their seeds never recorded): what eval.json holds."""
+    """`policy` (the checkpoint `cfg.policy` becomes) and its teacher (`teacher_of`) side by side on the same
+    EVAL_EPISODES held-out seeds, under held-out schedules for a policy that takes a command: what eval.json holds
+    (its "expert_*" entries: the teacher's)."""
     schedules = input_set_named(cfg.inputs).takes_command
-    settings = {"episodes": cfg.eval_episodes, "seed": cfg.eval_seed, "schedules": schedules}
-    runs = [((policy, str(cfg.policy)), settings), ("expert", settings)]
+    settings = {"episodes": cfg.eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+    runs = [((policy, str(cfg.policy)), settings), (teacher_of(cfg.dataset), settings)]
     with evaluation_pool(default_workers(len(runs))) as pool:
         evaluation, expert = evaluate_each(runs, pool)
     evaluation["expert_mean_return"] = expert["mean_return"]

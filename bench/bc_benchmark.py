@@ -29,7 +29,7 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from evaluation.evaluate import evaluate
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import RecordConfig
+from teleop.record import STANDING, RecordConfig
 from teleop.record import main as record
 
 CONDITIONS = {"clean": {}, "NOISE=0.05": {"noise": 0.05}, "PUSH=10": {"push": 10.0}}
@@ -72,11 +72,13 @@ def bench_noise(noise: float, episodes: int, repeats: int) -> tuple[str, str]:
     """The DART-table row and the timing row of BC trained on demonstrations recorded at `noise`."""
     root = RESULTS / "data" / f"dart_{noise:g}"
     if not (root / INFO_PATH).exists():
-        record(RecordConfig(dataset=root, episodes=episodes, seed=0, noise=noise, progress=False))
+        record(RecordConfig(dataset=root, episodes=episodes, seed=0, noise=noise, progress=False, **STANDING))
     policy = dart_policy(noise)
     loading = loading_rows_per_s(root, repeats)
     start = time.perf_counter()
-    trained = train(TrainConfig(dataset=root, policy=policy, overwrite=True, eval_episodes=0, progress=False))
+    trained = train(
+        TrainConfig(dataset=root, policy=policy, inputs="full", overwrite=True, eval_episodes=0, progress=False)
+    )
     to_policy = time.perf_counter() - start
     results = [cell(evaluate(str(policy), **settings)) for settings in CONDITIONS.values()]
     label = "clean demonstrations" if noise == 0 else f"DART σ = {noise:g}"
@@ -99,6 +101,10 @@ def bench_dagger(noise: float, rounds: int, episodes: int) -> str:
             dataset=RESULTS / "data" / f"dart_{noise:g}",
             output=output,
             policy=policy,
+            inputs="full",
+            expert="expert",
+            noise=0.0,
+            epochs=30,
             rounds=rounds,
             episodes=episodes,
             overwrite=True,

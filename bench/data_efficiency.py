@@ -41,18 +41,18 @@ from evaluation.evaluate import evaluate
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_episodes
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import DEFAULT_NOISE, RecordConfig
+from teleop.record import STANDING_NOISE, RecordConfig
 from teleop.record import main as record
 
 DEMOS = (5, 10, 20, 50)
 FIRST_SEEDS = (0, 10_000, 20_000)
 TEACHERS = {
-    "full": ("expert", DEFAULT_NOISE),
-    "proprio": ("expert", DEFAULT_NOISE),
-    "pending": ("expert-sensed", DEFAULT_NOISE),
+    "full": ("expert", STANDING_NOISE),
+    "proprio": ("expert", STANDING_NOISE),
+    "pending": ("expert-sensed", STANDING_NOISE),
 }
 """Who records each input's demonstrations, and with what DART noise. The expert on leg odometry records with the
-expert's noise here, not the pipeline's lower SENSED_NOISE: from 5 and 10 demonstrations without latency, the
+expert's noise here, not the pipeline's lower DART_NOISE: from 5 and 10 demonstrations without latency, the
 recoveries from its falls at 0.05 are what made students stand (docs/log.md, "BC data efficiency")."""
 INPUTS = tuple(TEACHERS)
 EVAL_EPISODES = 20
@@ -117,6 +117,7 @@ def recorded(
         controller=teacher,
         noise=noise,
         latency=latency,
+        schedules=False,
         workers=workers,
         progress=False,
     )
@@ -134,7 +135,6 @@ def train_and_evaluate(root: Path, policy: Path, inputs: str, eval_seed: int, ev
             overwrite=True,  # a --work folder from an earlier run: the policy is always retrained
             eval_episodes=0,  # bc.train's own evaluation would use the same seeds: evaluated once, below
             progress=False,
-            tensorboard=False,
         )
     )
     evaluation = evaluate(PolicyController(result.policy, str(policy)), episodes=eval_episodes, seed=eval_seed)
@@ -228,7 +228,7 @@ def notes(cells: Sequence[Cell], eval_seed: int, eval_episodes: int) -> str:
         "Each N-episode dataset is the first N seeds of its range, recorded by the input's teacher (the expert "
         f"with DART noise {TEACHERS['full'][1]}, the expert on leg odometry with {TEACHERS['pending'][1]}); "
         f"`bc.train` defaults (at least {defaults.epochs} epochs and {defaults.min_updates:,} Adam steps, learning "
-        f"rate {defaults.lr:g} on a {defaults.lr_schedule} schedule, the last kept), split by "
+        f"rate {defaults.lr:g} on a cosine schedule, the last kept), split by "
         "episode with 10 % held out for "
         f"validation and at least one, so N = {fewest.demos} trains on {fewest.train_episodes} "
         f"episode{'s' if fewest.train_episodes != 1 else ''}. "

@@ -9,7 +9,7 @@ enough, and from how many demonstrations, is measured here, not assumed (the stu
 alone, `INPUTS=odometry`, was removed once this measured it: docs/decisions/pending-inputs.md).
 
 What: for each first seed (disjoint seed ranges) and each N, the expert on leg odometry records N
-episodes (DART noise SENSED_NOISE, as `make pipeline` records them), a share of them with one step of
+episodes (DART noise DART_NOISE, as `make pipeline` records them), a share of them with one step of
 latency, drawn per episode and told to it (`make record LATENCY=SHARE`). A student trains on it with
 `bc.train`'s defaults and INPUTS=pending. It is evaluated on the
 unseen seeds 1000..1019 under the suite's clean, latency and noise conditions, the expert on leg
@@ -33,7 +33,7 @@ from evaluation.evaluate import evaluate
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.learned import PolicyController
 from teleop.dataset_reader import read_parameters
-from teleop.record import SENSED_NOISE
+from teleop.record import DART_NOISE
 
 DEMOS = (20, 50)
 FIRST_SEEDS = (0, 100, 200)
@@ -66,7 +66,7 @@ def run(work: Path, demos: list[int], first_seeds: list[int], share: float) -> l
     for first_seed in first_seeds:
         for n in demos:
             root = dataset_dir(work, f"{TEACHER}_latency{share:g}", first_seed, n)
-            fallen = recorded(root, first_seed, n, 2, TEACHER, SENSED_NOISE, latency=share)
+            fallen = recorded(root, first_seed, n, 2, TEACHER, DART_NOISE, latency=share)
             delayed = sum(d.get(LATENCY_PARAMETER, 0) for d in read_parameters(root))
             for kind in STUDENTS:
                 policy = work / "policies" / f"{root.name}_{kind}"
@@ -78,7 +78,6 @@ def run(work: Path, demos: list[int], first_seeds: list[int], share: float) -> l
                         overwrite=True,
                         eval_episodes=0,
                         progress=False,
-                        tensorboard=False,
                     )
                 )
                 survived, returns = conditions_of(PolicyController(result.policy, str(policy)))

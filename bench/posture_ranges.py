@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
+from humanoid.command_fields import FIELDS
 from humanoid.env import make_env, model_and_data
 from humanoid.expert import LQRExpert
 from humanoid.posture import Posture, posture_reference
@@ -140,7 +141,10 @@ def main(argv: list[str] | None = None) -> None:
     if not args.skip_combos:
         print("\n## Combinations at the limits, and back to neutral\n")
         print(HEADER)
-        lim_lo, lim_hi = Posture.MIN, Posture.MAX
+        lim_lo, lim_hi = (
+            {name: field.low for name, field in FIELDS.items()},
+            {name: field.high for name, field in FIELDS.items()},
+        )
         combos = {
             "lean fwd + arms up + crouch": [
                 Posture(lean_forward=lim_hi["lean_forward"], arms=2, height=lim_lo["height"])

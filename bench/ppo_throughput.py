@@ -27,7 +27,7 @@ import torch
 
 from bench.bc_benchmark import dart_policy
 from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
-from teleop.record import DEFAULT_NOISE
+from teleop.record import STANDING_NOISE
 
 
 @dataclass
@@ -72,7 +72,7 @@ def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     # The policy bench.bc_benchmark trains (make bench runs it first) on the default recipe.
-    parser.add_argument("--bc-policy", type=Path, default=dart_policy(DEFAULT_NOISE))
+    parser.add_argument("--bc-policy", type=Path, default=dart_policy(STANDING_NOISE))
     parser.add_argument("--timesteps", type=int, default=32_768)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--envs", type=int, default=FinetuneConfig.envs)

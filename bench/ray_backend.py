@@ -30,7 +30,7 @@ from bench.ppo_throughput import timed
 from common.ray_backend import BACKENDS, RaySession
 from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
 from teleop.parallel import RolloutSettings, Simulator
-from teleop.record import DEFAULT_NOISE, RecordConfig, RecordSummary
+from teleop.record import STANDING, STANDING_NOISE, RecordConfig, RecordSummary
 from teleop.record import main as record
 
 
@@ -55,7 +55,16 @@ def recording(backend: str, episodes: int, root: Path) -> tuple[float, float]:
     controller's set-up; Ray's start too) and Ray's shut-down fall outside, into the second figure.
     """
     start = time.perf_counter()
-    config = RecordConfig(dataset=root, episodes=episodes, seed=0, workers=2, backend=backend, progress=False)
+    config = RecordConfig(
+        dataset=root,
+        episodes=episodes,
+        seed=0,
+        workers=2,
+        backend=backend,
+        progress=False,
+        noise=STANDING_NOISE,
+        **STANDING,
+    )
     committed = CommitTimes()
     record(config, RecordSummary(root, committed))
     total = time.perf_counter() - start
@@ -90,9 +99,7 @@ def receiving(episodes: int) -> tuple[float, float]:
     """
     session = RaySession(None, 1)
     try:
-        (worker,) = session.spawn(
-            [functools.partial(Simulator, RolloutSettings("expert", DEFAULT_NOISE, 1000, ""))], "w"
-        )
+        (worker,) = session.spawn([functools.partial(Simulator, RolloutSettings("expert", STANDING_NOISE, 1000))], "w")
         costs, sizes = [], []
         for seed in range(50_000, 50_000 + episodes):
             ref = worker.submit("run", seed)
@@ -123,7 +130,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--repeats", type=int, default=3)
     # The policy bench.bc_benchmark trains (make bench runs it first) on the default recipe.
-    parser.add_argument("--bc-policy", type=Path, default=dart_policy(DEFAULT_NOISE))
+    parser.add_argument("--bc-policy", type=Path, default=dart_policy(STANDING_NOISE))
     parser.add_argument("--timesteps", type=int, default=32_768)
     args = parser.parse_args()
     frames: dict[str, list[float]] = {b: [] for b in BACKENDS}

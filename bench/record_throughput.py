@@ -29,7 +29,7 @@ from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import DEFAULT_NOISE, RecordConfig, main
+from teleop.record import STANDING, STANDING_NOISE, RecordConfig, main
 
 
 def rollout_frames(seeds: range) -> int:
@@ -37,7 +37,7 @@ def rollout_frames(seeds: range) -> int:
     env = make_env()
     controller = make_controller("expert", env)
     buffer = EpisodeBuffer(env, env.spec.max_episode_steps)
-    return sum(run_episode(env, controller, seed, DEFAULT_NOISE, buffer).length for seed in seeds)
+    return sum(run_episode(env, controller, seed, STANDING_NOISE, buffer).length for seed in seeds)
 
 
 def rollout_only(episodes: int, first_seed: int) -> float:
@@ -64,7 +64,17 @@ def two_rollouts(episodes: int, first_seed: int) -> float:
 def recording(episodes: int, first_seed: int, workers: int, root: Path) -> float:
     """Frames/s of `main` recording the same episodes into a new dataset, start-up included."""
     start = time.perf_counter()
-    summary = main(RecordConfig(dataset=root, episodes=episodes, seed=first_seed, workers=workers, progress=False))
+    summary = main(
+        RecordConfig(
+            dataset=root,
+            episodes=episodes,
+            seed=first_seed,
+            workers=workers,
+            progress=False,
+            noise=STANDING_NOISE,
+            **STANDING,
+        )
+    )
     return summary.frames / (time.perf_counter() - start)
 
 
@@ -101,7 +111,7 @@ def cpu_per_episode(episodes: int, root: Path) -> dict[str, float]:
 
     seed = 50_000
     while len(costs["append (both formats)"]) < episodes:
-        episode = timed("simulate", run_episode, env, controller, seed, DEFAULT_NOISE, buffer)
+        episode = timed("simulate", run_episode, env, controller, seed, STANDING_NOISE, buffer)
         seed += 1
         if episode.length < env.spec.max_episode_steps:  # compare whole episodes only
             costs["simulate"].pop()
@@ -166,7 +176,7 @@ def memory_profile(episodes: int, root: Path) -> tuple[tuple[float, float], tupl
     """Peak (recorder, writer) RSS in MiB over the first 20 % of the episodes and over the last 20 %."""
     sampler = MemorySampler(root)
     sampler.start()
-    main(RecordConfig(dataset=root, episodes=episodes, workers=1, progress=False))  # a writer process beside it
+    main(RecordConfig(dataset=root, episodes=episodes, workers=1, progress=False, noise=STANDING_NOISE, **STANDING))
     sampler.stop.set()
     sampler.join()
     early = [s for s in sampler.samples if 1 <= s[0] <= episodes // 5]
@@ -199,7 +209,8 @@ def run(episodes: int, repeats: int, memory_episodes: int, cpu_episodes: int) ->
         cpu = cpu_per_episode(cpu_episodes, Path(scratch) / "cpu")
     overhead = sum(ms for stage, ms in cpu.items() if stage not in ("simulate", "of which MCAP"))
     table = [
-        f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, NOISE={DEFAULT_NOISE}):",
+        f"Recording throughput, frames/s end to end ({episodes} expert episodes of 1000 steps, "
+        f"NOISE={STANDING_NOISE}):",
         "",
         "| repeat | rollout, no writing | 2 rollouts at once | record, 1 worker | record, 2 workers (default) |",
         "|---|---|---|---|---|",

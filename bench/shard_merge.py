@@ -28,7 +28,7 @@ from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.merge import MergeConfig
 from teleop.merge import main as merge
-from teleop.record import RecordConfig, main
+from teleop.record import STANDING, STANDING_NOISE, RecordConfig, main
 
 
 def snapshot(root: Path) -> dict[str, bytes]:
@@ -39,7 +39,11 @@ def snapshot(root: Path) -> dict[str, bytes]:
 
 
 def record(root: Path, episodes: int, seed: int) -> None:
-    main(RecordConfig(dataset=root, episodes=episodes, seed=seed, workers=2, progress=False))
+    main(
+        RecordConfig(
+            dataset=root, episodes=episodes, seed=seed, workers=2, progress=False, noise=STANDING_NOISE, **STANDING
+        )
+    )
 
 
 def checks(merged: Path, whole: Path) -> dict[str, bool]:

@@ -32,26 +32,25 @@ ROLES = ("blind", "student", "dagger", "fine-tuned", "scratch")
 
 def seed_config(seed: int, root: Path) -> PipelineConfig:
     """The pipeline's settings for training seed `seed`: its own folders for seed 0, ROOT/seed_N/ otherwise."""
+    default = PipelineConfig()
     if seed == 0:
-        return PipelineConfig()
+        return default
     folder = root / f"seed_{seed}"
-    return PipelineConfig(
-        bc_policy=folder / "bc_operator",
+    return dataclasses.replace(
+        default,
+        bc=dataclasses.replace(default.bc, policy=folder / "bc_operator", seed=seed),
         blind_policy=folder / "bc_operator_blind",
-        dagger_output=folder / "operator_sensed_dagger",
-        dagger_policy=folder / "dagger_operator",
-        ppo_policy=folder / "ppo_operator",
+        dagger=dataclasses.replace(
+            default.dagger, output=folder / "operator_dagger", policy=folder / "dagger_operator", seed=seed
+        ),
+        ppo=dataclasses.replace(default.ppo, policy=folder / "ppo_operator", seed=seed),
         scratch_policy=folder / "ppo_scratch_operator",
-        args=f"--seed {seed}",
     )
 
 
 def run_seed(seed: int, root: Path, episodes: int) -> tuple[dict[str, dict], dict[str, dict]]:
     """Train (or reuse) seed `seed`'s learned rows and measure them: (zero-command, schedules) results by role."""
     run_stages = stages(seed_config(seed, root))
-    run_stages.student = dataclasses.replace(run_stages.student, seed=seed)
-    run_stages.blind = dataclasses.replace(run_stages.blind, seed=seed)
-    run_stages.dagger = dataclasses.replace(run_stages.dagger, seed=seed)
     policies = list(map(str, pipeline.run_stages(run_stages, overwrite=False)))
     standing, tracked = pipeline.measure(policies, episodes, list(SUITE), run_stages.finetune.workers)
     return (

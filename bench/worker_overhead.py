@@ -40,7 +40,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 from rl.finetune import FinetuneConfig
 from rl.learner import build_model, make_vec_env
 from teleop.parallel import RolloutSettings, Simulator
-from teleop.record import DEFAULT_NOISE
+from teleop.record import STANDING_NOISE
 from teleop.spool import Spool
 
 
@@ -80,7 +80,7 @@ class Physics:
 
 def recording(episodes: int) -> dict[str, float]:
     """Microseconds per recorded step of each stage of a recording worker, expert at the default noise."""
-    simulator = Simulator(RolloutSettings("expert", DEFAULT_NOISE, 1000, "stand"))
+    simulator = Simulator(RolloutSettings("expert", STANDING_NOISE, 1000))
     env, controller = simulator.env, simulator.controller
     totals = dict.fromkeys(("worker", "env.step", "mj_step", "controller", "spool write"), 0.0)
     steps = 0

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-from common.threads import one_blas_thread
+from common.threads import PINNED, one_blas_thread, unpinned
 
 Config = TypeVar("Config")
 
@@ -49,19 +49,13 @@ class Removed:
 
 
 _ADAPTIVE = Removed("controller 'expert-adaptive'", "use expert-sensed", "identification")
-_FIXED = "it is fixed at the value every run used"
-_FIXED_RECORD = "fixed-settings"
 
 REMOVED_FLAGS: dict[str, Removed] = {
     removed.what[2:].replace("-", "_"): removed
     for removed in (
-        Removed("--bc-weight", "PPO fine-tuning runs without a BC term (as every default run did)", "bc-regulariser"),
-        Removed("--bc-decay", "PPO fine-tuning runs without a BC term (as every default run did)", "bc-regulariser"),
-        Removed("--keep", "the run keeps the guarded actor, as the default did", "keep-policy"),
         Removed(
             "--ppo-from",
-            "the PPO stages start from BC_POLICY, the command-conditioned student; for a PPO run from another BC "
-            "policy: make finetune-rl BC_POLICY=...",
+            "the PPO stages start from the DAgger student; for a PPO run from another: make finetune-rl BC_POLICY=...",
             "ppo-start",
         ),
         Removed(
@@ -70,46 +64,41 @@ REMOVED_FLAGS: dict[str, Removed] = {
             "ppo-start",
         ),
         Removed(
-            "--init", "make scratch-rl trains from fresh weights, make finetune-rl from the BC policy's", _FIXED_RECORD
-        ),
-        Removed("--reward-scale", f"{_FIXED}: 0.01 for make finetune-rl, 1 for make scratch-rl", _FIXED_RECORD),
-        Removed("--log-std-init", f"{_FIXED}: log(0.05), the DART noise of the demonstrations", _FIXED_RECORD),
-        Removed("--eval-conditions", f"{_FIXED}: clean, push20, mass", _FIXED_RECORD),
-        Removed("--validation-seed", f"{_FIXED}: 2000", _FIXED_RECORD),
-        *(
-            Removed(f"--{name}", f"{_FIXED}: the tutorial's ({value}; make tutorial-rl)", _FIXED_RECORD)
-            for name, value in (("step-size", 0.01), ("noise-start", 0.2), ("noise-end", 0.01), ("ent-coef", 0.005))
-        ),
-        Removed(
             "--odometry-inputs",
-            "the pipeline's student reads INPUTS=pending+command; for another: make train-bc INPUTS=... "
-            "DATASET=datasets/operator_sensed",
+            "the pipeline's students read INPUTS=pending+ramp; for another: make train-bc INPUTS=...",
             "pipeline-task",
         ),
         Removed("--tutorial", "the seed tutorial's learners run apart: make tutorial-rl", "pipeline-task"),
         Removed(
             "--proprio-policy",
             "the pipeline records the operator's demonstrations only; BC on the privileged expert's sensed features: "
-            "make record, then make train-bc INPUTS=proprio",
+            "make record CONTROLLER=expert, then make train-bc INPUTS=proprio",
             "pipeline-task",
         ),
         Removed(
             "--sensed-dataset",
-            "the pipeline records one dataset, DATASET (the expert on leg odometry)",
+            "the pipeline records one dataset, RECORD.DATASET (the expert on leg odometry)",
             "pipeline-task",
         ),
-        Removed("--sensed-noise", "NOISE is the pipeline's one recording's DART noise", "pipeline-task"),
-        Removed("--sensed-latency", "LATENCY is the pipeline's one recording's delayed share", "pipeline-task"),
-        Removed("--odometry-policy", "BC_POLICY is the pipeline's student on what a robot senses", "pipeline-task"),
+        Removed("--sensed-noise", "RECORD.NOISE is the pipeline's one recording's DART noise", "pipeline-task"),
+        Removed("--sensed-latency", "RECORD.LATENCY is the pipeline's one recording's delayed share", "pipeline-task"),
+        Removed("--odometry-policy", "BC.POLICY is the pipeline's student on what a robot senses", "pipeline-task"),
     )
 }
-"""Flags removed from every stage that had them, by config field name. A stage that still has a field of the
-name (none does today) parses it as its own."""
+"""Make variables an earlier version's `make pipeline` had (the Makefile's REMOVED.pipeline still passes them, which
+Make would otherwise ignore): refused in one line naming what to use instead. A stage's flags that went are refused by
+argparse itself, in one line too."""
 
 REMOVED_VALUES: dict[tuple[str, str], Removed] = {
-    ("controller", "expert-adaptive"): _ADAPTIVE,  # make record, make pipeline
+    ("controller", "expert-adaptive"): _ADAPTIVE,  # make record
     ("policy", "expert-adaptive"): _ADAPTIVE,  # make eval, make robustness
     ("expert", "expert-adaptive"): _ADAPTIVE,  # make dagger
+    ("controller", "operator"): Removed(
+        "controller 'operator'",
+        "make record follows the operator's schedules by default (SCHEDULES=1); the expert told the simulator's state "
+        "under them: CONTROLLER=expert",
+        "pipeline-task",
+    ),
     # make train-bc, make dagger; humanoid.inputs.removed_inputs refuses it from a checkpoint too
     ("inputs", "odometry"): Removed(
         "inputs 'odometry'", "use pending: the same inputs, then the command in flight and the delay", "pending-inputs"
@@ -120,8 +109,9 @@ REMOVED_VALUES: dict[tuple[str, str], Removed] = {
 
 def check_removed(config_class: type, argv: Sequence[str]) -> None:
     """UserError in one line for a removed flag or value in `argv` (`--name value` or `--name=value`), naming what
-    to use instead: argparse's own "unrecognized arguments" would not say it."""
-    fields = {field.name for field in dataclasses.fields(config_class)}
+    to use instead: argparse's own "unrecognized arguments" would not say it. For a config that nests stages'
+    configs, also for a stage's flag given without its stage (`--epochs`, `--dagger-epochs`): which to use."""
+    fields = {name for name, _ in flat_fields(config_class)}
     for index, word in enumerate(argv):
         if not word.startswith("--"):
             continue
@@ -130,6 +120,10 @@ def check_removed(config_class: type, argv: Sequence[str]) -> None:
         if name not in fields:
             if name in REMOVED_FLAGS:
                 raise UserError(REMOVED_FLAGS[name].message())
+            nested = [field for field in fields if field.split(".")[-1] == name or field.replace(".", "_") == name]
+            if nested:
+                listed = " or ".join(f"{flag(field)} ({field.upper()}=)" for field in sorted(nested))
+                raise UserError(f"{flag(name)} is a stage's setting here: {listed}")
             continue
         if not equals:
             value = argv[index + 1] if index + 1 < len(argv) else ""
@@ -154,8 +148,30 @@ def setting(default: Any, help: str, **kwargs: Any) -> Any:
 
 
 def flag(name: str) -> str:
-    """The command-line flag of config field `name`, for messages that tell the user what to type."""
+    """The command-line flag of config field `name` (`stage.field` for a nested stage's), for messages that tell the
+    user what to type."""
     return "--" + name.replace("_", "-")
+
+
+def flat_fields(config_class: type, prefix: str = "") -> list[tuple[str, dataclasses.Field[Any]]]:
+    """(name, field) of every setting of `config_class`, a nested stage's as `stage.field`, in order."""
+    out = []
+    hints = typing.get_type_hints(config_class)
+    for field in dataclasses.fields(config_class):
+        if dataclasses.is_dataclass(hints[field.name]):
+            out += flat_fields(hints[field.name], f"{prefix}{field.name}.")
+        else:
+            out.append((prefix + field.name, field))
+    return out
+
+
+def field_default(config_class: type, name: str) -> Any:
+    """The default of setting `name` of `config_class` (`stage.field` for a nested stage's: that stage's default as the
+    config nests it)."""
+    stage, _, rest = name.partition(".")
+    field = next(f for f in dataclasses.fields(config_class) if f.name == stage)
+    default = field.default_factory() if field.default is dataclasses.MISSING else field.default
+    return getattr(default, rest) if rest else default
 
 
 def check_positive(config: Any, *names: str) -> None:
@@ -182,9 +198,15 @@ def check_share(config: Any, name: str) -> None:
 
 
 def config_dict(config: Any) -> dict[str, Any]:
-    """Every field of a config dataclass as a JSON value (paths as strings): what a run saves as its config."""
-    values = {field.name: getattr(config, field.name) for field in dataclasses.fields(config)}
-    return {name: str(value) if isinstance(value, Path) else value for name, value in values.items()}
+    """Every field of a config dataclass as a JSON value (paths as strings, a nested stage's config as its own dict):
+    what a run saves as its config."""
+    return {field.name: _json_value(getattr(config, field.name)) for field in dataclasses.fields(config)}
+
+
+def _json_value(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return config_dict(value)
+    return str(value) if isinstance(value, Path) else value
 
 
 def config_text(settings: dict[str, Any]) -> str:
@@ -222,19 +244,33 @@ def parse_config(
     or value (`check_removed`)."""
     check_removed(config_class, sys.argv[1:] if argv is None else argv)
     parser = _OneLineParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
-    hints = typing.get_type_hints(config_class)
-    for field in dataclasses.fields(config_class):
-        choices = field.metadata.get("choices")
+    for name, field in flat_fields(config_class):
+        stage, _, own = name.rpartition(".")
+        owner = typing.get_type_hints(config_class)[stage] if stage else config_class
+        default = field_default(config_class, name)
         parser.add_argument(
-            flag(field.name),
-            dest=field.name,
-            type=_parser_type(hints[field.name]),
-            default=field.default,
-            choices=choices,
+            flag(name),
+            dest=name,
+            type=_parser_type(typing.get_type_hints(owner)[own]),
+            default=default,
+            choices=field.metadata.get("choices"),
             metavar=field.metadata.get("metavar"),
-            help=f"{field.metadata.get('help', '')} (default: {field.default})",
+            help=f"{field.metadata.get('help', '')} (default: {default})",
         )
-    return config_class(**vars(parser.parse_args(argv)))
+    return _build(config_class, vars(parser.parse_args(argv)))
+
+
+def _build(config_class: type[Config], values: dict[str, Any]) -> Config:
+    """`config_class` from flat `values` (`stage.field` for a nested stage's), each stage built on its default."""
+    hints = typing.get_type_hints(config_class)
+    settings: dict[str, Any] = {}
+    for field in dataclasses.fields(config_class):
+        if dataclasses.is_dataclass(hints[field.name]):
+            own = {name.partition(".")[2]: value for name, value in values.items() if name.startswith(field.name + ".")}
+            settings[field.name] = dataclasses.replace(field_default(config_class, field.name), **own)
+        else:
+            settings[field.name] = values[field.name]
+    return config_class(**settings)
 
 
 def run_cli(
@@ -247,6 +283,13 @@ def run_cli(
     """Parse, run `main` (on one BLAS thread: `common.threads`), and turn user errors into one line on stderr and a
     non-zero exit code."""
     one_blas_thread()
+    why = unpinned()
+    if why:
+        print(
+            f"note: {why}: results may differ from the README's (`make` sets "
+            f"{' '.join(f'{name}={value}' for name, value in PINNED.items())}: docs/decisions/cpu-kernels.md)",
+            file=sys.stderr,
+        )
     try:
         main(parse_config(config_class, argv, description, prog))
     except UserError as error:

@@ -1,7 +1,8 @@
-"""The pipeline's default folders and the project's cache: one place, so every stage agrees.
+"""The default folders of the chained stages and the project's cache: one place, so every stage agrees.
 
-The stages' configs take their defaults from here; the Makefile passes no folder unless the user
-names one, and `tests/test_makefile.py` holds the two together.
+Each stage reads by default what the stage before it writes by default, so `make record`, `make train-bc`,
+`make dagger`, `make finetune-rl` and `make eval` chain with no folder named (docs/concepts/layout.md). The Makefile
+passes no folder unless the user names one, and `tests/test_makefile.py` holds the two together.
 """
 
 from __future__ import annotations
@@ -9,35 +10,32 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-DATASET = Path("datasets/humanoid_stand")
-"""Demonstrations `make record` writes and `make train-bc` reads."""
-BC_POLICY = Path("policies/bc_humanoid_stand")
-"""The behaviour-cloned policy of `make train-bc`."""
-OPERATOR_DATASET = Path("datasets/operator_sensed")
-"""Demonstrations of the expert on leg odometry following the scripted operator's command schedules (`make
-pipeline`)."""
-STUDENT_POLICY = Path("policies/bc_operator")
-"""Behaviour cloning on what a robot senses, leg odometry, the command in flight and the operator's command
-(INPUTS=pending+command), from OPERATOR_DATASET (`make pipeline`)."""
-OPERATOR_DAGGER_DATASET = Path("datasets/operator_sensed_dagger")
-"""OPERATOR_DATASET and the DAgger rounds the expert on leg odometry labelled (`make pipeline`)."""
-DAGGER_STUDENT_POLICY = Path("policies/dagger_operator")
-"""DAgger on OPERATOR_DATASET with the command through the expert's ramp (INPUTS=pending+ramp; `make pipeline`):
-`make finetune-rl`'s starting actor."""
-BLIND_POLICY = Path("policies/bc_operator_blind")
-"""The same without the operator's command (INPUTS=pending): what the command buys (`make pipeline`)."""
+DATASET = Path("datasets/operator")
+"""The operator's demonstrations: `make record` writes them, `make train-bc` and `make dagger` read them."""
+BC_POLICY = Path("policies/bc_operator")
+"""The deployable student `make train-bc` clones from DATASET."""
+DAGGER_DATASET = Path("datasets/operator_dagger")
+"""DATASET and the DAgger rounds the teacher labelled (`make dagger`)."""
+DAGGER_POLICY = Path("policies/dagger_operator")
+"""The student `make dagger` trains where it goes."""
 PPO_POLICY = Path("policies/ppo_operator")
-"""The PPO-refined policy of `make finetune-rl`."""
+"""The actor `make finetune-rl` refines from a student."""
 SCRATCH_POLICY = Path("policies/ppo_scratch_operator")
 """PPO from scratch on the same task and budget (`make scratch-rl`)."""
+BLIND_POLICY = Path("policies/bc_operator_blind")
+"""The student without the operator's command (`make pipeline`): what the command buys."""
 TUTORIAL_PREFERRED_POLICY = Path("policies/tutorial_preferred")
 """The seed tutorial's "preferred action" learner (`make tutorial-rl`)."""
 TUTORIAL_PPO_POLICY = Path("policies/tutorial_ppo")
 """The seed tutorial's PPO, saved by stable-baselines3 (`make tutorial-rl`)."""
-DAGGER_DATASET = Path("datasets/humanoid_stand_dagger")
-"""The aggregate dataset of `make dagger`."""
-DAGGER_POLICY = Path("policies/dagger_humanoid_stand")
-"""The final policy of `make dagger`."""
+
+NEWEST = "newest"
+"""A policy setting's value that stands for the newest finished checkpoint among the chain's (`policies.folder.newest`):
+`STUDENTS` for PPO's start, `LEARNED` for `make eval`, `make robustness` and `make play`."""
+STUDENTS = (DAGGER_POLICY, BC_POLICY)
+"""The students PPO can start from (`make finetune-rl`, `make scratch-rl`)."""
+LEARNED = (PPO_POLICY, DAGGER_POLICY, BC_POLICY)
+"""The chain's policies (`make eval`, `make robustness`, `make play`)."""
 
 
 def cache_dir() -> Path:

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from common.cli import UserError, first_line
+from common.threads import PINNED
 from common.workers import WorkerError
 
 log = logging.getLogger(__name__)
@@ -133,7 +134,14 @@ class RaySession:
         if address:
             _check_reachable(address)
         # "local": a new Ray for this session, never one found on the machine (RAY_ADDRESS, the last `ray start`).
-        ray.init(address=address or "local", include_dashboard=False, logging_level=logging.WARNING)
+        # Every node's workers load their BLAS libraries as this process did (common.threads.PINNED).
+        pinned = {name: os.environ[name] for name in PINNED if name in os.environ}
+        ray.init(
+            address=address or "local",
+            include_dashboard=False,
+            logging_level=logging.WARNING,
+            runtime_env={"env_vars": pinned} if pinned else None,
+        )
         self._actors: list[Any] = []
         try:
             cpus = int(ray.cluster_resources().get("CPU", 0))

@@ -1,15 +1,60 @@
-"""One BLAS thread per process: numpy's and scipy's OpenBLAS otherwise start a thread per core for every matrix
-product, and the LQR expert takes a small one at each step (its gain times the state), where the threads' hand-offs
-cost more than the product. With two simulating processes on two cores each product then waits for a core the other
-process holds: the expert's evaluations ran 2.3x slower, with the same results (docs/decisions/blas-threads.md).
-torch's own threads (the policies, BC and PPO's updates) are not BLAS threads of these libraries and keep their
-settings."""
+"""The BLAS libraries as every process of the project runs them: one thread each, and one kernel on every CPU.
+
+One thread: numpy's and scipy's OpenBLAS otherwise start a thread per core for every matrix product, and the LQR
+expert takes a small one at each step (its gain times the state), where the threads' hand-offs cost more than the
+product. With two simulating processes on two cores each product then waits for a core the other process holds: the
+expert's evaluations ran 2.3x slower, with the same results (docs/decisions/blas-threads.md). torch's own threads
+(the policies, BC and PPO's updates) are not BLAS threads of these libraries and keep their settings.
+
+One kernel: OpenBLAS picks its kernels by CPU, and so the LQR gains, the demonstrations and everything learnt from
+them differed between two x86 machines; torch's MKL likewise for BC's weights. `PINNED` are the settings under which
+they are the same on any x86-64 CPU with AVX2; the Makefile exports them, since they act only when set before the
+libraries load (docs/decisions/cpu-kernels.md).
+"""
 
 from __future__ import annotations
 
-from threadpoolctl import threadpool_limits
+import os
+import platform
+from pathlib import Path
+
+from threadpoolctl import threadpool_info, threadpool_limits
+
+PINNED = {"OPENBLAS_CORETYPE": "Haswell", "MKL_CBWR": "AVX2,STRICT"}
+"""The environment the Makefile sets on an x86-64 CPU with AVX2: OpenBLAS's Haswell kernels (which AMD's Zen CPUs
+run too) and MKL's AVX2 path in its strict mode (the same bits whatever the threads and the batch), whatever
+CPU runs them."""
+
+
+def pinnable() -> bool:
+    """Whether PINNED applies here: an x86-64 CPU with AVX2 (Haswell's kernels need it), as the Makefile checks."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return False
+    try:
+        return " avx2 " in f" {Path('/proc/cpuinfo').read_text()} ".replace("\n", " ")
+    except OSError:
+        return False
 
 
 def one_blas_thread() -> None:
     """Limit this process's BLAS libraries (numpy's, scipy's OpenBLAS) to one thread each, for its lifetime."""
     threadpool_limits(1, user_api="blas")
+
+
+def openblas_kernels() -> list[str]:
+    """The kernels the OpenBLAS libraries loaded in this process run (threadpoolctl's "architecture")."""
+    return sorted({str(info.get("architecture")) for info in threadpool_info() if info["internal_api"] == "openblas"})
+
+
+def unpinned() -> str | None:
+    """Why this process's results may differ from the README's on another CPU, in one line; None if it runs the
+    pinned kernels (or PINNED does not apply here: `pinnable`)."""
+    if not pinnable():
+        return None
+    kernels = openblas_kernels()
+    pinned = PINNED["OPENBLAS_CORETYPE"]
+    if kernels and kernels != [pinned]:
+        return f"OpenBLAS runs its {', '.join(kernels)} kernels here, not {pinned}"
+    if os.environ.get("MKL_CBWR", "").upper() != PINNED["MKL_CBWR"]:
+        return f"MKL_CBWR is not {PINNED['MKL_CBWR']}"
+    return None

@@ -21,6 +21,7 @@ them) to callers such as `bc.train`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -40,10 +41,12 @@ from tqdm import tqdm
 from common import paths
 from common.cli import UserError, check_non_negative, check_positive, config_dict, run_cli, setting
 from common.figures import save_figure
+from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.threads import one_blas_thread
 from common.workers import forkserver_context
-from humanoid.commands import COMMAND_SIZE, Tracking, combine_tracking, tracking_summary
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_SIZE
+from humanoid.commands import PLOTTED, Tracking, combine_tracking, tracking_summary
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS, Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
@@ -51,6 +54,7 @@ from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from humanoid.learned import PolicyController
 from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
 from humanoid.video import CAMERA, VideoRecorder
+from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
@@ -60,8 +64,9 @@ class EvalConfig:
     """Settings of one evaluation."""
 
     policy: str = setting(
-        str(paths.BC_POLICY),
-        f"policy checkpoint folder, or a registered controller ({', '.join(CONTROLLERS)})",
+        NEWEST,
+        f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
+        f"{', '.join(map(str, paths.LEARNED))}",
     )
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
@@ -72,9 +77,10 @@ class EvalConfig:
     )
     video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
     schedules: bool = setting(
-        False,
-        "the operator's command follows the schedule drawn from each episode's seed; the JSON adds the tracking "
-        "error per command field (a policy that takes no command is run blind to it)",
+        True,
+        "the operator's command follows the held-out schedule drawn from each episode's seed; the JSON adds the "
+        "tracking error per command field (a policy that takes no command is run blind to it); false: the zero "
+        "command, stand still",
     )
     plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
     progress: bool = setting(True, "show a progress bar")
@@ -193,17 +199,18 @@ def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) ->
     """A PNG of `episode`'s commanded (and the setpoint toward it) against achieved posture, a panel per field."""
     from matplotlib.figure import Figure  # noqa: PLC0415 - the object API draws to files without a GUI backend
 
-    achieved = measure.achieved(episode.observation)
-    arms_error = measure.errors(episode.observation, episode.command)[:, -1]
+    achieved = dict(zip(PLOTTED, measure.achieved(episode.observation).T, strict=True))
+    errors = measure.errors(episode.observation, episode.command)
     time = np.arange(episode.length) * dt
-    figure = Figure(figsize=(8, 9), layout="constrained")
+    figure = Figure(figsize=(8, 1.8 * COMMAND_SIZE), layout="constrained")
     axes = figure.subplots(COMMAND_SIZE, 1, sharex=True)
-    names = ("lean forward (rad)", "lean left (rad)", "height (m)", "twist (rad)", "arms: preset; error (rad)")
-    for field, (ax, name) in enumerate(zip(axes, names, strict=True)):
-        ax.step(time, episode.command[:, field], where="post", label="commanded", color="C0")
-        ax.plot(time, episode.setpoint[:, field], label="setpoint", color="C0", alpha=0.4, linestyle="--")
-        ax.plot(time, achieved[:, field] if field < 4 else arms_error, label="achieved", color="C1")
-        ax.set_ylabel(name, fontsize=8)
+    for column, (ax, field) in enumerate(zip(axes, COMMAND_FIELDS, strict=True)):
+        ax.step(time, episode.command[:, column], where="post", label="commanded", color="C0")
+        ax.plot(time, episode.setpoint[:, column], label="setpoint", color="C0", alpha=0.4, linestyle="--")
+        # A field without one achieved value (the arm preset) shows its error instead.
+        ax.plot(time, achieved[field] if field in achieved else errors[:, column], label="achieved", color="C1")
+        unit = field.unit if field in achieved else f"{field.unit}; error (rad)"
+        ax.set_ylabel(f"{field.name.replace('_', ' ')} ({unit})", fontsize=8)
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title(f"{episode.controller}, seed {episode.seed}: commanded and achieved posture")
     axes[-1].set_xlabel("time (s)")
@@ -213,6 +220,7 @@ def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) ->
 def main(cfg: EvalConfig) -> dict[str, Any]:
     """Evaluate `cfg.policy` as configured; returns the summary `cli` prints, `cfg` under "config"."""
     validate(cfg)
+    cfg = dataclasses.replace(cfg, policy=chosen_policy(cfg.policy, paths.LEARNED, "make train-bc"))
     result = evaluate(
         cfg.policy,
         cfg.episodes,

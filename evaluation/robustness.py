@@ -9,6 +9,7 @@ The conditions (`humanoid.conditions.SUITE`) and their magnitudes: docs/concepts
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import sys
@@ -23,15 +24,17 @@ from tqdm import tqdm
 
 from common import paths
 from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
-from common.columns import COMMAND_NAMES
 from common.figures import save_figure
+from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool, init_worker
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
 from policies import checkpoint
+from policies.folder import chosen_policy
 
 SECTOR_DEGREES = 45
 """Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
@@ -53,15 +56,17 @@ class RobustnessConfig:
     """Settings of one robustness run."""
 
     policy: str = setting(
-        str(paths.BC_POLICY),
-        f"policy checkpoint folder, or a registered controller ({', '.join(CONTROLLERS)})",
+        NEWEST,
+        f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
+        f"{', '.join(map(str, paths.LEARNED))}",
     )
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
     schedules: bool = setting(
-        False,
-        "the operator's command follows each seed's schedule (evaluation.evaluate --schedules): rows add tracking",
+        True,
+        "the operator's command follows each seed's held-out schedule (evaluation.evaluate --schedules): rows add "
+        "tracking; false: the zero command, stand still",
     )
     workers: int | None = setting(
         None, f"processes the episodes are spread over; default: the machine's cores, at most {MOST_WORKERS}"
@@ -258,6 +263,7 @@ def table(result: dict[str, Any]) -> str:
 
 def main(cfg: RobustnessConfig) -> dict[str, Any]:
     """Run the suite as configured; writes the results and the figure (`result_paths`), returns the summary."""
+    cfg = dataclasses.replace(cfg, policy=chosen_policy(cfg.policy, paths.LEARNED, "make train-bc"))
     names = validate(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
     return save(cfg, run_suite(cfg.policy, names, seeds, worker_count(cfg.workers), cfg.progress, cfg.schedules))

@@ -1,19 +1,20 @@
 """Operator commands: the posture an operator asks for, as a policy reads it, as a script draws it, and how
 well a controller tracks it (docs/concepts/commands.md).
 
-A command is a `humanoid.posture.Posture` (lean forward, lean left, height, twist, arms), carried as a vector
-of `common.columns.COMMAND_NAMES` (the dataset's `observation.command`, a commanded policy's last inputs).
-Standing still is the zero command.
+A command is a `humanoid.posture.Posture`, carried as a vector in the order of `humanoid.command_fields`' table
+(the dataset's `observation.command`, a commanded policy's last inputs); each field's limits, step, tolerance,
+keys and words come from its row there. Standing still is the zero command.
 
-- `command_schedule(seed, steps)`: a scripted operator (`make record CONTROLLER=operator`, and the held-out
-  schedules of `make eval SCHEDULES=1`): after a neutral start, targets on the keyboard's grid
-  (`Posture.STEP`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
+- `command_schedule(seed, steps)`: the scripted operator (`make record`'s schedules, and the held-out
+  schedules of `make eval`): after a neutral start, targets on the keyboard's grid (each field's
+  `step`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
   `HOLD_SECONDS` once the expert's setpoint has got there; drawn from the seed alone, so reproducible.
 - `CommandedTask`: PPO's training episodes under schedules drawn from seeds no recording or evaluation uses, the
   tracking rewarded with an exponential kernel on the error (`tracking_reward`).
 - `Tracking`: the error between commanded and achieved posture per field, from the observation alone
   (root orientation, height and the joint angles a recorded frame holds), and `tracking_summary` over an
-  episode: the error once settled and the time to settle (defined under `SETTLED_SECONDS`, `TOLERANCE`).
+  episode: the error once settled and the time to settle (defined under `SETTLED_SECONDS`, each field's
+  tolerance).
 """
 
 from __future__ import annotations
@@ -25,13 +26,11 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.columns import COMMAND_NAMES
 from common.seed_ranges import TRAINING_SEEDS
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, COMMAND_SIZE, FIELDS, TOLERANCES, Readout
 from humanoid.env import QPOS_OBS, nominal_model
-from humanoid.posture import ARM_JOINTS, NEUTRAL, Posture, move_seconds, posture_reference
-from humanoid.sensors import body_axes
+from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
 
-COMMAND_SIZE = len(COMMAND_NAMES)
 DEFAULT_TASK = "Stand still on both feet."
 """The task string of the zero command."""
 
@@ -45,7 +44,7 @@ NEUTRAL_SHARE = 0.2
 FIELDS_AT_ONCE = (0.5, 0.35, 0.15)
 """Probabilities that a target moves 1, 2 or 3 fields away from neutral."""
 SCALE = 0.5
-"""Targets stay within this share of each limit (`Posture.MIN`, `Posture.MAX`): at 0.7 the expert fell on 2 of 40
+"""Targets stay within this share of each field's limits: at 0.7 the expert fell on 2 of 40
 held-out schedules, at 0.5 on none (docs/decisions/command-schedules.md)."""
 
 
@@ -60,12 +59,12 @@ def command_posture(command: np.ndarray) -> Posture:
 
 
 def _grid(name: str) -> np.ndarray:
-    """The nonzero values of `name` on the keyboard's grid within SCALE of its limits."""
-    step = Posture.STEP[name]
-    if name == "arms":
-        return np.arange(1.0, Posture.MAX["arms"] + 1.0)  # a preset: no fraction of one
-    low, high = (int(SCALE * Posture.MIN[name] / step), int(SCALE * Posture.MAX[name] / step))
-    return np.array([round(k * step, 6) for k in range(low, high + 1) if k != 0])
+    """The nonzero values of field `name` on the keyboard's grid within SCALE of its limits (every preset)."""
+    field = FIELDS[name]
+    if field.presets:
+        return np.arange(1.0, field.high + 1.0)  # a preset: no fraction of one
+    low, high = (int(SCALE * field.low / field.step), int(SCALE * field.high / field.step))
+    return np.array([round(k * field.step, 6) for k in range(low, high + 1) if k != 0])
 
 
 def schedule_targets(seed: int, seconds: float) -> list[tuple[float, Posture]]:
@@ -83,7 +82,8 @@ def schedule_targets(seed: int, seconds: float) -> list[tuple[float, Posture]]:
             fields = rng.choice(COMMAND_NAMES, size=count, replace=False)
             target = Posture(**{str(name): float(rng.choice(_grid(str(name)))) for name in fields})
         if target == previous:
-            target = NEUTRAL if previous != NEUTRAL else Posture(lean_forward=Posture.STEP["lean_forward"])
+            first = COMMAND_FIELDS[0]
+            target = NEUTRAL if previous != NEUTRAL else Posture(**{first.name: first.step})
         targets.append((now, target))
         now += move_seconds(previous, target) + float(rng.uniform(*HOLD_SECONDS))
         previous = target
@@ -102,32 +102,16 @@ def command_schedule(seed: int, steps: int, dt: float) -> np.ndarray:
 
 
 def task_for(posture: Posture) -> str:
-    """The task string naming a commanded posture: one phrase per field away from neutral."""
-    phrases = []
-    if posture.lean_forward:
-        phrases.append("lean forward" if posture.lean_forward > 0 else "lean back")
-    if posture.lean_left:
-        phrases.append("lean left" if posture.lean_left > 0 else "lean right")
-    if posture.height:
-        phrases.append("crouch" if posture.height < 0 else "rise")
-    if posture.twist:
-        phrases.append("twist left" if posture.twist > 0 else "twist right")
-    if posture.arms:
-        phrases.append(f"arms {ARM_NAMES[round(posture.arms)]}")
+    """The task string naming a commanded posture: its fields' phrases (their rows'), those away from neutral."""
+    phrases = [field.phrase(value) for field in COMMAND_FIELDS if (value := getattr(posture, field.name))]
     if not phrases:
         return DEFAULT_TASK
     return (", ".join(phrases) + " while standing.").capitalize()
 
 
-ARM_NAMES = ("neutral", "forward", "up", "out")
-"""`Posture.arms` presets by name (`humanoid.posture.ARM_POSES`)."""
-
-
 # Tracking. The achieved posture is read from the observation's qpos part (`QPOS_OBS`), in both the full observation
-# and a recorded frame.
-TOLERANCE = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
-"""Settled means every field's error within this (rad; height m; arms: mean over the arm joints, rad): about one
-key press (`Posture.STEP`), half of one for the twist."""
+# and a recorded frame; settled means every field's error within its row's tolerance (about one key press, half of
+# one for the twist).
 SETTLED_SECONDS = 1.0
 """The error once settled is the mean over the last this-many seconds of each command held, after the setpoint's move
 to it (`move_seconds`), at least twice as long: as a schedule holds every command (`HOLD_SECONDS`) but the one the
@@ -137,31 +121,27 @@ episode's end cuts short, which may still be on its way."""
 class Tracking:
     """Commanded against achieved posture, per field, for observations of `model`'s Humanoid-v5.
 
-    Achieved: the trunk's pitch and sideways lean are those of the torso with its twist undone (the root's
-    orientation times the abdomen_z rotation, as Euler angles z-y-x: pitch, then roll = -lean_left), the height
-    is the root's, the twist is -abdomen_z, the arms their six joint angles. Commanded: the same coordinates of
-    the balanced pose that realises the command (`posture_reference`), so a body held exactly there has no error.
+    Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: the
+    same coordinates of the balanced pose that realises the command (`posture_reference`), so a body held exactly
+    there has no error. A field's error is the mean over its coordinates (the arms' six angles).
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
-        self.twist_at = int(model.joint("abdomen_z").qposadr[0]) - 2
-        self.arms_at = [int(model.joint(name).qposadr[0]) - 2 for name in ARM_JOINTS]
+        self.readout = Readout(model)
+        widths = [coordinates.shape[-1] for coordinates in self.readout(model.qpos0[2:]).values()]
+        ends = np.cumsum(widths)
+        self.slices = [slice(end - width, end) for width, end in zip(widths, ends, strict=True)]
+        """Where each field's coordinates sit among `coordinates`, in `COMMAND_NAMES` order."""
         self._targets: dict[tuple[float, ...], np.ndarray] = {}
 
     def coordinates(self, qpos: np.ndarray) -> np.ndarray:
-        """(..., 10): pitch, lean_left, height, twist, then the six arm angles, of (..., 22) qpos without x and y."""
-        abdomen_z = qpos[..., self.twist_at]
-        half = abdomen_z / 2
-        zero = np.zeros_like(half)
-        unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
-        frame = np.swapaxes(body_axes(unyaw) @ body_axes(qpos[..., 1:5]), -1, -2)  # R(root) R(unyaw)
-        pitch = np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))
-        lean_left = -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])
-        return np.concatenate([np.stack([pitch, lean_left, qpos[..., 0], -abdomen_z], -1), qpos[..., self.arms_at]], -1)
+        """(..., coordinates) every field's coordinates side by side, of (..., nq - 2) qpos without x and y."""
+        read = self.readout(qpos)
+        return np.concatenate([read[name] for name in COMMAND_NAMES], axis=-1)
 
     def target(self, command: np.ndarray) -> np.ndarray:
-        """The coordinates (10,) of the balanced pose that realises `command` (clipped as the expert clips it)."""
+        """The coordinates of the balanced pose that realises `command` (clipped as the expert clips it)."""
         key = tuple(float(v) for v in command)
         if key not in self._targets:
             posture = command_posture(np.asarray(command)).clipped()
@@ -169,42 +149,47 @@ class Tracking:
         return self._targets[key]
 
     def achieved(self, observations: np.ndarray) -> np.ndarray:
-        """(T, 4) the achieved lean_forward, lean_left, height (from the neutral pose's) and twist of observations
-        (T, >=22): what Foxglove plots beside the command (the `/command` channel)."""
-        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))[:, :4]
-        return coordinates - [0.0, 0.0, self.target(np.zeros(COMMAND_SIZE))[2], 0.0]
+        """(T, len(PLOTTED)) the achieved value of each field Foxglove plots beside its command (`PLOTTED`: those read
+        from one coordinate), from the neutral pose's, of observations (T, >=22)."""
+        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))
+        neutral = self.target(np.zeros(COMMAND_SIZE))
+        columns = [self.slices[COMMAND_NAMES.index(field.name)].start for field in PLOTTED]
+        return coordinates[:, columns] - neutral[columns]
 
     def errors(self, observations: np.ndarray, commands: np.ndarray) -> np.ndarray:
         """|commanded - achieved| (T, COMMAND_SIZE) of observations (T, >=22) under commands (T, COMMAND_SIZE)."""
-        targets = np.empty((len(commands), 10))
+        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))
+        targets = np.empty_like(coordinates)
         changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
         for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
             targets[start:end] = self.target(commands[start])
-        return _fields(np.abs(self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64)) - targets))
+        return self._fields(np.abs(coordinates - targets))
 
     def error(self, qpos: np.ndarray, command: np.ndarray) -> np.ndarray:
-        """`errors` of one state, (COMMAND_SIZE,) from qpos without x and y (22,) under `command`: the same numbers,
-        a few times faster than through `errors` (PPO's reward computes it every step)."""
-        return _fields(np.abs(self.coordinates(qpos) - self.target(command)))
+        """`errors` of one state, (COMMAND_SIZE,) from qpos without x and y under `command`: the same numbers, a few
+        times faster than through `errors` (PPO's reward computes it every step)."""
+        return self._fields(np.abs(self.coordinates(qpos) - self.target(command)))
+
+    def _fields(self, gap: np.ndarray) -> np.ndarray:
+        """Per command field (..., COMMAND_SIZE) of a coordinates' gap: the mean over each field's coordinates."""
+        return np.stack([gap[..., part].mean(axis=-1) for part in self.slices], axis=-1)
 
 
-def _fields(gap: np.ndarray) -> np.ndarray:
-    """Per command field (..., COMMAND_SIZE) of a coordinates' gap (..., 10): the arms' six angles averaged."""
-    return np.concatenate([gap[..., :4], gap[..., 4:].mean(axis=-1, keepdims=True)], axis=-1)
+PLOTTED = tuple(field for field in COMMAND_FIELDS if field.mcap[2] is not None)
+"""The fields whose achieved value `/command` carries (one coordinate each; the arms show in 3D)."""
 
 
 def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
     """An episode's tracking: per field the mean error once settled (over the last SETTLED_SECONDS of each command
     held at least twice that after the setpoint's move to it), the same over only the commands that set that field
     away from neutral ("moved_error": the posture asked for rather than the stand held, which most commands leave
-    most fields at), and the mean time from a command's change until every field stays within TOLERANCE (a command
+    most fields at), and the mean time from a command's change until every field stays within its tolerance (a command
     never settled counts its whole duration). NaN where no command was held long enough."""
     window = round(SETTLED_SECONDS / dt)
-    tolerance = np.array([TOLERANCE[name] for name in COMMAND_NAMES])
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
     settled, moved, times, previous = [], [], [], NEUTRAL
     for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
-        inside = (errors[start:end] <= tolerance).all(axis=1)
+        inside = (errors[start:end] <= TOLERANCES).all(axis=1)
         outside = np.flatnonzero(~inside)
         times.append((outside[-1] + 1 if len(outside) else 0) * dt)
         target = command_posture(commands[start]).clipped()
@@ -245,12 +230,11 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
     }
 
 
-def tracking_reward(errors: np.ndarray, width: float = 1.0) -> np.ndarray:
+def tracking_reward(errors: np.ndarray) -> np.ndarray:
     """The tracking term of PPO's reward for errors (..., COMMAND_SIZE): the mean over the fields of
-    exp(-(error / (width · TOLERANCE))²), as the public humanoid stacks reward a command (1 on it; at `width` 1,
-    0.37 one key press off)."""
-    tolerance = width * np.array([TOLERANCE[name] for name in COMMAND_NAMES])
-    return np.exp(-np.square(errors / tolerance)).mean(axis=-1)
+    exp(-(error / tolerance)²), as the public humanoid stacks reward a command (1 on it, 0.37 one key press off; a
+    kernel half or twice as wide did worse: docs/decisions/tracking-weight.md)."""
+    return np.exp(-np.square(errors / TOLERANCES)).mean(axis=-1)
 
 
 def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
@@ -272,14 +256,14 @@ class CommandedTask(gym.Wrapper):
     the zero command) whose seed is drawn from the wrapper's stream, seeded by the reset's seed, so episodes repeat
     exactly (and a resumed run replays them: `random_state`). The command in force goes out in `info[COMMAND_INFO]`
     at the reset and after every step, for the actor's inputs; each step's reward adds `weight` ×
-    `tracking_reward` (its kernel `width` TOLERANCEs wide) of the true posture reached against the command acted
+    `tracking_reward` of the true posture reached against the command acted
     under (the simulator's, not the possibly noisy observation's). With `weight` 0 the reward is the environment's
     alone.
     """
 
-    def __init__(self, env: gym.Env, weight: float, width: float = 1.0) -> None:
+    def __init__(self, env: gym.Env, weight: float) -> None:
         super().__init__(env)
-        self.weight, self.width = weight, width
+        self.weight = weight
         self.tracking = Tracking(nominal_model())  # the nominal body's targets, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
@@ -306,7 +290,7 @@ class CommandedTask(gym.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         command = self.commands[self.t]
         error = self.tracking.error(self.env.unwrapped.data.qpos[2:], command)
-        reward += self.weight * float(tracking_reward(error, self.width))
+        reward += self.weight * float(tracking_reward(error))
         self.t = min(self.t + 1, len(self.commands) - 1)
         info[COMMAND_INFO] = self.commands[self.t]
         return obs, reward, terminated, truncated, info

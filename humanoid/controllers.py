@@ -43,7 +43,7 @@ class Controller(Protocol):
         """Start a new episode; stochastic controllers reseed from `seed`."""
 
     def set_command(self, command: np.ndarray) -> None:
-        """The operator's command (`common.columns.COMMAND_NAMES`) from this step on, until the next."""
+        """The operator's command (`humanoid.command_fields.COMMAND_NAMES`) from this step on, until the next."""
 
     def setpoint(self) -> np.ndarray | None:
         """Where it steers now on its way to the command (the expert's setpoint), or None without one of its own."""
@@ -97,13 +97,6 @@ def _expert(env: gym.Env) -> Controller:
     return LQRExpert(delay=action_delay(env))
 
 
-def _operator(env: gym.Env) -> Controller:
-    from humanoid.expert import LQRExpert  # noqa: PLC0415 - as _expert
-
-    # The expert under scripted command schedules: the rollout draws them (`run_episode(schedules=True)`).
-    return LQRExpert(delay=action_delay(env), name=OPERATOR)
-
-
 def _sensed_expert(env: gym.Env) -> Controller:
     from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
 
@@ -111,12 +104,8 @@ def _sensed_expert(env: gym.Env) -> Controller:
     return SensedExpert(delay=action_delay(env))
 
 
-OPERATOR = "operator"
-"""The expert driven by seeded command schedules (`humanoid.commands.command_schedule`): a scripted operator."""
-
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
-    OPERATOR: _operator,
     "expert-sensed": _sensed_expert,
     "random": lambda env: RandomController(env.action_space),
 }

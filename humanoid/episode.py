@@ -14,8 +14,9 @@ import mujoco
 import numpy as np
 
 from common.cli import UserError
-from common.columns import COMMAND_NAMES, PUSH_NAMES
-from humanoid.commands import DEFAULT_TASK, command_posture, command_schedule, task_for
+from common.columns import PUSH_NAMES
+from humanoid.command_fields import COMMAND_NAMES
+from humanoid.commands import command_posture, command_schedule, task_for
 from humanoid.conditions import action_delay
 from humanoid.controllers import Controller
 from humanoid.env import body_poses, model_and_data
@@ -179,7 +180,6 @@ def run_episode(
     seed: int,
     noise_std: float = 0.0,
     buffer: EpisodeBuffer | None = None,
-    task: str = DEFAULT_TASK,
     labeller: Controller | None = None,
     observer: StepObserver | None = None,
     schedules: bool = False,
@@ -191,8 +191,8 @@ def run_episode(
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
     An `observer` sees every step as it completes. With `schedules` the operator's command follows the schedule
-    drawn from `seed` (`humanoid.commands.command_schedule`; the task string then names each command), told to the
-    controller and the labeller at each change; without, it is zero (stand still).
+    drawn from `seed` (`humanoid.commands.command_schedule`), told to the controller and the labeller at each change;
+    without, it is zero (stand still). The task string names the command in force (`humanoid.commands.task_for`).
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
@@ -217,8 +217,7 @@ def run_episode(
         if t == 0 or (commands[t] != commands[t - 1]).any():
             for each in acting:
                 each.set_command(commands[t])
-            if schedules:
-                task = task_for(command_posture(commands[t]))
+            task = task_for(command_posture(commands[t]))
         obs, _, terminated, truncated = rollout_step(
             env, data, controller, obs, t, seed, noise, buffer, commands[t], task, labeller=labeller, observer=observer
         )

@@ -2,18 +2,19 @@
 
     full      the gymnasium observation (348 floats), as is
     proprio   what a robot senses: `observation.state` (48; humanoid.sensors)
-    pending   the sensed input_set but the feet's forces, then what `humanoid.estimator` computes from the sensed
-              input_set alone (the torso's height and linear velocity, the nominal model's body inertias), then
+    pending   the sensed features but the feet's forces, then what `humanoid.estimator` computes from the sensed
+              features alone (the torso's height and linear velocity, the nominal model's body inertias), then
               the action sent but not yet executed under one step of action latency (zeros without latency)
               and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
               delay (docs/decisions/pending-inputs.md)
-    SET+command  any of them, then the operator's command (`observation.command`, 5: humanoid.commands): a policy
-              that follows posture commands; standing still is the zero command (docs/concepts/commands.md)
+    full+command, pending+command  full or pending, then the operator's command (`observation.command`, 5:
+              humanoid.commands): a policy that follows posture commands; standing still is the zero command
+              (docs/concepts/commands.md); full+command learns from keyboard demonstrations, which delay no episode
     pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
-              move the teacher's labels are (docs/decisions/command-input_set.md)
+              move the teacher's labels are (docs/decisions/command-features.md)
 
-Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set` looks one up): its names,
+Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
 the same way: the live controller (`humanoid.learned.PolicyController`), the offline loader along each
 recorded episode (`episode_inputs`, used by `bc.data`), and PPO's environments (`InputObservation`, whose
@@ -45,13 +46,14 @@ import mujoco
 import numpy as np
 
 from common.cli import REMOVED_VALUES, Removed, UserError
-from common.columns import ACTION, COMMAND_NAMES, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
+from common.columns import ACTION, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
-from humanoid.commands import COMMAND_INFO, COMMAND_SIZE
+from humanoid.command_fields import ARM_JOINTS, COMMAND_FIELDS, COMMAND_NAMES, COMMAND_SIZE
+from humanoid.commands import COMMAND_INFO
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, nominal_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
-from humanoid.posture import ARM_JOINTS, PosturePath
+from humanoid.posture import PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
 
 
@@ -136,7 +138,7 @@ class ProprioInputs(InputSet):
 class PendingInputs(InputSet):
     """`OdometryFeatures` of the sensed features, the action still in flight, the delay.
 
-    Why: a student on the sensed input_set alone does not stand, one that also reads the estimator's does
+    Why: a student on the sensed features alone does not stand, one that also reads the estimator's does
     (docs/log.md, "The deployable observation"); and one step of action latency topples a policy that
     acts as if its action ran at once, while told the delay and what it sent, a student learns to act
     through it (docs/decisions/pending-inputs.md).
@@ -215,7 +217,7 @@ def commanded_set(base: type[InputSet]) -> type[InputSet]:
     return CommandedInputs
 
 
-_RAMP_FIELDS = tuple(name for name in COMMAND_NAMES if name != "arms")
+_RAMP_FIELDS = tuple(field.name for field in COMMAND_FIELDS if not field.presets)
 RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for joint in ARM_JOINTS))
 """A ramped set's last inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
 
@@ -226,7 +228,7 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
 
     Why: the expert's labels follow its setpoint, which reaches a new command over seconds; a policy that reads only
     the command cannot tell how far along that move it is, a policy reading the ramp can, and it is computed from the
-    command alone, as a robot's command filter would (docs/decisions/command-input_set.md). The arm preset is read as
+    command alone, as a robot's command filter would (docs/decisions/command-features.md). The arm preset is read as
     the six angles the setpoint's arms have on the way: a preset's number halfway between two presets names a third.
     Stateful: the ramp runs along the episode's frames, one env step per frame.
     """
@@ -266,12 +268,25 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
     return RampedInputs
 
 
-_BASES = (FullInputs, ProprioInputs, PendingInputs)
 INPUT_SETS: dict[str, type[InputSet]] = {
     input_set.name: input_set
-    for input_set in (*_BASES, *(commanded_set(base) for base in _BASES), ramped_set(PendingInputs))
+    for input_set in (
+        FullInputs,
+        ProprioInputs,
+        PendingInputs,
+        commanded_set(FullInputs),  # the student of keyboard demonstrations, which delay no episode (make play)
+        commanded_set(PendingInputs),
+        ramped_set(PendingInputs),
+    )
 }
 INPUTS = tuple(INPUT_SETS)
+STUDENT_INPUTS = "pending+ramp"
+"""What the deployable student reads (`make train-bc`, `make dagger`, and PPO's actor from them): what a robot senses,
+the leg odometry computed from it, its command in flight and the delay, and the command through the teacher's ramp:
+with it DAgger follows every held-out schedule, with the bare command it does not
+(docs/decisions/pipeline-student.md)."""
+BLIND_INPUTS = "pending"
+"""The same without the operator's command: the pipeline's blind student, which shows what the command buys."""
 
 
 def removed_inputs(inputs: str) -> Removed | None:

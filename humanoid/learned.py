@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 import torch
 
-from humanoid.commands import COMMAND_SIZE
+from humanoid.command_fields import COMMAND_SIZE
 from humanoid.env import make_env, nominal_model
 from humanoid.inputs import INPUT_SETS, InputSet, removed_inputs
 from policies.checkpoint import CheckpointError, load

@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from common.paths import cache_dir
+from common.threads import openblas_kernels
 from humanoid import physics
 
 log = logging.getLogger(__name__)
@@ -277,12 +278,18 @@ def steady_action(
 
 
 def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
-    """Hash of the compiled model, the design and the MuJoCo version: equal keys, equal gains."""
+    """Hash of the compiled model, the design, the MuJoCo version and the BLAS kernels: equal keys, equal gains."""
     # The MJB serialisation covers everything the XML compiles to (and Python-side edits).
     mjb = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
     mujoco.mj_saveModel(model, None, mjb)
+    # The BLAS kernels too: gains designed under one are other numbers than under another (common.threads).
     meta = json.dumps(
-        {"design": dataclasses.asdict(design), "mujoco": mujoco.__version__, "format": _CACHE_FORMAT},
+        {
+            "design": dataclasses.asdict(design),
+            "mujoco": mujoco.__version__,
+            "format": _CACHE_FORMAT,
+            "openblas": openblas_kernels(),
+        },
         sort_keys=True,
     )
     return hashlib.sha256(mjb.tobytes() + meta.encode()).hexdigest()

@@ -19,7 +19,7 @@ of about 0.2 m, so the centre of mass can move toward one foot.
   unequally (solved through a small knee difference, which sets how deep each foot presses).
 - ``height`` moves the torso (the root, whose height the env's healthy check reads) up or down:
   the knees take the angle that puts an upright torso ``height`` lower or higher, and the hips
-  re-solve. Rising has little room (``Posture.MAX``, under a centimetre): the neutral knees
+  re-solve. Rising has little room (its row's ``high``, under a centimetre): the neutral knees
   (-0.3 rad) are nearly straight.
 - ``twist`` yaws the torso relative to the pelvis (abdomen_z); legs and pelvis keep their yaw.
 - ``arms`` selects a preset of shoulder and elbow angles (``ARM_POSES``).
@@ -35,86 +35,38 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from humanoid import physics
+from humanoid.command_fields import ARM_JOINTS, COMMAND_FIELDS
 from humanoid.lqr import LQRDesign, LQRGains, design_gain, feed_forward, load_or_design
 
 if TYPE_CHECKING:
     import scipy.optimize
 
 
-@dataclass(frozen=True)
-class Posture:
-    """A setpoint of the standing expert; every field 0 is the neutral standing pose of the design."""
+def _clipped(self: Posture) -> Posture:
+    """This posture with every field inside its limits (`CommandField.clip`: a preset rounded to one)."""
+    return Posture(**{field.name: field.clip(getattr(self, field.name)) for field in COMMAND_FIELDS})
 
-    lean_forward: float = 0.0
-    """Trunk pitch (rad): + tilts the torso forward, - back; the centre of mass stays over the feet."""
-    lean_left: float = 0.0
-    """Sideways waist bend (rad): + rolls the torso to the left, - to the right; the centre of mass follows."""
-    height: float = 0.0
-    """Offset of the torso's height from the neutral stand (m): - crouches, + rises (little room: the knees are
-    nearly straight)."""
-    twist: float = 0.0
-    """Torso yaw relative to the pelvis and legs (rad), + to the left (abdomen_z)."""
-    arms: float = 0.0
-    """Arm preset: 0 neutral, 1 forward, 2 up, 3 out to the sides; fractions blend two neighbours (``arm_angles``)."""
 
-    # Measured by bench/posture_ranges.py (5 seeds, held 3 s after the ramp): about 75 % of the
-    # largest magnitude that stayed up, and was reached, on every seed: lean forward 0.4 (0.5
-    # fell), lean back 0.3 reached only -0.27 (-0.35 fell), crouch -0.25 (-0.3 fell), rise 0.008
-    # (0.01 has no balanced pose: the knees reach their limit), twist 0.75 (the joint's range
-    # ends at 0.785). Sideways 0.5 stayed up alone, but the limit stays at 0.3: with the twist at
-    # its limit and the arms up one seed in five fell. Every field at its limit at once falls
-    # during the move (each held from rest); 70 % of every limit at once stays up.
-    MIN: ClassVar[dict[str, float]] = {
-        "lean_forward": -0.2,
-        "lean_left": -0.3,
-        "height": -0.18,
-        "twist": -0.55,
-        "arms": 0.0,
-    }
-    MAX: ClassVar[dict[str, float]] = {
-        "lean_forward": 0.3,
-        "lean_left": 0.3,
-        "height": 0.006,
-        "twist": 0.55,
-        "arms": 3.0,
-    }
-
-    STEP: ClassVar[dict[str, float]] = {
-        "lean_forward": 0.05,
-        "lean_left": 0.05,
-        "height": 0.02,
-        "twist": 0.1,
-        "arms": 1.0,
-    }
-    """One key press's change of each field (`teleop.keyboard`: three to nine presses reach the limits), and the grid
-    that scripted schedules draw from (`humanoid.commands`), so both ask for the same postures."""
-
-    def clipped(self) -> Posture:
-        """This posture with every field inside [MIN, MAX] (and ``arms`` rounded to a preset)."""
-        values = {name: min(max(getattr(self, name), self.MIN[name]), self.MAX[name]) for name in self.MIN}
-        values["arms"] = float(round(values["arms"]))
-        return Posture(**values)
+Posture = dataclasses.make_dataclass(
+    "Posture",
+    [(field.name, float, dataclasses.field(default=0.0)) for field in COMMAND_FIELDS],
+    frozen=True,
+    namespace={"clipped": _clipped},
+    module=__name__,
+)
+Posture.__doc__ = """A setpoint of the standing expert, one keyword per command field (`humanoid.command_fields`, in
+the unit its row gives); every field 0 is the neutral standing pose of the design. What each field does to the
+body: this module's docstring."""
 
 
 NEUTRAL = Posture()
 """The never-commanded posture: the design's own balanced pose."""
-
-ARM_JOINTS = (
-    "right_shoulder1",
-    "right_shoulder2",
-    "right_elbow",
-    "left_shoulder1",
-    "left_shoulder2",
-    "left_elbow",
-)
-"""Joints that ``Posture.arms`` sets, in the order of ``ARM_POSES`` rows."""
 
 
 def _mirrored(shoulder1: float, shoulder2: float, elbow: float) -> tuple[float, ...]:

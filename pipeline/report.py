@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from common.columns import COMMAND_NAMES
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import tracking_score
 
 

@@ -1,27 +1,21 @@
-"""`make pipeline`: the operator-following task end to end. The expert on leg odometry follows the scripted
-operator's command schedules (record), students clone it on what a robot senses with and without the command
-(train-bc), DAgger lets the expert label where a commanded student goes (dagger), PPO refines that student and PPO
-from scratch gets the same task and budget (finetune-rl, scratch-rl); then one table: survival and tracking per
-command field on held-out schedules, clean and under every condition of the robustness suite, and survival with the
-command zero (standing), for the expert that records the demonstrations and every policy.
+"""`make pipeline`: the chained stages on the operator's task, then the comparisons and one table.
 
-    DATASET (CONTROLLER under schedules, NOISE, -+-> BLIND_POLICY (BC, pending: no command)
-      LATENCY of the episodes delayed)          +-> BC_POLICY (BC, pending+command)
-                                                '-> DAGGER_OUTPUT, DAGGER_POLICY (pending+ramp) ---> PPO_POLICY,
-                                                                                                     SCRATCH_POLICY
+    make record      -> RECORD.DATASET: the teacher on what a robot senses follows the operator's schedules
+    make train-bc    -> BC.POLICY: the deployable student (INPUTS pending+ramp); and BLIND_POLICY: the same
+                        without the command (pending), what the command buys
+    make dagger      -> DAGGER.OUTPUT, DAGGER.POLICY: the teacher labels where the student goes
+    make finetune-rl -> PPO.POLICY: PPO refines the DAgger student; and SCRATCH_POLICY: PPO from scratch, same
+                        task and budget (make scratch-rl)
+    then the table: survival and tracking per command field on held-out schedules, clean and under every condition of
+    the robustness suite, and survival with the command zero (standing), for the teacher and every policy.
 
-The students read the sensed features, leg odometry, the command in flight and the delay (`pending`:
-docs/decisions/pending-inputs.md); BC_POLICY also the operator's command, DAGGER_POLICY the command as the expert's
-setpoint moves toward it (`pending+ramp`), trained by DAgger: ROUNDS rounds of DAGGER_EPISODES rollouts under the
-recording's noise and latency (docs/decisions/pipeline-student.md says why). Both PPO stages start from it (their
-own default), so they train on command schedules with the tracking reward (docs/how-to/finetune-ppo.md). The seed
-tutorial's learners are not part of it: `make tutorial-rl` (docs/decisions/pipeline-task.md says what the
-pipeline dropped to stay within its budget, and the commands that make the rest).
-
-Each stage runs in this process through its own `main`, with the config `make <stage>` would use for the same
-variables: what the pipeline does not set keeps the stage's default, every field of `PipelineConfig` takes its
-default from the stage it feeds, and ARGS holds further flags of both PPO stages. Every stage's checks run before
-the first one starts.
+`PipelineConfig` nests each stage's own config as that stage's target has it, LeRobot's way: `--dagger.rounds 6`
+on the command line, `make pipeline DAGGER.ROUNDS=6`, a stage's default is its target's. The pipeline adds only the
+ties between them (the student trains on the dataset recorded, PPO starts from the DAgger student: `TIES`), the
+two comparisons, the shared worker settings and the table's. Why this task and these students:
+docs/decisions/pipeline-task.md, docs/decisions/pipeline-student.md; the seed tutorial's learners are apart
+(`make tutorial-rl`). Every stage's checks run before the first one starts, each stage runs in this process
+through its own `main`.
 
 A stage is skipped only if its output exists and was made from the same inputs:
 
@@ -55,10 +49,7 @@ the stage runs, and what happens to an output that differs depends on who made i
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
-import shlex
 import shutil
 import sys
 from collections.abc import Callable, Sequence
@@ -73,7 +64,8 @@ from bc.dagger import DaggerConfig
 from bc.data import MIN_EPISODES
 from bc.train import TrainConfig
 from common import columns, paths
-from common.cli import Config, UserError, config_dict, flag, parse_config, run_cli, setting
+from common.cli import UserError, config_dict, field_default, flag, run_cli, setting
+from common.ray_backend import BACKENDS
 from common.seed_ranges import EVAL_SEED
 from evaluation import robustness
 from evaluation.robustness import RobustnessConfig
@@ -81,7 +73,7 @@ from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS
 from humanoid.env import nominal_model
-from humanoid.expert import SensedExpert
+from humanoid.inputs import BLIND_INPUTS
 from humanoid.sensors import proprioception_names
 from pipeline import report
 from policies.folder import (
@@ -102,109 +94,74 @@ from rl.scratch import ScratchConfig
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
+from teleop.record import TEACHER, RecordConfig, record
 from teleop.record import validate as validate_record
 
 MADE_BY = "pipeline.run"
+OWN = (MADE_BY, "bc.pipeline")
+"""The `made_by` of outputs the pipeline made: this version's, and the name it had before (docs/concepts/layout.md)."""
 
 NOT_COMPARED = frozenset(
-    {"progress", "overwrite", "cache", "writer", "front_end", "workers", "backend", "ray_address", "update_threads"}
+    {
+        *("progress", "overwrite", "cache", "writer", "front_end", "workers", "backend", "ray_address"),
+        *("update_threads", "eval_episodes", "final_eval_episodes"),
+    }
 )
-"""Settings that change only speed, display or permissions: never a reason to make an output again."""
+"""Settings that change only speed, display, permissions or how many episodes a stage's own evaluation reports: never
+a reason to make an output again (so what `make train-bc` and the other stage targets made with their defaults, the
+pipeline reuses)."""
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
 
-STUDENT_INPUTS = "pending+command"
-"""What BC_POLICY reads (humanoid/inputs.py): what a robot senses, leg odometry, its command in flight and the delay,
-and the operator's command (docs/decisions/pending-inputs.md, docs/concepts/commands.md)."""
-BLIND_INPUTS = "pending"
-"""What BLIND_POLICY reads: the same without the operator's command."""
 STAGE_EVALUATION = 0
 """Episodes of each stage's own evaluation after training (BC's, DAgger's, PPO's final one): none, since the table
 evaluates every controller on the same held-out seeds (its clean column is that evaluation;
 docs/decisions/pipeline-task.md)."""
-DAGGER_INPUTS = "pending+ramp"
-"""What DAGGER_POLICY, PPO's start, reads: `pending`'s inputs and the command as the expert's setpoint moves toward it
-(humanoid.inputs.ramped_set): under DAgger it follows every held-out schedule, where the command alone does not
-(docs/decisions/command-features.md)."""
-EXPERTS = (SensedExpert.name,)
+EXPERTS = (TEACHER,)
 """The registered controllers the table measures beside the policies: the expert on leg odometry that records the
 demonstrations, the students' reference. The expert told the simulator's state is left to `make robustness
-POLICY=expert SCHEDULES=1`: it teaches no row of the table (docs/decisions/pipeline-task.md)."""
+POLICY=expert`: it teaches no row of the table (docs/decisions/pipeline-task.md)."""
 
 
-def _like(config_class: type, name: str, help: str | None = None, default: Any = dataclasses.MISSING) -> Any:
-    """A pipeline setting with the default (and, unless given, the help) of `config_class`'s field `name`."""
-    field = next(f for f in dataclasses.fields(config_class) if f.name == name)
-    metadata = {key: value for key, value in field.metadata.items() if key != "help"}
-    default = field.default if default is dataclasses.MISSING else default
-    return setting(default, help or field.metadata["help"], **metadata)
+def _stage(default: Callable[[], Any], help: str) -> Any:
+    """A nested stage's config (`--stage.field` flags): `default` builds it as the pipeline runs it."""
+    return dataclasses.field(default_factory=default, metadata={"help": help})
 
 
 @dataclass
 class PipelineConfig:
-    """Settings of the pipeline: each is the stage's own setting of the same name, with its default."""
+    """Settings of the pipeline: the chained stages' own configs, nested as LeRobot's `TrainPipelineConfig` nests its
+    parts (`--record.episodes 50`, `make pipeline RECORD.EPISODES=50`), and what only the pipeline has. A stage's
+    input is the output of the stage before it (`stages` ties them: giving a tied setting otherwise is refused)."""
 
-    dataset: Path = _like(
-        RecordConfig,
-        "dataset",
-        "the operator's demonstrations (CONTROLLER under command schedules): recorded, unless it holds what is asked",
-        paths.OPERATOR_DATASET,
+    record: RecordConfig = _stage(RecordConfig, "the recording of the operator's demonstrations (make record)")
+    bc: TrainConfig = _stage(
+        lambda: TrainConfig(eval_episodes=STAGE_EVALUATION), "the deployable student's cloning (make train-bc)"
     )
-    episodes: int = _like(RecordConfig, "episodes", "episodes to record")
-    seed: int | None = setting(None, "seed of the first recorded episode (episode i uses SEED+i); default: 0")
-    controller: str = _like(
-        RecordConfig,
-        "controller",
-        "who demonstrates, following the schedules: by default the expert on leg odometry, which a student on what a "
-        "robot senses can imitate (docs/decisions/ppo-start.md)",
-        SensedExpert.name,
+    dagger: DaggerConfig = _stage(
+        lambda: DaggerConfig(eval_episodes=STAGE_EVALUATION), "DAgger on that student's inputs (make dagger)"
     )
-    noise: float = _like(RecordConfig, "noise", None, SENSED_NOISE)
-    latency: float = _like(RecordConfig, "latency", None, SENSED_LATENCY)
-    max_steps: int = _like(RecordConfig, "max_steps")
-    workers: int | None = setting(
-        None,
-        "simulation processes of the recording, both PPO stages and the table's evaluations; default: each stage's "
-        "(the machine's cores)",
-    )
-    backend: str = _like(FinetuneConfig, "backend", "where the recording's and both PPO stages' workers run")
-    ray_address: str | None = _like(FinetuneConfig, "ray_address")
-    bc_policy: Path = _like(
-        TrainConfig,
-        "policy",
-        f"checkpoint folder of the command-conditioned BC student (train-bc --inputs {STUDENT_INPUTS})",
-        paths.STUDENT_POLICY,
+    ppo: FinetuneConfig = _stage(
+        lambda: FinetuneConfig(final_eval_episodes=STAGE_EVALUATION),
+        "PPO from the DAgger student (make finetune-rl); PPO from scratch runs with the same settings",
     )
     blind_policy: Path = setting(
         paths.BLIND_POLICY,
-        f"checkpoint folder of BC on the same data without the command (--inputs {BLIND_INPUTS}): what it buys",
+        f"checkpoint folder of the student without the command (the bc stage's settings, --inputs {BLIND_INPUTS}): "
+        "what the command buys",
     )
-    epochs: int = _like(TrainConfig, "epochs", "training epochs of the BC students")
-    dagger_output: Path = _like(
-        DaggerConfig, "output", "DAgger's aggregate: a copy of DATASET, then its rounds", paths.OPERATOR_DAGGER_DATASET
+    scratch_policy: Path = setting(
+        paths.SCRATCH_POLICY, "checkpoint folder of PPO from scratch (make scratch-rl), on the ppo stage's settings"
     )
-    dagger_policy: Path = _like(
-        FinetuneConfig,
-        "bc_policy",
-        f"checkpoint folder of the DAgger student (dagger --inputs {DAGGER_INPUTS}, the expert on leg odometry "
-        "labelling, NOISE on its rollouts' actions); both PPO stages start from it",
+    workers: int | None = setting(
+        None,
+        "simulation processes of the recording, DAgger's rounds, both PPO stages and the table's evaluations; "
+        "default: each stage's (the machine's cores)",
     )
-    rounds: int = _like(DaggerConfig, "rounds", "DAgger rounds (docs/decisions/pipeline-student.md)")
-    dagger_episodes: int = _like(DaggerConfig, "episodes", "DAgger rollouts per round", bc_dagger.OPERATOR_EPISODES)
-    dagger_epochs: int = _like(DaggerConfig, "epochs", "training epochs of every DAgger fit", bc_dagger.OPERATOR_EPOCHS)
-    scratch_policy: Path = _like(ScratchConfig, "policy", "checkpoint folder of PPO from scratch (scratch-rl)")
-    ppo_policy: Path = _like(FinetuneConfig, "policy", "checkpoint folder of the PPO-refined policy (finetune-rl)")
-    timesteps: int = _like(FinetuneConfig, "timesteps")
-    envs: int = _like(FinetuneConfig, "envs")
-    push: float = _like(FinetuneConfig, "push")
-    curriculum: str = _like(FinetuneConfig, "curriculum")
-    randomize: str = _like(
-        FinetuneConfig, "randomize", "the PPO stages' training bodies and floors (humanoid.conditions)"
+    backend: str = setting(
+        "local", "where the recording's and both PPO stages' workers run (local, or ray)", choices=BACKENDS
     )
-    args: str = setting(
-        "", "further flags of both PPO stages, e.g. '--learning-rate 1e-4 --target-kl 0.01'; default: none"
-    )
+    ray_address: str | None = setting(None, "HOST:PORT of a running Ray cluster's head (--backend ray)")
     overwrite: bool = setting(
         False, "also replace checkpoints the pipeline did not make when they differ (never a dataset it did not record)"
     )
@@ -212,8 +169,8 @@ class PipelineConfig:
         20,
         "episodes per condition of the closing table, on held-out schedules (seeds 1000..) and with the command zero",
     )
-    conditions: str = _like(
-        RobustnessConfig, "conditions", "the closing table's conditions (docs/concepts/robustness-suite.md), or 'all'"
+    conditions: str = setting(
+        "all", "the closing table's conditions (docs/concepts/robustness-suite.md), comma-separated, or 'all'"
     )
 
 
@@ -231,117 +188,82 @@ class Stages:
     def outputs(self) -> dict[str, Path]:
         """Each output folder, by the pipeline's option that names it."""
         return {
-            "--dataset": self.record.dataset,
-            "--bc-policy": self.student.policy,
+            "--record.dataset": self.record.dataset,
+            "--bc.policy": self.student.policy,
             "--blind-policy": self.blind.policy,
-            "--dagger-output": self.dagger.output,
-            "--dagger-policy": self.dagger.policy,
+            "--dagger.output": self.dagger.output,
+            "--dagger.policy": self.dagger.policy,
             "--scratch-policy": self.scratch.policy,
-            "--ppo-policy": self.finetune.policy,
+            "--ppo.policy": self.finetune.policy,
         }
 
 
 def check(cfg: PipelineConfig) -> list[str]:
     """The pipeline's own settings, refused in one line that names them before any stage starts (the stages' own
     checks name the stages' flags); the table's conditions."""
-    if cfg.episodes < MIN_EPISODES:
+    if cfg.record.episodes < MIN_EPISODES:
         raise UserError(
-            f"--episodes must be at least {MIN_EPISODES} (BC holds whole episodes out for validation), "
-            f"got {cfg.episodes}"
+            f"--record.episodes must be at least {MIN_EPISODES} (BC holds whole episodes out for validation), "
+            f"got {cfg.record.episodes}"
         )
     if cfg.robustness_episodes < 1:
         raise UserError(f"--robustness-episodes must be at least 1, got {cfg.robustness_episodes}")
-    if cfg.latency == 0:  # what `bc.train.check_taught` would refuse after the recording
+    if cfg.record.latency == 0:  # what `bc.train.check_taught` would refuse after the recording
         raise UserError(
-            f"--latency 0: the students read {BLIND_INPUTS}'s inputs, which learn to act through action latency, and "
-            "a recording without it never shows it: give a share above 0"
+            f"--record.latency 0: the students read {BLIND_INPUTS}'s inputs, which learn to act through action "
+            "latency, and a recording without it never shows it: give a share above 0"
         )
     return robustness.selected(RobustnessConfig(conditions=cfg.conditions))
 
 
+TIES = (
+    ("bc", "dataset", "record", "dataset"),
+    ("dagger", "dataset", "record", "dataset"),
+    ("dagger", "noise", "record", "noise"),
+    ("ppo", "bc_policy", "dagger", "policy"),
+)
+"""(stage, setting, from stage, its setting): each stage's input is the output of the stage before it, and DAgger's
+rounds run under the recording's noise."""
+
+
+def tied(cfg: PipelineConfig) -> PipelineConfig:
+    """`cfg` with each tied setting (`TIES`) set from its source; UserError in one line for one given otherwise."""
+    replaced = {}
+    for stage, name, source, source_name in TIES:
+        config = replaced.get(stage, getattr(cfg, stage))
+        value, wanted = getattr(config, name), getattr(getattr(cfg, source), source_name)
+        if value != wanted and value != field_default(PipelineConfig, f"{stage}.{name}"):
+            raise UserError(
+                f"--{stage}.{flag(name)[2:]} {value}: the pipeline ties it to --{source}.{flag(source_name)[2:]} "
+                f"({wanted}); set that instead"
+            )
+        replaced[stage] = dataclasses.replace(config, **{name: wanted})
+    return dataclasses.replace(cfg, **replaced)
+
+
 def stages(cfg: PipelineConfig) -> Stages:
-    """The stages' configs for `cfg`: the pipeline's settings on top of each stage's defaults (and ARGS)."""
+    """The stages' configs for `cfg`: its nested stages tied together (`tied`), the blind student and PPO from scratch
+    made from the bc and ppo stages, and the shared worker settings on every stage that has them."""
     check(cfg)
-    workers = {"backend": cfg.backend, "ray_address": cfg.ray_address}
+    cfg = tied(cfg)
+    shared = {"backend": cfg.backend, "ray_address": cfg.ray_address}
     if cfg.workers is not None:
-        workers["workers"] = cfg.workers
-    ppo = {
-        "bc_policy": cfg.dagger_policy,
-        "timesteps": cfg.timesteps,
-        "envs": cfg.envs,
-        "push": cfg.push,
-        "curriculum": cfg.curriculum,
-        "randomize": cfg.randomize,
-        "scratch_policy": cfg.scratch_policy,
-        "final_eval_episodes": STAGE_EVALUATION,
-        **workers,
+        shared["workers"] = cfg.workers
+    recording = dataclasses.replace(cfg.record, **shared)
+    finetune = dataclasses.replace(cfg.ppo, scratch_policy=cfg.scratch_policy, **shared)
+    scratch_settings = {
+        field.name: getattr(finetune, field.name)
+        for field in dataclasses.fields(FinetuneConfig)
+        if field.name not in ScratchConfig.OWN
     }
-    recording = RecordConfig(
-        dataset=cfg.dataset,
-        episodes=cfg.episodes,
-        seed=cfg.seed,
-        controller=cfg.controller,
-        noise=cfg.noise,
-        latency=cfg.latency,
-        max_steps=cfg.max_steps,
-        schedules=True,
-        **workers,
-    )
-    student = TrainConfig(
-        dataset=cfg.dataset,
-        policy=cfg.bc_policy,
-        epochs=cfg.epochs,
-        inputs=STUDENT_INPUTS,
-        eval_episodes=STAGE_EVALUATION,
-    )
     return Stages(
         record=recording,
-        student=student,
-        blind=dataclasses.replace(student, policy=cfg.blind_policy, inputs=BLIND_INPUTS),
-        dagger=DaggerConfig(
-            dataset=cfg.dataset,
-            output=cfg.dagger_output,
-            policy=cfg.dagger_policy,
-            inputs=DAGGER_INPUTS,
-            expert=SensedExpert.name,
-            randomize=recording.randomize,  # the rollouts under the recording's conditions
-            latency=recording.latency,
-            noise=cfg.noise,
-            rounds=cfg.rounds,
-            episodes=cfg.dagger_episodes,
-            epochs=cfg.dagger_epochs,
-            eval_episodes=STAGE_EVALUATION,
-        ),
-        scratch=_with_args(ScratchConfig, cfg.args, {**ppo, "policy": cfg.scratch_policy}),
-        finetune=_with_args(FinetuneConfig, cfg.args, {**ppo, "policy": cfg.ppo_policy}),
+        student=cfg.bc,
+        blind=dataclasses.replace(cfg.bc, policy=cfg.blind_policy, inputs=BLIND_INPUTS),
+        dagger=dataclasses.replace(cfg.dagger, workers=cfg.workers),
+        scratch=ScratchConfig(**{**scratch_settings, "policy": cfg.scratch_policy}),
+        finetune=finetune,
     )
-
-
-def _with_args(config_class: type[Config], args: str, settings: dict[str, Any]) -> Config:
-    """`config_class` from the flags in `args`, then `settings` (which `args` may not set too)."""
-    module = f"python -m {config_class.__module__}"
-    printed = io.StringIO()
-    try:
-        # argparse's usage and message (or its help): the one line below says why
-        with contextlib.redirect_stderr(printed), contextlib.redirect_stdout(printed):
-            given = parse_config(config_class, shlex.split(args), description="", prog=f"--args ({module})")
-    except ValueError as error:  # shlex: an unclosed quote
-        raise UserError(f"--args {args!r}: {error}") from None
-    except UserError as error:  # a removed flag or value (`common.cli.REMOVED_FLAGS`)
-        raise UserError(f"--args {args!r}: {error}") from None
-    except SystemExit as error:  # an unknown flag, a bad value; --help
-        if error.code == 0:
-            raise UserError(f"--args {args!r}: the flags it takes are `{module} --help`'s") from None
-        why = printed.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
-        raise UserError(f"--args {args!r} holds something other than flags of {module}: {why}") from None
-    defaults = config_class()
-    repeated = [name for name in settings if getattr(given, name) != getattr(defaults, name)]
-    if repeated:
-        name = repeated[0]
-        if name in {f.name for f in dataclasses.fields(PipelineConfig)}:
-            raise UserError(f"--args sets {flag(name)}, a setting of the pipeline's own: set it as such")
-        raise UserError(f"--args sets {flag(name)}, which the pipeline sets itself ({settings[name]})")
-    return dataclasses.replace(given, **settings)
 
 
 @dataclass(frozen=True)
@@ -427,7 +349,7 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
         root, lambda: read_episodes(root, [columns.EPISODE_SEED])[columns.EPISODE_SEED].to_pylist()
     )
     problem = _dataset_problem(cfg, total, runs) or _layout_problem(root)
-    ours = all(run.get("made_by") == MADE_BY for run in runs) and bool(runs)
+    ours = all(run.get("made_by") in OWN for run in runs) and bool(runs)
     if problem is None and total == cfg.episodes:
         return Decision(REUSE, f"{root} holds the {total} episodes asked for, recorded so: not recording")
     if problem is None:
@@ -440,7 +362,7 @@ def dataset_decision(cfg: RecordConfig) -> Decision:
         return Decision(REMAKE, f"recording {root} again: it {problem}", cfg)
     raise UserError(
         f"{root} {problem}, and the pipeline did not record it: it is left as it is "
-        "(ask for what it holds, or choose another --dataset)"
+        "(ask for what it holds, or choose another --record.dataset)"
     )
 
 
@@ -489,7 +411,7 @@ def checkpoint_decision(
         problem = f"has no {EVAL_FILE} (its evaluation did not finish)"
     if problem is None:
         return Decision(REUSE, f"{folder} was made from this {source} with these settings: not {verb}")
-    if training.get("made_by") == MADE_BY or overwrite:
+    if training.get("made_by") in OWN or overwrite:
         return Decision(REMAKE, f"{verb} {folder} again: it {problem}", dataclasses.replace(cfg, overwrite=True))
     raise UserError(
         f"{folder} {problem}, and the pipeline did not make it: it is left as it is "
@@ -503,7 +425,7 @@ def dataset_fingerprint(root: Path) -> str | None:
 
 
 def bc_decision(
-    cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False, option: str = "--bc-policy"
+    cfg: TrainConfig, overwrite: bool, dataset_remade: bool = False, option: str = "--bc.policy"
 ) -> Decision:
     """A train-bc stage's decision: its input is the dataset, identified by its fingerprint."""
     saved = json_object(cfg.policy / DATASET_FILE).get("fingerprint")
@@ -517,7 +439,7 @@ def dagger_decision(cfg: DaggerConfig, overwrite: bool, dataset_remade: bool = F
     saved = training_settings(cfg.policy).get("demonstrations")
     current = partial(dataset_fingerprint, cfg.dataset)
     return checkpoint_decision(
-        cfg, "DAgger", "--dagger-policy", "dataset", saved, current, overwrite, dataset_remade, settings_key="dagger"
+        cfg, "DAgger", "--dagger.policy", "dataset", saved, current, overwrite, dataset_remade, settings_key="dagger"
     )
 
 
@@ -572,7 +494,7 @@ def foresee(run: Stages, overwrite: bool) -> None:
     dataset_remade = dataset_decision(run.record).action != REUSE
     remade = {
         config.policy.resolve(): bc_decision(config, overwrite, dataset_remade, option).action != REUSE
-        for config, option in ((run.student, "--bc-policy"), (run.blind, "--blind-policy"))
+        for config, option in ((run.student, "--bc.policy"), (run.blind, "--blind-policy"))
     }
     remade[run.dagger.policy.resolve()] = dagger_decision(run.dagger, overwrite, dataset_remade).action != REUSE
     if remade[run.dagger.policy.resolve()]:
@@ -580,7 +502,7 @@ def foresee(run: Stages, overwrite: bool) -> None:
         if dataset_remade and run.dagger.output.exists():
             problem = "is a copy of the dataset the pipeline records again"
         check_aggregate(run.dagger, problem)
-    for config, option in ((run.scratch, "--scratch-policy"), (run.finetune, "--ppo-policy")):
+    for config, option in ((run.scratch, "--scratch-policy"), (run.finetune, "--ppo.policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.
         ppo_decision(config, option, overwrite, remade.get(config.bc_policy.resolve(), False))
 
@@ -602,9 +524,9 @@ def run_stages(stages: Stages, overwrite: bool) -> list[Path]:
     order."""
     record_stage(stages.record)
     bc_stage(stages.blind, overwrite, "--blind-policy")
-    bc_stage(stages.student, overwrite, "--bc-policy")
+    bc_stage(stages.student, overwrite, "--bc.policy")
     dagger_stage(stages.dagger, overwrite)
-    for config, option in ((stages.scratch, "--scratch-policy"), (stages.finetune, "--ppo-policy")):
+    for config, option in ((stages.scratch, "--scratch-policy"), (stages.finetune, "--ppo.policy")):
         decision = ppo_decision(config, option, overwrite)
         print(f"pipeline: {decision.line}", flush=True)
         if decision.action != REUSE:
@@ -641,7 +563,7 @@ def check_aggregate(cfg: DaggerConfig, problem: str | None) -> None:
     if problem and bc_dagger.copied_from(cfg.output).get("made_by") != MADE_BY:
         raise UserError(
             f"{cfg.output} {problem}, and the pipeline did not make it: it is left as it is "
-            "(choose another --dagger-output)"
+            "(choose another --dagger.output)"
         )
 
 

@@ -8,9 +8,13 @@ run reads (`finished_with`).
 from __future__ import annotations
 
 import json
-from collections.abc import Collection
+import sys
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
+
+from common.cli import UserError
+from common.paths import NEWEST
 
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
@@ -70,3 +74,22 @@ def finished_with(path: Path, settings: dict[str, Any], ignored: Collection[str]
         return False
     saved = training_settings(path)
     return all(saved.get(name) == value for name, value in settings.items() if name not in ignored)
+
+
+def newest(candidates: Sequence[Path]) -> Path | None:
+    """The candidate checkpoint folder whose weights were written last; None where none is a checkpoint."""
+    found = [path for path in candidates if is_checkpoint(path)]
+    return max(found, key=lambda path: (path / WEIGHTS_FILE).stat().st_mtime_ns, default=None)
+
+
+def chosen_policy(policy: str, candidates: Sequence[Path], maker: str) -> str:
+    """`policy` as given, or where it is `common.paths.NEWEST` the newest checkpoint among `candidates`, which a line on
+    stderr names; UserError in one line where none of them is there yet (`maker`: the command that makes one)."""
+    if policy != NEWEST:
+        return policy
+    found = newest(candidates)
+    listed = ", ".join(map(str, candidates))
+    if found is None:
+        raise UserError(f"no policy checkpoint yet at {listed}: {maker} makes one")
+    print(f"policy: {found}, the newest of {listed}", file=sys.stderr, flush=True)
+    return str(found)

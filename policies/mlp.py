@@ -23,7 +23,8 @@ from torch import nn
 # scale of order one.
 STD_FLOOR = 0.1
 
-ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
+ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "elu": nn.ELU}
+"""ELU, what `make train-bc` writes (`bc.train.ACTIVATION`), and ReLU, what checkpoints before 2026-11-26 hold."""
 
 
 @dataclass(frozen=True)

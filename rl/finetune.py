@@ -42,10 +42,10 @@ import torch
 from stable_baselines3.common.callbacks import CallbackList
 from tqdm import tqdm
 
-from bc.dagger import OPERATOR_EPISODES, OPERATOR_EPOCHS, DaggerConfig
 from bc.data import load_demonstrations
 from common import paths
 from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
+from common.paths import NEWEST
 from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import EVAL_SEED, VALIDATION_SEED
 from common.workers import default_workers
@@ -61,6 +61,7 @@ from policies.folder import (
     LEARNING_CURVE_FILE,
     TENSORBOARD_DIR,
     WEIGHTS_FILE,
+    chosen_policy,
     finished_with,
     json_object,
 )
@@ -72,16 +73,6 @@ from rl.learner import build_model, fresh_actor, make_vec_env
 from rl.rollouts import WorkerRolloutPPO
 from rl.validation import CURVE_FILE, Validator, falls_back, plot_curves, selection_score
 from rl.vec_env import WorkerGroupVecEnv
-from teleop.record import SENSED_LATENCY, SENSED_NOISE
-
-STUDENT_RECIPE = (
-    f"`make pipeline` makes the command-conditioned student, or `make record CONTROLLER=expert-sensed SCHEDULES=1 "
-    f"NOISE={SENSED_NOISE} LATENCY={SENSED_LATENCY} DATASET={paths.OPERATOR_DATASET}` then `make dagger "
-    f"INPUTS=pending+ramp EXPERT=expert-sensed ROUNDS={DaggerConfig().rounds} EPISODES={OPERATOR_EPISODES} "
-    f"EPOCHS={OPERATOR_EPOCHS} NOISE={SENSED_NOISE} "
-    f"DATASET={paths.OPERATOR_DATASET} OUTPUT={paths.OPERATOR_DAGGER_DATASET} POLICY={paths.DAGGER_STUDENT_POLICY}`"
-)
-"""How to make the default BC checkpoint, said when it is missing."""
 
 EVAL_CONDITIONS = ("clean", "push20", "mass")
 """Robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one at every
@@ -103,10 +94,10 @@ class FinetuneConfig:
     """Settings of one PPO run: fine-tuning the BC actor (`make finetune-rl`)."""
 
     bc_policy: Path = setting(
-        paths.DAGGER_STUDENT_POLICY,
-        "BC checkpoint: the actor to refine (`make scratch-rl`: only its shape and normalisation, and its inputs); "
-        "by default the DAgger student that follows the operator's command on what a robot senses (`make pipeline` "
-        "makes it): the run then trains on command schedules (docs/how-to/finetune-ppo.md)",
+        Path(NEWEST),
+        "the student whose actor PPO refines (`make scratch-rl`: only its shape, inputs and normalisation); "
+        f"'{NEWEST}': the newest of {', '.join(map(str, paths.STUDENTS))}, which `make dagger` and `make train-bc` "
+        "write; a student that takes a command trains on the operator's schedules (docs/how-to/finetune-ppo.md)",
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     timesteps: int = setting(
@@ -163,12 +154,6 @@ class FinetuneConfig:
         "each step's reward adds this times the tracking term (the mean over the fields of exp(-(error/tolerance)²), "
         "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 10: docs/decisions/tracking-weight.md); "
         "evaluations run held-out schedules",
-    )
-    tracking_width: float = setting(
-        1.0,
-        "the tracking term's kernel width, in each field's settling tolerance (humanoid.commands.TOLERANCE, about "
-        "one key press; the tracking score measured is always at 1): half as wide tracked no closer over three "
-        "training seeds, twice as wide fell below the floor (docs/decisions/tracking-weight.md)",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
     learning_rate: float = setting(3e-5, "Adam learning rate of the actor")
@@ -250,7 +235,6 @@ def validate(cfg: FinetuneConfig) -> None:
         "floor_episodes",
         "learning_rate",
         "critic_learning_rate",
-        "tracking_width",
         "clip_range",
         "curriculum_episodes",
     )
@@ -331,7 +315,6 @@ def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
         tracking=cfg.tracking_weight if schedules else None,
-        tracking_width=cfg.tracking_width,
     )
 
 
@@ -427,9 +410,11 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
     `made_by` (rl.finetune, rl.scratch, pipeline.run) is saved with the settings in config.json.
     """
     validate(cfg)
-    cfg = dataclasses.replace(cfg, workers=workers(cfg))  # saved as a number: a resume must split as this run did
-    if cfg.bc_policy == paths.DAGGER_STUDENT_POLICY and not cfg.bc_policy.exists():
-        raise UserError(f"no policy checkpoint at {cfg.bc_policy}: {STUDENT_RECIPE}")
+    cfg = dataclasses.replace(
+        cfg,
+        bc_policy=Path(chosen_policy(str(cfg.bc_policy), paths.STUDENTS, "make train-bc (after make record)")),
+        workers=workers(cfg),  # saved as a number: a resume must split as this run did
+    )
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
     demonstrations = bc_dataset(cfg.bc_policy)

@@ -37,7 +37,6 @@ def training_env(
     latency: float | None = None,
     obs_noise: float | None = None,
     tracking: float | None = None,
-    tracking_width: float = 1.0,
 ) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
@@ -47,7 +46,7 @@ def training_env(
     action latency, and with `obs_noise` that share with its sensor noise on what the actor reads (and
     the estimator with it). A curriculum (`rl.curriculum`) changes all four from an episode to the
     next. With `tracking` (a reward weight, 0 included) the episodes follow the operator's command schedules and
-    reward tracking them (`CommandedTask`, its kernel `tracking_width` tolerances wide), the actor told the
+    reward tracking them (`CommandedTask`), the actor told the
     command. The observation is the environment's, then what an actor on `inputs` reads (`InputObservation`).
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
     reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
@@ -62,7 +61,7 @@ def training_env(
     if obs_noise is not None:
         env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
     if tracking is not None:
-        env = CommandedTask(env, tracking, tracking_width)
+        env = CommandedTask(env, tracking)
     return Monitor(InputObservation(env, inputs))
 
 
@@ -79,17 +78,11 @@ def make_vec_env(
     latency: float | None = None,
     obs_noise: float | None = None,
     tracking: float | None = None,
-    tracking_width: float = 1.0,
 ) -> WorkerGroupVecEnv:
     """`envs` training environments (`training_env`) over `workers` processes (or Ray actors), seeded from
     `seed`, for an actor on `inputs`."""
     env = WorkerGroupVecEnv(
-        [
-            functools.partial(
-                training_env, push, randomization, width, inputs, latency, obs_noise, tracking, tracking_width
-            )
-        ]
-        * envs,
+        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise, tracking)] * envs,
         workers,
         backend=backend,
         ray_address=ray_address,

@@ -32,6 +32,9 @@ class ScratchConfig(FinetuneConfig):
 
     fresh: ClassVar[bool] = True
     reward_scale: ClassVar[float] = 1.0  # the environment's own rewards
+    OWN: ClassVar[tuple[str, ...]] = ("policy", "learning_rate", "critic_learning_rate", "critic_warmup")
+    """The settings it has otherwise than fine-tuning (the rest are `make finetune-rl`'s: `make pipeline` runs both
+    with the same)."""
 
 
 def _main_and_print(cfg: ScratchConfig) -> None:

@@ -9,12 +9,12 @@ datasets root at OUT (the folder `MINARI_DATASETS_PATH` points at), holding one 
 
 so `minari.load_dataset(id)` serves (o_t, a_t, r_t, o_t+1) for every step, and
 `recover_environment()` gives Humanoid-v5. The reference scores that normalise returns come from
-the random and the expert controllers, rolled out here on the same seeds (`--seed` on). Where an operator
+the random and the expert controllers, rolled out here on the same held-out seeds (1000 on). Where an operator
 commanded anything, each observation is a Dict of the gymnasium observation and the command in force. Why
 Arrow, and what Minari does with fewer observations than it needs: docs/how-to/minari.md.
 
 `lerobot-command`: a copy of DATASET as a LeRobot v3.0 dataset whose `observation.state` ends with the operator's
-command (`command.<field>`, `common.columns.COMMAND_NAMES`), in place of `observation.command`: LeRobot's own policies
+command (`command.<field>`, `humanoid.command_fields`), in place of `observation.command`: LeRobot's own policies
 read only `observation.state` and `observation.environment_state`, so this is how `lerobot-train` conditions one on
 the command (docs/how-to/lerobot-train.md). Written by this project's LeRobot writer, statistics included.
 """
@@ -33,13 +33,12 @@ import gymnasium as gym
 import numpy as np
 
 from common import columns, paths
-from common.cli import DatasetError, UserError, check_non_negative, check_positive, run_cli, setting
-from common.columns import COMMAND_NAMES
+from common.cli import DatasetError, UserError, check_positive, run_cli, setting
 from common.seed_ranges import EVAL_SEED
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from humanoid.controllers import make_controller
 from humanoid.env import ENV_ID, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
-from humanoid.posture import Posture
 from teleop.dataset_reader import Transitions, read_episodes, read_frames, read_info, read_transitions
 from teleop.lerobot_io.format import DEFAULT_FEATURES, INFO_PATH, TASKS_PATH
 
@@ -80,7 +79,6 @@ class ExportConfig:
         choices=FORMATS,
     )
     reference_episodes: int = setting(10, "episodes of the random and expert controllers for the reference scores")
-    seed: int = setting(EVAL_SEED, "first seed of the reference episodes")
 
 
 def dataset_id(dataset: Path) -> str:
@@ -99,7 +97,7 @@ def commanded(transitions: list[Transitions]) -> bool:
 
 def observation_space(with_command: bool) -> gym.spaces.Space:
     """Humanoid-v5's observation space; with the command, a Dict of it ("observation") and the command's
-    ("command": `COMMAND_NAMES` within the posture's limits), as goal-conditioned Minari datasets nest theirs."""
+    ("command": `COMMAND_NAMES` within the fields' limits), as goal-conditioned Minari datasets nest theirs."""
     env = make_env()
     try:
         space = env.observation_space
@@ -107,7 +105,7 @@ def observation_space(with_command: bool) -> gym.spaces.Space:
         env.close()
     if not with_command:
         return space
-    low, high = (np.array([bound[name] for name in COMMAND_NAMES], np.float32) for bound in (Posture.MIN, Posture.MAX))
+    low, high = (np.array([getattr(field, bound) for field in COMMAND_FIELDS], np.float32) for bound in ("low", "high"))
     return gym.spaces.Dict({"observation": space, "command": gym.spaces.Box(low, high, dtype=np.float32)})
 
 
@@ -131,7 +129,6 @@ def to_minari(transitions: list[Transitions], with_command: bool = False) -> lis
 
 def validate(cfg: ExportConfig) -> None:
     check_positive(cfg, "reference_episodes")
-    check_non_negative(cfg, "seed")
     if not (cfg.dataset / INFO_PATH).is_file():
         raise DatasetError(f"no recorded dataset at {cfg.dataset} (no {INFO_PATH})")
     what = "a Minari datasets root" if cfg.format == MINARI else "a LeRobot dataset"
@@ -169,8 +166,8 @@ def export_minari(cfg: ExportConfig) -> str:
     with_command = commanded(transitions)
     buffers = to_minari(transitions, with_command)
     scores = {
-        "ref_min_score": mean_return("random", cfg.reference_episodes, cfg.seed),
-        "ref_max_score": mean_return("expert", cfg.reference_episodes, cfg.seed),
+        "ref_min_score": mean_return("random", cfg.reference_episodes, EVAL_SEED),
+        "ref_max_score": mean_return("expert", cfg.reference_episodes, EVAL_SEED),
     }
     import minari  # noqa: PLC0415 - minari loads h5py/arrow; only export needs it
 

@@ -917,7 +917,7 @@ def plot(dataset: Dataset, path: Path) -> None:
         executed = frames.get(columns.EXECUTED_ACTION)
         both = executed is not None and executed.shape == actions.shape
         for d in range(actions.shape[1]):
-            axes = figure.add_subplot(grid[1 + d // columns, d % columns])
+            axes = figure.add_subplot(grid[1 + d // per_row, d % per_row])
             # Shared bins: the executed action's wider spread is the injected noise, to be compared by eye.
             values = np.concatenate([actions[:, d], executed[:, d]]) if both else actions[:, d]
             bins = np.histogram_bin_edges(values, bins=50)

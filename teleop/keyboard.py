@@ -29,7 +29,8 @@ import gymnasium as gym
 import numpy as np
 
 from common.cli import UserError
-from humanoid.commands import ARM_NAMES, command_vector, task_for
+from humanoid.command_fields import COMMAND_FIELDS, CommandField
+from humanoid.commands import command_vector, task_for
 from humanoid.controllers import Controller, make_controller
 from humanoid.env import model_and_data
 from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
@@ -54,30 +55,33 @@ class Binding:
     effect: Callable[[TeleopSession], None]
 
 
-def _nudge(field: str, presses: int) -> Callable[[TeleopSession], None]:
-    step = presses * Posture.STEP[field]
+def _nudge(field: CommandField, presses: int) -> Callable[[TeleopSession], None]:
+    step = presses * field.step
     return lambda session: session.command_posture(
-        dataclasses.replace(session.target, **{field: getattr(session.target, field) + step})
+        dataclasses.replace(session.target, **{field.name: getattr(session.target, field.name) + step})
     )
 
 
-def _arms(preset: int) -> Callable[[TeleopSession], None]:
-    return lambda session: session.command_posture(dataclasses.replace(session.target, arms=float(preset)))
+def _preset(field: CommandField, preset: int) -> Callable[[TeleopSession], None]:
+    return lambda session: session.command_posture(dataclasses.replace(session.target, **{field.name: float(preset)}))
+
+
+def field_bindings(field: CommandField) -> tuple[Binding, ...]:
+    """The keys of a command field, as its row gives them: one per preset, or raise then lower by one step."""
+    if field.presets:
+        return tuple(
+            Binding(keys, phrase, _preset(field, i))
+            for i, (keys, phrase) in enumerate(zip(field.keys, field.phrases, strict=True))
+        )
+    (lower, raise_), (lowered, raised) = field.keys, field.phrases
+    return Binding(raise_, raised, _nudge(field, 1)), Binding(lower, lowered, _nudge(field, -1))
 
 
 KEY_MAP: tuple[Binding, ...] = (
     Binding(("enter",), "start an episode / end it and save it", lambda s: s.start_or_end()),
     Binding(("backspace",), "discard the episode in progress", lambda s: s.discard()),
     Binding(("esc",), "quit (an episode in progress is saved; Ctrl-C too)", lambda s: s.quit()),
-    Binding(("w", "up"), "lean forward", _nudge("lean_forward", 1)),
-    Binding(("s", "down"), "lean back", _nudge("lean_forward", -1)),
-    Binding(("a", "left"), "lean left", _nudge("lean_left", 1)),
-    Binding(("d", "right"), "lean right", _nudge("lean_left", -1)),
-    Binding(("f",), "crouch (lower the torso)", _nudge("height", -1)),
-    Binding(("r",), "rise", _nudge("height", 1)),
-    Binding(("q",), "twist the torso left", _nudge("twist", 1)),
-    Binding(("e",), "twist the torso right", _nudge("twist", -1)),
-    *(Binding((str(i),), f"arms {name}", _arms(i)) for i, name in enumerate(ARM_NAMES)),
+    *(binding for field in COMMAND_FIELDS for binding in field_bindings(field)),
     Binding(("space",), "back to the neutral stand", lambda s: s.command_posture(NEUTRAL)),
     Binding(("p",), f"push the torso forward ({PUSH_FORCE:g} N for {PUSH_SECONDS:g} s)", lambda s: s.push()),
 )
@@ -244,10 +248,20 @@ class TeleopSession:
         state = f"REC seed {self.next_seed} t {self.t * self.env.unwrapped.dt:5.2f} s" if self.recording else "idle"
         return (
             f"{state} | height {torso_height(self.model, self.data):.2f} m | return {self.episode_return:7.1f} | "
-            f"lean fwd {target.lean_forward:+.2f} left {target.lean_left:+.2f} | height {target.height:+.2f} | "
-            f"twist {target.twist:+.1f} | arms {ARM_NAMES[round(target.arms)]}"
-            f"{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}"
+            f"{command_status(target)}{' | PUSH' if self.pushing_left else ''} | saved {self.saved} | {self.message}"
         )
+
+
+def command_status(posture: Posture) -> str:
+    """The command in force as the status line shows it: each field's value (a preset by its phrase), a limit
+    reached marked `[max]` or `[min]` (a key past it changes nothing)."""
+    parts = []
+    for field in COMMAND_FIELDS:
+        value = getattr(posture, field.name)
+        shown = field.phrases[round(value)] if field.presets else f"{field.name.replace('_', ' ')} {value:+.2f}"
+        limit = " [max]" if value >= field.high else " [min]" if value <= field.low and field.low < 0 else ""
+        parts.append(shown + limit)
+    return " | ".join(parts)
 
 
 class StatusLine:

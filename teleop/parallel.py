@@ -40,7 +40,6 @@ class RolloutSettings:
     controller: str
     noise: float
     max_steps: int
-    task: str
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
     latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
     schedules: bool = False  # the operator's command follows the schedule drawn from each seed
@@ -74,7 +73,6 @@ class Simulator:
             seed,
             settings.noise,
             self.buffer,
-            settings.task,
             labeller=self.labeller,
             schedules=settings.schedules,
         )

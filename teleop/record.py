@@ -27,6 +27,7 @@ with -9 gets its line from the next one (the mark it left, `teleop.recordings.ma
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 import time
@@ -49,6 +50,7 @@ from common.cli import (
     run_cli,
     setting,
 )
+from common.paths import NEWEST
 from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import SEED_LIMIT
 from common.workers import default_workers
@@ -61,9 +63,11 @@ from humanoid.conditions import (
     recorded_parameters,
     recording_env,
 )
-from humanoid.controllers import CONTROLLERS, INTERACTIVE, OPERATOR, check_controller, make_controller
+from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
-from humanoid.episode import DEFAULT_TASK, EpisodeBuffer, run_episode
+from humanoid.episode import EpisodeBuffer, run_episode
+from humanoid.expert import SensedExpert
+from policies.folder import chosen_policy
 from teleop import recordings
 from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
@@ -75,17 +79,24 @@ if TYPE_CHECKING:
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
 
-# Measured (docs/decisions/dart-noise.md): at 0.05 the expert still stands on most seeds and behaviour
-# cloning from the data stands on every unseen seed; clean data (0) gives a policy that falls.
-DEFAULT_NOISE = 0.05
-# The expert on leg odometry (`--controller expert-sensed`) records `make pipeline`'s deployable demonstrations with
-# less noise: at 0.05, with half of them delayed (SENSED_LATENCY), it falls in most, and their students stood under
-# sensor and action noise far less often (docs/decisions/dart-noise.md).
-SENSED_NOISE = 0.03
-# The share of its episodes recorded with one step of action latency, told to it: a student on the "pending" inputs
-# learns to act through the delay from them, and the undelayed half keeps it standing without
-# (docs/decisions/latency-share.md).
-SENSED_LATENCY = 0.5
+TEACHER = SensedExpert.name
+"""Who demonstrates by default: the expert on leg odometry, whose law a student on what a robot senses can read
+(docs/concepts/controllers.md)."""
+DART_NOISE = 0.03
+"""The executed actions' noise (DART): clean demonstrations give a student that falls; at 0.05 the teacher on leg
+odometry, half its episodes delayed, falls in most and its students stood under noise far less often
+(docs/decisions/dart-noise.md)."""
+STANDING_NOISE = 0.05
+"""The standing recipe's DART noise, for the expert told the simulator's state (`make record CONTROLLER=expert
+SCHEDULES=0 NOISE=0.05 LATENCY=0`): at 0.05 it stands on most seeds and its students on every unseen one
+(docs/decisions/dart-noise.md)."""
+STANDING = {"controller": "expert", "schedules": False, "latency": 0.0}
+"""The standing recipe's other recording settings (with NOISE=STANDING_NOISE): the expert told the simulator's state,
+the zero command, no episode delayed; the benchmarks' expert episodes and most recording tests use it."""
+LATENCY_SHARE = 0.5
+"""The share of episodes recorded with one step of action latency, told to the teacher: a student on the "pending"
+inputs learns to act through the delay from them, and the undelayed half keeps it standing without
+(docs/decisions/latency-share.md)."""
 
 
 # Past about 6.6 simulation workers the one writer is the limit (docs/concepts/ray.md, "Throughput against the number
@@ -105,11 +116,12 @@ class RecordConfig:
         "default: one past the largest seed in the dataset, 0 if new",
     )
     controller: str = setting(
-        "expert",
-        "who acts: a registered controller or a policy checkpoint folder",
+        TEACHER,
+        "who acts: a registered controller (by default the teacher on what a robot senses; expert: the one told the "
+        "simulator's state) or a policy checkpoint folder",
         metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH",
     )
-    noise: float = setting(DEFAULT_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
+    noise: float = setting(DART_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     randomize: str = setting(
         NO_RANDOMIZATION,
         "domain randomisation, drawn per episode from its seed and stored with it: "
@@ -118,23 +130,22 @@ class RecordConfig:
         f"like {RANDOMIZE_EXAMPLE}",
     )
     latency: float = setting(
-        0.0,
+        LATENCY_SHARE,
         "share of the episodes whose actions execute one env step late, drawn per episode from its seed; the delay "
         f"is stored with the episode ({columns.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
-    task: str = setting(
-        DEFAULT_TASK, "the task string stored with every frame (under schedules or keys: the task names the command)"
-    )
     schedules: bool = setting(
-        False,
-        "the operator's command follows a schedule drawn from each episode's seed (humanoid.commands; "
-        f"--controller {OPERATOR} implies it): the controller is told each command, the dataset records it",
+        True,
+        "the scripted operator's command follows a schedule drawn from each episode's seed (humanoid.commands): the "
+        "controller is told each command, the dataset records it; false: the zero command, stand still (with "
+        "--controller keyboard the keys set it)",
     )
     policy: str | None = setting(
         None,
         "with --controller keyboard: the keys command this policy (a checkpoint folder of a policy that takes a "
-        "command) instead of the expert; `make play`",
+        f"command, or '{NEWEST}': the newest of {', '.join(map(str, paths.LEARNED))}) instead of the expert "
+        "(`make play`)",
     )
     workers: int | None = setting(
         None,
@@ -226,10 +237,6 @@ def validate(cfg: RecordConfig) -> None:
         # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
         raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
     check_share(cfg, "latency")
-    if cfg.controller in INTERACTIVE and cfg.latency > 0:
-        raise UserError(f"--controller {cfg.controller} records without latency: --latency must be 0")
-    if cfg.controller in INTERACTIVE and cfg.schedules:
-        raise UserError(f"--controller {cfg.controller}: the keys set the command, --schedules cannot")
     if cfg.policy is not None:
         check_played(cfg)
     if cfg.controller in INTERACTIVE:
@@ -239,9 +246,13 @@ def validate(cfg: RecordConfig) -> None:
     check_destination(cfg.dataset)
 
 
-def schedules(cfg: RecordConfig) -> bool:
-    """Whether the command follows seeded schedules: asked for, or the scripted operator."""
-    return cfg.schedules or cfg.controller == OPERATOR
+def effective(cfg: RecordConfig) -> RecordConfig:
+    """`cfg` as it records: with the keys (`--controller keyboard`) the command is theirs and no episode is delayed,
+    and `--policy newest` is the newest of the chain's policies (`common.paths.LEARNED`)."""
+    if cfg.controller not in INTERACTIVE:
+        return cfg
+    policy = None if cfg.policy is None else chosen_policy(cfg.policy, paths.LEARNED, "make train-bc")
+    return dataclasses.replace(cfg, schedules=False, latency=0.0, policy=policy)
 
 
 def check_played(cfg: RecordConfig) -> None:
@@ -272,6 +283,7 @@ def workers(cfg: RecordConfig) -> int:
 def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str | None = None) -> RecordSummary:
     """Record `cfg.episodes` episodes into `cfg.dataset`; returns what was committed (in `summary`, if given).
     `made_by`: the session logs itself (`record`), so it marks the dataset while it writes."""
+    cfg = effective(cfg)
     validate(cfg)
     summary = RecordSummary(cfg.dataset) if summary is None else summary
     if workers(cfg) == 1 and cfg.backend == "local":
@@ -283,6 +295,7 @@ def main(cfg: RecordConfig, summary: RecordSummary | None = None, made_by: str |
 
 def record(cfg: RecordConfig, made_by: str = "teleop.record") -> RecordSummary:
     """`make record`: `main`, then the session's line in DATASET/recordings.jsonl, also after Ctrl-C or an error."""
+    cfg = effective(cfg)
     summary = RecordSummary(cfg.dataset)
     complete = False
     try:
@@ -369,9 +382,7 @@ def _record(
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
-                episode = run_episode(
-                    env, controller, seed, cfg.noise, buffer, cfg.task, observer=live, schedules=schedules(cfg)
-                )
+                episode = run_episode(env, controller, seed, cfg.noise, buffer, observer=live, schedules=cfg.schedules)
                 report(sink.submit(episode))
         else:
             _record_in_parallel(rollouts, seeds, sink, report)
@@ -394,10 +405,9 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
         cfg.controller,
         cfg.noise,
         cfg.max_steps,
-        cfg.task,
         parse_randomization(cfg.randomize),
         cfg.latency,
-        schedules(cfg),
+        cfg.schedules,
     )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":

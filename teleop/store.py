@@ -30,6 +30,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from common import columns
 from common.cli import DatasetError
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
     ENV_ID,
@@ -78,7 +79,7 @@ class DatasetSpec:
         model, _ = model_and_data(env)
         sensed, privileged = proprioception_names(model), privileged_names(model)
         actions = actuator_names(model)
-        commands = list(columns.COMMAND_NAMES)
+        commands = list(COMMAND_NAMES)
         flag = {"dtype": "bool", "shape": (1,), "names": None}
         features = {
             columns.OBS_STATE: {"dtype": "float64", "shape": (len(sensed),), "names": sensed},

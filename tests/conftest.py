@@ -7,6 +7,14 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+from common.threads import PINNED, pinnable
+
+# The BLAS kernels `make test` runs with, also under a bare `pytest`: they act only if set before numpy loads, which
+# the imports below do (common/threads.py).
+if pinnable():
+    for name, value in PINNED.items():
+        os.environ.setdefault(name, value)
+
 import pytest
 
 from bc.train import TrainConfig
@@ -14,7 +22,7 @@ from bc.train import main as train_bc
 from common import workers
 from support import SHORT_EPISODE, SMALL_BC, RayCluster
 from teleop.parallel import WORKER_MODULES
-from teleop.record import RecordConfig, main, record
+from teleop.record import STANDING, RecordConfig, main, record
 from teleop.writer_process import WRITER_MODULES
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
@@ -51,15 +59,24 @@ def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset of 3 short noisy expert episodes (seeds 0..2), written in-process."""
     root = tmp_path_factory.mktemp("recorded") / "dataset"
-    main(RecordConfig(dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False))
+    main(
+        RecordConfig(
+            dataset=root, episodes=3, max_steps=SHORT_EPISODE, noise=0.05, writer="inline", progress=False, **STANDING
+        )
+    )
     return root
 
 
 @pytest.fixture(scope="session")
 def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A dataset of 2 scripted-operator episodes (seeds 0..1) of 300 steps: neutral for 3 s, then a command."""
+    """A dataset of 2 episodes of the expert under the scripted operator's schedules (seeds 0..1) of 300 steps:
+    neutral for 3 s, then a command."""
     root = tmp_path_factory.mktemp("operated") / "dataset"
-    main(RecordConfig(dataset=root, episodes=2, max_steps=300, controller="operator", writer="inline", progress=False))
+    main(
+        RecordConfig(
+            dataset=root, episodes=2, max_steps=300, controller="expert", latency=0.0, writer="inline", progress=False
+        )
+    )
     return root
 
 
@@ -85,7 +102,7 @@ def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
     folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, inputs="proprio", **SMALL_BC))
+    train_bc(TrainConfig(dataset=recorded, policy=folder, **{**SMALL_BC, "inputs": "proprio"}))
     return folder
 
 
@@ -93,7 +110,11 @@ def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 def pending_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint on the "pending" inputs of 3 short noisy expert episodes, each delayed by one step."""
     root = tmp_path_factory.mktemp("delayed") / "dataset"
-    record(RecordConfig(dataset=root, episodes=3, max_steps=60, latency=1.0, writer="inline", progress=False))
+    record(
+        RecordConfig(
+            dataset=root, episodes=3, max_steps=60, writer="inline", progress=False, **{**STANDING, "latency": 1.0}
+        )
+    )
     folder = tmp_path_factory.mktemp("bc_pending") / "policy"
-    train_bc(TrainConfig(dataset=root, policy=folder, inputs="pending", **SMALL_BC))
+    train_bc(TrainConfig(dataset=root, policy=folder, **{**SMALL_BC, "inputs": "pending"}))
     return folder

@@ -22,18 +22,23 @@ from mcap_protobuf.decoder import DecoderFactory
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from common import columns
-from common.columns import COMMAND_NAMES, PUSH_NAMES
+from common.cli import flag
+from common.columns import PUSH_NAMES
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
 from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
-from teleop.record import RecordConfig, main
+from teleop.record import STANDING, RecordConfig, main
 
 SHORT_EPISODE = 80  # steps: long enough for noise to matter, short enough to keep the suite fast
 
-SMALL_BC = {"hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False, "tensorboard": False}
-"""A small BC training on the 3-episode recording: 5 passes exactly."""
+STANDING_FLAGS = [word for name, value in STANDING.items() for word in (flag(name), str(value))]
+"""The same as `make record`'s flags."""
+
+SMALL_BC = {"inputs": "full", "hidden": 32, "epochs": 5, "min_updates": 0, "eval_episodes": 0, "progress": False}
+"""A small BC training on the 3-episode standing recording, on the full observation: 5 passes exactly."""
 
 TINY_PPO = {
     "curriculum": "",
@@ -211,9 +216,9 @@ def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int) -> su
 
 
 def record_short(root: Path, **settings: object) -> None:
-    """`make record`'s recording (no recordings.jsonl line) into `root` in this process, with the writer inline and
-    no progress bar, unless `settings` say otherwise."""
-    main(RecordConfig(**{"dataset": root, "writer": "inline", "progress": False, **settings}))
+    """`make record`'s recording (no recordings.jsonl line) into `root` in this process: the standing recipe
+    (`STANDING`), the writer inline and no progress bar, unless `settings` say otherwise."""
+    main(RecordConfig(**{"dataset": root, "writer": "inline", "progress": False, **STANDING, **settings}))
 
 
 def drawn_delay(seed: int, share: float = 0.5) -> int:
@@ -291,6 +296,7 @@ def start_recording(root: Path, episodes: int, *flags: str) -> subprocess.Popen:
             "false",
             "--workers",
             "1",
+            *STANDING_FLAGS,
             *flags,
         ],
         start_new_session=True,

@@ -4,7 +4,9 @@
   `state`, named by the metadata record's `state_names`), actions, reward and outcome.
 - `humanoid_bc.Command` (`/command`): the command in force at that step, one field per entry of
   the dataset's `observation.command` (so Foxglove plots each by name), the push, the task that names it,
-  the expert's setpoint toward it (`setpoint_*`) and the posture achieved (`achieved_*`: lean, height, twist).
+  the expert's setpoint toward it (`setpoint_*`) and the posture achieved (`achieved_*`: the fields read from one
+  coordinate). Every number field's protobuf number is its command field's row's (`CommandField.mcap`), never
+  derived from an order: a file written before a field was added decodes the same with today's message.
 
 Defining the schema from a `FileDescriptorProto` keeps it independent of the protoc version the
 installed protobuf runtime expects; MCAP files embed the schema, so readers need nothing from here.
@@ -15,7 +17,9 @@ from __future__ import annotations
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
-from common.columns import COMMAND_NAMES, PUSH_NAMES
+from common.columns import PUSH_NAMES
+from humanoid.command_fields import COMMAND_FIELDS
+from humanoid.commands import PLOTTED
 
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"
@@ -36,24 +40,21 @@ _STEP_FIELDS = (
     ("task", 10, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
     ("state", 11, _F.TYPE_DOUBLE, _F.LABEL_REPEATED, None),  # observation.state: what a robot senses
 )
-ACHIEVED_NAMES = COMMAND_NAMES[:4]
-"""The achieved posture's fields on `/command` (`humanoid.commands.Tracking.achieved`; the arms show in 3D)."""
-COMMAND_VALUES = (
-    *COMMAND_NAMES,
-    *PUSH_NAMES,
-    *(f"setpoint_{name}" for name in COMMAND_NAMES),
-    *(f"achieved_{name}" for name in ACHIEVED_NAMES),
+PUSH_NUMBERS = (7, 8)
+"""The push's numbers (`PUSH_NAMES`), and the task's: fixed since the first version."""
+TASK_NUMBER = 9
+_NUMBERED = (
+    *((field.name, field.mcap[0]) for field in COMMAND_FIELDS),
+    *zip(PUSH_NAMES, PUSH_NUMBERS, strict=True),
+    *((f"setpoint_{field.name}", field.mcap[1]) for field in COMMAND_FIELDS),
+    *((f"achieved_{field.name}", field.mcap[2]) for field in PLOTTED),
 )
+COMMAND_VALUES = tuple(name for name, _ in _NUMBERED)
 """The number fields of `Command`, in the order `command_values` gives them."""
-# The command's and the push's numbers are those of the first version, whose command held the push.
-_NUMBERS = [*range(2, 9), *range(10, 10 + len(COMMAND_VALUES) - 7)]
 _COMMAND_FIELDS = (
     ("timestamp", 1, _F.TYPE_MESSAGE, _F.LABEL_OPTIONAL, ".google.protobuf.Timestamp"),
-    *(
-        (name, number, _F.TYPE_DOUBLE, _F.LABEL_OPTIONAL, None)
-        for name, number in zip(COMMAND_VALUES, _NUMBERS, strict=True)
-    ),
-    ("task", 9, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
+    *((name, number, _F.TYPE_DOUBLE, _F.LABEL_OPTIONAL, None) for name, number in _NUMBERED),
+    ("task", TASK_NUMBER, _F.TYPE_STRING, _F.LABEL_OPTIONAL, None),
 )
 _MESSAGES = {"Step": _STEP_FIELDS, "Command": _COMMAND_FIELDS}
 

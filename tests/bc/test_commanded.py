@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from bc import train as train_stage
-from common.columns import COMMAND_NAMES
 from evaluation import evaluate as evaluate_stage
 from evaluation import robustness
 from evaluation.evaluate import plot_tracking, tracking
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
 from humanoid.env import make_env
 from humanoid.episode import run_episode
@@ -34,7 +34,6 @@ TRACKING_FIELDS = {"settled_error", "moved_error", "settle_seconds"}
 OPERATOR_STEPS = 360
 OPERATOR_SEED = 1007
 TINY = ["--hidden", "8", "--epochs", "1", "--min-updates", "0", "--eval-episodes", "0", "--progress", "false"]
-TINY += ["--tensorboard", "false"]
 
 
 def stage_cli(stage: object, args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], list[str]]:
@@ -48,7 +47,9 @@ def stage_cli(stage: object, args: list[str], capsys: pytest.CaptureFixture[str]
 def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 short episodes of the scripted operator, each under a step of action latency: commands that change."""
     root = tmp_path_factory.mktemp("operated") / "dataset"
-    record_short(root, controller="operator", episodes=2, max_steps=OPERATOR_STEPS, latency=1.0, noise=0.02)
+    record_short(
+        root, controller="expert", schedules=True, episodes=2, max_steps=OPERATOR_STEPS, latency=1.0, noise=0.02
+    )
     return root
 
 
@@ -71,7 +72,7 @@ def full_checkpoint(folder: Path) -> Path:
 # bc.train
 
 
-@pytest.mark.parametrize("inputs", ["full+command", "proprio+command", "pending+command"])
+@pytest.mark.parametrize("inputs", ["pending+command", "pending+ramp"])
 def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     delayed: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], inputs: str
 ) -> None:
@@ -81,7 +82,7 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     args = [*TINY, "--dataset", str(delayed), "--policy", str(tmp_path / "policy"), "--inputs", inputs]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
-    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "CONTROLLER=operator" in err[0]
+    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "SCHEDULES=1" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 
@@ -120,7 +121,6 @@ def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_tak
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--controller", "keyboard", "--schedules", "true"], "--controller keyboard: the keys set the command"),
         (["--policy", "policies/somewhere"], "--policy is driven by the keys: it needs --controller keyboard"),
         (["--controller", "keyboard", "--policy", "nowhere/policy"], "no policy checkpoint at nowhere/policy"),
     ],
@@ -195,7 +195,7 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
 def test_eval_plots_the_first_episode_without_schedules(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--plot alone: the PNG of the (zero) command and what was achieved; no tracking in the JSON."""
     path = tmp_path / "plots" / "random.png"
-    args = ["--policy", "random", "--episodes", "1", "--plot", str(path), "--progress", "false"]
+    args = ["--policy", "random", "--episodes", "1", "--plot", str(path), "--progress", "false", "--schedules", "0"]
     code, out, _ = stage_cli(evaluate_stage, args, capsys)
     result = json.loads(out[-1])
     assert code == 0 and result["tracking"] is None and result["takes_command"] is False

@@ -32,7 +32,6 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from common import columns
 from common.cli import DatasetError, config_dict
-from humanoid.commands import DEFAULT_TASK
 from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_env
 from humanoid.env import make_env
 from humanoid.episode import run_episode
@@ -51,7 +50,10 @@ from teleop.store import CommittedEpisode, DatasetSpec, EpisodeStore
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
 
-ONE_ROUND = {"rounds": 1, "episodes": 2, "min_updates": 0, "eval_episodes": 0, "progress": False}
+STANDING_DAGGER = {"inputs": "full", "expert": "expert", "noise": 0.0, "epochs": 30}
+"""DAgger on the standing recipe's demonstrations (the `recorded` fixture): the full-state student, the expert told
+the simulator's state labelling, no noise on the rollouts."""
+ONE_ROUND = {"rounds": 1, "episodes": 2, "min_updates": 0, "eval_episodes": 0, "progress": False, **STANDING_DAGGER}
 """A tiny DAgger run: one round of 2 episodes, each training exactly its epochs, no final evaluation."""
 
 
@@ -65,7 +67,7 @@ def dagger(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     before = snapshot(demonstrations)
     output = folder / "aggregate"
     config = DaggerConfig(
-        dataset=demonstrations, output=output, policy=folder / "policy", inputs="proprio", **ONE_ROUND
+        dataset=demonstrations, output=output, policy=folder / "policy", **{**ONE_ROUND, "inputs": "proprio"}
     )
     result = main(config)
     return demonstrations, output, result, before, config
@@ -110,9 +112,7 @@ def sensed_run(dataset: Path, folder: Path, inputs: str) -> DaggerConfig:
         dataset=dataset,
         output=folder / "aggregate",
         policy=folder / "policy",
-        inputs=inputs,
-        expert="expert-sensed",
-        **ONE_ROUND,
+        **{**ONE_ROUND, "inputs": inputs, "expert": "expert-sensed"},
     )
 
 
@@ -236,7 +236,6 @@ def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tupl
         min_updates=0,
         eval_episodes=0,
         progress=False,
-        tensorboard=False,
         cache=False,
     )
     fitted = train(again).policy.state_dict()
@@ -265,7 +264,7 @@ def one_round(
     shutil.copytree(delayed, root)
     env = recording_env(make_env(STEPS), Randomization(), latency)
     training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
-    rollouts = RolloutSettings("dagger", 0.0, STEPS, DEFAULT_TASK, Randomization(), latency, labeller=expert)
+    rollouts = RolloutSettings("dagger", 0.0, STEPS, Randomization(), latency, labeller=expert)
     demos = load_demonstrations(root, env, cache=False, inputs=inputs)
     trainer = DAggerTrainer(demos, training, rollouts, env.action_space)
     store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))
@@ -402,8 +401,8 @@ def test_a_merged_dataset_is_read_by_its_shards_recordings(tmp_path: Path) -> No
 
 def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Path) -> None:
     """NOISE: the round's episodes are rolled out with that noise on the executed actions, and say so."""
-    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy", noise=0.05)
-    main(dataclasses.replace(config, **ONE_ROUND))
+    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy")
+    main(dataclasses.replace(config, **{**ONE_ROUND, "noise": 0.05}))
     rounds = read_episodes(config.output).to_pylist()[3:]
     assert [e[columns.EPISODE_NOISE_STD] for e in rounds] == [0.05, 0.05]
 
@@ -432,7 +431,7 @@ def test_bad_rollout_settings_are_refused(
     assert not output.exists()
 
 
-TWO_ROUNDS = {"rounds": 2, "episodes": 3, "min_updates": 0, "eval_episodes": 0, "progress": False}
+TWO_ROUNDS = {"rounds": 2, "episodes": 3, "min_updates": 0, "eval_episodes": 0, "progress": False, **STANDING_DAGGER}
 
 
 def as_flags(config: DaggerConfig) -> list[str]:

@@ -5,24 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from bench.training_seeds import ROLES, seed_config, spread_table
-from common.columns import COMMAND_NAMES
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import SUITE
-from pipeline.run import PipelineConfig
+from pipeline.run import PipelineConfig, stages
 
 
 def test_seed_zero_is_the_pipelines_run_and_other_seeds_train_apart() -> None:
     assert seed_config(0, Path("s")) == PipelineConfig()
     other = seed_config(2, Path("s"))
-    folders = {
-        other.bc_policy,
-        other.blind_policy,
-        other.dagger_output,
-        other.dagger_policy,
-        other.ppo_policy,
-        other.scratch_policy,
-    }
+    run = stages(other)
+    folders = {*run.outputs().values()} - {run.record.dataset}
     assert {folder.parent for folder in folders} == {Path("s/seed_2")} and len(folders) == 6
-    assert other.args == "--seed 2" and other.dataset == PipelineConfig().dataset  # same data: training alone varies
+    assert {run.student.seed, run.blind.seed, run.dagger.seed, run.finetune.seed, run.scratch.seed} == {2}
+    assert run.record == stages(PipelineConfig()).record  # the same data: training alone varies
 
 
 def result(survivors: int, error: float, mean_return: float) -> dict:

@@ -43,27 +43,32 @@ def test_a_removed_controller_is_refused_by_the_evaluator(capsys: pytest.Capture
     assert refused(evaluate.cli, ["--policy", "expert-adaptive"], capsys) == ADAPTIVE
 
 
-def test_a_removed_ppo_flag_is_refused_naming_what_runs_instead(
+def test_a_flag_a_stage_no_longer_has_is_refused_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """`make finetune-rl ARGS="--bc-weight 0.5"`: not argparse's "unrecognized arguments", and no checkpoint."""
+    """`make finetune-rl ARGS="--tracking-width 0.5"`: argparse's one line and exit 2, and no checkpoint (a removed
+    stage flag needs no entry of its own: only Make would ignore a variable silently)."""
     policy = tmp_path / "ppo"
-    err = refused(finetune.cli, ["--policy", str(policy), "--bc-weight", "0.5"], capsys)
-    assert err == f"error: {REMOVED_FLAGS['bc_weight'].message()}\n"
-    assert err.startswith("error: --bc-weight was removed; ") and "docs/decisions/bc-regulariser.md" in err
+    with pytest.raises(SystemExit) as exit_:
+        finetune.cli(["--policy", str(policy), "--tracking-width", "0.5"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "unrecognized arguments: --tracking-width" in err
     assert not policy.exists()
 
 
-def test_the_pipelines_removed_switches_say_what_to_run_instead(
+def test_the_pipelines_earlier_variables_say_what_to_use_instead(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """`make pipeline PPO_FROM=full` names the command that fine-tunes another BC policy; a removed flag in ARGS
-    is refused the same way, saying it came from ARGS. Nothing is recorded."""
+    """`make pipeline PPO_FROM=full` names the command that fine-tunes another BC policy; `make pipeline EPOCHS=3`,
+    a setting of the pipeline's before its stages nested, names the stages' settings of that name. Nothing is
+    recorded."""
     dataset = tmp_path / "data"
-    err = refused(pipeline.cli, ["--dataset", str(dataset), "--ppo-from=full"], capsys)
+    err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--ppo-from=full"], capsys)
     assert err.startswith("error: --ppo-from was removed; ") and "make finetune-rl BC_POLICY=" in err
-    err = refused(pipeline.cli, ["--dataset", str(dataset), "--args", "--keep last"], capsys)
-    assert err == f"error: --args '--keep last': {REMOVED_FLAGS['keep'].message()}\n"
+    err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--epochs", "3"], capsys)
+    assert err.startswith("error: --epochs is a stage's setting here: --bc.epochs (BC.EPOCHS=) or --dagger.epochs")
+    err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--dagger-episodes=3"], capsys)
+    assert err == "error: --dagger-episodes is a stage's setting here: --dagger.episodes (DAGGER.EPISODES=)\n"
     assert not dataset.exists()
 
 

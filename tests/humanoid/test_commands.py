@@ -15,16 +15,16 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
 from common.cli import UserError
-from common.columns import COMMAND_NAMES
 from common.seed_ranges import TRAINING_SEEDS
+from humanoid.command_fields import COMMAND_NAMES, FIELDS, TOLERANCES
 from humanoid.commands import (
     COMMAND_INFO,
     DEFAULT_TASK,
     FIRST_NEUTRAL_SECONDS,
     HOLD_SECONDS,
+    PLOTTED,
     SCALE,
     SCHEDULE_STREAM,
-    TOLERANCE,
     CommandedTask,
     Tracking,
     command_posture,
@@ -43,7 +43,6 @@ from humanoid.expert import LQRExpert
 from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
 from support import join_observation, read_mcap_episode, record_short
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.mcap_io.schema import ACHIEVED_NAMES
 from teleop.mcap_io.writer import COMMAND_TOPIC
 
 DT = 0.015  # Humanoid-v5's env step (s)
@@ -96,12 +95,13 @@ def test_targets_lie_on_the_keys_grid_within_scale_of_the_limits() -> None:
             commanded.update(moved)
             for name in moved:
                 value = getattr(target, name)
-                presses = value / Posture.STEP[name]
+                field = FIELDS[name]
+                presses = value / field.step
                 assert presses == pytest.approx(round(presses), abs=1e-6), (seed, name, value)
-                if name == "arms":
+                if field.presets:
                     assert value in (1.0, 2.0, 3.0)
                 else:
-                    assert SCALE * Posture.MIN[name] - 1e-9 <= value <= SCALE * Posture.MAX[name] + 1e-9
+                    assert SCALE * field.low - 1e-9 <= value <= SCALE * field.high + 1e-9
     assert commanded == set(COMMAND_NAMES)
 
 
@@ -187,7 +187,7 @@ def test_tracking_summary_of_hand_made_errors() -> None:
     its settle time is its whole 1.5 s. Mean settle time 1.3 s."""
     commands = np.zeros((45, len(COMMAND_NAMES)), np.float32)
     commands[30:, 0] = 0.1
-    inside = np.array([TOLERANCE[name] for name in COMMAND_NAMES]) / 2
+    inside = TOLERANCES / 2
     errors = np.tile(inside, (45, 1))
     errors[:5] = 1.0
     errors[10, 2] = 0.03
@@ -242,7 +242,7 @@ def command_extras(path: Path) -> tuple[np.ndarray, np.ndarray]:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, _, _, decoded in reader.iter_decoded_messages(topics=[COMMAND_TOPIC]):
             setpoint.append([getattr(decoded, f"setpoint_{name}") for name in COMMAND_NAMES])
-            achieved.append([getattr(decoded, f"achieved_{name}") for name in ACHIEVED_NAMES])
+            achieved.append([getattr(decoded, f"achieved_{field.name}") for field in PLOTTED])
     return np.array(setpoint), np.array(achieved)
 
 
@@ -274,18 +274,20 @@ def test_the_zero_command_leaves_the_plain_expert_as_it_was(short_env: gym.Env) 
 
 
 def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(tmp_path: Path) -> None:
-    """`make record CONTROLLER=operator`: the dataset's command is the seed's schedule, the task of each step names
-    it, and the setpoint starts each command where the last one was, moves steadily toward it and gets there within
-    its move time."""
+    """`make record CONTROLLER=expert` (under schedules): the dataset's command is the seed's schedule, the task of
+    each step names it, and the setpoint starts each command where the last one was, moves steadily toward it and gets
+    there within its move time."""
     seed = 5
-    record_short(tmp_path / "operator", controller="operator", episodes=1, seed=seed, max_steps=SHORT, noise=0.0)
+    record_short(
+        tmp_path / "operator", controller="expert", schedules=True, episodes=1, seed=seed, max_steps=SHORT, noise=0.0
+    )
     root = tmp_path / "operator"
     frames = read_frames(root, [columns.OBS_COMMAND, columns.SETPOINT, columns.TERMINATED])
     command, setpoint = frames[columns.OBS_COMMAND], frames[columns.SETPOINT]
     np.testing.assert_array_equal(command, command_schedule(seed, SHORT, DT))
     assert command.any() and not frames[columns.TERMINATED].any()
     episode = read_episodes(root).to_pylist()[0]
-    assert episode[columns.EPISODE_CONTROLLER] == "operator"
+    assert episode[columns.EPISODE_CONTROLLER] == "expert"
     mcap = read_mcap_episode(root / episode[columns.EPISODE_MCAP])
     assert mcap.command_tasks == [task_for(command_posture(row)) for row in command]
     np.testing.assert_array_equal(mcap.command, command)
@@ -312,12 +314,13 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
 
 
 def test_the_tracking_kernel_is_one_on_the_command_and_falls_with_the_error() -> None:
-    """exp(-(error / (width · tolerance))²) per field, averaged: 1 on the command; one field one tolerance off:
-    (4 + 1/e) / 5, and (4 + e⁻⁴) / 5 with the kernel half as wide."""
-    assert tracking_reward(np.zeros(5)) == tracking_reward(np.zeros(5), 0.5) == 1.0
-    one_off = np.array([TOLERANCE["lean_forward"], 0.0, 0.0, 0.0, 0.0])
+    """exp(-(error / tolerance)²) per field, averaged: 1 on the command; one field one tolerance off: (4 + 1/e) / 5,
+    two fields: (3 + 2/e) / 5."""
+    assert tracking_reward(np.zeros(5)) == 1.0
+    one_off = np.array([FIELDS["lean_forward"].tolerance, 0.0, 0.0, 0.0, 0.0])
     assert tracking_reward(one_off) == pytest.approx((4 + np.exp(-1)) / 5)
-    assert tracking_reward(one_off, 0.5) == pytest.approx((4 + np.exp(-4)) / 5)
+    two_off = one_off + np.array([0.0, 0.0, FIELDS["height"].tolerance, 0.0, 0.0])
+    assert tracking_reward(two_off) == pytest.approx((3 + 2 * np.exp(-1)) / 5)
     assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, 0.0)}) == 1.0
     assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, float("nan"))}) == 0.0
 
@@ -326,7 +329,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
     """Under `CommandedTask` the info carries the schedule's command at the reset and after each step (a neutral
     start, then a change), the same per reset seed, from a schedule seed past every evaluation's; the reward is the
     environment's plus the weight times the tracking kernel of the true posture against the command."""
-    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0, width=0.5)
+    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0)
     bare = make_env()
     obs, info = task.reset(seed=11)
     bare.reset(seed=11)
@@ -343,7 +346,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
         _, base, *_ = bare.step(action)
         errors = task.tracking.errors(task.unwrapped.data.qpos[None, 2:], commands[t][None])
         extra.append(reward - base)
-        assert reward - base == pytest.approx(2.0 * tracking_reward(errors, 0.5)[0])
+        assert reward - base == pytest.approx(2.0 * tracking_reward(errors)[0])
         seen.append(info[COMMAND_INFO])
     np.testing.assert_array_equal(np.array(seen), commands[: len(seen)])
     assert (np.array(seen)[-1] != 0).any()  # past the neutral start, a command

@@ -14,6 +14,7 @@ from bc import train as bc_train
 from bc.data import load_demonstrations
 from common import columns
 from common.cli import UserError
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
@@ -47,7 +48,9 @@ def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     latency and no action noise (so the executed actions, replayed, are the ones the recording labels), long
     enough for the schedule's first command."""
     root = tmp_path_factory.mktemp("inputs") / "dataset"
-    record_short(root, episodes=2, max_steps=SCHEDULED_STEPS, latency=1.0, noise=0.0, controller="operator")
+    record_short(
+        root, episodes=2, max_steps=SCHEDULED_STEPS, latency=1.0, noise=0.0, controller="expert", schedules=True
+    )
     return root
 
 
@@ -177,7 +180,7 @@ def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
     inputs = commanded(frame)
     np.testing.assert_array_equal(inputs[:-5], base(base.observe(episode.observation[5], command)))
     np.testing.assert_array_equal(inputs[-5:], command)
-    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in columns.COMMAND_NAMES]
+    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in COMMAND_NAMES]
     assert commanded.takes_command and not base.takes_command
 
 

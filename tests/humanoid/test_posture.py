@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from humanoid import physics
+from humanoid.command_fields import FIELDS
 from humanoid.env import make_env, model_and_data
 from humanoid.expert import LQRExpert
 from humanoid.lqr import CTRL_LIMIT
@@ -78,7 +79,7 @@ def measurements(env: gym.Env) -> dict[str, float]:
 
 def held_at_limit(env: gym.Env, expert: LQRExpert, field: str, side: float) -> tuple[float, dict[str, float]]:
     """Stand, then hold `field` at its limit on `side` (+1: MAX, -1: MIN); the limit and the measurements then."""
-    limit = Posture.MAX[field] if side > 0 else Posture.MIN[field]
+    limit = FIELDS[field].high if side > 0 else FIELDS[field].low
     hold(env, expert, stand(env, expert), Posture(**{field: limit}))
     return limit, measurements(env)
 
@@ -141,7 +142,7 @@ def test_static_pose_at_the_limits_needs_no_help_from_the_root(model: mujoco.MjM
     weight = model.body_subtreemass[0] * -model.opt.gravity[2]
     data = mujoco.MjData(model)
     # arms' MIN is the neutral pose, whose design (balanced_pose) leaves a 1e-3 N m roll moment unsolved.
-    for value in (v for v in (Posture.MIN[field], Posture.MAX[field]) if v != 0.0):
+    for value in (v for v in (FIELDS[field].low, FIELDS[field].high) if v != 0.0):
         qpos, ctrl = posture_reference(model, Posture(**{field: value}))
         data.qpos[:] = qpos
         residual = physics.static_inverse_dynamics(model, data)[:6]
@@ -212,9 +213,7 @@ def test_combined_limits_then_neutral_return_near_the_neutral_pose(
 ) -> None:
     """Lean forward, crouch and arms up together stay up; returning to Posture() gets back near the neutral stand."""
     obs = stand(env, expert)
-    obs = hold(
-        env, expert, obs, Posture(lean_forward=Posture.MAX["lean_forward"], height=Posture.MIN["height"], arms=2)
-    )
+    obs = hold(env, expert, obs, Posture(lean_forward=FIELDS["lean_forward"].high, height=FIELDS["height"].low, arms=2))
     hold(env, expert, obs, Posture())
     back = measurements(env)
     assert expert.posture == NEUTRAL
@@ -229,7 +228,7 @@ def test_hold_clips_to_the_limits_and_rounds_arms(expert: LQRExpert) -> None:
     expert.reset()
     expert.hold(Posture(lean_forward=9.0, lean_left=-9.0, height=-9.0, twist=9.0, arms=2.4))
     assert expert.target == Posture(
-        Posture.MAX["lean_forward"], Posture.MIN["lean_left"], Posture.MIN["height"], Posture.MAX["twist"], 2.0
+        FIELDS["lean_forward"].high, FIELDS["lean_left"].low, FIELDS["height"].low, FIELDS["twist"].high, 2.0
     )
     expert.reset()
 
@@ -237,7 +236,7 @@ def test_hold_clips_to_the_limits_and_rounds_arms(expert: LQRExpert) -> None:
 def test_setpoint_moves_gradually(env: gym.Env, expert: LQRExpert) -> None:
     """While moving, the setpoint's joint angles change by at most a few hundredths of a radian per step."""
     obs = stand(env, expert)
-    expert.hold(Posture(lean_forward=Posture.MAX["lean_forward"], twist=Posture.MAX["twist"], arms=3))
+    expert.hold(Posture(lean_forward=FIELDS["lean_forward"].high, twist=FIELDS["twist"].high, arms=3))
     previous = expert.qpos_ref.copy()
     largest = 0.0
     while expert.moving:

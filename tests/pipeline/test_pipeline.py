@@ -24,20 +24,18 @@ from bc import train as bc_train
 from bc.dagger import SOURCE_FILE, DaggerConfig
 from bc.train import TrainConfig
 from common import paths
-from common.cli import UserError
-from common.columns import COMMAND_NAMES
+from common.cli import UserError, parse_config
+from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
+from humanoid.inputs import BLIND_INPUTS, STUDENT_INPUTS
 from pipeline import report
 from pipeline import run as pipeline
 from pipeline.run import (
-    BLIND_INPUTS,
-    DAGGER_INPUTS,
     MADE_BY,
     REMAKE,
     RESUME,
     REUSE,
-    STUDENT_INPUTS,
     PipelineConfig,
     Stages,
     bc_decision,
@@ -56,7 +54,7 @@ from rl.scratch import ScratchConfig
 from support import snapshot
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
-from teleop.record import SENSED_LATENCY, SENSED_NOISE, RecordConfig, record
+from teleop.record import DART_NOISE, LATENCY_SHARE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -91,8 +89,8 @@ def tiny_stages(
         "episodes": 2,
         "max_steps": 250,
         "controller": "expert-sensed",
-        "noise": SENSED_NOISE,
-        "latency": SENSED_LATENCY,
+        "noise": DART_NOISE,
+        "latency": LATENCY_SHARE,
         "schedules": True,
         "writer": "inline",
         "progress": False,
@@ -107,7 +105,6 @@ def tiny_stages(
         "min_updates": 0,
         "batch_size": 32,
         "eval_episodes": 1,
-        "tensorboard": False,
         "progress": False,
         **(train or {}),
     }
@@ -115,11 +112,11 @@ def tiny_stages(
         "dataset": Path("data"),
         "output": Path("aggregate"),
         "policy": Path("dagger"),
-        "inputs": DAGGER_INPUTS,
+        "inputs": STUDENT_INPUTS,
         "expert": "expert-sensed",
         "randomize": "none",
-        "latency": SENSED_LATENCY,
-        "noise": SENSED_NOISE,
+        "latency": LATENCY_SHARE,
+        "noise": DART_NOISE,
         "rounds": 1,
         "episodes": 1,
         "epochs": 2,
@@ -228,10 +225,10 @@ def test_the_pipeline_records_the_operator_and_its_students_read_the_command_or_
     assert run["config"]["schedules"] and run["config"]["controller"] == "expert-sensed"
     assert checkpoint.load(folder / "bc").spec.inputs == STUDENT_INPUTS
     assert checkpoint.load(folder / "blind").spec.inputs == BLIND_INPUTS
-    assert checkpoint.load(folder / "dagger").spec.inputs == DAGGER_INPUTS
+    assert checkpoint.load(folder / "dagger").spec.inputs == STUDENT_INPUTS
     assert [line["config"]["expert"] for line in recordings.read(folder / "aggregate")[1:]] == ["expert-sensed"]
     assert (
-        checkpoint.load(folder / "ppo").spec.inputs == checkpoint.load(folder / "scratch").spec.inputs == DAGGER_INPUTS
+        checkpoint.load(folder / "ppo").spec.inputs == checkpoint.load(folder / "scratch").spec.inputs == STUDENT_INPUTS
     )
 
 
@@ -314,13 +311,13 @@ def test_retrained_dagger_student_makes_the_ppo_runs_again(outputs: Path) -> Non
     nothing rolled out: its round is there), new weights, new runs."""
     bc_dagger.main(tiny_stages(dagger={"epochs": 1, "overwrite": True}).dagger)
     for config in (tiny_stages().scratch, tiny_stages().finetune):
-        assert ppo_decision(config, "--ppo-policy", overwrite=False).line.endswith("it was made from another BC policy")
+        assert ppo_decision(config, "--ppo.policy", overwrite=False).line.endswith("it was made from another BC policy")
 
 
 def test_speed_settings_are_not_compared(outputs: Path) -> None:
     """Worker counts, threads and progress bars change no output, so they are no reason to make one again."""
     speed = {"workers": 2, "update_threads": 1, "progress": True}
-    assert ppo_decision(tiny_stages(ppo=speed).finetune, "--ppo-policy", overwrite=False).action == REUSE
+    assert ppo_decision(tiny_stages(ppo=speed).finetune, "--ppo.policy", overwrite=False).action == REUSE
     assert dataset_decision(tiny_stages(record={"workers": 2, "writer": "process"}).record).action == REUSE
 
 
@@ -407,7 +404,7 @@ def test_user_recorded_dataset_that_differs_is_refused_and_left_alone(outputs: P
         outputs,
         tiny_stages(record={"noise": 0.02}),
         "data was recorded with --noise 0.03, not 0.02, and the pipeline did not record it: it is left as it is "
-        "(ask for what it holds, or choose another --dataset)",
+        "(ask for what it holds, or choose another --record.dataset)",
     )
 
 
@@ -425,7 +422,7 @@ def test_user_made_checkpoint_downstream_is_refused_before_anything_runs(outputs
         outputs,
         tiny_stages(dagger={"epochs": 3}),
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
-        "it is (--overwrite true replaces it; or choose another --ppo-policy)",
+        "it is (--overwrite true replaces it; or choose another --ppo.policy)",
     )
 
 
@@ -479,47 +476,29 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
 
 
 def test_pipeline_defaults_are_the_stages() -> None:
-    """Unset, every pipeline setting is the stage's own default, but for what makes the task the operator's: the
-    dataset follows schedules, recorded by the expert on leg odometry at its noise and latency, the students' inputs,
-    DAgger's rollouts and epochs, and no evaluation of their own after training (the table's)."""
-    operator = RecordConfig(
-        dataset=paths.OPERATOR_DATASET,
-        controller="expert-sensed",
-        noise=SENSED_NOISE,
-        latency=SENSED_LATENCY,
-        schedules=True,
-    )
-    student = TrainConfig(
-        dataset=paths.OPERATOR_DATASET, policy=paths.STUDENT_POLICY, inputs=STUDENT_INPUTS, eval_episodes=0
-    )
-    dagger = DaggerConfig(
-        dataset=paths.OPERATOR_DATASET,
-        output=paths.OPERATOR_DAGGER_DATASET,
-        policy=paths.DAGGER_STUDENT_POLICY,
-        inputs=DAGGER_INPUTS,
-        expert="expert-sensed",
-        randomize="none",
-        latency=SENSED_LATENCY,
-        noise=SENSED_NOISE,
-        episodes=20,
-        epochs=15,
-        eval_episodes=0,
-    )
+    """Unset, every stage is its target's defaults (`make record`, `make train-bc`, ...), tied as they chain, without
+    the evaluations the stages make of their own after training (the table's); the blind student is the student
+    without the command, PPO from scratch the fine-tuning's settings with the guards off."""
+    student = TrainConfig(eval_episodes=0)
+    finetune = FinetuneConfig(bc_policy=paths.DAGGER_POLICY, final_eval_episodes=0)
     assert stages(PipelineConfig()) == Stages(
-        operator,
+        RecordConfig(),
         student,
         dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
-        dagger,
-        ScratchConfig(final_eval_episodes=0),
-        FinetuneConfig(final_eval_episodes=0),
+        DaggerConfig(eval_episodes=0),
+        ScratchConfig(bc_policy=paths.DAGGER_POLICY, final_eval_episodes=0),
+        finetune,
     )
     assert check(PipelineConfig()) == list(SUITE)
 
 
-def test_ppo_starts_from_the_dagger_student_by_default() -> None:
-    """Fine-tuning refines the DAgger student, which takes the command, and scratch takes its shape and inputs."""
-    run_stages = stages(PipelineConfig())
-    assert run_stages.scratch.bc_policy == run_stages.finetune.bc_policy == paths.DAGGER_STUDENT_POLICY
+def test_the_stage_targets_chain_on_their_defaults() -> None:
+    """Each stage reads what the one before it writes: the recording's dataset is the students', the DAgger student
+    is PPO's start, and what `make eval` takes is the newest of the chain's policies."""
+    assert RecordConfig().dataset == TrainConfig().dataset == DaggerConfig().dataset == paths.DATASET
+    assert TrainConfig().policy in paths.STUDENTS and DaggerConfig().policy in paths.STUDENTS
+    assert TrainConfig().inputs == DaggerConfig().inputs == STUDENT_INPUTS
+    assert str(FinetuneConfig().bc_policy) == paths.NEWEST and FinetuneConfig().policy in paths.LEARNED
 
 
 def test_ppo_from_the_blind_student_makes_both_ppo_runs_again_with_its_actor(outputs: Path) -> None:
@@ -542,36 +521,33 @@ def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
         outputs,
         run_stages,
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
-        "it is (--overwrite true replaces it; or choose another --ppo-policy)",
+        "it is (--overwrite true replaces it; or choose another --ppo.policy)",
     )
 
 
 @pytest.mark.parametrize(
-    ("settings", "message"),
+    ("argv", "message"),
     [
-        ({"episodes": 1}, "--episodes must be at least 2"),
-        ({"robustness_episodes": 0}, "--robustness-episodes must be at least 1"),
-        ({"conditions": "clean,gale"}, "unknown condition 'gale'"),
-        (
-            {"args": "--bogus"},
-            "--args '--bogus' holds something other than flags of python -m rl.scratch: unrecognized",
-        ),
-        ({"args": "--keep last"}, "--args '--keep last': --keep was removed; the run keeps the guarded actor"),
-        ({"args": "--help"}, "--args '--help': the flags it takes are `python -m rl.scratch --help`'s"),
-        ({"latency": 0.0}, "--latency 0: the students read pending's inputs, which learn to act through action"),
+        (["--record.episodes", "1"], "--record.episodes must be at least 2"),
+        (["--robustness-episodes", "0"], "--robustness-episodes must be at least 1"),
+        (["--conditions", "clean,gale"], "unknown condition 'gale'"),
+        (["--record.latency", "0"], "--record.latency 0: the students read pending's inputs, which learn to act"),
+        (["--bc.dataset", "elsewhere"], "--bc.dataset elsewhere: the pipeline ties it to --record.dataset"),
+        (["--ppo.bc-policy", "blind"], "--ppo.bc-policy blind: the pipeline ties it to --dagger.policy"),
     ],
 )
-def test_bad_pipeline_settings_are_refused_naming_them(settings: dict, message: str) -> None:
-    """Settings of the pipeline's own: one message naming the pipeline's flag, before any stage is planned."""
+def test_bad_pipeline_settings_are_refused_naming_them(argv: list[str], message: str) -> None:
+    """The pipeline's own settings and its ties between the stages: one message naming the flag, before any stage
+    is planned."""
     with pytest.raises(UserError) as refusal:
-        stages(PipelineConfig(**settings))
+        stages(parse_config(PipelineConfig, argv, ""))
     assert str(refusal.value).startswith(message) and "\n" not in str(refusal.value)
 
 
 def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs(
     outputs: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """DATASET naming a folder of the user's files: refused before the first stage says a word, untouched."""
+    """RECORD.DATASET naming a folder of the user's files: refused before the first stage says a word, untouched."""
     (outputs / "mine").mkdir()
     (outputs / "mine" / "notes.txt").write_text("keep")
     assert_refused_untouched(
@@ -583,38 +559,28 @@ def test_a_dataset_folder_holding_something_else_is_refused_before_anything_runs
 
 
 def test_two_outputs_in_one_folder_are_refused_before_anything_runs(outputs: Path) -> None:
-    """BLIND_POLICY naming BC_POLICY would train two students into one folder: one line, nothing touched."""
+    """BLIND_POLICY naming BC.POLICY would train two students into one folder: one line, nothing touched."""
     run_stages = tiny_stages()
     run_stages.blind.policy = Path("bc")
     assert_refused_untouched(
-        outputs, run_stages, "--bc-policy and --blind-policy both name bc: each output needs its own folder"
+        outputs, run_stages, "--bc.policy and --blind-policy both name bc: each output needs its own folder"
     )
 
 
-def test_pipeline_settings_and_args_reach_their_stages() -> None:
-    """WORKERS goes to the recording and both PPO runs, EPOCHS to both BC runs, NOISE and LATENCY to the recording,
-    ARGS to both PPO runs."""
+def test_nested_settings_reach_their_stages() -> None:
+    """`make pipeline RECORD.EPISODES=3 BC.EPOCHS=4 WORKERS=1 ARGS="--ppo.target-kl 0.01"`: each stage setting
+    reaches its stage (the blind student takes the student's, PPO from scratch the fine-tuning's but its own
+    guards), the recording's noise DAgger's rounds, WORKERS every stage that has workers."""
+    argv = ["--record.episodes", "3", "--record.noise", "0.01", "--bc.epochs", "4", "--workers", "1"]
     run_stages = stages(
-        PipelineConfig(
-            episodes=3, workers=1, epochs=4, noise=0.01, latency=0.25, args="--target-kl 0.01 --eval-episodes 2"
-        )
+        parse_config(PipelineConfig, [*argv, "--ppo.target-kl", "0.01", "--ppo.eval-episodes", "2"], "")
     )
-    record_settings = run_stages.record
-    assert (record_settings.episodes, record_settings.workers, record_settings.noise) == (3, 1, 0.01)
-    assert (record_settings.latency, record_settings.schedules) == (0.25, True)
+    assert (run_stages.record.episodes, run_stages.record.workers, run_stages.record.noise) == (3, 1, 0.01)
     assert (run_stages.student.epochs, run_stages.blind.epochs) == (4, 4)
+    assert (run_stages.dagger.noise, run_stages.dagger.workers) == (0.01, 1)
     for config in (run_stages.scratch, run_stages.finetune):
         assert (config.workers, config.target_kl, config.eval_episodes) == (1, 0.01, 2)
-    assert run_stages.scratch.learning_rate == ScratchConfig().learning_rate  # each keeps its own defaults
-
-
-def test_args_may_not_repeat_a_pipeline_setting() -> None:
-    """--timesteps in ARGS would silently lose to TIMESTEPS: refused, naming the flag; as is a setting the pipeline
-    gives a stage itself."""
-    with pytest.raises(UserError, match="--args sets --timesteps, a setting of the pipeline's own"):
-        stages(PipelineConfig(args="--timesteps 5"))
-    with pytest.raises(UserError, match="--args sets --final-eval-episodes, which the pipeline sets itself"):
-        stages(PipelineConfig(args="--final-eval-episodes 5"))
+    assert run_stages.scratch.learning_rate == ScratchConfig().learning_rate  # each keeps its own guards
 
 
 def table_suite(conditions: list[str]) -> dict:
@@ -705,5 +671,5 @@ def test_an_aggregate_someone_else_made_is_refused_and_left_alone(outputs: Path)
         outputs,
         tiny_stages(dagger={"rounds": 2}),
         "aggregate holds rounds rolled out with --rounds 1, and the pipeline did not make it: it is left as it is "
-        "(choose another --dagger-output)",
+        "(choose another --dagger.output)",
     )

@@ -324,13 +324,16 @@ def test_missing_bc_checkpoint_is_refused(tmp_path: Path, capsys: pytest.Capture
 def test_missing_default_student_says_how_to_make_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """`make finetune-rl` starts from the pipeline's DAgger student by default; where none was made yet, its one
-    line says which commands make it."""
+    """`make finetune-rl` starts from the newest student (DAgger's or BC's) by default; where neither was made yet,
+    its one line names both folders and the command that makes one."""
     monkeypatch.chdir(tmp_path)
     code, err = ppo_cli(["--policy", "ppo"], capsys)
-    assert code == 1 and len(err) == 1
-    assert err[0].startswith(f"error: no policy checkpoint at {paths.DAGGER_STUDENT_POLICY}: `make pipeline` makes")
-    assert "make dagger INPUTS=pending+ramp" in err[0] and not (tmp_path / "ppo").exists()
+    listed = f"{paths.DAGGER_POLICY}, {paths.BC_POLICY}"
+    assert (code, err) == (
+        1,
+        [f"error: no policy checkpoint yet at {listed}: make train-bc (after make record) makes one"],
+    )
+    assert not (tmp_path / "ppo").exists()
 
 
 def test_bc_checkpoint_for_other_sizes_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -424,7 +427,6 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--latency-share", "-0.5"], "--latency-share must be in [0, 1]"),
         (["--obs-noise-share", "2"], "--obs-noise-share must be in [0, 1]"),
         (["--tracking-weight", "-1"], "--tracking-weight must be >= 0"),
-        (["--tracking-width", "0"], "--tracking-width must be positive"),
         (["--clip-range", "0"], "--clip-range must be positive"),
         (["--curriculum-episodes", "0"], "--curriculum-episodes must be positive"),
         (["--gamma", "nan"], "--gamma must be in [0, 1]"),

@@ -120,7 +120,6 @@ def test_a_finished_run_is_reused(trained: tuple[TutorialConfig, dict], capsys: 
         (["--timesteps", "0"], "--timesteps must be positive"),
         (["--learning-rate", "-1"], "--learning-rate must be positive"),
         (["--seed", "-1"], "--seed must be >= 0"),
-        (["--step-size", "2"], "--step-size was removed; it is fixed at the value every run used"),
     ],
 )
 def test_bad_settings_are_refused_in_one_line(

@@ -21,7 +21,7 @@ from support import assert_consistent, assert_no_leftovers, committed_episodes, 
 from teleop import recordings
 from teleop.dataset_reader import read_episodes
 from teleop.inspect_dataset import cli as inspect_cli
-from teleop.record import RecordConfig, main, record
+from teleop.record import STANDING, RecordConfig, main, record
 from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -64,7 +64,7 @@ def test_crash_before_commit_keeps_the_committed_episodes(
     append_crashing(root, monkeypatch, lambda renamed, _: renamed == renames_before_crash)
     assert_consistent(root, 3)  # readable as it lies, before any recovery
 
-    main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
+    main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False, **STANDING))
     assert_consistent(root, 4)
     assert_no_leftovers(root, 4)
     assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == [0, 1, 2, 3]
@@ -79,7 +79,7 @@ def test_a_crash_in_the_first_commit_leaves_no_statistics_behind(
     append_crashing(root, monkeypatch, lambda _, target: target.name == "info.json")
     assert (root / "meta/stats.json").is_file()  # the lost episode's statistics
 
-    main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False))
+    main(RecordConfig(dataset=root, episodes=1, max_steps=60, writer="inline", progress=False, **STANDING))
     assert_consistent(root, 1)
     assert_no_leftovers(root, 1)
 
@@ -101,7 +101,7 @@ def test_kill_9_of_the_whole_recording_keeps_every_committed_episode(tmp_path: P
     assert survived >= 2
     assert_consistent(root, survived)
 
-    main(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False))
+    main(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False, **STANDING))
     assert_consistent(root, survived + 2)
     assert_no_leftovers(root, survived + 2)
     assert read_episodes(root)[columns.EPISODE_SEED].to_pylist() == list(range(survived + 2))
@@ -152,7 +152,7 @@ def test_the_next_session_writes_the_line_of_a_session_killed_with_9(killed: tup
     it committed, complete false), then its own, so that every episode is accounted for."""
     root, survived = killed
     assert recordings.read(root) == []
-    record(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False))
+    record(RecordConfig(dataset=root, episodes=2, max_steps=60, writer="inline", progress=False, **STANDING))
     first, second = recordings.read(root)
     assert (first["made_by"], first["complete"], first["config"]["episodes"]) == ("teleop.record", False, 100)
     assert (first["episodes"], first["seeds"], first["count"]) == ([0, survived - 1], [0, survived - 1], survived)
@@ -165,7 +165,7 @@ def test_a_refused_session_leaves_the_killed_sessions_mark(killed: tuple[Path, i
     root, _ = killed
     mark = (root / recordings.RUN_FILE).read_bytes()
     with pytest.raises(DatasetError):
-        record(RecordConfig(dataset=root, episodes=1, randomize="mild", writer="inline", progress=False))
+        record(RecordConfig(dataset=root, episodes=1, randomize="mild", writer="inline", progress=False, **STANDING))
     assert (root / recordings.RUN_FILE).read_bytes() == mark and recordings.read(root) == []
 
 

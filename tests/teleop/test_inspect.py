@@ -24,7 +24,7 @@ from support import snapshot
 from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import RecordConfig, record
+from teleop.record import STANDING, RecordConfig, record
 from teleop.spool import DAGGER_SPOOL, SPOOL_DIR, Spool
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -145,7 +145,7 @@ def test_recording_sessions_are_listed(tmp_path: Path) -> None:
     """The summary lists each session of recordings.jsonl: who recorded which episodes (and the dataset passes)."""
     root = tmp_path / "logged"
     for episodes in (2, 1):
-        record(RecordConfig(dataset=root, episodes=episodes, max_steps=30, writer="inline", progress=False))
+        record(RecordConfig(dataset=root, episodes=episodes, max_steps=30, writer="inline", progress=False, **STANDING))
     run = inspect("--dataset", root, "--lerobot", "false")
     sessions = [line for line in run.out.splitlines() if "teleop.record at " in line]
     assert run.code == 0 and len(sessions) == 2 and sessions[0].startswith("sessions    ")

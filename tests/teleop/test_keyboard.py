@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from common import columns
-from humanoid.commands import task_for
+from humanoid.commands import DEFAULT_TASK, task_for
 from humanoid.env import make_env
-from humanoid.episode import DEFAULT_TASK
 from humanoid.expert import LQRExpert
 from humanoid.posture import Posture
 from support import Terminal, join_observation, read_mcap_episode

@@ -21,7 +21,7 @@ from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.policies.factory import make_pre_post_processors
 
 from common import columns
-from common.columns import COMMAND_NAMES
+from humanoid.command_fields import COMMAND_NAMES
 from support import run_lerobot_train, snapshot
 from teleop.dataset_reader import read_episodes, read_frames, read_info
 from teleop.export import COMMAND_STATE_NAMES, ExportConfig, main
@@ -97,7 +97,7 @@ def test_episodes_keep_their_columns_and_final_state(copy: Path, operated: Path)
     commands = read_frames(operated, [columns.OBS_COMMAND, "episode_index"])
     for row, source in zip(ours, theirs, strict=True):
         assert row[columns.EPISODE_SEED] == source[columns.EPISODE_SEED]
-        assert row[columns.EPISODE_CONTROLLER] == source[columns.EPISODE_CONTROLLER] == "operator"
+        assert row[columns.EPISODE_CONTROLLER] == source[columns.EPISODE_CONTROLLER] == "expert"
         assert row["tasks"] == source["tasks"]
         last = commands[columns.OBS_COMMAND][commands["episode_index"] == source["episode_index"]][-1]
         np.testing.assert_array_equal(row[columns.EPISODE_FINAL_STATE], [*source[columns.EPISODE_FINAL_STATE], *last])

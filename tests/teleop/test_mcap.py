@@ -11,9 +11,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
 from support import McapEpisode, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
+from teleop.mcap_io.schema import Command
 from teleop.mcap_io.writer import COMMAND_TOPIC, FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 from teleop.store import STATE_NAMES_METADATA
 
@@ -123,3 +125,35 @@ def test_file_has_metadata_model_and_zstd_protobuf_channels(recorded: Path, epis
         "humanoid_bc.Command",
     }
     assert summary.chunk_indexes and all(chunk.compression == "zstd" for chunk in summary.chunk_indexes)
+
+
+COMMAND_V1 = Path(__file__).parents[1] / "data" / "command_v1.mcap"
+"""Three `/command` messages of an operator episode (seed 29: crouch, twist right, arms forward) written at 3b956ff,
+before the command's fields became a table: the file embeds that version's schema."""
+
+
+def test_a_command_file_written_before_the_table_decodes_the_same_with_todays_message() -> None:
+    """Each old message's bytes parsed with today's `Command` give, field by field, what the file's own schema gives:
+    the field numbers are the rows' (`CommandField.mcap`), not an order that a new field could shift."""
+    with COMMAND_V1.open("rb") as stream:
+        decoded = list(make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    assert len(decoded) == 3
+    for _, _, message, old in decoded:
+        today = Command.FromString(message.data)
+        for descriptor, value in old.ListFields():
+            if descriptor.message_type is not None:  # the timestamp: a message of another descriptor pool
+                assert getattr(today, descriptor.name).SerializeToString() == value.SerializeToString()
+            else:
+                assert getattr(today, descriptor.name) == value, descriptor.name
+        assert {name for name in COMMAND_NAMES if getattr(today, name)} == {"height", "twist", "arms"}
+        assert today.task == "Crouch, twist right, arms forward while standing."
+
+
+def test_the_command_message_numbers_are_the_rows_and_unique() -> None:
+    numbers = [field.number for field in Command.DESCRIPTOR.fields]
+    assert len(set(numbers)) == len(numbers)
+    for row in COMMAND_FIELDS:
+        assert Command.DESCRIPTOR.fields_by_name[row.name].number == row.mcap[0]
+        assert Command.DESCRIPTOR.fields_by_name[f"setpoint_{row.name}"].number == row.mcap[1]
+        if row.mcap[2] is not None:
+            assert Command.DESCRIPTOR.fields_by_name[f"achieved_{row.name}"].number == row.mcap[2]

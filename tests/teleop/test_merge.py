@@ -10,7 +10,7 @@ import pytest
 from support import SHORT_EPISODE, snapshot
 from teleop import recordings
 from teleop.merge import MergeConfig, cli, main
-from teleop.record import RecordConfig, record
+from teleop.record import STANDING, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (several recordings)
 
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (severa
 def record_seeds(root: Path, episodes: int, seed: int, randomize: str = "none") -> Path:
     """`make record`'s session, its recordings.jsonl line included."""
     settings = {"max_steps": SHORT_EPISODE, "writer": "inline", "progress": False, "randomize": randomize}
-    record(RecordConfig(dataset=root, episodes=episodes, seed=seed, **settings))
+    record(RecordConfig(dataset=root, episodes=episodes, seed=seed, **settings, **STANDING))
     return root
 
 

@@ -26,7 +26,7 @@ from support import (
     wait_for_episodes,
 )
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.record import cli
+from teleop.record import DART_NOISE, cli
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -66,7 +66,7 @@ def spool_episodes(root: Path, seeds: list[int]) -> None:
     env = make_env(SHORT_EPISODE)
     controller = make_controller("expert", env)
     for seed in seeds:
-        Spool(root).put(run_episode(env, controller, seed, noise_std=0.05))
+        Spool(root).put(run_episode(env, controller, seed, noise_std=DART_NOISE))  # `make record`'s
 
 
 def test_opening_a_dataset_commits_its_spool_in_seed_order(recorded: Path, tmp_path: Path) -> None:

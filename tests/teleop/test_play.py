@@ -7,6 +7,7 @@ actor); a session of `make play`'s command behind a pseudo-terminal drives each.
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -88,23 +89,26 @@ class Policies:
 
 
 def cheap_training(dataset: Path, policy: Path, inputs: str, updates: int) -> None:
-    """`make train-bc` with a narrower MLP and few Adam steps, one thread (two processes share the cores), no
-    evaluation."""
-    train(
-        TrainConfig(
-            dataset=dataset,
-            policy=policy,
-            inputs=inputs,
-            hidden=HIDDEN,
-            epochs=1,
-            min_updates=updates,
-            threads=1,
-            cache=False,
-            eval_episodes=0,
-            tensorboard=False,
-            progress=False,
+    """`make train-bc` with a narrower MLP and few Adam steps, on one core (two test processes share the two; its
+    affinity narrowed as `taskset` would), no evaluation."""
+    cores = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        train(
+            TrainConfig(
+                dataset=dataset,
+                policy=policy,
+                inputs=inputs,
+                hidden=HIDDEN,
+                epochs=1,
+                min_updates=updates,
+                cache=False,
+                eval_episodes=0,
+                progress=False,
+            )
         )
-    )
+    finally:
+        os.sched_setaffinity(0, cores)
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,12 @@ from humanoid.conditions import PRESETS, DomainRandomization
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.episode import run_episode
-from support import mcap_parameters, read_mcap_episode, record_short, snapshot
+from support import STANDING_FLAGS, mcap_parameters, read_mcap_episode, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
-from teleop.record import RecordConfig, cli, record
+from teleop.record import DART_NOISE, STANDING, RecordConfig, cli, record
 from teleop.spool import Spool
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -38,7 +38,7 @@ def record_here(root: Path, **settings: object) -> None:
 def randomized(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 episodes (seeds 0, 1) recorded with RANDOMIZE=suite through the writer process, as `make record` does."""
     root = tmp_path_factory.mktemp("randomized") / "dataset"
-    record(RecordConfig(dataset=root, episodes=2, max_steps=STEPS, randomize="suite", progress=False))
+    record(RecordConfig(dataset=root, episodes=2, max_steps=STEPS, randomize="suite", progress=False, **STANDING))
     return root
 
 
@@ -78,10 +78,10 @@ def test_the_recorded_episode_is_the_rollout_in_the_randomised_body(randomized: 
     frames = read_frames(randomized, [columns.ACTION, "episode_index"])
     stored = frames[columns.ACTION][frames["episode_index"] == 0]
     env = DomainRandomization(make_env(STEPS), SUITE)
-    episode = run_episode(env, make_controller("expert", env), seed=0, noise_std=0.05)
+    episode = run_episode(env, make_controller("expert", env), seed=0, noise_std=DART_NOISE)
     np.testing.assert_array_equal(stored, episode.action)
     nominal_env = make_env(STEPS)
-    nominal = run_episode(nominal_env, make_controller("expert", nominal_env), seed=0, noise_std=0.05)
+    nominal = run_episode(nominal_env, make_controller("expert", nominal_env), seed=0, noise_std=DART_NOISE)
     steps = min(len(stored), nominal.length)
     assert not np.array_equal(stored[:steps], nominal.action[:steps])
 
@@ -122,7 +122,8 @@ def test_a_dataset_does_not_mix_randomised_and_plain_episodes(
     root = tmp_path / "dataset"
     record_here(root, episodes=1, randomize=first)
     before = snapshot(root)
-    code = cli(["--dataset", str(root), "--max-steps", str(STEPS), "--randomize", then, "--progress", "false"])
+    args = ["--dataset", str(root), "--max-steps", str(STEPS), "--randomize", then, "--progress", "false"]
+    code = cli([*args, *STANDING_FLAGS])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and message in err[0], err
     assert snapshot(root) == before

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from common import columns
-from support import RayCluster, record_short, snapshot, wait_for_episodes
+from support import STANDING_FLAGS, RayCluster, record_short, snapshot, wait_for_episodes
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.record import cli
 from teleop.spool import Spool
@@ -33,7 +33,7 @@ def recording_command(root: Path, episodes: int, address: str) -> list[str]:
     return [
         *(sys.executable, "-m", "teleop.record", "--dataset", str(root), "--episodes", str(episodes)),
         *("--max-steps", str(EPISODE_STEPS), "--workers", "2", "--backend", "ray", "--ray-address", address),
-        *("--progress", "false"),
+        *("--progress", "false", *STANDING_FLAGS),
     ]
 
 

@@ -15,10 +15,10 @@ from common import columns
 from common.cli import config_dict, parse_config
 from humanoid.env import make_env
 from humanoid.episode import injected_noise, run_episode
-from support import SHORT_EPISODE, assert_consistent, record_short, snapshot
+from support import SHORT_EPISODE, STANDING_FLAGS, assert_consistent, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
-from teleop.record import RecordConfig, cli
+from teleop.record import STANDING, RecordConfig, cli
 from teleop.seeds import seed_clash
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -176,7 +176,7 @@ def test_a_seed_the_dataset_holds_is_refused(
     root = tmp_path / "again"
     shutil.copytree(recorded, root)
     before = snapshot(root)
-    code, err = run_cli(["--dataset", str(root), "--seed", str(seed), "--episodes", "2"], capsys)
+    code, err = run_cli(["--dataset", str(root), "--seed", str(seed), "--episodes", "2", *STANDING_FLAGS], capsys)
     assert code != 0 and len(err) == 1
     assert f"{repeated} are already in {root}" in err[0] and "the next free seed is 3" in err[0]
     assert snapshot(root) == before
@@ -238,7 +238,9 @@ def test_each_session_adds_its_config_to_recordings_jsonl(tmp_path: Path, capsys
 def test_dataset_with_recordings_jsonl_still_loads_in_lerobot(tmp_path: Path) -> None:
     """The line beside meta/ and data/ leaves LeRobot's loader, the frames and the MCAP files as they were."""
     root = tmp_path / "logged"
-    teleop.record.record(RecordConfig(dataset=root, episodes=2, max_steps=30, writer="inline", progress=False))
+    teleop.record.record(
+        RecordConfig(dataset=root, episodes=2, max_steps=30, writer="inline", progress=False, **STANDING)
+    )
     assert (root / recordings.RECORDINGS_FILE).is_file()
     assert_consistent(root, 2)
 
@@ -256,7 +258,9 @@ def test_interrupted_session_still_logs_what_it_committed(tmp_path: Path, monkey
 
     monkeypatch.setattr(teleop.record, "run_episode", run_then_interrupt)
     with pytest.raises(KeyboardInterrupt):
-        teleop.record.record(RecordConfig(dataset=root, episodes=3, max_steps=30, writer="inline", progress=False))
+        teleop.record.record(
+            RecordConfig(dataset=root, episodes=3, max_steps=30, writer="inline", progress=False, **STANDING)
+        )
     (line,) = recordings.read(root)
     assert (line["complete"], line["count"], line["episodes"]) == (False, 1, [0, 0])
     assert read_info(root)["total_episodes"] == 1

@@ -17,7 +17,7 @@ from support import drawn_delay, mcap_parameters
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
-from teleop.record import RecordConfig, cli, main
+from teleop.record import DART_NOISE, STANDING, RecordConfig, cli, effective, main
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
@@ -29,7 +29,16 @@ EPISODES = 6
 def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """EPISODES episodes (seeds 0..5) of the expert recorded with LATENCY=0.5."""
     root = tmp_path_factory.mktemp("latency") / "dataset"
-    main(RecordConfig(dataset=root, episodes=EPISODES, max_steps=STEPS, latency=0.5, writer="inline", progress=False))
+    main(
+        RecordConfig(
+            dataset=root,
+            episodes=EPISODES,
+            max_steps=STEPS,
+            writer="inline",
+            progress=False,
+            **{**STANDING, "latency": 0.5},
+        )
+    )
     return root
 
 
@@ -47,7 +56,7 @@ def test_the_expert_is_told_each_episodes_delay(delayed: Path) -> None:
     frames = read_frames(delayed, [columns.ACTION, "episode_index"])
     for episode, drawn in enumerate(read_parameters(delayed)):
         env = ActionLatency(make_env(STEPS), 1) if drawn[LATENCY_PARAMETER] else make_env(STEPS)
-        reference = run_episode(env, make_controller("expert", env), seed=episode, noise_std=0.05)
+        reference = run_episode(env, make_controller("expert", env), seed=episode, noise_std=DART_NOISE)
         np.testing.assert_array_equal(frames[columns.ACTION][frames["episode_index"] == episode], reference.action)
 
 
@@ -81,10 +90,8 @@ def test_a_latency_share_outside_0_1_is_refused_in_one_line(
     assert not (tmp_path / "new").exists()
 
 
-def test_the_keyboard_is_refused_with_latency(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code = cli(["--dataset", str(tmp_path / "new"), "--controller", "keyboard", "--latency", "0.5"])
-    assert code == 1
-    assert (
-        capsys.readouterr().err.strip() == "error: --controller keyboard records without latency: --latency must be 0"
-    )
-    assert not (tmp_path / "new").exists()
+def test_the_keyboard_records_no_delayed_episode_and_no_schedule() -> None:
+    """With the keys the command is theirs and no episode is delayed, whatever the recording's defaults say."""
+    keyed = effective(RecordConfig(controller="keyboard", latency=0.5, schedules=True))
+    assert (keyed.latency, keyed.schedules) == (0.0, False)
+    assert effective(RecordConfig(latency=0.5)) == RecordConfig(latency=0.5)

@@ -20,6 +20,7 @@ import pytest
 from PIL import Image, ImageGrab
 
 from common import columns
+from humanoid.command_fields import COMMAND_NAMES
 from support import join_observation
 from teleop.dataset_reader import read_frames
 
@@ -114,8 +115,8 @@ def test_the_body_follows_the_commands(teleoperated: tuple[Path, Path]) -> None:
     root, _ = teleoperated
     frames = read_frames(root, [columns.OBS_STATE, columns.OBS_ENV_STATE, columns.OBS_COMMAND, columns.TERMINATED])
     observation = join_observation(frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE])
-    height_command = frames[columns.OBS_COMMAND][:, columns.COMMAND_NAMES.index("height")]
-    lean_command = frames[columns.OBS_COMMAND][:, columns.COMMAND_NAMES.index("lean_forward")]
+    height_command = frames[columns.OBS_COMMAND][:, COMMAND_NAMES.index("height")]
+    lean_command = frames[columns.OBS_COMMAND][:, COMMAND_NAMES.index("lean_forward")]
     crouch, lean = int(np.argmax(height_command < 0)), int(np.argmax(lean_command > 0))
     w, x, y, z = observation[:, 1:5].T
     forward_tilt = 2 * (x * z + w * y)  # world x of the torso's up axis

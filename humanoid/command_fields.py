@@ -1,0 +1,172 @@
+"""The operator's command, field by field, as data: `COMMAND_FIELDS` (docs/concepts/commands.md).
+
+One row per field says everything the project does with it: its name (the entry of the dataset's
+`observation.command`, `Posture`'s keyword, a policy's `command.<name>` input), unit and limits, one key press's
+step (also the grid the scripted schedules draw from), the tolerance that counts as on the command, the keys
+that change it, the phrase a task string names it with, and the numbers of its MCAP `/command` fields. Every
+user reads the table: `humanoid.posture.Posture`, `humanoid.commands` (schedules, task strings, tracking and its
+reward), `teleop.keyboard` (bindings and status line), `teleop.mcap_io.schema` (the `/command` message) and the
+dataset's feature names (`teleop.store`).
+
+How the achieved value is read from the body is the one piece of code a field adds besides its row
+(`Readout`): the trunk's pitch for `lean_forward`, the six arm joint angles for `arms`, and so on.
+
+Adding a field: a row here, its entry in `Readout.__call__`, and the code that realises it (the standing
+expert realises a posture field as a balanced pose: `humanoid.posture.posture_pose`). Its MCAP numbers must be
+new ones: a file written before the field existed still decodes with today's `Command` message
+(tests/teleop/test_mcap.py holds such a file).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from humanoid.sensors import body_axes
+
+
+@dataclass(frozen=True)
+class CommandField:
+    """One field of the operator's command."""
+
+    name: str
+    """The entry's name: in `observation.command` and its MCAP message, `Posture`'s keyword, `command.<name>`."""
+    unit: str
+    """The unit of its value (a preset field: "preset", a preset's index)."""
+    low: float
+    """The smallest value the expert holds: a command below it is clipped to it (and recorded clipped)."""
+    high: float
+    """The largest value the expert holds."""
+    step: float
+    """One key press's change; the scripted schedules draw their targets on this grid too."""
+    tolerance: float
+    """On the command: the achieved value within this (a field read from several coordinates: their mean error)."""
+    keys: tuple[tuple[str, ...], ...]
+    """The keys (terminal names) that change it: (lower, raise) for a signed field, one tuple per preset."""
+    phrases: tuple[str, ...]
+    """What a task string calls it: (below zero, above zero) for a signed field, one phrase per preset."""
+    mcap: tuple[int, int, int | None]
+    """The protobuf field numbers of its command, setpoint and achieved value on `/command` (None: no achieved value
+    is plotted, as for the arms, which show in 3D): explicit and never reused, so old files keep decoding."""
+    presets: bool = False
+    """Whether its values name presets (0, 1, ... len(phrases) - 1) rather than a quantity."""
+
+    def clip(self, value: float) -> float:
+        """`value` inside [low, high], a preset field's rounded to a preset."""
+        clipped = min(max(value, self.low), self.high)
+        return float(round(clipped)) if self.presets else clipped
+
+    def phrase(self, value: float) -> str:
+        """The words a task string uses for `value` (nonzero)."""
+        if self.presets:
+            return self.phrases[round(value)]
+        return self.phrases[value > 0]
+
+
+COMMAND_FIELDS: tuple[CommandField, ...] = (
+    # Limits measured by bench/posture_ranges.py (5 seeds, held 3 s after the ramp): about 75 % of the largest
+    # magnitude that stayed up, and was reached, on every seed (docs/concepts/commands.md).
+    CommandField(
+        "lean_forward",
+        "rad",
+        -0.2,
+        0.3,
+        0.05,
+        0.05,
+        keys=(("s", "down"), ("w", "up")),
+        phrases=("lean back", "lean forward"),
+        mcap=(2, 10, 15),
+    ),
+    CommandField(
+        "lean_left",
+        "rad",
+        -0.3,
+        0.3,
+        0.05,
+        0.05,
+        keys=(("d", "right"), ("a", "left")),
+        phrases=("lean right", "lean left"),
+        mcap=(3, 11, 16),
+    ),
+    CommandField(
+        "height",
+        "m",
+        -0.18,
+        0.006,
+        0.02,
+        0.02,
+        keys=(("f",), ("r",)),
+        phrases=("crouch", "rise"),
+        mcap=(4, 12, 17),
+    ),
+    CommandField(
+        "twist",
+        "rad",
+        -0.55,
+        0.55,
+        0.1,
+        0.05,
+        keys=(("e",), ("q",)),
+        phrases=("twist right", "twist left"),
+        mcap=(5, 13, 18),
+    ),
+    CommandField(
+        "arms",
+        "preset",
+        0.0,
+        3.0,
+        1.0,
+        0.1,
+        keys=(("0",), ("1",), ("2",), ("3",)),
+        phrases=("arms neutral", "arms forward", "arms up", "arms out"),
+        mcap=(6, 14, None),
+        presets=True,
+    ),
+)
+"""Every field, in the order of `observation.command`."""
+
+FIELDS = {field.name: field for field in COMMAND_FIELDS}
+COMMAND_NAMES = tuple(FIELDS)
+"""The fields' names in order: the names of `observation.command` (and of the expert's `setpoint`)."""
+COMMAND_SIZE = len(COMMAND_NAMES)
+TOLERANCES = np.array([field.tolerance for field in COMMAND_FIELDS])
+"""Each field's tolerance, in `COMMAND_NAMES` order."""
+ARM_JOINTS = (
+    "right_shoulder1",
+    "right_shoulder2",
+    "right_elbow",
+    "left_shoulder1",
+    "left_shoulder2",
+    "left_elbow",
+)
+"""The joints the arm presets set (`humanoid.posture.ARM_POSES`), whose angles `Readout` reads for `arms`."""
+
+
+class Readout:
+    """The achieved value of every field, read from the body's state (qpos without root x and y, (..., nq - 2); qvel).
+
+    `lean_forward` and `lean_left` are the pitch and sideways lean of the torso with its twist undone (the root's
+    orientation times the abdomen_z rotation, as Euler angles z-y-x: pitch, then roll = -lean_left), `height` the
+    root's, `twist` -abdomen_z, `arms` the six `ARM_JOINTS` angles.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.twist_at = int(model.joint("abdomen_z").qposadr[0]) - 2
+        self.arms_at = [int(model.joint(name).qposadr[0]) - 2 for name in ARM_JOINTS]
+
+    def __call__(self, qpos: np.ndarray, qvel: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Field name -> its coordinates (..., k), k = 1 but for the arms' 6."""
+        abdomen_z = qpos[..., self.twist_at]
+        half = abdomen_z / 2
+        zero = np.zeros_like(half)
+        unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
+        frame = np.swapaxes(body_axes(unyaw) @ body_axes(qpos[..., 1:5]), -1, -2)  # R(root) R(unyaw)
+        return {
+            "lean_forward": np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))[..., None],
+            "lean_left": -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])[..., None],
+            "height": qpos[..., 0:1],
+            "twist": -abdomen_z[..., None],
+            "arms": qpos[..., self.arms_at],
+        }
