@@ -48,7 +48,7 @@ from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
-from humanoid.controllers import CONTROLLERS
+from humanoid.controllers import CONTROLLERS, KEYBOARD, KEYBOARD_EXPERT
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
@@ -371,8 +371,10 @@ def train_and_save(
 
 
 def teacher_of(dataset: Path) -> str:
-    """Who labelled the dataset's actions (its episodes' labeller, a registered controller): the student's teacher."""
+    """Who labelled the dataset's actions (its episodes' labeller, a registered controller; the keyboard's episodes
+    the expert the keys drive): the student's teacher, else the default teacher."""
     labellers = set(read_episodes(dataset, [columns.EPISODE_LABELLER])[columns.EPISODE_LABELLER].to_pylist())
+    labellers = {KEYBOARD_EXPERT if labeller == KEYBOARD else labeller for labeller in labellers}
     return labellers.pop() if len(labellers) == 1 and labellers <= CONTROLLERS.keys() else TEACHER
 
 

@@ -53,7 +53,8 @@ TEACHERS = {
 }
 """Who records each input's demonstrations, and with what DART noise. The expert on leg odometry records with the
 expert's noise here, not the pipeline's lower DART_NOISE: from 5 and 10 demonstrations without latency, the
-recoveries from its falls at 0.05 are what made students stand (docs/log.md, "BC data efficiency")."""
+recoveries from its falls at 0.05 are what made students stand (docs/decisions/dart-noise.md, "σ 0.03 for the
+sensed expert")."""
 INPUTS = tuple(TEACHERS)
 EVAL_EPISODES = 20
 

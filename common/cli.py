@@ -49,6 +49,12 @@ class Removed:
 
 
 _ADAPTIVE = Removed("controller 'expert-adaptive'", "use expert-sensed", "identification")
+_OPERATOR = Removed(
+    "controller 'operator'",
+    "every stage follows the operator's schedules by default (SCHEDULES=1); the expert told the simulator's state "
+    "under them: expert",
+    "pipeline-task",
+)
 
 REMOVED_FLAGS: dict[str, Removed] = {
     removed.what[2:].replace("-", "_"): removed
@@ -93,12 +99,8 @@ REMOVED_VALUES: dict[tuple[str, str], Removed] = {
     ("controller", "expert-adaptive"): _ADAPTIVE,  # make record
     ("policy", "expert-adaptive"): _ADAPTIVE,  # make eval, make robustness
     ("expert", "expert-adaptive"): _ADAPTIVE,  # make dagger
-    ("controller", "operator"): Removed(
-        "controller 'operator'",
-        "make record follows the operator's schedules by default (SCHEDULES=1); the expert told the simulator's state "
-        "under them: CONTROLLER=expert",
-        "pipeline-task",
-    ),
+    ("controller", "operator"): _OPERATOR,  # make record
+    ("policy", "operator"): _OPERATOR,  # make eval, make robustness
     # make train-bc, make dagger; humanoid.inputs.removed_inputs refuses it from a checkpoint too
     ("inputs", "odometry"): Removed(
         "inputs 'odometry'", "use pending: the same inputs, then the command in flight and the delay", "pending-inputs"

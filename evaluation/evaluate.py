@@ -58,16 +58,18 @@ from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
+POLICY_HELP = (
+    f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
+    f"{', '.join(map(str, paths.LEARNED))}"
+)
+"""What `make eval`'s and `make robustness`'s POLICY takes."""
+
 
 @dataclass
 class EvalConfig:
     """Settings of one evaluation."""
 
-    policy: str = setting(
-        NEWEST,
-        f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
-        f"{', '.join(map(str, paths.LEARNED))}",
-    )
+    policy: str = setting(NEWEST, POLICY_HELP)
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")

@@ -28,7 +28,7 @@ from common.figures import save_figure
 from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers
-from evaluation.evaluate import evaluate_each, evaluation_pool, init_worker
+from evaluation.evaluate import POLICY_HELP, evaluate_each, evaluation_pool, init_worker
 from humanoid.command_fields import COMMAND_NAMES
 from humanoid.commands import combine_tracking
 from humanoid.conditions import SUITE, condition
@@ -55,11 +55,7 @@ MOST_WORKERS = 2 * len(SUITE)
 class RobustnessConfig:
     """Settings of one robustness run."""
 
-    policy: str = setting(
-        NEWEST,
-        f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
-        f"{', '.join(map(str, paths.LEARNED))}",
-    )
+    policy: str = setting(NEWEST, POLICY_HELP)
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")

@@ -110,7 +110,11 @@ CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "random": lambda env: RandomController(env.action_space),
 }
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.
-INTERACTIVE = ("keyboard",)
+KEYBOARD = "keyboard"
+KEYBOARD_EXPERT = "expert"
+"""Who the keys drive unless told a policy (`make play`): the expert told the simulator's state, which a keyboard
+episode's labeller, KEYBOARD, stands for."""
+INTERACTIVE = (KEYBOARD,)
 
 
 def _is_path(name: str) -> bool:

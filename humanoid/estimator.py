@@ -2,7 +2,7 @@
 fused with the feet's force sensors.
 
 The LQR expert reads the torso's height and linear velocity, which no sensor measures
-(docs/log.md, "The deployable observation"). This estimator computes a full MuJoCo state
+(docs/decisions/deployable-inputs.md). This estimator computes a full MuJoCo state
 (qpos, qvel) from the sensed features alone, on the nominal model:
 
     sensed features (48) ──> orientation: tilt from the gravity direction, heading integrated from the gyro
@@ -18,8 +18,8 @@ The LQR expert reads the torso's height and linear velocity, which no sensor mea
 
 Why the forces: the kinematic velocity alone errs where a foot slips or rebounds, and the expert's
 gain amplifies that; the forces say how the body accelerates, and the feet correct their drift (a
-complementary filter; measured in docs/log.md). Its memory is the centre of mass's velocity, the heading
-and the height; `reset` starts them at rest, where gymnasium's reset puts the body, facing +x. The heading
+complementary filter; measured in docs/decisions/leg-odometry.md). Its memory is the centre of mass's velocity,
+the heading and the height; `reset` starts them at rest, where gymnasium's reset puts the body, facing +x. The heading
 (yaw) is what the sensed features do not say and standing does not depend on, but a commanded twist turns
 the torso over the pelvis: the estimate integrates it from the gyro (`heading_rate`). Set to zero, it read
 a twist as a turn of the whole body and the expert fell on most command schedules
@@ -44,7 +44,7 @@ START_HEIGHT = 1.4
 HORIZONTAL_GAIN = 0.3
 """Share of the gap between the feet's kinematic velocity and the force-predicted one closed per step,
 horizontally: the one-step prediction errs several times less than the kinematic velocity, and a
-lower gain lets it drift (chosen on seeds 5000..5039 under action noise, docs/log.md)."""
+lower gain lets it drift (chosen on seeds 5000..5039 under action noise, docs/decisions/leg-odometry.md)."""
 VERTICAL_GAIN = 0.1
 """The same, vertically, where the feet's kinematic velocity is the noisier (the contacts' give)."""
 LANDING_STEPS = 5
@@ -177,7 +177,7 @@ def read_sensed(names: list[str]) -> np.ndarray:
 
     Why not the forces: at the end of a step they are what the step's executed action did, so a
     student reading them can copy the previous action instead of acting on the state, and it falls
-    (docs/log.md, "An expert that acts on what it senses", its student on the leg odometry).
+    (docs/decisions/deployable-inputs.md).
     """
     forces = set(force_names())
     return np.array([i for i, name in enumerate(names) if name not in forces])
@@ -199,8 +199,8 @@ class OdometryFeatures:
     estimate's heading (the gyro's integral since reset), so the velocity and the inertias carry the heading too.
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
-    torso's velocity and the nominal-model inertias does (docs/log.md, "The deployable
-    observation"). Stateful like the estimator: `reset` at every episode's start. The "pending" inputs
+    torso's velocity and the nominal-model inertias does (docs/decisions/deployable-inputs.md). Stateful like
+    the estimator: `reset` at every episode's start. The "pending" inputs
     (`humanoid.inputs.PendingInputs`) begin with these.
     """
 

@@ -61,8 +61,7 @@ class LQRExpert:
         action that many steps late (``humanoid.conditions.ActionLatency``). The expert then acts
         on the state its pending actions will have led to, predicted by stepping its own copy of
         the model (the nominal one: it knows no randomised parameter) from the observed state.
-        Without it one step of latency topples the expert at once (docs/log.md, "A sturdier
-        expert").
+        Without it one step of latency topples the expert at once (docs/decisions/expert-delay.md).
         """
         self.name = name
         self.model = nominal_model() if model is None else model
@@ -99,7 +98,7 @@ class LQRExpert:
         gets its own balanced stance and gain (`humanoid.posture.body_gains`, about 0.1 s), and the predictor
         steps it; the design's body gets the design's gains. The expert reads the simulator's observation,
         whose `cinert` holds the masses anyway: a privileged teacher. Without this the nominal stance tips
-        a drawn body (docs/log.md, "An expert told its body"). Commanded postures stay the design's.
+        a drawn body (docs/decisions/expert-body.md). Commanded postures stay the design's.
         """
         previous = self._body
         if cache_key(model, self.design) == self._key:
@@ -227,7 +226,7 @@ class SensedExpert:
     The expert's gain reads the torso's height and linear velocity, which no sensor measures; fed the
     estimate instead, the expert is a controller of the sensed features (and the estimator's memory,
     which matters only while a foot is off the ground): a policy on the sensed features reads all it
-    acts on (docs/log.md, "An expert that acts on what it senses", measures both).
+    acts on (docs/decisions/leg-odometry.md measures both).
     """
 
     name = "expert-sensed"

@@ -139,7 +139,7 @@ class PendingInputs(InputSet):
     """`OdometryFeatures` of the sensed features, the action still in flight, the delay.
 
     Why: a student on the sensed features alone does not stand, one that also reads the estimator's does
-    (docs/log.md, "The deployable observation"); and one step of action latency topples a policy that
+    (docs/decisions/deployable-inputs.md); and one step of action latency topples a policy that
     acts as if its action ran at once, while told the delay and what it sent, a student learns to act
     through it (docs/decisions/pending-inputs.md).
     """

@@ -2,7 +2,7 @@
 
 `TorsoPushes` reproduces the robustness test of the facts note: a horizontal force on the torso
 for 0.1 s every 2 s, in a random direction. How often 10 N and 20 N pushes topple the expert and
-each policy: docs/log.md, "Robustness to pushes"; which directions topple them:
+each policy: docs/concepts/robustness-suite.md, "Where each controller stands"; which directions topple them:
 docs/concepts/robustness-suite.md, "Which pushes topple".
 """
 

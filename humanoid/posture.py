@@ -277,8 +277,7 @@ def body_gains(model: mujoco.MjModel, design: LQRDesign, neutral: np.ndarray) ->
     ``neutral`` is the design's balanced pose. A body with other masses or motors (``humanoid.conditions``'
     randomisation) is not balanced by it: ``lqr.balanced_pose`` solves pitch only, which a symmetric body
     needs, and a drawn body is not symmetric. So the stance is solved as a posture's (root height, hip_y,
-    knee split) and the gain designed there; not cached (0.05 to 0.2 s). Why: docs/log.md,
-    "An expert told its body".
+    knee split) and the gain designed there; not cached (0.05 to 0.2 s). Why: docs/decisions/expert-body.md.
     """
     qpos = posture_pose(model, NEUTRAL, neutral)
     ctrl = feed_forward(model, qpos)

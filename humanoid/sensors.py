@@ -1,7 +1,7 @@
 """What a real humanoid senses, and the split of the gymnasium observation into sensed and privileged parts.
 
-The 348-dim gymnasium observation holds quantities no robot measures (docs/log.md, "The
-deployable observation"). A dataset stores it in two features that LeRobot's policies read:
+The 348-dim gymnasium observation holds quantities no robot measures (docs/decisions/deployable-inputs.md).
+A dataset stores it in two features that LeRobot's policies read:
 
     gymnasium observation (348) ──split──> observation.state (48): what the robot senses
                                  └───────> observation.environment_state (311): the rest, privileged
@@ -15,7 +15,7 @@ deployable observation"). A dataset stores it in two features that LeRobot's pol
 - foot contact, 1.0 or 0.0 per foot (contact switches), `contact.<foot>`;
 - each foot's contact force in the torso frame (N; a force sensor in the ankle, its reading turned
   through the leg's joint angles), `force.<foot>_x` .. `_z`: what lets a state estimator tell how the
-  body accelerates (`humanoid.estimator`; docs/log.md, "An expert that acts on what it senses").
+  body accelerates (`humanoid.estimator`; docs/decisions/leg-odometry.md).
 Entries that copy the gymnasium observation keep its names; the gravity, the contacts and the forces
 are computed from it (the root quaternion and the feet's contact wrenches), so any policy that acts
 on the gymnasium observation can compute them the same way at run time (`Proprioception`).

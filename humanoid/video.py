@@ -3,7 +3,7 @@
 MuJoCo renders through EGL (Mesa's llvmpipe when there is no GPU) or OSMesa, chosen by
 MUJOCO_GL, which gymnasium reads when it creates its first viewer: `VideoRecorder` sets it to
 `egl` unless the user chose. Shadows and reflections are switched off: in software they cost most
-of a frame's time (docs/log.md, "Evaluation").
+of a frame's time (docs/decisions/video-rendering.md).
 """
 
 from __future__ import annotations

@@ -71,7 +71,7 @@ from evaluation import robustness
 from evaluation.robustness import RobustnessConfig
 from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
-from humanoid.controllers import CONTROLLERS
+from humanoid.controllers import CONTROLLERS, INTERACTIVE
 from humanoid.env import nominal_model
 from humanoid.inputs import BLIND_INPUTS
 from humanoid.sensors import proprioception_names
@@ -208,6 +208,14 @@ def check(cfg: PipelineConfig) -> list[str]:
         )
     if cfg.robustness_episodes < 1:
         raise UserError(f"--robustness-episodes must be at least 1, got {cfg.robustness_episodes}")
+    if not cfg.record.schedules or cfg.record.controller in INTERACTIVE:  # what `bc.train.check_taught` would refuse
+        given = (
+            "--record.schedules false" if not cfg.record.schedules else f"--record.controller {cfg.record.controller}"
+        )
+        raise UserError(
+            f"{given}: the students learn to follow the operator's command, which the pipeline's recording changes "
+            "only by the scripted schedules"
+        )
     if cfg.record.latency == 0:  # what `bc.train.check_taught` would refuse after the recording
         raise UserError(
             f"--record.latency 0: the students read {BLIND_INPUTS}'s inputs, which learn to act through action "
@@ -221,9 +229,10 @@ TIES = (
     ("dagger", "dataset", "record", "dataset"),
     ("dagger", "noise", "record", "noise"),
     ("ppo", "bc_policy", "dagger", "policy"),
+    ("ppo", "scratch_policy", "", "scratch_policy"),
 )
-"""(stage, setting, from stage, its setting): each stage's input is the output of the stage before it, and DAgger's
-rounds run under the recording's noise."""
+"""(stage, setting, from stage or "" for the pipeline's own, its setting): each stage's input is the output of the
+stage before it, DAgger's rounds run under the recording's noise, and PPO's figure shows the pipeline's scratch run."""
 
 
 def tied(cfg: PipelineConfig) -> PipelineConfig:
@@ -231,11 +240,11 @@ def tied(cfg: PipelineConfig) -> PipelineConfig:
     replaced = {}
     for stage, name, source, source_name in TIES:
         config = replaced.get(stage, getattr(cfg, stage))
-        value, wanted = getattr(config, name), getattr(getattr(cfg, source), source_name)
+        value, wanted = getattr(config, name), getattr(getattr(cfg, source) if source else cfg, source_name)
         if value != wanted and value != field_default(PipelineConfig, f"{stage}.{name}"):
+            tie = flag(f"{source}.{source_name}" if source else source_name)
             raise UserError(
-                f"--{stage}.{flag(name)[2:]} {value}: the pipeline ties it to --{source}.{flag(source_name)[2:]} "
-                f"({wanted}); set that instead"
+                f"{flag(f'{stage}.{name}')} {value}: the pipeline ties it to {tie} ({wanted}); set that instead"
             )
         replaced[stage] = dataclasses.replace(config, **{name: wanted})
     return dataclasses.replace(cfg, **replaced)

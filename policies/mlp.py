@@ -18,9 +18,8 @@ from torch import nn
 # of bodies that never touch anything), which need some floor. Beyond that, the floor decides how
 # much the policy may amplify inputs that barely vary in the demonstrations (waist inertia terms
 # with std 3e-5 in clean data): flooring them at 0.1 rather than 1e-6 gave a lower validation loss
-# on every training seed and higher returns under pushes (measured: docs/log.md, "The input
-# normalisation floor"). Joint angles and velocities, the signals that matter for balance, keep a
-# scale of order one.
+# on every training seed and higher returns under pushes (measured: docs/decisions/input-floor.md). Joint
+# angles and velocities, the signals that matter for balance, keep a scale of order one.
 STD_FLOOR = 0.1
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "elu": nn.ELU}
@@ -32,17 +31,15 @@ class MLPSpec:
     """What sizes an `MLPPolicy` (stored in the checkpoint's config.json; the weights hold the rest)."""
 
     input_keys: tuple[str, ...]
-    """Dataset columns the input is built from (see `inputs`); a dataset that records a command
-    (keyboard teleoperation) would append its key here."""
+    """Dataset columns the input is built from (`humanoid.inputs.InputSet.columns` of `inputs`)."""
     input_dim: int
     action_dim: int
     hidden: tuple[int, ...] = (256, 256)
     activation: str = "relu"
-    """Hidden units (ACTIVATIONS). `make train-bc` writes ELU networks (its `--activation` says why); this
+    """Hidden units (ACTIVATIONS). `make train-bc` writes ELU networks (`bc.train.ACTIVATION` says why); this
     default stays the ReLU that spec had before, so a spec built without the field means what it meant."""
     inputs: str = "full"
-    """What the policy reads (humanoid.inputs.INPUT_SETS): "full", the gymnasium observation; "proprio", what a
-    robot senses; or "pending", the leg odometry computed from that, the command in flight and the delay.
+    """What the policy reads: the name of an input set (`humanoid.inputs.INPUT_SETS`: docs/concepts/inputs.md).
     Checkpoints written before this field read "full"."""
 
     def __post_init__(self) -> None:

@@ -1,7 +1,7 @@
 """A curriculum of push sizes for PPO: the torso pushes of the training environments grow as the policy copes.
 
 Trained straight at the size it should withstand, the policy spends most of its episodes falling early
-and learns slowly (docs/log.md, "Robustness to pushes"). Here the training environments start at
+and learns slowly (docs/decisions/curriculum.md). Here the training environments start at
 the first stage's force and move to the next stage after a rollout in which at least `min_episodes`
 training episodes ended and at least `advance` of those reached the time limit instead of falling.
 The domain randomisation widens with the stages: stage k of K draws the physical parameters from

@@ -76,15 +76,15 @@ from rl.vec_env import WorkerGroupVecEnv
 
 EVAL_CONDITIONS = ("clean", "push20", "mass")
 """Robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one at every
-evaluation during training: they choose the actor kept with it (`selection_score`; docs/log.md, "Evaluations
-and the actor kept"), and go to the learning curve's survival panel and TensorBoard."""
+evaluation during training: they choose the actor kept with it (`selection_score`; docs/decisions/keep-policy.md,
+"The fall-back's score"), and go to the learning curve's survival panel and TensorBoard."""
 
 
 # Sampling peaked at 14 workers on a 16-core machine (5.1x one worker): the learner's serial update and the
 # rollout's transfer take the rest (docs/decisions/worker-counts.md).
 MOST_WORKERS = 14
-# Workers that each hold this many environments or more end the same run as one worker (docs/log.md,
-# "Environments and workers"), so the default changes no result: more workers only where each gets as many,
+# Workers that each hold this many environments or more end the same run as one worker
+# (docs/decisions/worker-counts.md), so the default changes no result: more workers only where each gets as many,
 # and 2 otherwise, which every 2-core machine used before.
 ENVS_PER_WORKER = 4
 
@@ -195,7 +195,7 @@ class FinetuneConfig:
         0,
         "torch threads of PPO's updates (0: one per core; the workers are idle then). "
         "The rollouts use one: idle torch threads spin and slow the simulation "
-        "(docs/log.md, 'How it got here')",
+        "(docs/decisions/ppo-sampling.md)",
     )
     scratch_policy: Path = setting(
         paths.SCRATCH_POLICY, "PPO-from-scratch run whose learning curve the figure shows beside this one, if present"

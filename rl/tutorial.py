@@ -14,7 +14,7 @@ What a reader of that tutorial would have got:
 Both train to stand, on the clean task without a command, for TIMESTEPS environment steps (by default the
 PPO stages' budget). The pipeline leaves them out: its table is about following commands, which neither
 takes (docs/decisions/pipeline-task.md). Where the tutorial names no value (the mean's step, the noise's start
-and end), the choice and the measured result are in docs/log.md, "The tutorial's learners".
+and end), the choice and the measured result are in docs/decisions/tutorial-learners.md.
 """
 
 from __future__ import annotations
@@ -68,8 +68,8 @@ class TutorialConfig:
     overwrite: bool = setting(False, "replace existing checkpoints")
     progress: bool = setting(True, "show a progress bar")
 
-    # The tutorial's own values, or where it names none the choice measured in docs/log.md, "The tutorial's
-    # learners": fixed, as the rows they give are the tutorial's (docs/decisions/fixed-settings.md).
+    # The tutorial's own values, or where it names none the choice measured in docs/decisions/tutorial-learners.md:
+    # fixed, as the rows they give are the tutorial's (docs/decisions/fixed-settings.md).
     step_size: ClassVar[float] = 0.01
     """Preferred action: fraction of the way the mean moves toward a rewarded action."""
     noise_start: ClassVar[float] = 0.2

@@ -227,7 +227,7 @@ class WorkerGroupVecEnv(VecEnv):
     more are that many processes, each pinned to a core of its own (unpinned, Linux woke a worker
     on the core of the learner that woke it, and two workers queued on one core). The learner
     simulates nothing then: with a share of its own, it was the bottleneck (its share plus PPO's
-    per-step work). Both measured: docs/log.md, "How it got here".
+    per-step work). Both measured: docs/decisions/ppo-sampling.md.
     """
 
     def __init__(

@@ -31,7 +31,7 @@ import numpy as np
 from common.cli import UserError
 from humanoid.command_fields import COMMAND_FIELDS, CommandField
 from humanoid.commands import command_vector, task_for
-from humanoid.controllers import Controller, make_controller
+from humanoid.controllers import KEYBOARD, KEYBOARD_EXPERT, Controller, make_controller
 from humanoid.env import model_and_data
 from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
 from humanoid.physics import TORSO_BODY, torso_height
@@ -40,7 +40,6 @@ from humanoid.posture import NEUTRAL, Posture
 if TYPE_CHECKING:
     from teleop.store import CommittedEpisode, EpisodeSink
 
-CONTROLLER_NAME = "keyboard"
 PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
 PUSH_SECONDS = 0.1
 STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
@@ -215,7 +214,9 @@ class TeleopSession:
     @property
     def name(self) -> str:
         """Who acts, as the episodes record it: `keyboard`, or `keyboard:POLICY` when the keys drive a policy."""
-        return CONTROLLER_NAME if self.controller.name == "expert" else f"{CONTROLLER_NAME}:{self.controller.name}"
+        if self.controller.name == KEYBOARD_EXPERT:
+            return KEYBOARD
+        return f"{KEYBOARD}:{self.controller.name}"
 
     def tick(self) -> None:
         """One env step of the episode in progress (nothing while idle)."""
@@ -431,7 +432,7 @@ def run_session(
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
     front_end = front_end_here(front_end)
-    controller = make_controller("expert", env) if controller is None else controller
+    controller = make_controller(KEYBOARD_EXPERT, env) if controller is None else controller
     session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer)
     if front_end == "viewer":
         run_viewer(session, sys.stderr)

@@ -1,8 +1,7 @@
 """An MCAP writer that takes a whole episode's messages in one call: the file `mcap.Writer` writes.
 
 `mcap.Writer.add_message` builds each message record field by field in Python: with three messages
-a step, a noticeable share of the time it takes to simulate the step (docs/log.md, "What made
-writing cheap enough").
+a step, a noticeable share of the time it takes to simulate the step (docs/decisions/mcap-writing.md).
 This writer takes the messages as arrays and builds their records, the chunks and the chunks'
 message indexes with NumPy. Everything else (header, schemas, channels, attachments, metadata, the
 summary section) is written through `mcap.records`, with the same layout and chunking rule as
@@ -11,7 +10,7 @@ into the first chunk). A test checks that both writers produce the same bytes.
 
 The one deliberate difference is the zstd level: -1 (a fast mode) instead of zstandard's default 3.
 Recorded episodes are mostly floating-point numbers, which no level compresses much, so the fast
-level loses little size and saves most of the time (docs/log.md, "What made writing cheap enough").
+level loses little size and saves most of the time (docs/decisions/mcap-writing.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Building `foxglove.FrameTransforms`, `humanoid_bc.Step` and `humanoid_bc.Command` through the
 protobuf API converts 13 nested transforms and 348 doubles one by one, a large share of the time
-it takes to simulate the step (docs/log.md, "What made writing cheap enough").
+it takes to simulate the step (docs/decisions/mcap-writing.md).
 The messages are mostly numbers in fixed
 places, so their bytes are built here directly, following the wire format
 (https://protobuf.dev/programming-guides/encoding/): each message is a row of bytes, filled by

@@ -534,6 +534,9 @@ def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
         (["--record.latency", "0"], "--record.latency 0: the students read pending's inputs, which learn to act"),
         (["--bc.dataset", "elsewhere"], "--bc.dataset elsewhere: the pipeline ties it to --record.dataset"),
         (["--ppo.bc-policy", "blind"], "--ppo.bc-policy blind: the pipeline ties it to --dagger.policy"),
+        (["--ppo.scratch-policy", "x"], "--ppo.scratch-policy x: the pipeline ties it to --scratch-policy"),
+        (["--record.schedules", "false"], "--record.schedules false: the students learn to follow the operator's"),
+        (["--record.controller", "keyboard"], "--record.controller keyboard: the students learn to follow"),
     ],
 )
 def test_bad_pipeline_settings_are_refused_naming_them(argv: list[str], message: str) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bc.train import TrainConfig
+from bc.train import TrainConfig, teacher_of
 from bc.train import main as train
 from common import columns
 from humanoid.commands import Tracking
@@ -131,6 +131,12 @@ def fine_tune(student: Path, actor: Path) -> None:
         FinetuneConfig(bc_policy=student, policy=actor, critic_warmup=0, progress=False, **settings, **evaluations)
     )
     assert (actor / WEIGHTS_FILE).read_bytes() != (student / WEIGHTS_FILE).read_bytes()  # PPO moved the actor
+
+
+def test_a_student_of_the_keys_is_evaluated_beside_the_expert_they_drove(policies: Policies) -> None:
+    """The keyboard's episodes are labelled by the expert the keys drive: `make train-bc`'s evaluation compares the
+    student with that expert."""
+    assert teacher_of(policies.commanded.parent / "demonstrations") == "expert"
 
 
 @dataclass(frozen=True)
