@@ -5,6 +5,7 @@ Importable as `support` because pytest puts `tests/` on the path (its conftest l
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pty
@@ -12,6 +13,7 @@ import select
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,6 +60,18 @@ TINY_PPO = {
 }
 """`FinetuneConfig` settings of the PPO tests' runs: 256-step rollouts over 2 worker processes, unpushed on the nominal
 task (the curriculum and the randomisation have tests of their own), an evaluation of one episode after each."""
+
+
+@contextlib.contextmanager
+def one_core() -> Iterator[None]:
+    """This process on one core for the block (its affinity narrowed, as `taskset` would): a training's torch threads,
+    one per core, beside the other test process on two cores ran several times slower."""
+    cores = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, cores)
 
 
 def snapshot(root: Path) -> dict[str, bytes]:

@@ -40,7 +40,7 @@ from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import STD_FLOOR
-from support import join_observation, snapshot, tensorboard_text
+from support import join_observation, one_core, snapshot, tensorboard_text
 from teleop.dataset_reader import fingerprint, read_frames
 from teleop.record import STANDING, STANDING_NOISE, RecordConfig, validate
 from teleop.record import main as record
@@ -89,8 +89,7 @@ def test_default_recipe_clones_the_expert_from_five_demonstrations(tmp_path: Pat
     """The standing recipe's known answer: with ReLU units this data stood on no unseen seed
     (docs/decisions/activation.md).
 
-    Trained on one core (its affinity narrowed, as `taskset` would): two torch threads, beside the other test process
-    on two cores, made this test's 5,000 Adam steps several times slower."""
+    Trained on one core (`support.one_core`): this test's 5,000 Adam steps."""
     data = tmp_path / "five"
     record(
         RecordConfig(
@@ -98,12 +97,8 @@ def test_default_recipe_clones_the_expert_from_five_demonstrations(tmp_path: Pat
         )
     )
     cfg = TrainConfig(dataset=data, policy=tmp_path / "policy", inputs="full", eval_episodes=0, progress=False)
-    cores = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(cores)})
-    try:
+    with one_core():
         result = main(cfg)
-    finally:
-        os.sched_setaffinity(0, cores)
     evaluation = evaluate(PolicyController(result.policy, "five"), episodes=5, seed=1000)
     assert evaluation["survivals"] == [True] * 5, evaluation["lengths"]
 

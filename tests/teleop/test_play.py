@@ -7,7 +7,6 @@ actor); a session of `make play`'s command behind a pseudo-terminal drives each.
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 import sys
@@ -27,7 +26,7 @@ from pipeline.targets import TARGETS
 from policies.folder import WEIGHTS_FILE
 from rl.finetune import FinetuneConfig
 from rl.finetune import main as finetune
-from support import Terminal, join_observation, snapshot
+from support import Terminal, join_observation, one_core, snapshot
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
 from teleop.store import DatasetSpec, EpisodeStore
@@ -89,11 +88,8 @@ class Policies:
 
 
 def cheap_training(dataset: Path, policy: Path, inputs: str, updates: int) -> None:
-    """`make train-bc` with a narrower MLP and few Adam steps, on one core (two test processes share the two; its
-    affinity narrowed as `taskset` would), no evaluation."""
-    cores = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(cores)})
-    try:
+    """`make train-bc` with a narrower MLP and few Adam steps, on one core (`support.one_core`), no evaluation."""
+    with one_core():
         train(
             TrainConfig(
                 dataset=dataset,
@@ -107,8 +103,6 @@ def cheap_training(dataset: Path, policy: Path, inputs: str, updates: int) -> No
                 progress=False,
             )
         )
-    finally:
-        os.sched_setaffinity(0, cores)
 
 
 @pytest.fixture(scope="module")
