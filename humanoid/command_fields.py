@@ -11,10 +11,11 @@ dataset's feature names (`teleop.store`).
 How the achieved value is read from the body is the one piece of code a field adds besides its row
 (`Readout`): the trunk's pitch for `lean_forward`, the six arm joint angles for `arms`, and so on.
 
-Adding a field: a row here, its entry in `Readout.__call__`, and the code that realises it (the standing
-expert realises a posture field as a balanced pose: `humanoid.posture.posture_pose`). Its MCAP numbers must be
-new ones: a file written before the field existed still decodes with today's `Command` message
-(tests/teleop/test_mcap.py holds such a file).
+Adding a field: a row here (`posed=False` for one tracked as its value, not as a pose), its entry in
+`Readout.__call__`, and the code that realises it (the standing expert realises a posed field as a balanced pose:
+`humanoid.posture.posture_pose`). Its MCAP numbers must be new ones: a file written before the field existed still
+decodes with today's `Command` message (tests/teleop/test_mcap.py holds such a file; tests/humanoid/
+test_command_fields.py tracks a velocity row added to the table).
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ class CommandField:
     is plotted, as for the arms, which show in 3D): explicit and never reused, so old files keep decoding."""
     presets: bool = False
     """Whether its values name presets (0, 1, ... len(phrases) - 1) rather than a quantity."""
+    posed: bool = True
+    """Whether the standing expert realises it as a balanced pose (`humanoid.posture.posture_pose`), whose coordinates
+    are then its tracking target; otherwise the commanded value itself is (a velocity, say)."""
 
     def clip(self, value: float) -> float:
         """`value` inside [low, high], a preset field's rounded to a preset."""
@@ -145,7 +149,8 @@ ARM_JOINTS = (
 
 
 class Readout:
-    """The achieved value of every field, read from the body's state (qpos without root x and y, (..., nq - 2); qvel).
+    """The achieved value of every field, read from the body's state (qpos without root x and y, (..., nq - 2), and
+    qvel (..., nv), which a field read from velocities needs).
 
     `lean_forward` and `lean_left` are the pitch and sideways lean of the torso with its twist undone (the root's
     orientation times the abdomen_z rotation, as Euler angles z-y-x: pitch, then roll = -lean_left), `height` the
@@ -156,7 +161,7 @@ class Readout:
         self.twist_at = int(model.joint("abdomen_z").qposadr[0]) - 2
         self.arms_at = [int(model.joint(name).qposadr[0]) - 2 for name in ARM_JOINTS]
 
-    def __call__(self, qpos: np.ndarray, qvel: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def __call__(self, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
         """Field name -> its coordinates (..., k), k = 1 but for the arms' 6."""
         abdomen_z = qpos[..., self.twist_at]
         half = abdomen_z / 2

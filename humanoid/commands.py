@@ -27,8 +27,16 @@ import numpy as np
 
 from common.cli import UserError
 from common.seed_ranges import TRAINING_SEEDS
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, COMMAND_SIZE, FIELDS, TOLERANCES, Readout
-from humanoid.env import QPOS_OBS, nominal_model
+from humanoid.command_fields import (
+    COMMAND_FIELDS,
+    COMMAND_NAMES,
+    COMMAND_SIZE,
+    FIELDS,
+    TOLERANCES,
+    CommandField,
+    Readout,
+)
+from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
 
 DEFAULT_TASK = "Stand still on both feet."
@@ -119,60 +127,79 @@ episode's end cuts short, which may still be on its way."""
 
 
 class Tracking:
-    """Commanded against achieved posture, per field, for observations of `model`'s Humanoid-v5.
+    """Commanded against achieved command, per field, for observations of `model`'s Humanoid-v5.
 
-    Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: the
-    same coordinates of the balanced pose that realises the command (`posture_reference`), so a body held exactly
-    there has no error. A field's error is the mean over its coordinates (the arms' six angles).
+    Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: for a
+    posed field the same coordinates of the balanced pose that realises the command (`posture_reference`), so a body
+    held exactly there has no error; for another its commanded value. A field's error is the mean over its
+    coordinates (the arms' six angles). `fields` and `readout`: the table and its reader, the project's by default.
     """
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, fields: tuple[CommandField, ...] = COMMAND_FIELDS, readout: Readout | None = None
+    ) -> None:
         self.model = model
-        self.readout = Readout(model)
-        widths = [coordinates.shape[-1] for coordinates in self.readout(model.qpos0[2:]).values()]
+        self.fields = fields
+        self.readout = Readout(model) if readout is None else readout
+        self._rest = np.zeros(model.nv)
+        read = self.readout(model.qpos0[2:], self._rest)
+        widths = [read[field.name].shape[-1] for field in fields]
         ends = np.cumsum(widths)
         self.slices = [slice(end - width, end) for width, end in zip(widths, ends, strict=True)]
-        """Where each field's coordinates sit among `coordinates`, in `COMMAND_NAMES` order."""
+        """Where each field's coordinates sit among `coordinates`, in the table's order."""
         self._targets: dict[tuple[float, ...], np.ndarray] = {}
 
-    def coordinates(self, qpos: np.ndarray) -> np.ndarray:
-        """(..., coordinates) every field's coordinates side by side, of (..., nq - 2) qpos without x and y."""
-        read = self.readout(qpos)
-        return np.concatenate([read[name] for name in COMMAND_NAMES], axis=-1)
+    def coordinates(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """(..., coordinates) every field's coordinates side by side, of a state: (..., nq - 2) qpos without x and y,
+        (..., nv) qvel."""
+        read = self.readout(qpos, qvel)
+        return np.concatenate([read[field.name] for field in self.fields], axis=-1)
 
     def target(self, command: np.ndarray) -> np.ndarray:
-        """The coordinates of the balanced pose that realises `command` (clipped as the expert clips it)."""
+        """The coordinates `command` asks for (clipped as the expert clips it): its posed fields' balanced pose's, its
+        other fields' values."""
         key = tuple(float(v) for v in command)
         if key not in self._targets:
-            posture = command_posture(np.asarray(command)).clipped()
-            self._targets[key] = self.coordinates(posture_reference(self.model, posture)[0][2:])
+            posed = {field.name: float(value) for field, value in zip(self.fields, command, strict=True) if field.posed}
+            pose = posture_reference(self.model, Posture(**posed).clipped())[0][2:]
+            target = self.coordinates(pose, self._rest)
+            for field, value, part in zip(self.fields, command, self.slices, strict=True):
+                if not field.posed:
+                    target[part] = field.clip(float(value))
+            self._targets[key] = target
         return self._targets[key]
 
     def achieved(self, observations: np.ndarray) -> np.ndarray:
         """(T, len(PLOTTED)) the achieved value of each field Foxglove plots beside its command (`PLOTTED`: those read
-        from one coordinate), from the neutral pose's, of observations (T, >=22)."""
-        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))
-        neutral = self.target(np.zeros(COMMAND_SIZE))
-        columns = [self.slices[COMMAND_NAMES.index(field.name)].start for field in PLOTTED]
+        from one coordinate), from the neutral pose's, of observations (T, 348)."""
+        coordinates = self.coordinates(*_state(observations))
+        neutral = self.target(np.zeros(len(self.fields)))
+        columns = [self.slices[self.fields.index(field)].start for field in PLOTTED]
         return coordinates[:, columns] - neutral[columns]
 
     def errors(self, observations: np.ndarray, commands: np.ndarray) -> np.ndarray:
-        """|commanded - achieved| (T, COMMAND_SIZE) of observations (T, >=22) under commands (T, COMMAND_SIZE)."""
-        coordinates = self.coordinates(np.asarray(observations[:, QPOS_OBS], np.float64))
+        """|commanded - achieved| (T, fields) of observations (T, 348) under commands (T, fields)."""
+        coordinates = self.coordinates(*_state(observations))
         targets = np.empty_like(coordinates)
         changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
         for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
             targets[start:end] = self.target(commands[start])
         return self._fields(np.abs(coordinates - targets))
 
-    def error(self, qpos: np.ndarray, command: np.ndarray) -> np.ndarray:
-        """`errors` of one state, (COMMAND_SIZE,) from qpos without x and y under `command`: the same numbers, a few
+    def error(self, qpos: np.ndarray, qvel: np.ndarray, command: np.ndarray) -> np.ndarray:
+        """`errors` of one state, (fields,) from qpos without x and y and qvel under `command`: the same numbers, a few
         times faster than through `errors` (PPO's reward computes it every step)."""
-        return self._fields(np.abs(self.coordinates(qpos) - self.target(command)))
+        return self._fields(np.abs(self.coordinates(qpos, qvel) - self.target(command)))
 
     def _fields(self, gap: np.ndarray) -> np.ndarray:
-        """Per command field (..., COMMAND_SIZE) of a coordinates' gap: the mean over each field's coordinates."""
+        """Per command field (..., fields) of a coordinates' gap: the mean over each field's coordinates."""
         return np.stack([gap[..., part].mean(axis=-1) for part in self.slices], axis=-1)
+
+
+def _state(observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos without x and y, qvel) of Humanoid-v5 observations (T, 348), in float64 (a frame is float32 on disk)."""
+    observations = np.asarray(observations, np.float64)
+    return observations[:, QPOS_OBS], observations[:, QVEL_OBS]
 
 
 PLOTTED = tuple(field for field in COMMAND_FIELDS if field.mcap[2] is not None)
@@ -289,7 +316,8 @@ class CommandedTask(gym.Wrapper):
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         command = self.commands[self.t]
-        error = self.tracking.error(self.env.unwrapped.data.qpos[2:], command)
+        data = self.env.unwrapped.data
+        error = self.tracking.error(data.qpos[2:], data.qvel, command)
         reward += self.weight * float(tracking_reward(error))
         self.t = min(self.t + 1, len(self.commands) - 1)
         info[COMMAND_INFO] = self.commands[self.t]

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, Readout
-from humanoid.commands import task_for
-from humanoid.env import nominal_model
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, CommandField, Readout
+from humanoid.commands import Tracking, task_for
+from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.posture import NEUTRAL, Posture, posture_reference
 from teleop.keyboard import KEY_ACTIONS, TeleopSession
 
@@ -37,13 +37,14 @@ def test_the_readout_reads_every_field_and_a_balanced_pose_reads_its_posture() -
     model = nominal_model()
     readout = Readout(model)
     posture = Posture(lean_forward=0.1, lean_left=-0.1, twist=0.2, arms=2.0)
-    read = readout(posture_reference(model, posture)[0][2:])
+    rest = np.zeros(model.nv)
+    read = readout(posture_reference(model, posture)[0][2:], rest)
     assert tuple(read) == COMMAND_NAMES
     assert [read[name].shape for name in COMMAND_NAMES] == [(1,), (1,), (1,), (1,), (6,)]
     for name in ("lean_forward", "lean_left", "twist"):
         assert read[name][0] == pytest.approx(getattr(posture, name), abs=1e-9)
-    crouched = readout(posture_reference(model, Posture(height=-0.06))[0][2:])["height"]
-    neutral = readout(posture_reference(model, NEUTRAL)[0][2:])["height"]
+    crouched = readout(posture_reference(model, Posture(height=-0.06))[0][2:], rest)["height"]
+    neutral = readout(posture_reference(model, NEUTRAL)[0][2:], rest)["height"]
     assert crouched - neutral == pytest.approx(-0.06, abs=1e-6)
 
 
@@ -70,3 +71,35 @@ def test_every_rows_keys_change_that_field_by_its_step(field) -> None:
             session.target = start
             KEY_ACTIONS[key](session)
             assert getattr(session.target, field.name) == field.clip(getattr(start, field.name) + sign * field.step)
+
+
+class ReadoutWithSpeed(Readout):
+    """The project's readout and a field read from the velocities: the root's forward speed (qvel's x)."""
+
+    def __call__(self, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
+        return {**super().__call__(qpos, qvel), "forward_speed": qvel[..., 0:1]}
+
+
+def test_a_field_tracked_as_its_value_is_one_row_and_its_reader() -> None:
+    """A velocity row added to the table (not posed) and its entry in the readout: tracking compares its reading with
+    the commanded value (clipped to its row's limits), the posed fields as before, the field's own error apart."""
+    speed = CommandField(
+        "forward_speed",
+        "m/s",
+        -0.3,
+        0.6,
+        0.1,
+        0.1,
+        (("j",), ("k",)),
+        ("walk back", "walk forward"),
+        (19, 20, 21),
+        posed=False,
+    )
+    model = nominal_model()
+    tracking = Tracking(model, (*COMMAND_FIELDS, speed), ReadoutWithSpeed(model))
+    stand = posture_reference(model, NEUTRAL)[0][2:]
+    observation = np.zeros((1, 348))
+    observation[0, QPOS_OBS], observation[0, QVEL_OBS.start] = stand, 0.25
+    for commanded, error in ((0.4, 0.15), (0.25, 0.0), (1.0, 0.35)):  # 1.0 is clipped to the row's 0.6
+        command = np.array([[0.0] * len(COMMAND_FIELDS) + [commanded]])
+        np.testing.assert_allclose(tracking.errors(observation, command)[0], [0, 0, 0, 0, 0, error], atol=1e-9)
