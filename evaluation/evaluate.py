@@ -52,7 +52,7 @@ from humanoid.controllers import CONTROLLERS, Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
 from humanoid.episode import Episode, EpisodeBuffer, run_episode
 from humanoid.learned import PolicyController
-from humanoid.perturbations import TorsoPushes, toppling, torso_pushes
+from humanoid.perturbations import TorsoPushes, VelocityKick, perturbation, toppling
 from humanoid.video import CAMERA, VideoRecorder
 from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
@@ -73,6 +73,11 @@ class EvalConfig:
     episodes: int = setting(20, "number of episodes")
     seed: int = setting(EVAL_SEED, "seed of the first episode (episode i uses SEED+i)")
     push: float = setting(0.0, "force in newtons of a horizontal push on the torso for 0.1 s every 2 s; 0 = none")
+    kick: float = setting(
+        0.0,
+        "one kick of the root's horizontal velocity, in m/s, in a seeded direction 4 to 8 s into each episode (the "
+        "suite's kick conditions: docs/concepts/robustness-suite.md); 0 = none",
+    )
     noise: float = setting(0.0, "std of the Gaussian noise added to every executed action; 0 = none")
     condition: str = setting(
         "clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/concepts/robustness-suite.md)"
@@ -98,11 +103,13 @@ def validate(cfg: EvalConfig) -> None:
     check_non_negative(cfg, "seed")
     if not (math.isfinite(cfg.push) and cfg.push >= 0):
         raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
+    if not (math.isfinite(cfg.kick) and cfg.kick >= 0):
+        raise UserError(f"--kick must be a speed >= 0 in m/s, got {cfg.kick}")
     check_non_negative(cfg, "noise")
     if cfg.condition not in SUITE:
         raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")
-    if cfg.condition != "clean" and (cfg.push or cfg.noise):
-        raise UserError("--condition brings its own perturbation: leave --push and --noise at 0 with it")
+    if cfg.condition != "clean" and (cfg.push or cfg.noise or cfg.kick):
+        raise UserError("--condition brings its own perturbation: leave --push, --kick and --noise at 0 with it")
     if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
         raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
     if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
@@ -121,10 +128,11 @@ def evaluate(
     live: tuple[str, int] | None = None,
     schedules: bool = False,
     plot: Path | None = None,
+    kick: float = 0.0,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
-    `push` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
+    `push`, `kick` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
     publishes every step to a Foxglove WebSocket server there (`teleop.live`). With `schedules` the operator's
     command follows each seed's schedule and the summary adds "tracking" (`tracking`); `plot` draws the first
     episode's commanded and achieved posture.
@@ -135,6 +143,8 @@ def evaluate(
     noise = noise + suite_condition.action_noise
     if push > 0:
         env = TorsoPushes(env, push)
+    if kick > 0:
+        env = VelocityKick(env, kick)
     if video is not None:
         env = VideoRecorder(env, video)
     publisher = None
@@ -147,7 +157,7 @@ def evaluate(
                 raise UserError(str(error)) from None
         seeds = list(range(seed, seed + episodes))
         buffer = EpisodeBuffer(env, EPISODE_STEPS)
-        pusher = torso_pushes(env)
+        pusher = perturbation(env)  # the toppling breakdown of pushes, or of a kick
         results, directions, toppled = [], [], []
         for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
             results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules))
@@ -174,6 +184,8 @@ def evaluate(
         "survival_rate": float(np.mean(survived)),
         "survived": int(sum(survived)),
         "push_newtons": push,
+        # The kick (the condition's or KICK): its speed (m/s) and impulse on the body (N·s); None without one.
+        "kick": kick_size(pusher),
         "noise_std": noise,
         "condition": condition,
         "returns": [round(float(r), 3) for r in returns],
@@ -188,6 +200,11 @@ def evaluate(
         "takes_command": controller.takes_command,
         "tracking": tracking(results, measure, env.unwrapped.dt) if schedules else None,
     }
+
+
+def kick_size(pusher: object) -> dict[str, float] | None:
+    """A kick's speed (m/s) and impulse on the body (N·s); None where `pusher` is no kick."""
+    return {"speed": pusher.speed, "impulse": round(pusher.impulse, 2)} if isinstance(pusher, VelocityKick) else None
 
 
 def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str, Any]:
@@ -235,6 +252,7 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         live=(cfg.live_host, cfg.live_port) if cfg.live else None,
         schedules=cfg.schedules,
         plot=cfg.plot,
+        kick=cfg.kick,
     )
     return {**result, "config": config_dict(cfg)}
 

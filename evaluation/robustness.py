@@ -138,6 +138,8 @@ def summarise(chunks: list[dict[str, Any]]) -> dict[str, Any]:
     pushed = {"push_sectors": push_sectors(directions, toppled)} if directions else {}
     if chunks[0]["tracking"] is not None:
         pushed["tracking"] = combine_tracking([e for chunk in chunks for e in chunk["tracking"]["episodes"]])
+    if chunks[0].get("kick"):
+        pushed["kick"] = chunks[0]["kick"]  # its speed (m/s) and impulse (N·s)
     return {
         "survival_rate": float(np.mean([s for chunk in chunks for s in chunk["survivals"]])),
         "mean_return": float(returns.mean()),
@@ -253,7 +255,8 @@ def table(result: dict[str, Any]) -> str:
             sectors = row["push_sectors"]
             counts = zip(sectors["centres"], sectors["toppled"], sectors["pushes"], strict=True)
             shares = ", ".join(f"{centre}: {fell}/{pushes}" for centre, fell, pushes in counts)
-            lines.append(f"{name} pushes that toppled it, by direction (0 forward, 90 left, 180 back): {shares}")
+            what = f"kicks of {row['kick']['impulse']:g} N·s" if "kick" in row else "pushes"
+            lines.append(f"{name} {what} that toppled it, by direction (0 forward, 90 left, 180 back): {shares}")
     return "\n".join(lines)
 
 

@@ -26,12 +26,13 @@ import gymnasium as gym
 import numpy as np
 
 from humanoid.env import QPOS_OBS, QVEL_OBS, model_and_data
-from humanoid.perturbations import TorsoPushes
+from humanoid.perturbations import TorsoPushes, VelocityKick
 
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
 OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
 LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training, recording): (seed, 5)
 # (seed, 6): the schedules of PPO's training episodes on commands (humanoid.commands.SCHEDULE_STREAM)
+# (seed, 7): a kick's time and direction (humanoid.perturbations.KICK_STREAM)
 LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
 # The sensed parts of the observation are its qpos and qvel (`QPOS_OBS`, `QVEL_OBS`); the rest is left noiseless.
@@ -350,6 +351,8 @@ class Condition:
     """Std of Gaussian noise added to every executed action (the rollout adds it)."""
     push: float = 0.0
     """Newtons of a horizontal torso push for 0.1 s every 2 s (`TorsoPushes`)."""
+    kick: float = 0.0
+    """Metres per second of one horizontal kick of the root's velocity (`VelocityKick`)."""
     randomization: Randomization = field(default_factory=Randomization)
     latency: int = 0
     """Env steps between choosing an action and its execution."""
@@ -362,6 +365,8 @@ class Condition:
             env = DomainRandomization(env, self.randomization)
         if self.push > 0:
             env = TorsoPushes(env, self.push)
+        if self.kick > 0:
+            env = VelocityKick(env, self.kick)
         if self.latency > 0:
             env = ActionLatency(env, self.latency)
         if self.obs_noise > 0:
@@ -375,6 +380,9 @@ SUITE: dict[str, Condition] = {
     "push10": Condition(push=10.0),
     "push20": Condition(push=20.0),
     "push40": Condition(push=40.0),
+    "kick0.2": Condition(kick=0.2),
+    "kick0.4": Condition(kick=0.4),
+    "kick0.6": Condition(kick=0.6),
     "mass": Condition(randomization=Randomization(mass=(0.8, 1.2))),
     "friction": Condition(randomization=Randomization(friction=(0.5, 1.5))),
     "strength": Condition(randomization=Randomization(strength=(0.8, 1.2))),

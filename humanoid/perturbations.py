@@ -1,9 +1,11 @@
-"""Perturbations applied to the simulated body, as gymnasium wrappers (`make eval PUSH=`, `make finetune-rl PUSH=`).
+"""Perturbations applied to the simulated body, as gymnasium wrappers (`make eval PUSH=`, `make finetune-rl PUSH=`,
+the suite's `push*` and `kick*` conditions).
 
 `TorsoPushes` reproduces the robustness test of the facts note: a horizontal force on the torso
-for 0.1 s every 2 s, in a random direction. How often 10 N and 20 N pushes topple the expert and
-each policy: docs/concepts/robustness-suite.md, "Where each controller stands"; which directions topple them:
-docs/concepts/robustness-suite.md, "Which pushes topple".
+for 0.1 s every 2 s, in a random direction. `VelocityKick` is the legged-robotics "push_robots" protocol: one
+change of the root's horizontal velocity, in a seeded direction at a seeded time. How often pushes and kicks
+topple the expert and each policy: docs/concepts/robustness-suite.md, "Where each controller stands"; which
+directions topple them: docs/concepts/robustness-suite.md, "Which pushes topple".
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from humanoid.env import model_and_data
 from humanoid.physics import TORSO_BODY, heading
 
 PUSH_STREAM = 2  # random stream of the push directions: (seed, 2); the action noise uses (seed, 1)
+KICK_STREAM = 7  # random stream of a kick's time and direction: (seed, 7); humanoid.conditions lists the others
 
 
 def relative_direction(push: np.ndarray, facing: float) -> float:
@@ -35,7 +38,14 @@ def toppling(starts: list[int], fell: bool) -> list[bool]:
     return [fell and i == len(starts) - 1 for i in range(len(starts))]
 
 
-class TorsoPushes(gym.Wrapper):
+class Perturbation(gym.Wrapper):
+    """A wrapper that pushes the body: `pushes` lists the episode's pushes so far, (start step, direction relative
+    to where the torso faced then, `relative_direction`), for the toppling breakdown (`toppling`)."""
+
+    pushes: list[tuple[int, float]]
+
+
+class TorsoPushes(Perturbation):
     """Pushes the torso with `force` newtons, horizontally, for `duration` s every `period` s.
 
     The first push comes one period after reset, once the body has settled from its drop. Each
@@ -101,10 +111,55 @@ class TorsoPushes(gym.Wrapper):
         return obs, reward, terminated, truncated, {**info, "pushing": pushing}
 
 
-def torso_pushes(env: gym.Env) -> TorsoPushes | None:
-    """The `TorsoPushes` wrapper around `env`, if any."""
+KICK_SECONDS = (4.0, 8.0)
+"""When the kick comes (uniform, seeded): after the 3 s the body takes to land and a schedule's first command to
+start, well before an episode's end (15 s)."""
+
+
+class VelocityKick(Perturbation):
+    """One kick per episode: the root's horizontal velocity changed by `speed` m/s, in a direction and at a time
+    (`KICK_SECONDS`) drawn from a stream seeded by the reset's seed, so episodes repeat exactly. An impulse of
+    `speed` × the body's mass (`impulse`, N·s) at the centre of mass, as a shove or a collision gives; the body
+    survives it if it still stands at the episode's end (the suite's rule)."""
+
+    def __init__(self, env: gym.Env, speed: float, window: tuple[float, float] = KICK_SECONDS) -> None:
+        super().__init__(env)
+        if not (np.isfinite(speed) and speed >= 0):
+            raise ValueError(f"a kick's speed must be a finite number >= 0 m/s, got {speed}")
+        self.speed = speed
+        self.window = window
+        model, self._data = model_and_data(env)
+        self.impulse = speed * float(model.body_subtreemass[0])
+        """The kick's impulse in N·s: its speed times the body's mass."""
+        self._rng = np.random.default_rng()
+        self._steps = self._at = 0
+        self._angle = 0.0
+        self.pushes: list[tuple[int, float]] = []
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng((seed, KICK_STREAM))
+        self._at = round(self._rng.uniform(*self.window) / self.env.unwrapped.dt)
+        self._angle = float(self._rng.uniform(0.0, 2 * np.pi))
+        self._steps = 0
+        self.pushes = []
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        kicking = self._steps == self._at
+        if kicking:
+            kick = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
+            self._data.qvel[:2] += kick  # the free joint's linear velocity, world frame
+            self.pushes.append((self._steps, relative_direction(kick, heading(self._data, TORSO_BODY))))
+        self._steps += 1
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, "kicked": kicking}
+
+
+def perturbation(env: gym.Env) -> Perturbation | None:
+    """The `Perturbation` wrapper around `env` (pushes or a kick), if any."""
     while isinstance(env, gym.Wrapper):
-        if isinstance(env, TorsoPushes):
+        if isinstance(env, Perturbation):
             return env
         env = env.env
     return None

@@ -124,7 +124,7 @@ TARGETS: dict[str, Target] = {
     "eval": Target(
         "evaluation.evaluate",
         EvalConfig,
-        ("policy", "episodes", "seed", "schedules", "push", "noise", "condition", "video", "plot", *_LIVE),
+        ("policy", "episodes", "seed", "schedules", "push", "kick", "noise", "condition", "video", "plot", *_LIVE),
     ),
     "robustness": Target(
         "evaluation.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "schedules", "workers")

@@ -15,7 +15,7 @@ from common.cli import config_dict
 from evaluation.evaluate import EvalConfig, cli, evaluate, evaluate_each, evaluation_pool
 from humanoid.conditions import RANDOMIZATION_STREAM
 from humanoid.env import make_env
-from humanoid.perturbations import TorsoPushes, relative_direction, toppling
+from humanoid.perturbations import TorsoPushes, VelocityKick, relative_direction, toppling
 from humanoid.video import VideoError
 from policies import checkpoint
 from policies.checkpoint import load
@@ -23,6 +23,9 @@ from policies.folder import WEIGHTS_FILE
 from policies.mlp import MLPPolicy, MLPSpec
 
 FIELDS = {"mean_return", "std_return", "mean_length", "survival_rate", "episodes", "seeds"}
+
+
+DT = 0.015  # s, Humanoid-v5's env step
 
 
 def eval_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], list[str]]:
@@ -115,6 +118,49 @@ def test_pushes_follow_the_schedule_and_repeat_with_the_seed() -> None:
         assert np.isclose(np.linalg.norm(force[:2]), 7.0) and force[2] == 0 and not force[3:].any()
     assert not np.allclose(applied[10], applied[20])  # a new direction for each push
     assert all(np.array_equal(a, b) for a, b in zip(applied, forces(3), strict=True))
+
+
+def kicked_velocity(speed: float, seed: int, steps: int) -> tuple[np.ndarray, list[tuple[int, float]]]:
+    """The root's horizontal velocity just before each step of an episode under `VelocityKick` (the window 3 to 5
+    steps in) with the actions zero, and its kicks."""
+    env = VelocityKick(make_env(), speed, window=(3 * DT, 5 * DT))
+    env.reset(seed=seed)
+    velocity = []
+    for _ in range(steps):
+        velocity.append(env.unwrapped.data.qvel[:2].copy())
+        env.step(np.zeros(17))
+    return np.array(velocity), env.pushes
+
+
+def test_a_kick_changes_the_roots_velocity_once_by_its_speed_at_a_seeded_time() -> None:
+    """Known answer against the same episode unkicked: before the kick the velocities are equal, at its step the
+    difference is the kick (0.4 m/s in the seeded direction, which the listed direction names from the torso facing
+    world x), and there is one kick; the same seed repeats it, another moves it."""
+    still, _ = kicked_velocity(0.0, 5, 8)
+    moved, kicks = kicked_velocity(0.4, 5, 8)
+    ((at, direction),) = kicks
+    assert 3 <= at <= 5
+    np.testing.assert_array_equal(moved[: at + 1], still[: at + 1])
+    difference = moved[at + 1] - still[at + 1]  # one env step of contact after the kick
+    assert np.linalg.norm(difference) == pytest.approx(0.4, rel=0.1)
+    assert np.degrees(np.arctan2(difference[1], difference[0])) == pytest.approx(direction, abs=5.0)
+    assert kicked_velocity(0.4, 5, 8)[1] == kicks and kicked_velocity(0.4, 6, 8)[1] != kicks
+
+
+@pytest.mark.parametrize("value", ["-0.1", "nan", "inf"])
+def test_a_kick_that_is_negative_or_not_finite_is_refused_in_one_line(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = eval_cli(["--policy", "expert", "--kick", value], capsys)
+    assert (code, out, err) == (1, [], [f"error: --kick must be a speed >= 0 in m/s, got {float(value)}"])
+
+
+def test_the_suites_kicks_are_reported_in_metres_per_second_and_newton_seconds() -> None:
+    """kick0.4: one kick of 0.4 m/s per episode, its impulse the body's 42.1 kg times it, listed for the toppling
+    breakdown."""
+    result = evaluate("expert", episodes=1, seed=1000, condition="kick0.4")
+    assert result["kick"] == {"speed": 0.4, "impulse": 16.85}  # 0.4 m/s × 42.116 kg
+    assert len(result["pushes"]["direction"]) == 1
 
 
 def test_pushes_are_listed_with_their_direction_seen_from_the_torso() -> None:
