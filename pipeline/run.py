@@ -228,11 +228,14 @@ TIES = (
     ("bc", "dataset", "record", "dataset"),
     ("dagger", "dataset", "record", "dataset"),
     ("dagger", "noise", "record", "noise"),
+    ("dagger", "randomize", "record", "randomize"),
+    ("dagger", "latency", "record", "latency"),
     ("ppo", "bc_policy", "dagger", "policy"),
     ("ppo", "scratch_policy", "", "scratch_policy"),
 )
 """(stage, setting, from stage or "" for the pipeline's own, its setting): each stage's input is the output of the
-stage before it, DAgger's rounds run under the recording's noise, and PPO's figure shows the pipeline's scratch run."""
+stage before it, DAgger's rounds run under the recording's noise, bodies and latency (as given, so that the settings
+its checkpoint saves are the ones the next run compares), and PPO's figure shows the pipeline's scratch run."""
 
 
 def tied(cfg: PipelineConfig) -> PipelineConfig:

@@ -485,7 +485,7 @@ def test_pipeline_defaults_are_the_stages() -> None:
         RecordConfig(),
         student,
         dataclasses.replace(student, policy=paths.BLIND_POLICY, inputs=BLIND_INPUTS),
-        DaggerConfig(eval_episodes=0),
+        DaggerConfig(eval_episodes=0, randomize=RecordConfig().randomize, latency=RecordConfig().latency),
         ScratchConfig(bc_policy=paths.DAGGER_POLICY, final_eval_episodes=0),
         finetune,
     )
