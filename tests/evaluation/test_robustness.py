@@ -37,8 +37,9 @@ def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
     assert all(row["episodes"] == 2 and 0 <= row["survival_rate"] <= 1 for row in summary["conditions"].values())
     assert summary["conditions"]["clean"]["survival_rate"] == 1.0  # the expert stands on clean seeds
     assert [line.split()[0] for line in lines[1 : len(SUITE) + 1]] == list(SUITE)  # the table, a row per condition
-    pushed = [name for name in SUITE if name.startswith("push")]
+    pushed = [name for name in SUITE if SUITE[name].push or SUITE[name].kick]
     assert [line.split()[0] for line in lines[len(SUITE) + 1 : -1]] == pushed  # then a line of directions each
+    assert lines[-2].startswith("kick0.6 kicks of 25.27 N·s that toppled it, by direction")
     saved = json.loads((tmp_path / RESULT_FILE).read_text())
     assert len(saved["conditions"]["latency"]["returns"]) == 2
     assert "push_sectors" in saved["conditions"]["push20"] and "push_sectors" not in saved["conditions"]["clean"]
