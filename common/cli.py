@@ -105,6 +105,11 @@ REMOVED_VALUES: dict[tuple[str, str], Removed] = {
     ("inputs", "odometry"): Removed(
         "inputs 'odometry'", "use pending: the same inputs, then the command in flight and the delay", "pending-inputs"
     ),
+    ("inputs", "proprio+command"): Removed(
+        "inputs 'proprio+command'",
+        "use pending+command (with the leg odometry, which standing needs) or pending+ramp, the students' default",
+        "command-features",
+    ),
 }
 """Values removed from a flag that stays, by (config field name, value)."""
 
@@ -114,6 +119,7 @@ def check_removed(config_class: type, argv: Sequence[str]) -> None:
     to use instead: argparse's own "unrecognized arguments" would not say it. For a config that nests stages'
     configs, also for a stage's flag given without its stage (`--epochs`, `--dagger-epochs`): which to use."""
     fields = {name for name, _ in flat_fields(config_class)}
+    suggested = fields - getattr(config_class, "TIED", frozenset())  # a nesting config's settings it sets itself
     for index, word in enumerate(argv):
         if not word.startswith("--"):
             continue
@@ -122,15 +128,17 @@ def check_removed(config_class: type, argv: Sequence[str]) -> None:
         if name not in fields:
             if name in REMOVED_FLAGS:
                 raise UserError(REMOVED_FLAGS[name].message())
-            nested = [field for field in fields if field.split(".")[-1] == name or field.replace(".", "_") == name]
+            nested = [field for field in suggested if name in (field.rpartition(".")[2], field.replace(".", "_"))]
             if nested:
-                listed = " or ".join(f"{flag(field)} ({field.upper()}=)" for field in sorted(nested))
-                raise UserError(f"{flag(name)} is a stage's setting here: {listed}")
+                flags = [flag(field) for field in sorted(nested)]
+                listed = " or ".join([", ".join(flags[:-1]), flags[-1]] if len(flags) > 2 else flags)
+                raise UserError(f"{flag(name)} is a stage's setting here: {listed} (`make help` lists Make's names)")
             continue
         if not equals:
             value = argv[index + 1] if index + 1 < len(argv) else ""
-        if (name, value) in REMOVED_VALUES:
-            raise UserError(REMOVED_VALUES[name, value].message())
+        own_name = name.rpartition(".")[2]  # a nested stage's `--record.controller` is its stage's `--controller`
+        if (own_name, value) in REMOVED_VALUES:
+            raise UserError(REMOVED_VALUES[own_name, value].message())
 
 
 def first_line(error: BaseException) -> str:

@@ -7,14 +7,18 @@ object, with the run's full settings under "config"; `evaluate()` returns the sa
 them) to callers such as `bc.train`.
 
     PUSH=F     a horizontal push of F newtons on the torso for 0.1 s every 2 s, random direction
+    KICK=Δv    a velocity kick instead: once per episode, at a seeded time 4-8 s in, the root's horizontal velocity
+               changes by Δv m/s in a seeded direction (`humanoid.perturbations.VelocityKick`)
     NOISE=σ    Gaussian noise of std σ added to every executed action (then clipped)
     CONDITION=name  a condition of the robustness suite instead (`humanoid.conditions.SUITE`:
-               masses, friction, motor strength, latency, sensor noise, pushes; docs/concepts/robustness-suite.md)
+               masses, friction, motor strength, latency, sensor noise, pushes, kicks;
+               docs/concepts/robustness-suite.md)
     VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
                (docs/how-to/evaluate.md); use a few episodes
-    SCHEDULES=1  the operator's command follows the schedule drawn from each seed (held out: seeds from 1000 are
-               never recorded); the JSON adds "tracking": per command field the error once settled, and the time
-               to settle (`humanoid.commands`; docs/how-to/follow-commands.md)
+    SCHEDULES=1  (the default; SCHEDULES=0 holds the zero command) the operator's command follows the schedule drawn
+               from each seed (held out: seeds from 1000 are never recorded); the JSON adds "tracking": per
+               command field the error once settled, and the time to settle (`humanoid.commands`;
+               docs/how-to/follow-commands.md)
     PLOT=f.png commanded against achieved posture over the first episode, a panel per field
 """
 
@@ -105,6 +109,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
     if not (math.isfinite(cfg.kick) and cfg.kick >= 0):
         raise UserError(f"--kick must be a speed >= 0 in m/s, got {cfg.kick}")
+    if cfg.push and cfg.kick:
+        raise UserError("--push and --kick are two perturbations: give one of them")
     check_non_negative(cfg, "noise")
     if cfg.condition not in SUITE:
         raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")

@@ -117,9 +117,9 @@ def task_for(posture: Posture) -> str:
     return (", ".join(phrases) + " while standing.").capitalize()
 
 
-# Tracking. The achieved posture is read from the observation's qpos part (`QPOS_OBS`), in both the full observation
-# and a recorded frame; settled means every field's error within its row's tolerance (about one key press, half of
-# one for the twist).
+# Tracking. The achieved command is read from the observation's qpos and qvel parts (`QPOS_OBS`, `QVEL_OBS`), in both
+# the full observation and a recorded frame; settled means every field's error within its row's tolerance (about one
+# key press, half of one for the twist).
 SETTLED_SECONDS = 1.0
 """The error once settled is the mean over the last this-many seconds of each command held, after the setpoint's move
 to it (`move_seconds`), at least twice as long: as a schedule holds every command (`HOLD_SECONDS`) but the one the
@@ -132,7 +132,8 @@ class Tracking:
     Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: for a
     posed field the same coordinates of the balanced pose that realises the command (`posture_reference`), so a body
     held exactly there has no error; for another its commanded value. A field's error is the mean over its
-    coordinates (the arms' six angles). `fields` and `readout`: the table and its reader, the project's by default.
+    coordinates (the arms' six angles). `fields` and `readout`: the table and its reader, the project's by default;
+    a new field's code passes both (tests/humanoid/test_command_fields.py adds a forward-speed row this way).
     """
 
     def __init__(

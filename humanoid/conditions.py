@@ -225,7 +225,7 @@ class ActionLatency(gym.Wrapper):
 
     With `share` < 1 only that share of the episodes is delayed, each drawn at reset from the seed's
     stream (seed, LATENCY_STREAM): demonstrations with and without the delay (`make record LATENCY=`),
-    and training under the suite's conditions (`bc.ppo`), where a curriculum changes the share from the
+    and training under the suite's conditions (`rl.finetune`), where a curriculum changes the share from the
     next reset on (`set_latency_share`). `delay` is the episode's.
     """
 

@@ -146,14 +146,12 @@ class VelocityKick(Perturbation):
         return self.env.reset(seed=seed, options=options)
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
-        kicking = self._steps == self._at
-        if kicking:
+        if self._steps == self._at:
             kick = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
             self._data.qvel[:2] += kick  # the free joint's linear velocity, world frame
             self.pushes.append((self._steps, relative_direction(kick, heading(self._data, TORSO_BODY))))
         self._steps += 1
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        return obs, reward, terminated, truncated, {**info, "kicked": kicking}
+        return self.env.step(action)
 
 
 def perturbation(env: gym.Env) -> Perturbation | None:

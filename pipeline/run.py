@@ -20,7 +20,7 @@ through its own `main`.
 A stage is skipped only if its output exists and was made from the same inputs:
 
 - the dataset: its recordings.jsonl (`teleop.recordings`) accounts for every episode in it, and
-  those runs recorded with the pipeline's settings, seeds from SEED (0 when unset), EPISODES in all;
+  those runs recorded with the pipeline's settings, seeds from RECORD.SEED (0 when unset), RECORD.EPISODES in all;
 - a checkpoint: its config.json holds the same settings and its eval.json exists (BC and DAgger here skip
   their evaluation and write none, PPO its final one: STAGE_EVALUATION), and it was made
   from the input the pipeline has now: the dataset's fingerprint (BC: dataset.json; DAgger: `demonstrations`
@@ -56,7 +56,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from bc import dagger as bc_dagger
 from bc import train as bc_train
@@ -104,12 +104,15 @@ OWN = (MADE_BY, "bc.pipeline")
 NOT_COMPARED = frozenset(
     {
         *("progress", "overwrite", "cache", "writer", "front_end", "workers", "backend", "ray_address"),
-        *("update_threads", "eval_episodes", "final_eval_episodes"),
+        *("update_threads", "live", "live_port", "live_host", "final_eval_episodes"),
     }
 )
-"""Settings that change only speed, display, permissions or how many episodes a stage's own evaluation reports: never
-a reason to make an output again (so what `make train-bc` and the other stage targets made with their defaults, the
-pipeline reuses)."""
+"""Settings that change only speed, display, permissions or the final evaluation a stage reports: never a reason to
+make an output again (so what `make record` and the other stage targets made with their defaults, the pipeline
+reuses). BC's and DAgger's `eval_episodes` are of that kind too (`STUDENT_NOT_COMPARED`); PPO's are its validation
+episodes, which choose the actor kept."""
+STUDENT_NOT_COMPARED = NOT_COMPARED | {"eval_episodes"}
+"""For BC and DAgger checkpoints: also how many episodes their evaluation after training ran."""
 
 REUSE, RUN, REMAKE, RESUME = "reuse", "run", "remake", "resume"
 
@@ -128,11 +131,29 @@ def _stage(default: Callable[[], Any], help: str) -> Any:
     return dataclasses.field(default_factory=default, metadata={"help": help})
 
 
+TIES = (
+    ("bc", "dataset", "record", "dataset"),
+    ("dagger", "dataset", "record", "dataset"),
+    ("dagger", "noise", "record", "noise"),
+    ("dagger", "randomize", "record", "randomize"),
+    ("dagger", "latency", "record", "latency"),
+    ("ppo", "bc_policy", "dagger", "policy"),
+    ("ppo", "scratch_policy", "", "scratch_policy"),
+    *((stage, name, "", name) for stage in ("record", "ppo") for name in ("backend", "ray_address")),
+)
+"""(stage, setting, from stage or "" for the pipeline's own, its setting): each stage's input is the output of the
+stage before it, DAgger's rounds run under the recording's noise, bodies and latency (as given, so that the settings
+its checkpoint saves are the ones the next run compares), and PPO's figure shows the pipeline's scratch run."""
+
+
 @dataclass
 class PipelineConfig:
     """Settings of the pipeline: the chained stages' own configs, nested as LeRobot's `TrainPipelineConfig` nests its
     parts (`--record.episodes 50`, `make pipeline RECORD.EPISODES=50`), and what only the pipeline has. A stage's
     input is the output of the stage before it (`stages` ties them: giving a tied setting otherwise is refused)."""
+
+    TIED: ClassVar[frozenset[str]] = frozenset(f"{stage}.{name}" for stage, name, _, _ in TIES)
+    """The nested settings the pipeline sets itself (`TIES`): `common.cli.check_removed` never suggests them."""
 
     record: RecordConfig = _stage(RecordConfig, "the recording of the operator's demonstrations (make record)")
     bc: TrainConfig = _stage(
@@ -224,24 +245,16 @@ def check(cfg: PipelineConfig) -> list[str]:
     return robustness.selected(RobustnessConfig(conditions=cfg.conditions))
 
 
-TIES = (
-    ("bc", "dataset", "record", "dataset"),
-    ("dagger", "dataset", "record", "dataset"),
-    ("dagger", "noise", "record", "noise"),
-    ("dagger", "randomize", "record", "randomize"),
-    ("dagger", "latency", "record", "latency"),
-    ("ppo", "bc_policy", "dagger", "policy"),
-    ("ppo", "scratch_policy", "", "scratch_policy"),
-)
-"""(stage, setting, from stage or "" for the pipeline's own, its setting): each stage's input is the output of the
-stage before it, DAgger's rounds run under the recording's noise, bodies and latency (as given, so that the settings
-its checkpoint saves are the ones the next run compares), and PPO's figure shows the pipeline's scratch run."""
+SHARED_WORKERS = ("record", "dagger", "ppo")
+"""The stages whose `workers` the pipeline's WORKERS sets, when given (unset, each stage's own applies)."""
 
 
 def tied(cfg: PipelineConfig) -> PipelineConfig:
-    """`cfg` with each tied setting (`TIES`) set from its source; UserError in one line for one given otherwise."""
+    """`cfg` with each tied setting (`TIES`, and WORKERS where given) set from its source; UserError in one line for
+    one given otherwise."""
     replaced = {}
-    for stage, name, source, source_name in TIES:
+    workers = [(stage, "workers", "", "workers") for stage in SHARED_WORKERS] if cfg.workers is not None else []
+    for stage, name, source, source_name in (*TIES, *workers):
         config = replaced.get(stage, getattr(cfg, stage))
         value, wanted = getattr(config, name), getattr(getattr(cfg, source) if source else cfg, source_name)
         if value != wanted and value != field_default(PipelineConfig, f"{stage}.{name}"):
@@ -254,25 +267,21 @@ def tied(cfg: PipelineConfig) -> PipelineConfig:
 
 
 def stages(cfg: PipelineConfig) -> Stages:
-    """The stages' configs for `cfg`: its nested stages tied together (`tied`), the blind student and PPO from scratch
-    made from the bc and ppo stages, and the shared worker settings on every stage that has them."""
+    """The stages' configs for `cfg`: its nested stages tied together (`tied`: the shared worker settings too), the
+    blind student and PPO from scratch made from the bc and ppo stages."""
     check(cfg)
     cfg = tied(cfg)
-    shared = {"backend": cfg.backend, "ray_address": cfg.ray_address}
-    if cfg.workers is not None:
-        shared["workers"] = cfg.workers
-    recording = dataclasses.replace(cfg.record, **shared)
-    finetune = dataclasses.replace(cfg.ppo, scratch_policy=cfg.scratch_policy, **shared)
+    finetune = cfg.ppo
     scratch_settings = {
         field.name: getattr(finetune, field.name)
         for field in dataclasses.fields(FinetuneConfig)
         if field.name not in ScratchConfig.OWN
     }
     return Stages(
-        record=recording,
+        record=cfg.record,
         student=cfg.bc,
         blind=dataclasses.replace(cfg.bc, policy=cfg.blind_policy, inputs=BLIND_INPUTS),
-        dagger=dataclasses.replace(cfg.dagger, workers=cfg.workers),
+        dagger=cfg.dagger,
         scratch=ScratchConfig(**{**scratch_settings, "policy": cfg.scratch_policy}),
         finetune=finetune,
     )
@@ -410,7 +419,8 @@ def checkpoint_decision(
         raise UserError(f"{problem}: it is left as it is (choose another {option})")
     training = training_settings(folder)
     saved = training.get(settings_key, {}) if settings_key else training
-    difference = first_difference(saved if isinstance(saved, dict) else {}, cfg, NOT_COMPARED | {"policy"})
+    skip = NOT_COMPARED if isinstance(cfg, FinetuneConfig) else STUDENT_NOT_COMPARED
+    difference = first_difference(saved if isinstance(saved, dict) else {}, cfg, skip | {"policy"})
     if source_remade:
         problem = f"was made from the {source} the pipeline makes again"
     elif difference:

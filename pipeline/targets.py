@@ -34,7 +34,7 @@ from common.cli import field_default, flag, flat_fields
 from common.paths import NEWEST
 from evaluation.evaluate import EvalConfig
 from evaluation.robustness import RobustnessConfig
-from pipeline.run import PipelineConfig
+from pipeline.run import SHARED_WORKERS, TIES, PipelineConfig
 from rl.finetune import FinetuneConfig
 from rl.scratch import ScratchConfig
 from rl.tutorial import TutorialConfig
@@ -194,6 +194,14 @@ TARGETS: dict[str, Target] = {
 }
 
 
+TIED_FROM = {
+    **{f"{stage}.{name}": f"{source}.{source_name}".lstrip(".") for stage, name, source, source_name in TIES},
+    **{f"{stage}.workers": "workers" for stage in SHARED_WORKERS},
+}
+"""The pipeline's nested settings it sets itself (`pipeline.run.TIES`; `workers` when WORKERS is given) -> from
+which: given otherwise, the pipeline refuses them, so the flag reference says so."""
+
+
 def help_text(width: int = 120) -> str:
     """Every target's variables: flag, help and the stage's default, wrapped to `width` columns."""
     lines = [
@@ -244,13 +252,15 @@ def markdown_text() -> str:
         lines += ["", f"## make {name}", "", f"`{command}`: {_cell(summary)}", ""]
         lines += ["| Make variable | flag | default | what it sets |", "|---|---|---|---|"]
         variables = {field_name: var for var, field_name in target.variables.items()}
-        for field in dataclasses.fields(target.config):
-            var = f"`{variables[field.name]}`" if field.name in variables else ""
+        for field_name, field in flat_fields(target.config):
+            var = f"`{variables[field_name]}`" if field_name in variables else ""
             text = field.metadata.get("help", "")
-            default = f"`{target.default(field.name)}`" if target.default(field.name) != "" else '`""`'
-            if "default:" in text and field.name not in dict(target.preset):  # the help says it itself
+            default = f"`{target.default(field_name)}`" if target.default(field_name) != "" else '`""`'
+            if "default:" in text and field_name not in dict(target.preset):  # the help says it itself
                 default = "(in the help)"
-            lines.append(f"| {var} | `{flag(field.name)}` | {_cell(default)} | {_cell(text)} |")
+            if field_name in TIED_FROM and target.config is PipelineConfig:
+                default, text = "(tied)", f"{text}; the pipeline sets it from `{flag(TIED_FROM[field_name])}`"
+            lines.append(f"| {var} | `{flag(field_name)}` | {_cell(default)} | {_cell(text)} |")
         if target.passes_args:
             lines.append(f"| `{ARGS}` | ... | | any other flag above, as typed |")
     return "\n".join(lines) + "\n"

@@ -409,12 +409,11 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
 
     `made_by` (rl.finetune, rl.scratch, pipeline.run) is saved with the settings in config.json.
     """
+    # 'newest' resolved first, so that validate compares POLICY with the student it names.
+    student = chosen_policy(str(cfg.bc_policy), paths.STUDENTS, "make train-bc (after make record)")
+    cfg = dataclasses.replace(cfg, bc_policy=Path(student))
     validate(cfg)
-    cfg = dataclasses.replace(
-        cfg,
-        bc_policy=Path(chosen_policy(str(cfg.bc_policy), paths.STUDENTS, "make train-bc (after make record)")),
-        workers=workers(cfg),  # saved as a number: a resume must split as this run did
-    )
+    cfg = dataclasses.replace(cfg, workers=workers(cfg))  # saved as a number: a resume must split as this run did
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
     demonstrations = bc_dataset(cfg.bc_policy)

@@ -66,9 +66,19 @@ def test_the_pipelines_earlier_variables_say_what_to_use_instead(
     err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--ppo-from=full"], capsys)
     assert err.startswith("error: --ppo-from was removed; ") and "make finetune-rl BC_POLICY=" in err
     err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--epochs", "3"], capsys)
-    assert err.startswith("error: --epochs is a stage's setting here: --bc.epochs (BC.EPOCHS=) or --dagger.epochs")
+    listed = "--bc.epochs, --dagger.epochs or --ppo.epochs"
+    assert err == f"error: --epochs is a stage's setting here: {listed} (`make help` lists Make's names)\n"
     err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--dagger-episodes=3"], capsys)
-    assert err == "error: --dagger-episodes is a stage's setting here: --dagger.episodes (DAGGER.EPISODES=)\n"
+    assert (
+        err
+        == "error: --dagger-episodes is a stage's setting here: --dagger.episodes (`make help` lists Make's names)\n"
+    )
+    # DAgger's noise is tied to the recording's (pipeline.run.TIES): only the recording's is named.
+    err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--noise", "0.1"], capsys)
+    assert err == "error: --noise is a stage's setting here: --record.noise (`make help` lists Make's names)\n"
+    # A removed value of a nested stage's setting is refused as its stage refuses it.
+    err = refused(pipeline.cli, ["--record.dataset", str(dataset), "--record.controller=operator"], capsys)
+    assert err.startswith("error: controller 'operator' was removed; ")
     assert not dataset.exists()
 
 

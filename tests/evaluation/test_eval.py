@@ -155,6 +155,11 @@ def test_a_kick_that_is_negative_or_not_finite_is_refused_in_one_line(
     assert (code, out, err) == (1, [], [f"error: --kick must be a speed >= 0 in m/s, got {float(value)}"])
 
 
+def test_a_push_and_a_kick_together_are_refused_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = eval_cli(["--policy", "expert", "--push", "20", "--kick", "0.2"], capsys)
+    assert (code, out, err) == (1, [], ["error: --push and --kick are two perturbations: give one of them"])
+
+
 def test_the_suites_kicks_are_reported_in_metres_per_second_and_newton_seconds() -> None:
     """kick0.4: one kick of 0.4 m/s per episode, its impulse the body's 42.1 kg times it, listed for the toppling
     breakdown."""

@@ -143,18 +143,27 @@ ODOMETRY_REMOVED = (
 )
 
 
+PROPRIO_COMMAND_REMOVED = (
+    "inputs 'proprio+command' was removed; use pending+command (with the leg odometry, which standing needs) or "
+    "pending+ramp, the students' default (docs/decisions/command-features.md)"
+)
+
+
 @pytest.mark.parametrize("cli", [bc_train.cli, dagger.cli])
-def test_the_removed_odometry_inputs_are_refused_naming_pending(
-    cli: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("inputs", "message"), [("odometry", ODOMETRY_REMOVED), ("proprio+command", PROPRIO_COMMAND_REMOVED)]
+)
+def test_the_removed_inputs_are_refused_naming_what_replaced_them(
+    cli: object, inputs: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """`make train-bc INPUTS=odometry` and `make dagger INPUTS=odometry`: one line naming INPUTS=pending, exit 1,
-    nothing written (the dataset is not even looked at)."""
+    """`make train-bc INPUTS=odometry` and `make dagger INPUTS=proprio+command`: one line naming the input set to use,
+    exit 1, nothing written (the dataset is not even looked at)."""
     folders = ["--dataset", str(tmp_path / "data"), "--policy", str(tmp_path / "policy")]
     if cli is dagger.cli:
         folders += ["--output", str(tmp_path / "aggregate")]
-    assert cli([*folders, "--inputs", "odometry"]) == 1
+    assert cli([*folders, "--inputs", inputs]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"error: {ODOMETRY_REMOVED}"]
+    assert err == [f"error: {message}"]
     assert list(tmp_path.iterdir()) == []
 
 
