@@ -156,6 +156,7 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 	$(PY) -m bench.data_efficiency
 	$(PY) -m bench.latency_students
 	$(PY) -m bench.live_cost
+	$(PY) -m bench.stepping
 	$(PY) -m bench.ppo_throughput
 	$(PY) -m bench.training_seeds
 	$(PY) -m bench.ray_backend

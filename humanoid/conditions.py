@@ -33,6 +33,7 @@ OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
 LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training, recording): (seed, 5)
 # (seed, 6): the schedules of PPO's training episodes on commands (humanoid.commands.SCHEDULE_STREAM)
 # (seed, 7): a kick's time and direction (humanoid.perturbations.KICK_STREAM)
+# (seed, 8): the stepping expert's samples (humanoid.stepping.STEPPING_STREAM)
 LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
 # The sensed parts of the observation are its qpos and qvel (`QPOS_OBS`, `QVEL_OBS`); the rest is left noiseless.

@@ -104,9 +104,16 @@ def _sensed_expert(env: gym.Env) -> Controller:
     return SensedExpert(delay=action_delay(env))
 
 
+def _stepping_expert(env: gym.Env) -> Controller:
+    from humanoid.stepping import SteppingExpert  # noqa: PLC0415 - as _expert
+
+    return SteppingExpert(delay=action_delay(env))
+
+
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
     "expert-sensed": _sensed_expert,
+    "expert-stepping": _stepping_expert,
     "random": lambda env: RandomController(env.action_space),
 }
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.

@@ -11,6 +11,7 @@ from bc.train import TrainConfig
 from bc.train import main as train_bc
 from bench.ppo_throughput import learn
 from bench.record_throughput import cpu_per_episode
+from bench.stepping import standing
 from support import SMALL_BC
 
 pytestmark = pytest.mark.slow  # a whole episode, a whole PPO rollout: seconds
@@ -26,3 +27,8 @@ def test_ppo_throughput_times_one_rollout_and_its_update(recorded: Path, tmp_pat
     train_bc(TrainConfig(dataset=recorded, policy=tmp_path / "bc", **SMALL_BC))
     run = learn(tmp_path / "bc", workers=1, envs=4, timesteps=1)
     assert run.steps_per_s > 0 and run.simulation_s > 0 and run.update_s > 0
+
+
+def test_the_stepping_bench_measures_a_still_stance() -> None:
+    planned, moved = standing(1000)
+    assert planned == 0 and 0 <= moved < 0.02

@@ -1,0 +1,249 @@
+"""The stepping expert: today's LQR balance while the capture point stays over the feet, a sampling planner that steps
+once it leaves (docs/decisions/stepping-teacher.md).
+
+Humanoid-v5's feet are spheres with no ankle: without a step the hips absorb about 0.16 m/s of the body's velocity,
+and every standing controller falls to a 0.2 m/s kick. `SteppingExpert` runs the LQR expert (`humanoid.expert`)
+until the capture point (centre of mass + its velocity / ω) leaves the segment between the feet, or the centre of
+mass moves faster than a standing body does, and from then on plans every env step by predictive sampling, MuJoCo
+MPC's way: spline controls around the previous plan, rolled out on a planning copy of the model (`mujoco.rollout`),
+the cheapest kept. Its cost is MuJoCo MPC's humanoid balance: the capture point over the feet, head high, torso
+upright, feet back at the stance's width, small velocity and effort. Under the zero command and no push the trigger
+never fires, so it stands exactly as the LQR expert does; after a kick it plans to the episode's end (handing back to
+the LQR in a stance other than its design toppled more bodies than it saved: the decision record's table).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium.envs.mujoco as mujoco_envs
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from humanoid.env import QPOS_OBS, QVEL_OBS
+from humanoid.expert import LQRExpert
+from humanoid.lqr import CTRL_LIMIT
+
+STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
+OMEGA = 3.4
+"""sqrt(g / centre-of-mass height) of the standing body, 1/s: the capture point's time constant."""
+STANCE_WIDTH = 0.18
+"""Sideways distance between the feet in the LQR's stance, m."""
+
+
+@dataclass(frozen=True)
+class SteppingDesign:
+    """The planner's settings and the trigger's (docs/decisions/stepping-teacher.md)."""
+
+    samples: int = 64
+    """Control sequences rolled out per env step (the previous plan among them): 32 survived 0.4 m/s kicks about
+    half as often."""
+    horizon: int = 30
+    """Planning steps of `dt` each: 0.45 s, MuJoCo MPC's humanoid horizon."""
+    knots: int = 4
+    """Spline knots over the horizon, linearly interpolated."""
+    sigma: float = 0.15
+    """Std of the knots' Gaussian perturbation (the motors accept ±0.4)."""
+    dt: float = 0.015
+    """The planning model's step, one env step, with the implicitfast integrator (the env's is RK4 at 0.003 x 5)."""
+    trigger_offset: float = 0.02
+    """Plan once the capture point is this far (m) off the segment between the feet: the LQR's schedules reach
+    0.0075 at most."""
+    trigger_speed: float = 0.12
+    """Or once the centre of mass moves this fast (m/s) horizontally: the LQR's schedules reach 0.03."""
+    armed_after: int = 100
+    """Env steps after a reset before the trigger is armed: the landing's drop is the LQR's."""
+    weights: dict[str, float] = field(
+        default_factory=lambda: {
+            "height": 30.0,
+            "capture": 50.0,
+            "centre": 20.0,
+            "upright": 10.0,
+            "velocity": 10.0,
+            "posture": 0.3,
+            "effort": 0.1,
+            "stance": 50.0,
+            "fall": 1000.0,
+        }
+    )
+    """The cost's terms per planning step (`StepPlanner.cost`); the horizon's last step counts 5 times."""
+
+
+def planning_model(design: SteppingDesign) -> mujoco.MjModel:
+    """Humanoid-v5's model with the sensors the cost reads (centre of mass and its velocity, feet, head, torso axes),
+    stepped at `design.dt` with implicitfast and the Newton solver: a few times faster per second planned than the
+    env's, and stable at that step."""
+    spec = mujoco.MjSpec.from_file(str(Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"))
+    body, geom, sensor = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM, mujoco.mjtSensor
+    for kind, objtype, name in (
+        (sensor.mjSENS_SUBTREECOM, body, "torso"),
+        (sensor.mjSENS_SUBTREELINVEL, body, "torso"),
+        (sensor.mjSENS_FRAMEPOS, geom, "left_foot"),
+        (sensor.mjSENS_FRAMEPOS, geom, "right_foot"),
+        (sensor.mjSENS_FRAMEPOS, geom, "head"),
+        (sensor.mjSENS_FRAMEZAXIS, body, "torso"),
+        (sensor.mjSENS_FRAMEXAXIS, body, "torso"),
+    ):
+        spec.add_sensor(type=kind, objtype=objtype, objname=name)
+    model = spec.compile()
+    model.opt.timestep = design.dt
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    model.opt.iterations, model.opt.ls_iterations = 20, 10
+    return model
+
+
+# Where each quantity sits in the planning model's sensordata.
+COM, COM_VEL, LEFT_FOOT, RIGHT_FOOT, HEAD, TORSO_Z, TORSO_X = (slice(3 * i, 3 * i + 3) for i in range(7))
+
+
+def off_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (...) from points (..., 2) to the segments from a to b (..., 2)."""
+    ab = b - a
+    t = np.clip(((point - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-9), 0.0, 1.0)
+    return np.linalg.norm(point - (a + t[..., None] * ab), axis=-1)
+
+
+def stance(sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(fore-aft, sideways) offset of the left foot from the right, in the torso's heading, of sensordata (..., n)."""
+    heading = sensors[..., TORSO_X][..., :2]
+    heading = heading / np.maximum(np.linalg.norm(heading, axis=-1, keepdims=True), 1e-6)
+    apart = sensors[..., LEFT_FOOT][..., :2] - sensors[..., RIGHT_FOOT][..., :2]
+    fore = (apart * heading).sum(-1)
+    side = apart[..., 1] * heading[..., 0] - apart[..., 0] * heading[..., 1]
+    return fore, side
+
+
+class StepPlanner:
+    """Predictive sampling over linear-spline controls, one replan per env step."""
+
+    def __init__(self, design: SteppingDesign, reference: np.ndarray) -> None:
+        """`reference`: the standing pose (qpos) whose joint angles the posture term keeps near."""
+        self.design = design
+        self.model = planning_model(design)
+        self.data = mujoco.MjData(self.model)
+        self._rollout_data = [mujoco.MjData(self.model)]  # one thread: the same plan whatever the machine
+        self.reference = reference
+        self.knot_steps = np.linspace(0.0, design.horizon - 1, design.knots)
+        steps = np.arange(design.horizon)
+        self._at = np.clip(np.searchsorted(self.knot_steps, steps, side="right") - 1, 0, design.knots - 2)
+        self._share = (steps - self.knot_steps[self._at]) / np.diff(self.knot_steps)[self._at]
+        self._state = np.empty(mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        self.plan: np.ndarray | None = None
+        self.rng = np.random.default_rng()
+
+    def reset(self, seed: int | None) -> None:
+        self.plan = None
+        self.rng = np.random.default_rng(None if seed is None else (seed, STEPPING_STREAM))
+
+    def observe(self, obs: np.ndarray) -> np.ndarray:
+        """The planning model at the observed state (root x and y at 0: the cost is translation-invariant); its
+        sensordata."""
+        data = self.data
+        data.qpos[:2] = 0.0
+        data.qpos[2:] = obs[QPOS_OBS]
+        data.qvel[:] = obs[QVEL_OBS]
+        mujoco.mj_forward(self.model, data)
+        return data.sensordata
+
+    def controls(self, knots: np.ndarray) -> np.ndarray:
+        """Knots (..., knots, nu) as controls (..., horizon, nu)."""
+        share = self._share[:, None]
+        return knots[..., self._at, :] * (1.0 - share) + knots[..., self._at + 1, :] * share
+
+    def cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+        """Each rollout's cost (samples,) from its sensordata (samples, horizon, n), controls and qpos."""
+        w = self.design.weights
+        com, velocity = sensors[..., COM], sensors[..., COM_VEL]
+        left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
+        height = sensors[..., HEAD][..., 2] - np.minimum(left[..., 2], right[..., 2])
+        capture = com[..., :2] + 0.3 * velocity[..., :2]  # MuJoCo MPC's capture point
+        centre = 0.5 * (left[..., :2] + right[..., :2])
+        fore, side = stance(sensors)
+        cost = (
+            w["height"] * np.square(np.minimum(height - 1.40, 0.0))
+            + w["capture"] * off_segment(capture, left[..., :2], right[..., :2])
+            + w["centre"] * np.linalg.norm(capture - centre, axis=-1)
+            + w["upright"] * np.square(sensors[..., TORSO_Z][..., :2]).sum(-1)
+            + w["velocity"] * np.square(velocity[..., :2]).sum(-1)
+            + w["posture"] * np.square(qpos[..., 7:] - self.reference[7:]).sum(-1)
+            + w["effort"] * np.square(controls).sum(-1)
+            + w["stance"] * (np.square(fore) + np.square(side - STANCE_WIDTH))
+            + w["fall"] * (com[..., 2] < 0.6)
+        )
+        cost[..., -1] *= 5.0
+        return cost.sum(-1)
+
+    def act(self, start: np.ndarray) -> np.ndarray:
+        """The first control of the best plan from the state `observe` set, `start` the first plan's every knot."""
+        design, nu = self.design, self.model.nu
+        if self.plan is None:
+            self.plan = np.tile(start, (design.knots, 1))
+        else:  # the previous plan, one step on
+            shifted = np.clip(np.round(self.knot_steps + 1).astype(int), 0, design.horizon - 1)
+            self.plan = self.controls(self.plan)[shifted]
+        noise = self.rng.standard_normal((design.samples, design.knots, nu)) * design.sigma
+        noise[0] = 0.0
+        knots = np.clip(self.plan[None] + noise, -CTRL_LIMIT, CTRL_LIMIT)
+        controls = self.controls(knots)
+        mujoco.mj_getState(self.model, self.data, self._state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        states, sensors = rollout.rollout(self.model, self._rollout_data, self._state[None], controls)
+        cost = self.cost(sensors, controls, states[..., 1 : 1 + self.model.nq])
+        self.plan = knots[int(np.argmin(cost))]
+        return self.controls(self.plan)[0]
+
+
+class SteppingExpert:
+    """The LQR expert until the capture point leaves the feet, then `StepPlanner` to the episode's end.
+
+    Told what the LQR expert is told (the 348-dim observation, the body, the delay, the command); deterministic given
+    the reset's seed. `planned` counts the episode's planned steps.
+    """
+
+    name = "expert-stepping"
+    takes_command = True
+
+    def __init__(self, design: SteppingDesign = SteppingDesign(), delay: int = 0) -> None:
+        self.expert = LQRExpert(delay=delay)
+        self.design = design
+        self.planner = StepPlanner(design, self.expert.gains.qpos_ref)
+        self.planned = self.steps = 0
+
+    def set_delay(self, steps: int) -> None:
+        self.expert.set_delay(steps)
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        self.expert.set_body(model)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.expert.reset(seed)
+        self.planner.reset(seed)
+        self.planned = self.steps = 0
+
+    def set_command(self, command: np.ndarray) -> None:
+        self.expert.set_command(command)
+
+    def setpoint(self) -> np.ndarray:
+        return self.expert.setpoint()
+
+    def ran(self, action: np.ndarray) -> None:
+        self.expert.ran(action)
+
+    def triggered(self, sensors: np.ndarray) -> bool:
+        """Whether the capture point has left the segment between the feet or the body moves as no stance does."""
+        velocity = sensors[COM_VEL][:2]
+        capture = sensors[COM][:2] + velocity / OMEGA
+        off = float(off_segment(capture, sensors[LEFT_FOOT][:2], sensors[RIGHT_FOOT][:2]))
+        return off > self.design.trigger_offset or float(np.linalg.norm(velocity)) > self.design.trigger_speed
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        action = self.expert.act(obs)  # every step: its setpoint and pending actions stay current
+        self.steps += 1
+        if self.planned or self.steps > self.design.armed_after:
+            sensors = self.planner.observe(obs)
+            if self.planned or self.triggered(sensors):
+                self.planned += 1
+                return self.planner.act(action).astype(np.float32)
+        return action

@@ -1,0 +1,69 @@
+"""The stepping expert: stands as the LQR expert does until a kick, then steps instead of falling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from humanoid.controllers import make_controller
+from humanoid.env import make_env
+from humanoid.expert import LQRExpert
+from humanoid.perturbations import VelocityKick
+from humanoid.stepping import STANCE_WIDTH, SteppingDesign, SteppingExpert, off_segment, planning_model, stance
+
+KICK_SEED = 1000
+KICK_STEPS = 330  # the kick at 2 s (133 steps), then about 3 s: the LQR expert is down by then
+"""A short episode with its kick early: the known answer below."""
+
+
+def test_the_capture_point_is_measured_off_the_segment_between_the_feet() -> None:
+    left, right = np.array([0.0, 0.09]), np.array([0.0, -0.09])
+    points = np.array([[0.0, 0.0], [0.05, 0.0], [0.0, 0.19], [-0.03, -0.13]])
+    assert off_segment(points, left, right) == pytest.approx([0.0, 0.05, 0.1, 0.05])
+
+
+def test_the_stance_is_read_in_the_torsos_heading() -> None:
+    design = SteppingDesign()
+    model = planning_model(design)
+    import mujoco  # noqa: PLC0415
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = LQRExpert().gains.qpos_ref
+    for yaw in (0.0, 1.0):  # the same stance whichever way the body faces
+        data.qpos[3:7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        mujoco.mj_forward(model, data)
+        fore, side = stance(data.sensordata)
+        assert fore == pytest.approx(0.0, abs=1e-6)
+        assert side == pytest.approx(STANCE_WIDTH, abs=1e-6)
+
+
+def _episode(controller: object, env: object, seed: int) -> tuple[bool, list[np.ndarray]]:
+    obs, _ = env.reset(seed=seed)
+    controller.reset(seed)
+    actions = []
+    for _ in range(env.spec.max_episode_steps):
+        actions.append(controller.act(obs))
+        obs, _, terminated, _, _ = env.step(actions[-1])
+        if terminated:
+            return False, actions
+    return True, actions
+
+
+def test_without_a_kick_it_never_plans_and_acts_as_the_lqr_expert() -> None:
+    env = make_env(max_episode_steps=300)
+    stepping = make_controller("expert-stepping", env)
+    stood, actions = _episode(stepping, env, 1000)
+    _, lqr = _episode(LQRExpert(), env, 1000)
+    assert stood and stepping.planned == 0
+    np.testing.assert_array_equal(np.array(actions), np.array(lqr))
+
+
+def test_a_kick_that_topples_the_lqr_expert_is_survived_by_stepping_the_same_way_each_time() -> None:
+    env = VelocityKick(make_env(max_episode_steps=KICK_STEPS), 0.4, window=(2.0, 2.0))
+    lqr_stood, _ = _episode(LQRExpert(), env, KICK_SEED)
+    stepping = SteppingExpert()
+    stood, actions = _episode(stepping, env, KICK_SEED)
+    assert not lqr_stood
+    assert stood and stepping.planned > 100
+    _, again = _episode(stepping, env, KICK_SEED)
+    np.testing.assert_array_equal(np.array(actions), np.array(again))
