@@ -90,7 +90,7 @@ record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to th
 	$(PY) -m teleop.record $(flags)
 
 # The keys command a learned policy (one that takes a command): pipeline/targets.py's preset flags, then the variables.
-play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY: the newest of the chain's, or a folder)
+play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY: the newest of the chain's, a folder, or expert-stepping)
 	$(PY) -m teleop.record --controller=keyboard --policy=newest --dataset=datasets/play --noise=0 $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it

@@ -39,7 +39,8 @@ OBS_COMMAND = "observation.command"
 # Where the expert's setpoint is at each step on its way to the commanded posture (the same fields): the teacher's
 # internal state, not an input a deployed policy gets. A controller without a setpoint of its own records the command.
 SETPOINT = "setpoint"
-# The push applied to the torso at each step (N, world frame; the keyboard's `p`): a perturbation, not a command (a
+# The push applied to the torso at each step (N, world frame; the keyboard's `p`; its `k` kick as the force that gives
+# its impulse over its step): a perturbation, not a command (a
 # deployed policy cannot know it), so neither `observation.*` nor `action*`, which LeRobot would read.
 PUSH = "push"
 PUSH_NAMES = ("push_x", "push_y")

@@ -10,10 +10,13 @@ directions topple them: docs/concepts/robustness-suite.md, "Which pushes topple"
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
 
 from humanoid.env import model_and_data
 from humanoid.physics import TORSO_BODY, heading
@@ -27,6 +30,12 @@ def relative_direction(push: np.ndarray, facing: float) -> float:
     0 pushes it forward (a push from behind), 90 to its left, 180 backward (a push on its chest)."""
     degrees = np.degrees(np.arctan2(push[1], push[0]) - facing)
     return float(180.0 - (180.0 - degrees) % 360.0)
+
+
+def kick(data: mujoco.MjData, velocity: np.ndarray) -> None:
+    """Change the root's horizontal velocity by `velocity` (m/s, world frame) at once: the whole body's, as a shove's
+    impulse does (`VelocityKick`, and the keyboard's kick)."""
+    data.qvel[:2] += velocity  # the free joint's linear velocity, world frame
 
 
 def toppling(starts: list[int], fell: bool) -> list[bool]:
@@ -147,9 +156,9 @@ class VelocityKick(Perturbation):
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         if self._steps == self._at:
-            kick = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
-            self._data.qvel[:2] += kick  # the free joint's linear velocity, world frame
-            self.pushes.append((self._steps, relative_direction(kick, heading(self._data, TORSO_BODY))))
+            change = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
+            kick(self._data, change)
+            self.pushes.append((self._steps, relative_direction(change, heading(self._data, TORSO_BODY))))
         self._steps += 1
         return self.env.step(action)
 

@@ -34,6 +34,7 @@ from humanoid.commands import command_vector, task_for
 from humanoid.controllers import KEYBOARD, KEYBOARD_EXPERT, Controller, make_controller
 from humanoid.env import model_and_data
 from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
+from humanoid.perturbations import kick
 from humanoid.physics import TORSO_BODY, torso_height
 from humanoid.posture import NEUTRAL, Posture
 
@@ -42,6 +43,9 @@ if TYPE_CHECKING:
 
 PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
 PUSH_SECONDS = 0.1
+KICK_SPEED = 0.4
+"""m/s of the whole body, forward (world x, as the push): a kick the expert falls to and `expert-stepping` steps out
+of (`make play POLICY=expert-stepping`; docs/decisions/stepping-teacher.md)."""
 STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
 
 
@@ -83,6 +87,7 @@ KEY_MAP: tuple[Binding, ...] = (
     *(binding for field in COMMAND_FIELDS for binding in field_bindings(field)),
     Binding(("space",), "back to the neutral stand", lambda s: s.command_posture(NEUTRAL)),
     Binding(("p",), f"push the torso forward ({PUSH_FORCE:g} N for {PUSH_SECONDS:g} s)", lambda s: s.push()),
+    Binding(("k",), f"kick the body forward ({KICK_SPEED:g} m/s at once: a step is the way out)", lambda s: s.kick()),
 )
 KEY_ACTIONS = {key: binding.effect for binding in KEY_MAP for key in binding.keys}
 
@@ -124,6 +129,7 @@ class TeleopSession:
         self.report = report
         self.model, self.data = model_and_data(env)
         self.torso = self.model.body(TORSO_BODY).id
+        self.mass = float(self.model.body_subtreemass[0])
         self.max_steps = env.spec.max_episode_steps
         self.buffer = EpisodeBuffer(env, self.max_steps)
         self.push_steps = max(1, round(PUSH_SECONDS / env.unwrapped.dt))
@@ -138,6 +144,7 @@ class TeleopSession:
         self.t = 0
         self.episode_return = 0.0
         self.pushing_left = 0
+        self.kicking = False
         self.obs: np.ndarray | None = None
         self.noise: np.ndarray | None = None
 
@@ -154,6 +161,10 @@ class TeleopSession:
     def push(self) -> None:
         if self.recording:
             self.pushing_left = self.push_steps
+
+    def kick(self) -> None:
+        if self.recording:
+            self.kicking = True
 
     def start_or_end(self) -> None:
         if self.recording:
@@ -223,6 +234,11 @@ class TeleopSession:
         if not self.recording:
             return
         self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
+        push = self.data.xfrc_applied[self.torso, :2].copy()
+        if self.kicking:  # recorded as the force that gives its impulse over this step
+            kick(self.data, np.array([KICK_SPEED, 0.0]))
+            push[0] += KICK_SPEED * self.mass / self.env.unwrapped.dt
+            self.kicking = False
         self.obs, reward, terminated, truncated = rollout_step(
             self.env,
             self.data,
@@ -234,7 +250,7 @@ class TeleopSession:
             self.buffer,
             command_vector(self.target),
             task_for(self.target),
-            push=self.data.xfrc_applied[self.torso, :2],
+            push=push,
             observer=self.observer,
         )
         self.pushing_left = max(0, self.pushing_left - 1)

@@ -144,8 +144,8 @@ class RecordConfig:
     policy: str | None = setting(
         None,
         "with --controller keyboard: the keys command this policy (a checkpoint folder of a policy that takes a "
-        f"command, or '{NEWEST}': the newest of {', '.join(map(str, paths.LEARNED))}) instead of the expert "
-        "(`make play`)",
+        f"command, '{NEWEST}': the newest of {', '.join(map(str, paths.LEARNED))}, or a registered controller that "
+        "takes one, such as expert-stepping) instead of the expert (`make play`)",
     )
     workers: int | None = setting(
         None,
@@ -263,6 +263,15 @@ def check_played(cfg: RecordConfig) -> None:
         check_controller(cfg.policy, interactive=False)
     except ValueError as error:
         raise UserError(str(error)) from None
+    if cfg.policy in CONTROLLERS:  # a registered controller: the experts follow the keys (`expert-stepping` steps)
+        env = make_env()
+        try:
+            commanded = make_controller(cfg.policy, env).takes_command
+        finally:
+            env.close()
+        if not commanded:
+            raise UserError(f"{cfg.policy} takes no command: the keys would change nothing")
+        return
     from humanoid.learned import takes_command  # noqa: PLC0415 - reads the checkpoint (torch)
 
     if not takes_command(Path(cfg.policy)):

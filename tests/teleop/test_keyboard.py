@@ -11,12 +11,13 @@ import pytest
 
 from common import columns
 from humanoid.commands import DEFAULT_TASK, task_for
-from humanoid.env import make_env
+from humanoid.controllers import make_controller
+from humanoid.env import make_env, model_and_data
 from humanoid.expert import LQRExpert
 from humanoid.posture import Posture
 from support import Terminal, join_observation, read_mcap_episode
 from teleop.dataset_reader import read_episodes, read_frames
-from teleop.keyboard import KEY_MAP, TeleopSession, key_help, parse_keys
+from teleop.keyboard import KEY_MAP, KICK_SPEED, TeleopSession, key_help, parse_keys
 from teleop.record import cli
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -181,3 +182,30 @@ def test_a_keyboard_session_skips_the_seeds_its_dataset_holds(tmp_path: Path) ->
         session.tick()
     store.close()
     assert read_episodes(tmp_path / "dataset", [columns.EPISODE_SEED])[columns.EPISODE_SEED].to_pylist() == [8, 9]
+
+
+def test_the_kick_key_kicks_the_body_and_the_stepping_expert_steps_out_of_it(tmp_path: Path) -> None:
+    """`k` changes the root's forward velocity by KICK_SPEED at once and records the impulse in the push column; the
+    stepping expert, driven by the keys as `make play POLICY=expert-stepping` drives it, stays up by stepping."""
+    env = make_env(5000)
+    store = EpisodeStore(tmp_path / "dataset", DatasetSpec.from_env(env))
+    stepping = make_controller("expert-stepping", env)
+    try:
+        session = TeleopSession(env, stepping, store, 0, 1, 0.0, lambda committed: None)
+        session.press("enter")
+        for _ in range(150):
+            session.tick()
+        before = session.data.qvel[0]
+        session.press("k")
+        session.tick()
+        assert session.data.qvel[0] - before == pytest.approx(KICK_SPEED, abs=0.1)  # one step of dynamics after it
+        for _ in range(200):
+            session.tick()
+        assert session.recording and stepping.planned > 0  # still up, planning its steps
+        session.press("enter")
+    finally:
+        store.close()
+        env.close()
+    push = read_frames(tmp_path / "dataset")[columns.PUSH]
+    mass = float(model_and_data(env)[0].body_subtreemass[0])
+    assert push[:, 0].max() == pytest.approx(KICK_SPEED * mass / env.unwrapped.dt)

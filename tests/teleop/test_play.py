@@ -258,3 +258,12 @@ def test_a_policy_without_the_keyboard_is_refused_in_one_line(policies: Policies
         "error: --policy is driven by the keys: it needs --controller keyboard, got expert"
     ]
     assert not (tmp_path / "play").exists()
+
+
+def test_a_registered_controller_that_takes_no_command_is_refused_in_one_line(tmp_path: Path) -> None:
+    """`make play POLICY=random`: the registered controllers the keys can drive are those that take a command (the
+    experts, `expert-stepping` among them); another is refused in one line, nothing written."""
+    result = refused(tmp_path, *PLAY[3:], "--policy", "random")
+    assert result.returncode == 1
+    assert result.stderr.splitlines() == ["error: random takes no command: the keys would change nothing"]
+    assert not (tmp_path / "play").exists()
