@@ -209,3 +209,9 @@ def test_the_kick_key_kicks_the_body_and_the_stepping_expert_steps_out_of_it(tmp
     push = read_frames(tmp_path / "dataset")[columns.PUSH]
     mass = float(model_and_data(env)[0].body_subtreemass[0])
     assert push[:, 0].max() == pytest.approx(KICK_SPEED * mass / env.unwrapped.dt)
+    # Foxglove's view of it: in the MCAP's /tf a foot leaves the floor and lands elsewhere.
+    episode = read_mcap_episode(next((tmp_path / "dataset").rglob("*.mcap")))
+    feet = episode.body_position[:, [episode.body_frames.index(name) for name in ("left_foot", "right_foot")]]
+    lifted = (feet[150:, :, 2] - feet[150, :, 2]).max()
+    moved = np.linalg.norm(feet[-1, :, :2] - feet[150, :, :2], axis=-1).max()
+    assert lifted > 0.05 and moved > 0.1
