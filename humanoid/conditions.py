@@ -283,13 +283,16 @@ def action_delay(env: gym.Env) -> int:
     return delay
 
 
-def recording_env(env: gym.Env, randomization: Randomization, latency_share: float) -> gym.Env:
-    """`env` as `make record` drives it: the physical parameters drawn per episode, and one step of action latency
-    on `latency_share` of the episodes (also drawn per episode); `recorded_parameters` names what is drawn."""
+def recording_env(env: gym.Env, randomization: Randomization, latency_share: float, kick: float = 0.0) -> gym.Env:
+    """`env` as `make record` drives it: the physical parameters drawn per episode, one step of action latency
+    on `latency_share` of the episodes (also drawn per episode), and one `kick` (m/s) per episode as the suite's kick
+    conditions give it (`VelocityKick`, recorded in the push column); `recorded_parameters` names what is drawn."""
     if randomization.active:
         env = DomainRandomization(env, randomization)  # draws at each seeded reset; the controller sees nominal
     if latency_share > 0:
         env = ActionLatency(env, 1, latency_share)
+    if kick > 0:
+        env = VelocityKick(env, kick)
     return env
 
 

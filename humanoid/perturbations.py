@@ -154,6 +154,14 @@ class VelocityKick(Perturbation):
         self.pushes = []
         return self.env.reset(seed=seed, options=options)
 
+    def recorded_push(self, step: int) -> np.ndarray:
+        """The dataset's push column (`common.columns.PUSH`) at env step `step`, taken next: the force that gives the
+        kick's impulse over that step (N, world frame), as the keyboard's kick records it; zeros before and after."""
+        if step != self._at:
+            return np.zeros(2)
+        change = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
+        return change * self.impulse / max(self.speed, 1e-12) / self.env.unwrapped.dt
+
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         if self._steps == self._at:
             change = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])

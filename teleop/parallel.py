@@ -43,6 +43,7 @@ class RolloutSettings:
     randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
     latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
     schedules: bool = False  # the operator's command follows the schedule drawn from each seed
+    kick: float = 0.0  # one kick of the root's velocity per episode, m/s (humanoid.perturbations.VelocityKick)
     labeller: str | None = None  # a registered controller that labels every state (DAgger's expert), or none
     policy: MLPPolicy | None = None  # the controller's weights, held in memory (DAgger's round policy, `controller`
     # naming it), instead of a registered controller or checkpoint folder by that name
@@ -57,7 +58,7 @@ class Simulator:
         from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
 
         self.settings = settings
-        self.env = recording_env(make_env(settings.max_steps), settings.randomization, settings.latency)
+        self.env = recording_env(make_env(settings.max_steps), settings.randomization, settings.latency, settings.kick)
         if settings.policy is None:
             self.controller = make_controller(settings.controller, self.env)
         else:

@@ -134,6 +134,12 @@ class RecordConfig:
         "share of the episodes whose actions execute one env step late, drawn per episode from its seed; the delay "
         f"is stored with the episode ({columns.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
     )
+    kick: float = setting(
+        0.0,
+        "one kick of the root's horizontal velocity per episode, in m/s, in a seeded direction 4 to 8 s in (the "
+        "suite's kick conditions), recorded in the push column; 0 = none. The teacher that steps out of it: "
+        "expert-stepping",
+    )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     schedules: bool = setting(
         True,
@@ -215,7 +221,9 @@ def validate(cfg: RecordConfig) -> None:
     except ValueError as error:
         raise UserError(str(error)) from None
     check_positive(cfg, "episodes", "max_steps", "workers")
-    check_non_negative(cfg, "noise")
+    check_non_negative(cfg, "noise", "kick")
+    if cfg.controller in INTERACTIVE and cfg.kick:
+        raise UserError(f"--controller {cfg.controller} kicks with its k key: --kick must be 0")
     if cfg.seed is not None and not 0 <= cfg.seed <= SEED_LIMIT - cfg.episodes:
         raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
@@ -333,7 +341,7 @@ def _record(
     made_by: str | None,
 ) -> RecordSummary:
     randomization = parse_randomization(cfg.randomize)
-    env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency)
+    env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency, cfg.kick)
     parameters = recorded_parameters(randomization, cfg.latency)
     # Before the dataset opens: a port in use or a bad host is refused with nothing written.
     live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
@@ -417,6 +425,7 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
         parse_randomization(cfg.randomize),
         cfg.latency,
         cfg.schedules,
+        cfg.kick,
     )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":

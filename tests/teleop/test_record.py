@@ -106,6 +106,9 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--episodes", "-3"], "--episodes must be positive"),
         (["--noise", "-0.1"], "--noise must be >= 0"),
         (["--noise", "inf"], "--noise must be >= 0"),
+        (["--kick", "-0.4"], "--kick must be >= 0"),
+        (["--kick", "nan"], "--kick must be >= 0"),
+        (["--controller", "keyboard", "--kick", "0.4"], "kicks with its k key: --kick must be 0"),
         (["--seed", "-1"], "--seed must be >= 0"),
         (["--seed", str(2**63 - 1), "--episodes", "2"], "below 2**63"),
     ],
@@ -264,3 +267,15 @@ def test_interrupted_session_still_logs_what_it_committed(tmp_path: Path, monkey
     (line,) = recordings.read(root)
     assert (line["complete"], line["count"], line["episodes"]) == (False, 1, [0, 0])
     assert read_info(root)["total_episodes"] == 1
+
+
+def test_a_kicked_recording_holds_the_kicks_impulse_in_its_push_column(tmp_path: Path) -> None:
+    """`make record KICK=0.4`: each episode is kicked once at its seeded step, whose push column holds the force that
+    gives the impulse over that step (seed 0 is kicked at step 277); every other row is zero."""
+    root = tmp_path / "kicked"
+    record_short(root, controller="expert", episodes=1, max_steps=300, kick=0.4, schedules=False, latency=0.0)
+    push = read_frames(root)[columns.PUSH]
+    model = make_env().unwrapped.model
+    force = 0.4 * float(model.body_subtreemass[0]) / 0.015
+    assert np.flatnonzero(np.linalg.norm(push, axis=1)).tolist() == [277]
+    assert np.linalg.norm(push[277]) == pytest.approx(force, rel=1e-5)
