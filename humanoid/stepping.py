@@ -31,6 +31,9 @@ OMEGA = 3.4
 """sqrt(g / centre-of-mass height) of the standing body, 1/s: the capture point's time constant."""
 STANCE_WIDTH = 0.18
 """Sideways distance between the feet in the LQR's stance, m."""
+HEAD_HEIGHT = 1.40
+"""The head's height above the lower foot's centre in the LQR's stance, m: the cost asks for at least this (less
+the commanded crouch)."""
 
 
 @dataclass(frozen=True)
@@ -120,12 +123,14 @@ class StepPlanner:
     """Predictive sampling over linear-spline controls, one replan per env step."""
 
     def __init__(self, design: SteppingDesign, reference: np.ndarray) -> None:
-        """`reference`: the standing pose (qpos) whose joint angles the posture term keeps near."""
+        """`reference`: the pose (qpos) whose joint angles the posture term keeps near and whose height the head's
+        term asks for, read at each plan: the LQR expert's setpoint, so the commanded posture holds while stepping."""
         self.design = design
         self.model = planning_model(design)
         self.data = mujoco.MjData(self.model)
         self._rollout_data = [mujoco.MjData(self.model)]  # one thread: the same plan whatever the machine
         self.reference = reference
+        self.standing_height = float(reference[2])
         self.knot_steps = np.linspace(0.0, design.horizon - 1, design.knots)
         steps = np.arange(design.horizon)
         self._at = np.clip(np.searchsorted(self.knot_steps, steps, side="right") - 1, 0, design.knots - 2)
@@ -163,7 +168,7 @@ class StepPlanner:
         centre = 0.5 * (left[..., :2] + right[..., :2])
         fore, side = stance(sensors)
         cost = (
-            w["height"] * np.square(np.minimum(height - 1.40, 0.0))
+            w["height"] * np.square(np.minimum(height - HEAD_HEIGHT - (self.reference[2] - self.standing_height), 0.0))
             + w["capture"] * off_segment(capture, left[..., :2], right[..., :2])
             + w["centre"] * np.linalg.norm(capture - centre, axis=-1)
             + w["upright"] * np.square(sensors[..., TORSO_Z][..., :2]).sum(-1)
@@ -208,7 +213,7 @@ class SteppingExpert:
     def __init__(self, design: SteppingDesign = SteppingDesign(), delay: int = 0) -> None:
         self.expert = LQRExpert(delay=delay)
         self.design = design
-        self.planner = StepPlanner(design, self.expert.gains.qpos_ref)
+        self.planner = StepPlanner(design, self.expert.qpos_ref)  # the setpoint, which the expert moves in place
         self.planned = self.steps = 0
 
     def set_delay(self, steps: int) -> None:
