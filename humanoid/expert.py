@@ -220,7 +220,27 @@ class Predictor:
         return data.qpos.copy(), data.qvel.copy()
 
 
-class SensedExpert:
+class ExpertAround:
+    """A controller built around an `LQRExpert` (`self.expert`): the command, the delay, its setpoint and the actions
+    that ran are the expert's; what it reads and how it acts are the subclass's."""
+
+    expert: LQRExpert
+    takes_command = True
+
+    def set_delay(self, steps: int) -> None:
+        self.expert.set_delay(steps)
+
+    def set_command(self, command: np.ndarray) -> None:
+        self.expert.set_command(command)
+
+    def setpoint(self) -> np.ndarray:
+        return self.expert.setpoint()
+
+    def ran(self, action: np.ndarray) -> None:
+        self.expert.ran(action)
+
+
+class SensedExpert(ExpertAround):
     """The LQR expert acting on what a robot senses: the state `LegOdometry` estimates from the sensed features.
 
     The expert's gain reads the torso's height and linear velocity, which no sensor measures; fed the
@@ -230,7 +250,6 @@ class SensedExpert:
     """
 
     name = "expert-sensed"
-    takes_command = True
 
     def __init__(self, model: mujoco.MjModel | None = None, delay: int = 0) -> None:
         """The expert designed on `model` (like `LQRExpert`), without the planned landing: on the estimate it
@@ -241,24 +260,12 @@ class SensedExpert:
         self.sensed = Proprioception(self.expert.model)
         self.estimator = LegOdometry(self.expert.model)
 
-    def set_delay(self, steps: int) -> None:
-        self.expert.set_delay(steps)
-
     def set_body(self, model: mujoco.MjModel) -> None:
         """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""
 
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)
         self.estimator.reset()
-
-    def set_command(self, command: np.ndarray) -> None:
-        self.expert.set_command(command)
-
-    def setpoint(self) -> np.ndarray:
-        return self.expert.setpoint()
-
-    def ran(self, action: np.ndarray) -> None:
-        self.expert.ran(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return self.expert.act_on_state(*self.estimator(self.sensed(obs)))

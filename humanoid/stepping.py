@@ -23,7 +23,7 @@ import numpy as np
 from mujoco import rollout
 
 from humanoid.env import QPOS_OBS, QVEL_OBS
-from humanoid.expert import LQRExpert
+from humanoid.expert import ExpertAround, LQRExpert
 from humanoid.lqr import CTRL_LIMIT
 
 STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
@@ -200,7 +200,7 @@ class StepPlanner:
         return self.controls(self.plan)[0]
 
 
-class SteppingExpert:
+class SteppingExpert(ExpertAround):
     """The LQR expert until the capture point leaves the feet, then `StepPlanner` to the episode's end.
 
     Told what the LQR expert is told (the 348-dim observation, the body, the delay, the command); deterministic given
@@ -208,16 +208,12 @@ class SteppingExpert:
     """
 
     name = "expert-stepping"
-    takes_command = True
 
     def __init__(self, design: SteppingDesign = SteppingDesign(), delay: int = 0) -> None:
         self.expert = LQRExpert(delay=delay)
         self.design = design
         self.planner = StepPlanner(design, self.expert.qpos_ref)  # the setpoint, which the expert moves in place
         self.planned = self.steps = 0
-
-    def set_delay(self, steps: int) -> None:
-        self.expert.set_delay(steps)
 
     def set_body(self, model: mujoco.MjModel) -> None:
         self.expert.set_body(model)
@@ -226,15 +222,6 @@ class SteppingExpert:
         self.expert.reset(seed)
         self.planner.reset(seed)
         self.planned = self.steps = 0
-
-    def set_command(self, command: np.ndarray) -> None:
-        self.expert.set_command(command)
-
-    def setpoint(self) -> np.ndarray:
-        return self.expert.setpoint()
-
-    def ran(self, action: np.ndarray) -> None:
-        self.expert.ran(action)
 
     def triggered(self, sensors: np.ndarray) -> bool:
         """Whether the capture point has left the segment between the feet or the body moves as no stance does."""
