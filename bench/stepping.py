@@ -35,16 +35,18 @@ def standing(seed: int) -> tuple[int, float]:
     steps = env.spec.max_episode_steps
     start = steps - round(STILL_SECONDS / env.unwrapped.dt)
     feet, moved = None, 0.0
-    for t in range(steps):
-        obs, _, terminated, _, _ = env.step(expert.act(obs))
-        if terminated:
-            return expert.planned, float("inf")
-        now = np.array([data.geom(name).xpos[:2] for name in FEET])
-        if t == start:
-            feet = now
-        elif feet is not None:
-            moved = max(moved, float(np.linalg.norm(now - feet, axis=1).max()))
-    env.close()
+    try:
+        for t in range(steps):
+            obs, _, terminated, _, _ = env.step(expert.act(obs))
+            if terminated:
+                return expert.planned, float("inf")
+            now = np.array([data.geom(name).xpos[:2] for name in FEET])
+            if t == start:
+                feet = now
+            elif feet is not None:
+                moved = max(moved, float(np.linalg.norm(now - feet, axis=1).max()))
+    finally:
+        env.close()
     return expert.planned, moved
 
 

@@ -33,10 +33,14 @@ def make_env(max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = N
     return gym.make(ENV_ID, max_episode_steps=max_episode_steps, render_mode=render_mode, **options)
 
 
+def humanoid_xml() -> Path:
+    """Gymnasium's own MJCF of the Humanoid-v5 body."""
+    return Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"
+
+
 def humanoid_model() -> mujoco.MjModel:
     """Load the model that gymnasium's Humanoid-v5 simulates, from gymnasium's own XML."""
-    xml = Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"
-    return mujoco.MjModel.from_xml_path(str(xml))
+    return mujoco.MjModel.from_xml_path(str(humanoid_xml()))
 
 
 @functools.cache

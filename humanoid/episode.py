@@ -20,7 +20,7 @@ from humanoid.commands import command_posture, command_schedule, task_for
 from humanoid.conditions import action_delay
 from humanoid.controllers import Controller
 from humanoid.env import body_poses, model_and_data
-from humanoid.perturbations import VelocityKick, perturbation
+from humanoid.perturbations import perturbation
 
 
 @dataclass
@@ -205,8 +205,7 @@ def run_episode(
         else np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
     )
     acting = [controller] if labeller is None else [controller, labeller]
-    kicked = perturbation(env)
-    kicked = kicked if isinstance(kicked, VelocityKick) else None  # its push column; the torso pushes record none
+    perturbed = perturbation(env)
 
     obs, info = env.reset(seed=seed)
     for each in acting:
@@ -221,7 +220,7 @@ def run_episode(
             for each in acting:
                 each.set_command(commands[t])
             task = task_for(command_posture(commands[t]))
-        push = None if kicked is None else kicked.recorded_push(t)
+        push = None if perturbed is None else perturbed.recorded_push(t)
         obs, _, terminated, truncated = rollout_step(
             env,
             data,

@@ -38,6 +38,12 @@ def kick(data: mujoco.MjData, velocity: np.ndarray) -> None:
     data.qvel[:2] += velocity  # the free joint's linear velocity, world frame
 
 
+def kick_force(velocity: np.ndarray, mass: float, dt: float) -> np.ndarray:
+    """The force that gives a kick of `velocity` to a body of `mass` over one env step of `dt` s: how the push column
+    (`common.columns.PUSH`) records a kick."""
+    return np.asarray(velocity) * mass / dt
+
+
 def toppling(starts: list[int], fell: bool) -> list[bool]:
     """Which of an episode's pushes (their start steps, in order) toppled it: the last one begun before a fall.
 
@@ -52,6 +58,11 @@ class Perturbation(gym.Wrapper):
     to where the torso faced then, `relative_direction`), for the toppling breakdown (`toppling`)."""
 
     pushes: list[tuple[int, float]]
+
+    def recorded_push(self, step: int) -> np.ndarray | None:
+        """The push column (`common.columns.PUSH`) of env step `step`, taken next, or None where the perturbation is
+        not known before its step (`TorsoPushes` draws each push's direction as it comes)."""
+        return None
 
 
 class TorsoPushes(Perturbation):
@@ -138,18 +149,20 @@ class VelocityKick(Perturbation):
         self.speed = speed
         self.window = window
         model, self._data = model_and_data(env)
-        self.impulse = speed * float(model.body_subtreemass[0])
+        self._mass = float(model.body_subtreemass[0])
+        self.impulse = speed * self._mass
         """The kick's impulse in N·s: its speed times the body's mass."""
         self._rng = np.random.default_rng()
         self._steps = self._at = 0
-        self._angle = 0.0
+        self._change = np.zeros(2)
         self.pushes: list[tuple[int, float]] = []
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         if seed is not None:
             self._rng = np.random.default_rng((seed, KICK_STREAM))
         self._at = round(self._rng.uniform(*self.window) / self.env.unwrapped.dt)
-        self._angle = float(self._rng.uniform(0.0, 2 * np.pi))
+        angle = self._rng.uniform(0.0, 2 * np.pi)
+        self._change = self.speed * np.array([np.cos(angle), np.sin(angle)])  # the episode's kick, m/s
         self._steps = 0
         self.pushes = []
         return self.env.reset(seed=seed, options=options)
@@ -159,14 +172,12 @@ class VelocityKick(Perturbation):
         kick's impulse over that step (N, world frame), as the keyboard's kick records it; zeros before and after."""
         if step != self._at:
             return np.zeros(2)
-        change = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
-        return change * self.impulse / max(self.speed, 1e-12) / self.env.unwrapped.dt
+        return kick_force(self._change, self._mass, self.env.unwrapped.dt)
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         if self._steps == self._at:
-            change = self.speed * np.array([np.cos(self._angle), np.sin(self._angle)])
-            kick(self._data, change)
-            self.pushes.append((self._steps, relative_direction(change, heading(self._data, TORSO_BODY))))
+            kick(self._data, self._change)
+            self.pushes.append((self._steps, relative_direction(self._change, heading(self._data, TORSO_BODY))))
         self._steps += 1
         return self.env.step(action)
 

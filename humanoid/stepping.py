@@ -15,14 +15,12 @@ the LQR in a stance other than its design toppled more bodies than it saved: the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-import gymnasium.envs.mujoco as mujoco_envs
 import mujoco
 import numpy as np
 from mujoco import rollout
 
-from humanoid.env import QPOS_OBS, QVEL_OBS
+from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
 from humanoid.expert import ExpertAround, LQRExpert
 from humanoid.lqr import CTRL_LIMIT
 
@@ -78,7 +76,7 @@ def planning_model(design: SteppingDesign) -> mujoco.MjModel:
     """Humanoid-v5's model with the sensors the cost reads (centre of mass and its velocity, feet, head, torso axes),
     stepped at `design.dt` with implicitfast and the Newton solver: a few times faster per second planned than the
     env's, and stable at that step."""
-    spec = mujoco.MjSpec.from_file(str(Path(mujoco_envs.__file__).parent / "assets" / "humanoid.xml"))
+    spec = mujoco.MjSpec.from_file(str(humanoid_xml()))
     body, geom, sensor = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM, mujoco.mjtSensor
     for kind, objtype, name in (
         (sensor.mjSENS_SUBTREECOM, body, "torso"),

@@ -34,7 +34,7 @@ from humanoid.commands import command_vector, task_for
 from humanoid.controllers import KEYBOARD, KEYBOARD_EXPERT, Controller, make_controller
 from humanoid.env import model_and_data
 from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
-from humanoid.perturbations import kick
+from humanoid.perturbations import kick, kick_force
 from humanoid.physics import TORSO_BODY, torso_height
 from humanoid.posture import NEUTRAL, Posture
 
@@ -236,8 +236,9 @@ class TeleopSession:
         self.data.xfrc_applied[self.torso, :3] = (PUSH_FORCE, 0.0, 0.0) if self.pushing_left else 0.0
         push = self.data.xfrc_applied[self.torso, :2].copy()
         if self.kicking:  # recorded as the force that gives its impulse over this step
-            kick(self.data, np.array([KICK_SPEED, 0.0]))
-            push[0] += KICK_SPEED * self.mass / self.env.unwrapped.dt
+            change = np.array([KICK_SPEED, 0.0])
+            kick(self.data, change)
+            push += kick_force(change, self.mass, self.env.unwrapped.dt)
             self.kicking = False
         self.obs, reward, terminated, truncated = rollout_step(
             self.env,
