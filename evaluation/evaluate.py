@@ -19,6 +19,8 @@ them) to callers such as `bc.train`.
                from each seed (held out: seeds from 1000 are never recorded); the JSON adds "tracking": per
                command field the error once settled, and the time to settle (`humanoid.commands`;
                docs/how-to/follow-commands.md)
+    WALKING=1  the schedules mix walks in (forward, sideways and turning speeds: `humanoid.commands.WALKING_SHARE`),
+               and tracking measures the velocity fields too (docs/how-to/walk.md)
     PLOT=f.png commanded against achieved posture over the first episode, a panel per field
 """
 
@@ -49,8 +51,8 @@ from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.threads import one_blas_thread
 from common.workers import forkserver_context
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_SIZE
-from humanoid.commands import PLOTTED, Tracking, combine_tracking, tracking_summary
+from humanoid.command_fields import COMMAND_NAMES, task_fields
+from humanoid.commands import PLOTTED, Tracking, combine_tracking, trailing_mean
 from humanoid.conditions import SUITE
 from humanoid.controllers import CONTROLLERS, Controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
@@ -93,6 +95,11 @@ class EvalConfig:
         "tracking error per command field (a policy that takes no command is run blind to it); false: the zero "
         "command, stand still",
     )
+    walking: bool = setting(
+        False,
+        "the schedules mix walks in (forward, sideways and turning speeds), and the tracking measures them too "
+        "(docs/how-to/walk.md)",
+    )
     plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
     progress: bool = setting(True, "show a progress bar")
     live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")
@@ -118,6 +125,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError("--condition brings its own perturbation: leave --push, --kick and --noise at 0 with it")
     if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
         raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
+    if cfg.walking and not cfg.schedules:
+        raise UserError("--walking draws walking schedules: leave --schedules on with it")
     if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
         raise UserError(f"--plot must be a .png path, got {cfg.plot}")
 
@@ -135,13 +144,14 @@ def evaluate(
     schedules: bool = False,
     plot: Path | None = None,
     kick: float = 0.0,
+    walking: bool = False,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
     `push`, `kick` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
     publishes every step to a Foxglove WebSocket server there (`teleop.live`). With `schedules` the operator's
-    command follows each seed's schedule and the summary adds "tracking" (`tracking`); `plot` draws the first
-    episode's commanded and achieved posture.
+    command follows each seed's schedule (`walking`: with walks) and the summary adds "tracking" (`tracking`, of the
+    fields the schedules command); `plot` draws the first episode's commanded and achieved posture.
     """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
     suite_condition = SUITE[condition]
@@ -166,7 +176,9 @@ def evaluate(
         pusher = perturbation(env)  # the toppling breakdown of pushes, or of a kick
         results, directions, toppled = [], [], []
         for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
-            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules))
+            results.append(
+                run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules, walking=walking)
+            )
             if pusher is not None:
                 directions += [direction for _, direction in pusher.pushes]
                 toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
@@ -174,7 +186,7 @@ def evaluate(
         if publisher is not None:
             publisher.close()
         env.close()
-    measure = Tracking(nominal_model())  # the nominal body's targets, solved once per process
+    measure = Tracking(nominal_model(), task_fields(walking))  # the nominal body's targets, solved once per process
     if plot is not None:
         plot_tracking(results[0], measure, env.unwrapped.dt, plot)
     returns = np.array([episode.episode_return for episode in results])
@@ -204,6 +216,7 @@ def evaluate(
         "parameters": [episode.parameters for episode in results],
         "video": None if video is None else str(video),
         "takes_command": controller.takes_command,
+        "walking": walking,
         "tracking": tracking(results, measure, env.unwrapped.dt) if schedules else None,
     }
 
@@ -216,7 +229,7 @@ def kick_size(pusher: object) -> dict[str, float] | None:
 def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str, Any]:
     """Over `episodes` (until each ends): per command field the mean error once settled, the mean time to settle
     (`humanoid.commands.tracking_summary`), and each episode's."""
-    each = [tracking_summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
+    each = [measure.summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
     return {**combine_tracking(each), "episodes": each}
 
 
@@ -224,16 +237,21 @@ def plot_tracking(episode: Episode, measure: Tracking, dt: float, path: Path) ->
     """A PNG of `episode`'s commanded (and the setpoint toward it) against achieved posture, a panel per field."""
     from matplotlib.figure import Figure  # noqa: PLC0415 - the object API draws to files without a GUI backend
 
-    achieved = dict(zip(PLOTTED, measure.achieved(episode.observation).T, strict=True))
+    plotted = [field for field in PLOTTED if field in measure.fields]
+    achieved = dict(zip(plotted, measure.achieved(episode.observation).T, strict=True))
     errors = measure.errors(episode.observation, episode.command)
     time = np.arange(episode.length) * dt
-    figure = Figure(figsize=(8, 1.8 * COMMAND_SIZE), layout="constrained")
-    axes = figure.subplots(COMMAND_SIZE, 1, sharex=True)
-    for column, (ax, field) in enumerate(zip(axes, COMMAND_FIELDS, strict=True)):
+    figure = Figure(figsize=(8, 1.8 * len(measure.fields)), layout="constrained")
+    axes = figure.subplots(len(measure.fields), 1, sharex=True, squeeze=False)[:, 0]
+    for at, (ax, field) in enumerate(zip(axes, measure.fields, strict=True)):
+        column = COMMAND_NAMES.index(field.name)
         ax.step(time, episode.command[:, column], where="post", label="commanded", color="C0")
         ax.plot(time, episode.setpoint[:, column], label="setpoint", color="C0", alpha=0.4, linestyle="--")
         # A field without one achieved value (the arm preset) shows its error instead.
-        ax.plot(time, achieved[field] if field in achieved else errors[:, column], label="achieved", color="C1")
+        if not field.posed:  # a walk sways within each stride: its speed is the mean over SPEED_SECONDS
+            ax.plot(time, achieved[field], color="C1", alpha=0.3, linewidth=0.6)
+            achieved[field] = trailing_mean(achieved[field][:, None], measure.speed_steps)[:, 0]
+        ax.plot(time, achieved[field] if field in achieved else errors[:, at], label="achieved", color="C1")
         unit = field.unit if field in achieved else f"{field.unit}; error (rad)"
         ax.set_ylabel(f"{field.name.replace('_', ' ')} ({unit})", fontsize=8)
     axes[0].legend(loc="upper right", fontsize=8)
@@ -259,6 +277,7 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         schedules=cfg.schedules,
         plot=cfg.plot,
         kick=cfg.kick,
+        walking=cfg.walking,
     )
     return {**result, "config": config_dict(cfg)}
 

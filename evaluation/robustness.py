@@ -29,8 +29,7 @@ from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers
 from evaluation.evaluate import POLICY_HELP, evaluate_each, evaluation_pool, init_worker
-from humanoid.command_fields import COMMAND_NAMES
-from humanoid.commands import combine_tracking
+from humanoid.commands import combine_tracking, tracked_names
 from humanoid.conditions import SUITE, condition
 from humanoid.controllers import CONTROLLERS, check_controller
 from policies import checkpoint
@@ -245,7 +244,8 @@ def plot(result: dict[str, Any], path: Path) -> None:
 
 
 def table(result: dict[str, Any]) -> str:
-    tracked = [name for name in COMMAND_NAMES if all("tracking" in row for row in result["conditions"].values())]
+    rows = list(result["conditions"].values())
+    tracked = tracked_names(rows[0]["tracking"]) if all(row.get("tracking") for row in rows) else ()
     lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}" + "".join(f" {name:>12}" for name in tracked)]
     for name, row in result["conditions"].items():
         errors = "".join(f" {row['tracking']['settled_error'][field]:>12.3f}" for field in tracked)

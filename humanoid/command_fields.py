@@ -56,6 +56,9 @@ class CommandField:
     posed: bool = True
     """Whether the standing expert realises it as a balanced pose (`humanoid.posture.posture_pose`), whose coordinates
     are then its tracking target; otherwise the commanded value itself is (a velocity, say)."""
+    group: str = "posture"
+    """`POSTURE` (what the body holds where it stands) or `VELOCITY` (how it moves over the floor): the walking task
+    commands both, the posture task the posture fields alone (`task_fields`)."""
 
     def clip(self, value: float) -> float:
         """`value` inside [low, high], a preset field's rounded to a preset."""
@@ -69,6 +72,9 @@ class CommandField:
         return self.phrases[value > 0]
 
 
+POSTURE, VELOCITY = "posture", "velocity"
+"""The two groups of fields (`CommandField.group`)."""
+
 COMMAND_FIELDS: tuple[CommandField, ...] = (
     # Limits measured by bench/posture_ranges.py (5 seeds, held 3 s after the ramp): about 75 % of the largest
     # magnitude that stayed up, and was reached, on every seed (docs/concepts/commands.md).
@@ -79,7 +85,7 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         0.3,
         0.05,
         0.05,
-        keys=(("s", "down"), ("w", "up")),
+        keys=(("s",), ("w",)),
         phrases=("lean back", "lean forward"),
         mcap=(2, 10, 15),
     ),
@@ -90,7 +96,7 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         0.3,
         0.05,
         0.05,
-        keys=(("d", "right"), ("a", "left")),
+        keys=(("d",), ("a",)),
         phrases=("lean right", "lean left"),
         mcap=(3, 11, 16),
     ),
@@ -128,15 +134,66 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         mcap=(6, 14, None),
         presets=True,
     ),
+    # Velocities in the world frame turned with the body's heading (`Readout`): the ranges of issue 61, which the
+    # stepping expert walks (docs/decisions/walking-teacher.md); a key press is a tenth.
+    CommandField(
+        "forward_speed",
+        "m/s",
+        -0.3,
+        0.6,
+        0.1,
+        0.1,
+        keys=(("down",), ("up",)),
+        phrases=("walk backward", "walk forward"),
+        mcap=(19, 20, 21),
+        posed=False,
+        group=VELOCITY,
+    ),
+    CommandField(
+        "sideways_speed",
+        "m/s",
+        -0.2,
+        0.2,
+        0.1,
+        0.1,
+        keys=(("c",), ("z",)),
+        phrases=("walk right", "walk left"),
+        mcap=(22, 23, 24),
+        posed=False,
+        group=VELOCITY,
+    ),
+    CommandField(
+        "turn_rate",
+        "rad/s",
+        -0.5,
+        0.5,
+        0.1,
+        0.1,
+        keys=(("right",), ("left",)),
+        phrases=("turn right", "turn left"),
+        mcap=(25, 26, 27),
+        posed=False,
+        group=VELOCITY,
+    ),
 )
-"""Every field, in the order of `observation.command`."""
+"""Every field, in the order of `observation.command`: a dataset recorded before a field existed lacks its entry,
+which reads as zero (`teleop.dataset_reader.command_columns`)."""
 
 FIELDS = {field.name: field for field in COMMAND_FIELDS}
 COMMAND_NAMES = tuple(FIELDS)
 """The fields' names in order: the names of `observation.command` (and of the expert's `setpoint`)."""
 COMMAND_SIZE = len(COMMAND_NAMES)
-TOLERANCES = np.array([field.tolerance for field in COMMAND_FIELDS])
-"""Each field's tolerance, in `COMMAND_NAMES` order."""
+POSTURE_FIELDS = tuple(field for field in COMMAND_FIELDS if field.group == POSTURE)
+POSTURE_NAMES = tuple(field.name for field in POSTURE_FIELDS)
+"""The posture fields' names: what a posture-commanded policy reads (`humanoid.inputs`)."""
+VELOCITY_NAMES = tuple(field.name for field in COMMAND_FIELDS if field.group == VELOCITY)
+
+
+def task_fields(walking: bool) -> tuple[CommandField, ...]:
+    """The fields a task commands, tracks and scores: every field when walking, else the posture fields."""
+    return COMMAND_FIELDS if walking else POSTURE_FIELDS
+
+
 ARM_JOINTS = (
     "right_shoulder1",
     "right_shoulder2",
@@ -154,7 +211,9 @@ class Readout:
 
     `lean_forward` and `lean_left` are the pitch and sideways lean of the torso with its twist undone (the root's
     orientation times the abdomen_z rotation, as Euler angles z-y-x: pitch, then roll = -lean_left), `height` the
-    root's, `twist` -abdomen_z, `arms` the six `ARM_JOINTS` angles.
+    root's, `twist` -abdomen_z, `arms` the six `ARM_JOINTS` angles. The velocities are the root's, in the world frame
+    turned with the heading of that untwisted torso (so twisting the waist turns no walk): `forward_speed` along the
+    heading, `sideways_speed` to its left, `turn_rate` the yaw rate about the vertical.
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
@@ -167,11 +226,17 @@ class Readout:
         half = abdomen_z / 2
         zero = np.zeros_like(half)
         unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
-        frame = np.swapaxes(body_axes(unyaw) @ body_axes(qpos[..., 1:5]), -1, -2)  # R(root) R(unyaw)
+        root = body_axes(qpos[..., 1:5])
+        frame = np.swapaxes(body_axes(unyaw) @ root, -1, -2)  # R(root) R(unyaw)
+        heading = np.arctan2(frame[..., 1, 0], frame[..., 0, 0])
+        cos, sin, vx, vy = np.cos(heading), np.sin(heading), qvel[..., 0], qvel[..., 1]
         return {
             "lean_forward": np.arcsin(np.clip(-frame[..., 2, 0], -1.0, 1.0))[..., None],
             "lean_left": -np.arctan2(frame[..., 2, 1], frame[..., 2, 2])[..., None],
             "height": qpos[..., 0:1],
             "twist": -abdomen_z[..., None],
             "arms": qpos[..., self.arms_at],
+            "forward_speed": (cos * vx + sin * vy)[..., None],
+            "sideways_speed": (cos * vy - sin * vx)[..., None],
+            "turn_rate": (root[..., :, 2] * qvel[..., 3:6]).sum(-1)[..., None],  # the local angular velocity's world z
         }

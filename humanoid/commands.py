@@ -32,11 +32,16 @@ from humanoid.command_fields import (
     COMMAND_NAMES,
     COMMAND_SIZE,
     FIELDS,
-    TOLERANCES,
+    POSTURE_FIELDS,
+    POSTURE_NAMES,
+    VELOCITY,
+    VELOCITY_NAMES,
     CommandField,
     Readout,
+    task_fields,
 )
 from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
+from humanoid.lqr import LQRDesign
 from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
 
 DEFAULT_TASK = "Stand still on both feet."
@@ -52,8 +57,13 @@ NEUTRAL_SHARE = 0.2
 FIELDS_AT_ONCE = (0.5, 0.35, 0.15)
 """Probabilities that a target moves 1, 2 or 3 fields away from neutral."""
 SCALE = 0.5
-"""Targets stay within this share of each field's limits: at 0.7 the expert fell on 2 of 40
-held-out schedules, at 0.5 on none (docs/decisions/command-schedules.md)."""
+"""Posture targets stay within this share of each field's limits: at 0.7 the expert fell on 2 of 40
+held-out schedules, at 0.5 on none (docs/decisions/command-schedules.md). Velocity targets span their whole range."""
+WALKING_SHARE = 0.5
+"""In a walking schedule, the share of the targets after the first that are a walk (one or two velocity fields, no
+posture); of the others, `NEUTRAL_SHARE` stand still and the rest are postures, as in a posture schedule."""
+WALK_FIELDS_AT_ONCE = (0.6, 0.4)
+"""Probabilities that a walk sets 1 or 2 velocity fields."""
 
 
 def command_vector(posture: Posture) -> np.ndarray:
@@ -67,28 +77,40 @@ def command_posture(command: np.ndarray) -> Posture:
 
 
 def _grid(name: str) -> np.ndarray:
-    """The nonzero values of field `name` on the keyboard's grid within SCALE of its limits (every preset)."""
+    """The nonzero values of field `name` on the keyboard's grid within SCALE of its limits (a velocity's: within its
+    limits; every preset)."""
     field = FIELDS[name]
     if field.presets:
         return np.arange(1.0, field.high + 1.0)  # a preset: no fraction of one
-    low, high = (int(SCALE * field.low / field.step), int(SCALE * field.high / field.step))
+    if field.group == VELOCITY:
+        low, high = round(field.low / field.step), round(field.high / field.step)
+    else:  # truncated, as it always was: lean_left's 0.5 * 0.3 / 0.05 falls just short of 3, so it stops at 0.1
+        low, high = int(SCALE * field.low / field.step), int(SCALE * field.high / field.step)
     return np.array([round(k * field.step, 6) for k in range(low, high + 1) if k != 0])
 
 
-def schedule_targets(seed: int, seconds: float) -> list[tuple[float, Posture]]:
-    """(start time in s, target) of each command of the schedule drawn from `seed`, covering `seconds`."""
+def _target(rng: np.random.Generator, names: tuple[str, ...], at_once: tuple[float, ...]) -> Posture:
+    """A target setting 1, 2, ... (probabilities `at_once`) of the fields `names` to values on their grids."""
+    count = 1 + int(rng.choice(len(at_once), p=at_once))
+    fields = rng.choice(names, size=count, replace=False)
+    return Posture(**{str(name): float(rng.choice(_grid(str(name)))) for name in fields})
+
+
+def schedule_targets(seed: int, seconds: float, walking: bool = False) -> list[tuple[float, Posture]]:
+    """(start time in s, target) of each command of the schedule drawn from `seed`, covering `seconds`: postures, or
+    with `walking` walks too (`WALKING_SHARE`)."""
     if seed < 0:
         raise UserError(f"a schedule's seed must be >= 0, got {seed}")
     rng = np.random.default_rng((seed, 2))  # its own stream: the seed's noise and randomisation use others
     targets = [(0.0, NEUTRAL)]
     now, previous = FIRST_NEUTRAL_SECONDS, NEUTRAL
     while now < seconds:
-        if rng.random() < NEUTRAL_SHARE:
+        if walking and rng.random() < WALKING_SHARE:
+            target = _target(rng, VELOCITY_NAMES, WALK_FIELDS_AT_ONCE)
+        elif rng.random() < NEUTRAL_SHARE:
             target = NEUTRAL
         else:
-            count = 1 + int(rng.choice(len(FIELDS_AT_ONCE), p=FIELDS_AT_ONCE))
-            fields = rng.choice(COMMAND_NAMES, size=count, replace=False)
-            target = Posture(**{str(name): float(rng.choice(_grid(str(name)))) for name in fields})
+            target = _target(rng, POSTURE_NAMES, FIELDS_AT_ONCE)
         if target == previous:
             first = COMMAND_FIELDS[0]
             target = NEUTRAL if previous != NEUTRAL else Posture(**{first.name: first.step})
@@ -98,10 +120,11 @@ def schedule_targets(seed: int, seconds: float) -> list[tuple[float, Posture]]:
     return targets
 
 
-def command_schedule(seed: int, steps: int, dt: float) -> np.ndarray:
-    """The commands (steps, COMMAND_SIZE) float32 of the schedule drawn from `seed`, one row per env step of `dt` s."""
+def command_schedule(seed: int, steps: int, dt: float, walking: bool = False) -> np.ndarray:
+    """The commands (steps, COMMAND_SIZE) float32 of the schedule drawn from `seed` (`walking`: with walks), one row
+    per env step of `dt` s."""
     commands = np.empty((steps, COMMAND_SIZE), np.float32)
-    targets = schedule_targets(seed, steps * dt)
+    targets = schedule_targets(seed, steps * dt, walking)
     for (start, target), (end, _) in zip(targets, [*targets[1:], (np.inf, NEUTRAL)], strict=True):
         commands[int(round(start / dt)) : int(min(round(end / dt), steps)) if np.isfinite(end) else steps] = (
             command_vector(target)
@@ -110,16 +133,27 @@ def command_schedule(seed: int, steps: int, dt: float) -> np.ndarray:
 
 
 def task_for(posture: Posture) -> str:
-    """The task string naming a commanded posture: its fields' phrases (their rows'), those away from neutral."""
-    phrases = [field.phrase(value) for field in COMMAND_FIELDS if (value := getattr(posture, field.name))]
-    if not phrases:
+    """The task string naming a command: its fields' phrases (their rows'), those away from neutral, a velocity's with
+    its value ("Walk forward at 0.4 m/s, turn left at 0.2 rad/s."), a posture alone "... while standing."."""
+    moving = [
+        f"{FIELDS[name].phrase(value)} at {abs(value):g} {FIELDS[name].unit}"
+        for name in VELOCITY_NAMES
+        if (value := round(getattr(posture, name), 6))
+    ]
+    posed = [field.phrase(value) for field in POSTURE_FIELDS if (value := getattr(posture, field.name))]
+    if not moving and not posed:
         return DEFAULT_TASK
-    return (", ".join(phrases) + " while standing.").capitalize()
+    sentence = ", ".join(moving + posed) + ("." if moving else " while standing.")
+    return sentence[0].upper() + sentence[1:]
 
 
 # Tracking. The achieved command is read from the observation's qpos and qvel parts (`QPOS_OBS`, `QVEL_OBS`), in both
 # the full observation and a recorded frame; settled means every field's error within its row's tolerance (about one
 # key press, half of one for the twist).
+SPEED_SECONDS = 1.0
+"""A walk's achieved velocity is its mean over the last this-many seconds (`Tracking.errors`): the body sways within a
+stride (under the stepping teacher the torso's speed swings by about ±0.5 m/s, its yaw rate by up to ±5 rad/s), and
+what a command asks for is the walk's speed, not the sway's (docs/decisions/walking-teacher.md)."""
 SETTLED_SECONDS = 1.0
 """The error once settled is the mean over the last this-many seconds of each command held, after the setpoint's move
 to it (`move_seconds`), at least twice as long: as a schedule holds every command (`HOLD_SECONDS`) but the one the
@@ -131,17 +165,20 @@ class Tracking:
 
     Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: for a
     posed field the same coordinates of the balanced pose that realises the command (`posture_reference`), so a body
-    held exactly there has no error; for another its commanded value. A field's error is the mean over its
-    coordinates (the arms' six angles). `fields` and `readout`: the table and its reader, the project's by default;
-    a new field's code passes both (tests/humanoid/test_command_fields.py adds a forward-speed row this way).
+    held exactly there has no error; for another (a velocity) its commanded value. A field's error is the mean over
+    its coordinates (the arms' six angles). `fields`: those measured, in the table's order (a task's: `task_fields`);
+    commands are whole command vectors (`COMMAND_NAMES` order) whatever the fields.
     """
 
-    def __init__(
-        self, model: mujoco.MjModel, fields: tuple[CommandField, ...] = COMMAND_FIELDS, readout: Readout | None = None
-    ) -> None:
+    def __init__(self, model: mujoco.MjModel, fields: tuple[CommandField, ...] = COMMAND_FIELDS) -> None:
         self.model = model
         self.fields = fields
-        self.readout = Readout(model) if readout is None else readout
+        self.names = tuple(field.name for field in fields)
+        self.tolerances = np.array([field.tolerance for field in fields])
+        """Each field's tolerance, in `fields` order."""
+        self.readout = Readout(model)
+        self.speed_steps = round(SPEED_SECONDS / (LQRDesign().frame_skip * model.opt.timestep))
+        """`SPEED_SECONDS` in env steps."""
         self._rest = np.zeros(model.nv)
         read = self.readout(model.qpos0[2:], self._rest)
         widths = [read[field.name].shape[-1] for field in fields]
@@ -161,26 +198,32 @@ class Tracking:
         other fields' values."""
         key = tuple(float(v) for v in command)
         if key not in self._targets:
-            posed = {field.name: float(value) for field, value in zip(self.fields, command, strict=True) if field.posed}
-            pose = posture_reference(self.model, Posture(**posed).clipped())[0][2:]
+            posture = command_posture(np.asarray(command)).clipped()
+            pose = posture_reference(self.model, posture.posed())[0][2:]
             target = self.coordinates(pose, self._rest)
-            for field, value, part in zip(self.fields, command, self.slices, strict=True):
+            for field, part in zip(self.fields, self.slices, strict=True):
                 if not field.posed:
-                    target[part] = field.clip(float(value))
+                    target[part] = getattr(posture, field.name)
             self._targets[key] = target
         return self._targets[key]
 
     def achieved(self, observations: np.ndarray) -> np.ndarray:
-        """(T, len(PLOTTED)) the achieved value of each field Foxglove plots beside its command (`PLOTTED`: those read
-        from one coordinate), from the neutral pose's, of observations (T, 348)."""
+        """(T, plotted) the achieved value of each of these fields Foxglove plots beside its command (`PLOTTED`: those
+        read from one coordinate; all of them for the whole table), from the neutral pose's, of observations
+        (T, 348)."""
         coordinates = self.coordinates(*_state(observations))
-        neutral = self.target(np.zeros(len(self.fields)))
-        columns = [self.slices[self.fields.index(field)].start for field in PLOTTED]
+        neutral = self.target(np.zeros(COMMAND_SIZE))
+        columns = [self.slices[self.fields.index(field)].start for field in PLOTTED if field in self.fields]
         return coordinates[:, columns] - neutral[columns]
 
     def errors(self, observations: np.ndarray, commands: np.ndarray) -> np.ndarray:
-        """|commanded - achieved| (T, fields) of observations (T, 348) under commands (T, fields)."""
+        """|commanded - achieved| (T, fields) of observations (T, 348), consecutive steps of one episode, under commands
+        (T, COMMAND_SIZE); a velocity's achieved value is its mean over the last `SPEED_SECONDS` (over the steps so far
+        in the first ones)."""
         coordinates = self.coordinates(*_state(observations))
+        for field, part in zip(self.fields, self.slices, strict=True):
+            if not field.posed:
+                coordinates[:, part] = trailing_mean(coordinates[:, part], self.speed_steps)
         targets = np.empty_like(coordinates)
         changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
         for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
@@ -188,13 +231,30 @@ class Tracking:
         return self._fields(np.abs(coordinates - targets))
 
     def error(self, qpos: np.ndarray, qvel: np.ndarray, command: np.ndarray) -> np.ndarray:
-        """`errors` of one state, (fields,) from qpos without x and y and qvel under `command`: the same numbers, a few
-        times faster than through `errors` (PPO's reward computes it every step)."""
+        """`errors` of one state, (fields,) from qpos without x and y and qvel under `command`: the same numbers for the
+        posed fields, a few times faster than through `errors` (PPO's reward computes it every step); a velocity's
+        error is this step's, unaveraged, as the public velocity tasks reward it."""
         return self._fields(np.abs(self.coordinates(qpos, qvel) - self.target(command)))
 
     def _fields(self, gap: np.ndarray) -> np.ndarray:
         """Per command field (..., fields) of a coordinates' gap: the mean over each field's coordinates."""
         return np.stack([gap[..., part].mean(axis=-1) for part in self.slices], axis=-1)
+
+    def reward(self, errors: np.ndarray) -> np.ndarray:
+        """`tracking_reward` of errors (..., fields) of these fields."""
+        return tracking_reward(errors, self.tolerances)
+
+    def summary(self, errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
+        """`tracking_summary` of `errors` (T, fields) under commands (T, COMMAND_SIZE), per field of these."""
+        return tracking_summary(errors, commands, dt, self.fields)
+
+
+def trailing_mean(values: np.ndarray, window: int) -> np.ndarray:
+    """The mean of each row of `values` (T, k) and the `window` - 1 before it (fewer in the first rows)."""
+    total = np.cumsum(values, axis=0)
+    total[window:] -= total[:-window].copy()
+    counts = np.minimum(np.arange(1, len(values) + 1), window)[:, None]
+    return total / counts
 
 
 def _state(observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -207,24 +267,30 @@ PLOTTED = tuple(field for field in COMMAND_FIELDS if field.mcap[2] is not None)
 """The fields whose achieved value `/command` carries (one coordinate each; the arms show in 3D)."""
 
 
-def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dict[str, dict[str, float] | float]:
+def tracking_summary(
+    errors: np.ndarray, commands: np.ndarray, dt: float, fields: tuple[CommandField, ...] = COMMAND_FIELDS
+) -> dict[str, dict[str, float] | float]:
     """An episode's tracking: per field the mean error once settled (over the last SETTLED_SECONDS of each command
     held at least twice that after the setpoint's move to it), the same over only the commands that set that field
     away from neutral ("moved_error": the posture asked for rather than the stand held, which most commands leave
     most fields at), and the mean time from a command's change until every field stays within its tolerance (a command
-    never settled counts its whole duration). NaN where no command was held long enough."""
+    never settled counts its whole duration). NaN where no command was held long enough. `errors` (T, fields) are of
+    `fields`, `commands` (T, COMMAND_SIZE) whole."""
+    names = [field.name for field in fields]
+    columns, tolerances = [COMMAND_NAMES.index(name) for name in names], np.array([f.tolerance for f in fields])
     window = round(SETTLED_SECONDS / dt)
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
     settled, moved, times, previous = [], [], [], NEUTRAL
     for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
-        inside = (errors[start:end] <= TOLERANCES).all(axis=1)
+        inside = (errors[start:end] <= tolerances).all(axis=1)
         outside = np.flatnonzero(~inside)
         times.append((outside[-1] + 1 if len(outside) else 0) * dt)
         target = command_posture(commands[start]).clipped()
         moving = int(np.ceil(move_seconds(previous, target) / dt - 1e-9))  # the expert's ramp: whole steps
         if end - start >= moving + 2 * window:
             settled.append(errors[end - window : end])
-            moved.append(np.broadcast_to(command_vector(target) != command_vector(NEUTRAL), (window, COMMAND_SIZE)))
+            away = (command_vector(target) != command_vector(NEUTRAL))[columns]
+            moved.append(np.broadcast_to(away, (window, len(names))))
         previous = target
     if settled:
         held, asked = np.concatenate(settled), np.concatenate(moved)
@@ -232,10 +298,10 @@ def tracking_summary(errors: np.ndarray, commands: np.ndarray, dt: float) -> dic
         with np.errstate(invalid="ignore"):  # NaN for a field no settled command moved
             moved_mean = (held * asked).sum(axis=0) / asked.sum(axis=0)
     else:
-        mean = moved_mean = np.full(COMMAND_SIZE, np.nan)
+        mean = moved_mean = np.full(len(names), np.nan)
     return {
-        "settled_error": dict(zip(COMMAND_NAMES, map(float, mean), strict=True)),
-        "moved_error": dict(zip(COMMAND_NAMES, map(float, moved_mean), strict=True)),
+        "settled_error": dict(zip(names, map(float, mean), strict=True)),
+        "moved_error": dict(zip(names, map(float, moved_mean), strict=True)),
         "settle_seconds": float(np.mean(times)) if times else float("nan"),
     }
 
@@ -252,24 +318,32 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
         numbers = [value for value in values if not np.isnan(value)]
         return float(np.mean(numbers)) if numbers else float("nan")
 
+    names = tracked_names(summaries[0])
     return {
-        **{kind: {name: mean([s[kind][name] for s in summaries]) for name in COMMAND_NAMES} for kind in ERROR_KINDS},
+        **{kind: {name: mean([s[kind][name] for s in summaries]) for name in names} for kind in ERROR_KINDS},
         "settle_seconds": mean([s["settle_seconds"] for s in summaries]),
     }
 
 
-def tracking_reward(errors: np.ndarray) -> np.ndarray:
-    """The tracking term of PPO's reward for errors (..., COMMAND_SIZE): the mean over the fields of
-    exp(-(error / tolerance)²), as the public humanoid stacks reward a command (1 on it, 0.37 one key press off; a
-    kernel half or twice as wide did worse: docs/decisions/tracking-weight.md)."""
-    return np.exp(-np.square(errors / TOLERANCES)).mean(axis=-1)
+def tracked_names(summary: dict[str, Any]) -> tuple[str, ...]:
+    """The fields a `tracking_summary` (or `combine_tracking`) measured, in the table's order."""
+    return tuple(name for name in COMMAND_NAMES if name in summary["settled_error"])
+
+
+def tracking_reward(errors: np.ndarray, tolerances: np.ndarray) -> np.ndarray:
+    """The tracking term of PPO's reward for errors (..., fields) of fields with `tolerances`: the mean over the
+    fields of exp(-(error / tolerance)²), as the public humanoid stacks reward a command (1 on it, 0.37 one key press
+    off; a kernel half or twice as wide did worse: docs/decisions/tracking-weight.md)."""
+    return np.exp(-np.square(errors / tolerances)).mean(axis=-1)
 
 
 def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
-    """`tracking_reward` of the settled errors of a `tracking_summary` (or `combine_tracking`): 1 for exact tracking,
-    0 where nothing was held long enough to measure."""
-    errors = np.array([summary["settled_error"][name] for name in COMMAND_NAMES])
-    return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors))
+    """`tracking_reward` of the settled errors of a `tracking_summary` (or `combine_tracking`), over the fields it
+    measured: 1 for exact tracking, 0 where nothing was held long enough to measure."""
+    names = tracked_names(summary)
+    errors = np.array([summary["settled_error"][name] for name in names])
+    tolerances = np.array([FIELDS[name].tolerance for name in names])
+    return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors, tolerances))
 
 
 COMMAND_INFO = "command"
@@ -292,7 +366,7 @@ class CommandedTask(gym.Wrapper):
     def __init__(self, env: gym.Env, weight: float) -> None:
         super().__init__(env)
         self.weight = weight
-        self.tracking = Tracking(nominal_model())  # the nominal body's targets, whatever is drawn later
+        self.tracking = Tracking(nominal_model(), task_fields(False))  # the nominal body's, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
         self.t = 0
@@ -319,7 +393,7 @@ class CommandedTask(gym.Wrapper):
         command = self.commands[self.t]
         data = self.env.unwrapped.data
         error = self.tracking.error(data.qpos[2:], data.qvel, command)
-        reward += self.weight * float(tracking_reward(error))
+        reward += self.weight * float(self.tracking.reward(error))
         self.t = min(self.t + 1, len(self.commands) - 1)
         info[COMMAND_INFO] = self.commands[self.t]
         return obs, reward, terminated, truncated, info

@@ -184,6 +184,7 @@ def run_episode(
     labeller: Controller | None = None,
     observer: StepObserver | None = None,
     schedules: bool = False,
+    walking: bool = False,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
@@ -192,15 +193,16 @@ def run_episode(
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
     An `observer` sees every step as it completes. With `schedules` the operator's command follows the schedule
-    drawn from `seed` (`humanoid.commands.command_schedule`), told to the controller and the labeller at each change;
-    without, it is zero (stand still). The task string names the command in force (`humanoid.commands.task_for`).
+    drawn from `seed` (`humanoid.commands.command_schedule`; `walking`: with walks), told to the controller and the
+    labeller at each change; without, it is zero (stand still). The task string names the command in force
+    (`humanoid.commands.task_for`).
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
     commands = (
-        command_schedule(seed, max_steps, env.unwrapped.dt)
+        command_schedule(seed, max_steps, env.unwrapped.dt, walking)
         if schedules
         else np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
     )

@@ -7,8 +7,9 @@
               the action sent but not yet executed under one step of action latency (zeros without latency)
               and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
               delay (docs/decisions/pending-inputs.md)
-    full+command, pending+command  full or pending, then the operator's command (`observation.command`, 5:
-              humanoid.commands): a policy that follows posture commands; standing still is the zero command
+    full+command, pending+command  full or pending, then the operator's posture command (`observation.command`'s
+              5 posture fields: humanoid.command_fields.POSTURE_NAMES): a policy that follows posture commands;
+              standing still is the zero command
               (docs/concepts/commands.md); full+command learns from keyboard demonstrations, which delay no episode
     pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
@@ -48,12 +49,12 @@ import numpy as np
 from common.cli import REMOVED_VALUES, Removed, UserError
 from common.columns import ACTION, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
-from humanoid.command_fields import ARM_JOINTS, COMMAND_FIELDS, COMMAND_NAMES, COMMAND_SIZE
+from humanoid.command_fields import ARM_JOINTS, COMMAND_NAMES, COMMAND_SIZE, POSTURE_FIELDS, POSTURE_NAMES
 from humanoid.commands import COMMAND_INFO
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, nominal_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
-from humanoid.posture import PosturePath
+from humanoid.posture import Posture, PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
 
 
@@ -188,8 +189,14 @@ class PendingInputs(InputSet):
         return np.concatenate([odometry, self.pending, [float(self.delay)]])
 
 
+COMMANDED = tuple(COMMAND_NAMES.index(name) for name in POSTURE_NAMES)
+"""Where a commanded set's fields (the posture's) sit in a command vector: the fields it reads by name, so a dataset
+that records more (or, recorded before them, fewer) fields gives the same frames."""
+
+
 def commanded_set(base: type[InputSet]) -> type[InputSet]:
-    """`base`'s inputs, then the operator's command as it is (`observation.command`): the set named "BASE+command"."""
+    """`base`'s inputs, then the operator's posture command as it is (`observation.command`'s `POSTURE_NAMES`): the
+    set named "BASE+command"."""
 
     class CommandedInputs(base):
         name = f"{base.name}+command"
@@ -200,24 +207,26 @@ def commanded_set(base: type[InputSet]) -> type[InputSet]:
 
         @staticmethod
         def input_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.input_names(model), *(f"command.{name}" for name in COMMAND_NAMES)]
+            return [*base.input_names(model), *(f"command.{name}" for name in POSTURE_NAMES)]
 
         @staticmethod
         def observed_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.observed_names(model), *COMMAND_NAMES]
+            return [*base.observed_names(model), *POSTURE_NAMES]
 
         def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
             frame = base.observe(self, obs, command)
-            return np.concatenate([frame, np.broadcast_to(command, (*frame.shape[:-1], COMMAND_SIZE))], axis=-1)
+            read = np.asarray(command)[..., COMMANDED]
+            return np.concatenate([frame, np.broadcast_to(read, (*frame.shape[:-1], len(COMMANDED)))], axis=-1)
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
-            return np.concatenate([base.__call__(self, frame[..., :-COMMAND_SIZE]), frame[..., -COMMAND_SIZE:]], -1)
+            size = len(COMMANDED)
+            return np.concatenate([base.__call__(self, frame[..., :-size]), frame[..., -size:]], -1)
 
     CommandedInputs.__name__ = CommandedInputs.__qualname__ = f"Commanded{base.__name__}"
     return CommandedInputs
 
 
-_RAMP_FIELDS = tuple(field.name for field in COMMAND_FIELDS if not field.presets)
+_RAMP_FIELDS = tuple(field.name for field in POSTURE_FIELDS if not field.presets)
 RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for joint in ARM_JOINTS))
 """A ramped set's last inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
 
@@ -245,7 +254,7 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
         def __init__(self, model: mujoco.MjModel) -> None:
             super().__init__(model)
             self.path = PosturePath(model)  # the design's env step, as the expert's
-            self.command = np.zeros(COMMAND_SIZE, np.float32)
+            self.command = np.zeros(len(COMMANDED), np.float32)
 
         def reset(self) -> None:
             base.reset(self)
@@ -253,16 +262,16 @@ def ramped_set(base: type[InputSet]) -> type[InputSet]:
             self.command[:] = 0.0
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
-            command = frame[-COMMAND_SIZE:]
+            command = frame[-len(COMMANDED) :]
             if (command != self.command).any():  # as the expert's `set_command`: a new target starts a move
                 self.command[:] = command
-                target = commands.command_posture(command).clipped()
+                target = Posture(**dict(zip(POSTURE_NAMES, map(float, command), strict=True))).clipped()
                 if target != self.path.target:
                     self.path.hold(target)
             self.path.step()  # as the expert's `act`: one env step along the move, if there is one
             posture = self.path.posture
             ramp = [*(getattr(posture, name) for name in _RAMP_FIELDS), *self.path.arms()]
-            return np.concatenate([base.__call__(self, frame[:-COMMAND_SIZE]), np.array(ramp, frame.dtype)])
+            return np.concatenate([base.__call__(self, frame[: -len(COMMANDED)]), np.array(ramp, frame.dtype)])
 
     RampedInputs.__name__ = RampedInputs.__qualname__ = f"Ramped{base.__name__}"
     return RampedInputs

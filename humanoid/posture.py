@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.command_fields import ARM_JOINTS, COMMAND_FIELDS
+from humanoid.command_fields import ARM_JOINTS, COMMAND_FIELDS, VELOCITY_NAMES
 from humanoid.lqr import LQRDesign, LQRGains, design_gain, feed_forward, load_or_design
 
 if TYPE_CHECKING:
@@ -53,16 +53,23 @@ def _clipped(self: Posture) -> Posture:
     return Posture(**{field.name: field.clip(getattr(self, field.name)) for field in COMMAND_FIELDS})
 
 
+def _posed(self: Posture) -> Posture:
+    """This posture without its velocities: the pose the body holds, which the balance solves and the gains are
+    designed for (a walk changes neither)."""
+    return dataclasses.replace(self, **dict.fromkeys(VELOCITY_NAMES, 0.0))
+
+
 Posture = dataclasses.make_dataclass(
     "Posture",
     [(field.name, float, dataclasses.field(default=0.0)) for field in COMMAND_FIELDS],
     frozen=True,
-    namespace={"clipped": _clipped},
+    namespace={"clipped": _clipped, "posed": _posed},
     module=__name__,
 )
-Posture.__doc__ = """A setpoint of the standing expert, one keyword per command field (`humanoid.command_fields`, in
-the unit its row gives); every field 0 is the neutral standing pose of the design. What each field does to the
-body: this module's docstring."""
+Posture.__doc__ = """A setpoint of the expert, one keyword per command field (`humanoid.command_fields`, in the unit
+its row gives); every field 0 is the neutral standing pose of the design. What each posture field does to the body:
+this module's docstring; the velocity fields leave the pose alone (`posed`) and the stepping expert walks them
+(`humanoid.stepping`)."""
 
 
 NEUTRAL = Posture()
@@ -284,16 +291,24 @@ def body_gains(model: mujoco.MjModel, design: LQRDesign, neutral: np.ndarray) ->
     return LQRGains(qpos_ref=qpos, ctrl_ff=ctrl, gain=design_gain(model, qpos, ctrl, design, GAIN_DISCOUNT))
 
 
-RATES: dict[str, float] = {
+POSE_RATES: dict[str, float] = {
     "lean_forward": 0.5,
     "lean_left": 0.5,
     "height": 0.025,
     "twist": 0.8,
 }
-"""Mean speed (per second) at which ``PostureRamp`` moves each field toward its target.
+"""Mean speed (per second) at which ``PostureRamp`` moves each posture field toward its target.
 
 Crouching is slow because the expert clips its height error to 2 cm (``LQRDesign.height_clip``,
 for the drop after reset): at 0.05 m/s and more the torso lags the setpoint and the body falls."""
+RATES: dict[str, float] = {
+    **POSE_RATES,
+    "forward_speed": 0.4,
+    "sideways_speed": 0.4,
+    "turn_rate": 0.5,
+}
+"""``POSE_RATES`` and the velocity fields' mean rates (m/s², rad/s²): a walk speeds up and slows down over about a
+second, as a step takes a third of one (docs/decisions/walking-teacher.md)."""
 ARM_RATE = 0.4
 """Mean speed (rad/s) of the arm joint that has the farthest to go: at 1.5 rad/s the arms' swing toppled the body."""
 WAYPOINT_STEP: dict[str, float] = {
@@ -316,7 +331,7 @@ GAIN_STEP: dict[str, float] = {
 
 def _pieces(start: Posture, target: Posture, arm_change: float, step: dict[str, float]) -> int:
     """Into how many pieces to cut the path so that no field changes by more than ``step`` in one."""
-    changes = [abs(getattr(target, name) - getattr(start, name)) / step[name] for name in RATES]
+    changes = [abs(getattr(target, name) - getattr(start, name)) / step[name] for name in POSE_RATES]
     return max(1, int(np.ceil(max(changes + [arm_change / step["arms"]]))))
 
 
@@ -473,10 +488,11 @@ class PostureRamp:
         if target == self.target:
             return
         model, design = self.model, self.design
+        self.path.hold(target)  # the velocities ramp too (the setpoint), but the pose and its gains know none
+        start, target = self.path.start.posed(), target.posed()
         gain = posture_gain(model, target, design)
         qpos, ctrl = posture_reference(model, target, design)
-        self.path.hold(target)
-        start, from_arms = self.path.start, self.path.from_arms
+        from_arms = self.path.from_arms
         arm_change = float(np.abs(arm_angles(target.arms) - from_arms).max())
         n = _pieces(start, target, arm_change, WAYPOINT_STEP)
 
@@ -527,6 +543,7 @@ class PostureRamp:
         return True
 
     def _set(self, posture: Posture) -> None:
+        posture = posture.posed()
         self.qpos_ref[:], self.ctrl_ff[:] = posture_reference(self.model, posture, self.design)
         self.gain[:] = posture_gain(self.model, posture, self.design)
 

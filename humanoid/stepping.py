@@ -9,7 +9,9 @@ MPC's way: spline controls around the previous plan, rolled out on a planning co
 the cheapest kept. Its cost is MuJoCo MPC's humanoid balance: the capture point over the feet, head high, torso
 upright, feet back at the stance's width, small velocity and effort. Under the zero command and no push the trigger
 never fires, so it stands exactly as the LQR expert does; after a kick it plans to the episode's end (handing back to
-the LQR in a stance other than its design toppled more bodies than it saved: the decision record's table).
+the LQR in a stance other than its design toppled more bodies than it saved: the decision record's table). A velocity
+command hands the body to a second planner (`WALKING`) that tracks it, to the episode's end: it walks, but not yet
+well (docs/decisions/walking-teacher.md).
 """
 
 from __future__ import annotations
@@ -20,9 +22,11 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from humanoid.command_fields import COMMAND_NAMES, VELOCITY_NAMES
 from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
 from humanoid.expert import ExpertAround, LQRExpert
 from humanoid.lqr import CTRL_LIMIT
+from humanoid.sensors import body_axes
 
 STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
 OMEGA = 3.4
@@ -70,6 +74,24 @@ class SteppingDesign:
         }
     )
     """The cost's terms per planning step (`StepPlanner.cost`); the horizon's last step counts 5 times."""
+    walk: dict[str, float] = field(default_factory=dict)
+    """The walking cost's terms (`WALKING`'s; empty: the kick planner's design, which walks nothing)."""
+
+
+WALKING = SteppingDesign(
+    horizon=45,
+    weights={**SteppingDesign().weights, "upright": 30.0},
+    walk={
+        "yaw": 20.0,  # the horizon's mean yaw rate against the commanded turn
+        "rest_yaw": 5.0,  # each step's yaw rate, while the command is zero again
+        "fore": 0.0,  # the stance's fore-aft term, scaled by this while walking: a walk puts one foot ahead
+        "full_speed": 0.2,  # m/s (and `full_turn` rad/s) of command at which walking's changes are complete
+        "full_turn": 0.3,
+    },
+)
+"""The planner that walks: on velocity commands it tracks the horizon's mean velocity in the heading's frame (a gait
+sways within a stride, so each step's would fight the stride) over 0.675 s, with the torso kept more upright; its
+changes to the balance cost blend in with the command (docs/decisions/walking-teacher.md)."""
 
 
 def planning_model(design: SteppingDesign) -> mujoco.MjModel:
@@ -100,6 +122,12 @@ def planning_model(design: SteppingDesign) -> mujoco.MjModel:
 COM, COM_VEL, LEFT_FOOT, RIGHT_FOOT, HEAD, TORSO_Z, TORSO_X = (slice(3 * i, 3 * i + 3) for i in range(7))
 
 
+def yaw_rate(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+    """The root's yaw rate about the world's vertical (...) of states: its local angular velocity (qvel 3:6) turned
+    into the world by the root's orientation (qpos 3:7), the z component."""
+    return (body_axes(qpos[..., 3:7])[..., :, 2] * qvel[..., 3:6]).sum(-1)
+
+
 def off_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance (...) from points (..., 2) to the segments from a to b (..., 2)."""
     ab = b - a
@@ -120,10 +148,12 @@ def stance(sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class StepPlanner:
     """Predictive sampling over linear-spline controls, one replan per env step."""
 
-    def __init__(self, design: SteppingDesign, reference: np.ndarray) -> None:
+    def __init__(self, design: SteppingDesign, reference: np.ndarray, velocity: np.ndarray | None = None) -> None:
         """`reference`: the pose (qpos) whose joint angles the posture term keeps near and whose height the head's
-        term asks for, read at each plan: the LQR expert's setpoint, so the commanded posture holds while stepping."""
+        term asks for, read at each plan: the LQR expert's setpoint, so the commanded posture holds while stepping.
+        `velocity`: the commanded (forward, sideways, turn) the walking cost reads, in place (a design with `walk`)."""
         self.design = design
+        self.velocity = np.zeros(3) if velocity is None else velocity
         self.model = planning_model(design)
         self.data = mujoco.MjData(self.model)
         self._rollout_data = [mujoco.MjData(self.model)]  # one thread: the same plan whatever the machine
@@ -156,8 +186,10 @@ class StepPlanner:
         share = self._share[:, None]
         return knots[..., self._at, :] * (1.0 - share) + knots[..., self._at + 1, :] * share
 
-    def cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray) -> np.ndarray:
-        """Each rollout's cost (samples,) from its sensordata (samples, horizon, n), controls and qpos."""
+    def cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """Each rollout's cost (samples,) from its sensordata (samples, horizon, n), controls, qpos and qvel."""
+        if self.design.walk:
+            return self.walking_cost(sensors, controls, qpos, qvel)
         w = self.design.weights
         com, velocity = sensors[..., COM], sensors[..., COM_VEL]
         left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
@@ -179,6 +211,50 @@ class StepPlanner:
         cost[..., -1] *= 5.0
         return cost.sum(-1)
 
+    def walking_cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """`cost` for a walk: the balance terms with the capture point's target moved by the commanded velocity, the
+        stance's fore-aft term dropped and every step's velocity term handed to the horizon's mean, both in proportion
+        to how much walking is commanded; at the zero command, each step's yaw rate is held still too."""
+        w, k, command = self.design.weights, self.design.walk, self.velocity
+        walking = min(1.0, max(abs(command[0]) / k["full_speed"], abs(command[1]) / k["full_speed"]))
+        walking = min(1.0, max(walking, abs(command[2]) / k["full_turn"]))
+        com, velocity = sensors[..., COM], sensors[..., COM_VEL]
+        left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
+        heading = sensors[..., TORSO_X][..., :2]
+        heading = heading / np.maximum(np.linalg.norm(heading, axis=-1, keepdims=True), 1e-6)
+        cos, sin = heading[..., 0], heading[..., 1]
+        asked = np.stack([cos * command[0] - sin * command[1], sin * command[0] + cos * command[1]], -1)  # world
+        height = sensors[..., HEAD][..., 2] - np.minimum(left[..., 2], right[..., 2])
+        capture = com[..., :2] + 0.3 * (velocity[..., :2] - asked)
+        centre = 0.5 * (left[..., :2] + right[..., :2])
+        fore, side = stance(sensors)
+        yaw = yaw_rate(qpos, qvel)
+        still = 1.0 - walking
+        cost = (
+            w["height"] * np.square(np.minimum(height - HEAD_HEIGHT - (self.reference[2] - self.standing_height), 0.0))
+            + w["capture"] * off_segment(capture, left[..., :2], right[..., :2])
+            + w["centre"] * np.linalg.norm(capture - centre, axis=-1)
+            + w["upright"] * np.square(sensors[..., TORSO_Z][..., :2]).sum(-1)
+            + still * w["velocity"] * np.square(velocity[..., :2] - asked).sum(-1)
+            + still * k["rest_yaw"] * np.square(yaw - command[2])
+            + w["posture"] * np.square(qpos[..., 7:] - self.reference[7:]).sum(-1)
+            + w["effort"] * np.square(controls).sum(-1)
+            + w["stance"] * ((1.0 + walking * (k["fore"] - 1.0)) * np.square(fore) + np.square(side - STANCE_WIDTH))
+            + w["fall"] * (com[..., 2] < 0.6)
+        )
+        cost[..., -1] *= 5.0
+        total = cost.sum(-1)
+        if walking > 0:
+            steps = cost.shape[-1]
+            mean = velocity[..., :2].mean(-2)
+            c, s = cos.mean(-1), sin.mean(-1)
+            forward, sideways = c * mean[..., 0] + s * mean[..., 1], c * mean[..., 1] - s * mean[..., 0]
+            total += (
+                walking * steps * w["velocity"] * (np.square(forward - command[0]) + np.square(sideways - command[1]))
+            )
+            total += walking * steps * k["yaw"] * np.square(yaw.mean(-1) - command[2])
+        return total
+
     def act(self, start: np.ndarray) -> np.ndarray:
         """The first control of the best plan from the state `observe` set, `start` the first plan's every knot."""
         design, nu = self.design, self.model.nu
@@ -193,25 +269,33 @@ class StepPlanner:
         controls = self.controls(knots)
         mujoco.mj_getState(self.model, self.data, self._state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         states, sensors = rollout.rollout(self.model, self._rollout_data, self._state[None], controls)
-        cost = self.cost(sensors, controls, states[..., 1 : 1 + self.model.nq])
+        nq, nv = self.model.nq, self.model.nv
+        cost = self.cost(sensors, controls, states[..., 1 : 1 + nq], states[..., 1 + nq : 1 + nq + nv])
         self.plan = knots[int(np.argmin(cost))]
         return self.controls(self.plan)[0]
 
 
 class SteppingExpert(ExpertAround):
-    """The LQR expert until the capture point leaves the feet, then `StepPlanner` to the episode's end.
+    """The LQR expert until the capture point leaves the feet, then `StepPlanner` to the episode's end; on a velocity
+    command, the `WALKING` planner to the episode's end.
 
     Told what the LQR expert is told (the 348-dim observation, the body, the delay, the command); deterministic given
-    the reset's seed. `planned` counts the episode's planned steps.
+    the reset's seed. The walk follows the expert's setpoint, whose velocities ramp toward the command
+    (`humanoid.posture.RATES`). `planned` counts the episode's planned steps.
     """
 
     name = "expert-stepping"
 
-    def __init__(self, design: SteppingDesign = SteppingDesign(), delay: int = 0) -> None:
+    def __init__(
+        self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
+    ) -> None:
         self.expert = LQRExpert(delay=delay)
         self.design = design
         self.planner = StepPlanner(design, self.expert.qpos_ref)  # the setpoint, which the expert moves in place
+        self.velocity = np.zeros(3)
+        self.walker = StepPlanner(walking, self.expert.qpos_ref, self.velocity)
         self.planned = self.steps = 0
+        self.walked = False
 
     def set_body(self, model: mujoco.MjModel) -> None:
         self.expert.set_body(model)
@@ -219,7 +303,9 @@ class SteppingExpert(ExpertAround):
     def reset(self, seed: int | None = None) -> None:
         self.expert.reset(seed)
         self.planner.reset(seed)
+        self.walker.reset(seed)
         self.planned = self.steps = 0
+        self.walked = False
 
     def triggered(self, sensors: np.ndarray) -> bool:
         """Whether the capture point has left the segment between the feet or the body moves as no stance does."""
@@ -231,9 +317,18 @@ class SteppingExpert(ExpertAround):
     def act(self, obs: np.ndarray) -> np.ndarray:
         action = self.expert.act(obs)  # every step: its setpoint and pending actions stay current
         self.steps += 1
+        self.velocity[:] = self.expert.setpoint()[_VELOCITIES]
+        if self.walked or self.velocity.any():
+            self.walked = True
+            self.walker.observe(obs)
+            self.planned += 1
+            return self.walker.act(action).astype(np.float32)
         if self.planned or self.steps > self.design.armed_after:
             sensors = self.planner.observe(obs)
             if self.planned or self.triggered(sensors):
                 self.planned += 1
                 return self.planner.act(action).astype(np.float32)
         return action
+
+
+_VELOCITIES = [COMMAND_NAMES.index(name) for name in VELOCITY_NAMES]

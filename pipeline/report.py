@@ -5,8 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from humanoid.command_fields import COMMAND_NAMES
-from humanoid.commands import tracking_score
+from humanoid.commands import tracked_names, tracking_score
 
 
 def survivors(row: dict[str, Any]) -> int:
@@ -45,20 +44,20 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
         rows.append(
             f"| {controller} | {_survivors(standing[controller])} | {' | '.join(cells)} | {mean_return(result):,.1f} |"
         )
-    seeds = first["seeds"]
+    seeds, fields = first["seeds"], tracked_names(next(iter(first["conditions"].values()))["tracking"])
     rows += [
         "",
         f"(survivors · tracking score, 1 = on the command, on held-out schedules, seeds {seeds[0]}..{seeds[-1]}; "
         "standing: the same seeds with the command zero; the conditions: docs/concepts/robustness-suite.md)",
         "",
-        "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |",
-        "|---|---|---|" + "---|" * len(COMMAND_NAMES) + "---|",
+        "| condition | controller | survivors | " + " | ".join(fields) + " | settle (s) |",
+        "|---|---|---|" + "---|" * len(fields) + "---|",
     ]
     for name in names:
         for controller, result in tracked.items():
             row = result["conditions"][name]
             held, moved = row["tracking"]["settled_error"], row["tracking"]["moved_error"]
-            errors = " | ".join(f"{_number(held[field], 3)} / {_number(moved[field], 3)}" for field in COMMAND_NAMES)
+            errors = " | ".join(f"{_number(held[field], 3)} / {_number(moved[field], 3)}" for field in fields)
             settle = _number(row["tracking"]["settle_seconds"], 2)
             rows.append(f"| {name} | {controller} | {_survivors(row)} | {errors} | {settle} |")
     rows.append(

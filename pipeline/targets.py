@@ -98,6 +98,8 @@ TARGETS: dict[str, Target] = {
             "seed",
             "controller",
             "schedules",
+            "walking",
+            "kick",
             "noise",
             "randomize",
             "latency",
@@ -124,7 +126,20 @@ TARGETS: dict[str, Target] = {
     "eval": Target(
         "evaluation.evaluate",
         EvalConfig,
-        ("policy", "episodes", "seed", "schedules", "push", "kick", "noise", "condition", "video", "plot", *_LIVE),
+        (
+            "policy",
+            "episodes",
+            "seed",
+            "schedules",
+            "walking",
+            "push",
+            "kick",
+            "noise",
+            "condition",
+            "video",
+            "plot",
+            *_LIVE,
+        ),
     ),
     "robustness": Target(
         "evaluation.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "schedules", "workers")

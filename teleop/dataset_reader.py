@@ -25,6 +25,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
 from common.cli import DatasetError
+from humanoid.command_fields import COMMAND_NAMES, COMMAND_SIZE
 from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
@@ -155,6 +156,30 @@ def read_frames(root: Path, columns: list[str] | None = None) -> dict[str, np.nd
     return frames if order is None else {name: values[order] for name, values in frames.items()}
 
 
+COMMAND_COLUMNS = (columns.OBS_COMMAND, columns.SETPOINT)
+"""The frame columns with one entry per command field."""
+
+
+def command_columns(info: dict[str, Any], frames: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """`frames` with each of its `COMMAND_COLUMNS` laid out as today's command (`COMMAND_NAMES`), by the names the
+    dataset's info gives them: a field recorded before it existed (a velocity, in a dataset of postures) reads 0, the
+    zero command. DatasetError for a field this version does not know."""
+    out = dict(frames)
+    for key in COMMAND_COLUMNS:
+        if key not in frames:
+            continue
+        names = info["features"][key]["names"]
+        if list(names) == list(COMMAND_NAMES):
+            continue
+        unknown = [name for name in names if name not in COMMAND_NAMES]
+        if unknown:
+            raise DatasetError(f"{key} names fields this version does not know: {', '.join(unknown)}")
+        wide = np.zeros((len(frames[key]), COMMAND_SIZE), frames[key].dtype)
+        wide[:, [COMMAND_NAMES.index(name) for name in names]] = frames[key]
+        out[key] = wide
+    return out
+
+
 # Step fields read back, with the dtype of the matching LeRobot column.
 STEP_FIELDS = {
     "frame_index": np.int64,
@@ -218,7 +243,7 @@ def read_transitions(root: Path) -> list[Transitions]:
         columns.TERMINATED,
         columns.TRUNCATED,
     ]
-    frames = read_frames(root, [*wanted, "episode_index"])
+    frames = command_columns(read_info(root), read_frames(root, [*wanted, "episode_index"]))
     observations = np.concatenate([frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE]], axis=1)[:, index]
     finals = episodes.select(final_columns).to_pylist()
     result = []

@@ -39,7 +39,14 @@ from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from humanoid.controllers import make_controller
 from humanoid.env import ENV_ID, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
-from teleop.dataset_reader import Transitions, read_episodes, read_frames, read_info, read_transitions
+from teleop.dataset_reader import (
+    Transitions,
+    command_columns,
+    read_episodes,
+    read_frames,
+    read_info,
+    read_transitions,
+)
 from teleop.lerobot_io.format import DEFAULT_FEATURES, INFO_PATH, TASKS_PATH
 
 MINARI = "minari"
@@ -213,13 +220,16 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
     info = read_info(dataset)
     if columns.OBS_COMMAND not in info["features"]:
         raise DatasetError(f"{dataset} has no {columns.OBS_COMMAND} (a lerobot-command copy already?)")
-    frames = read_frames(dataset)
+    frames = command_columns(info, read_frames(dataset))
     if not frames[columns.OBS_COMMAND].any():
         raise DatasetError(
             f"{dataset}'s command is zero in every frame (nothing was commanded): nothing to condition a policy on; "
             "lerobot-train reads the dataset as it is"
         )
     features = {key: ft for key, ft in info["features"].items() if key not in {*DEFAULT_FEATURES, columns.OBS_COMMAND}}
+    if columns.SETPOINT in features:  # laid out as today's command, as `command_columns` reads it
+        setpoint = features[columns.SETPOINT]
+        features[columns.SETPOINT] = {**setpoint, "shape": [len(COMMAND_NAMES)], "names": [*COMMAND_NAMES]}
     state = features[columns.OBS_STATE]
     features[columns.OBS_STATE] = {
         **state,
@@ -255,7 +265,7 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
 
 def constant_fields(root: Path) -> list[str]:
     """The command's fields that hold one value in every frame of the dataset at `root`."""
-    command = read_frames(root, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
+    command = command_columns(read_info(root), read_frames(root, [columns.OBS_COMMAND]))[columns.OBS_COMMAND]
     return [name for name, column in zip(COMMAND_NAMES, command.T, strict=True) if (column == column[0]).all()]
 
 

@@ -44,6 +44,7 @@ class RolloutSettings:
     latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
     schedules: bool = False  # the operator's command follows the schedule drawn from each seed
     kick: float = 0.0  # one kick of the root's velocity per episode, m/s (humanoid.perturbations.VelocityKick)
+    walking: bool = False  # the schedules mix walks in (humanoid.commands.WALKING_SHARE)
     labeller: str | None = None  # a registered controller that labels every state (DAgger's expert), or none
     policy: MLPPolicy | None = None  # the controller's weights, held in memory (DAgger's round policy, `controller`
     # naming it), instead of a registered controller or checkpoint folder by that name
@@ -76,6 +77,7 @@ class Simulator:
             self.buffer,
             labeller=self.labeller,
             schedules=settings.schedules,
+            walking=settings.walking,
         )
 
     def act_with(self, policy: MLPPolicy, name: str) -> None:

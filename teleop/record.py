@@ -147,6 +147,11 @@ class RecordConfig:
         "controller is told each command, the dataset records it; false: the zero command, stand still (with "
         "--controller keyboard the keys set it)",
     )
+    walking: bool = setting(
+        False,
+        "the schedules mix walks in (forward, sideways and turning speeds; humanoid.commands.WALKING_SHARE): for a "
+        "controller that walks, expert-stepping (docs/how-to/walk.md)",
+    )
     policy: str | None = setting(
         None,
         "with --controller keyboard: the keys command this policy (a checkpoint folder of a policy that takes a "
@@ -224,6 +229,8 @@ def validate(cfg: RecordConfig) -> None:
     check_non_negative(cfg, "noise", "kick")
     if cfg.controller in INTERACTIVE and cfg.kick:
         raise UserError(f"--controller {cfg.controller} kicks with its k key: --kick must be 0")
+    if cfg.walking and (cfg.controller in INTERACTIVE or not cfg.schedules):
+        raise UserError("--walking draws the scripted operator's walking schedules: --schedules on, no keyboard")
     if cfg.seed is not None and not 0 <= cfg.seed <= SEED_LIMIT - cfg.episodes:
         raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
@@ -399,7 +406,16 @@ def _record(
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
-                episode = run_episode(env, controller, seed, cfg.noise, buffer, observer=live, schedules=cfg.schedules)
+                episode = run_episode(
+                    env,
+                    controller,
+                    seed,
+                    cfg.noise,
+                    buffer,
+                    observer=live,
+                    schedules=cfg.schedules,
+                    walking=cfg.walking,
+                )
                 report(sink.submit(episode))
         else:
             _record_in_parallel(rollouts, seeds, sink, report)
@@ -426,6 +442,7 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
         cfg.latency,
         cfg.schedules,
         cfg.kick,
+        cfg.walking,
     )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":

@@ -15,7 +15,7 @@ from bc import train as train_stage
 from evaluation import evaluate as evaluate_stage
 from evaluation import robustness
 from evaluation.evaluate import plot_tracking, tracking
-from humanoid.command_fields import COMMAND_NAMES
+from humanoid.command_fields import POSTURE_NAMES, task_fields
 from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
 from humanoid.env import make_env
 from humanoid.episode import run_episode
@@ -176,7 +176,7 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
     env = make_env(OPERATOR_STEPS)
     try:
         episode = run_episode(env, LQRExpert(), OPERATOR_SEED, schedules=True)
-        measure = Tracking(env.unwrapped.model)
+        measure = Tracking(env.unwrapped.model, task_fields(walking=False))
         result = tracking([episode], measure, env.unwrapped.dt)
         plot_tracking(episode, measure, env.unwrapped.dt, tmp_path / "tracking.png")
     finally:
@@ -184,8 +184,9 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
     lean = command_schedule(OPERATOR_SEED, OPERATOR_STEPS, env.unwrapped.dt)[200]  # the seed's first command
     assert lean[:2].all() and not lean[2:].any()  # a lean forward and to the side, held until step 343
     assert episode.length == OPERATOR_STEPS and np.array_equal(episode.command[200:340], np.tile(lean, (140, 1)))
-    np.testing.assert_allclose(measure.achieved(episode.observation[330:340]), [[*lean[:2], 0, 0]] * 10, atol=0.01)
-    assert set(result) == TRACKING_FIELDS | {"episodes"} and set(result["settled_error"]) == set(COMMAND_NAMES)
+    achieved = measure.achieved(episode.observation[330:340])[:, :4]  # the posture fields Foxglove plots
+    np.testing.assert_allclose(achieved, [[*lean[:2], 0, 0]] * 10, atol=0.01)
+    assert set(result) == TRACKING_FIELDS | {"episodes"} and set(result["settled_error"]) == set(POSTURE_NAMES)
     assert all(0 <= error < 0.02 for error in result["settled_error"].values()), result
     assert 0 < result["settle_seconds"] < OPERATOR_STEPS * env.unwrapped.dt
     image = matplotlib.image.imread(tmp_path / "tracking.png")
@@ -217,7 +218,7 @@ def test_eval_under_schedules_reports_tracking_and_plots_it(tmp_path: Path, caps
     code, out, _ = stage_cli(evaluate_stage, [*args, "--progress", "false"], capsys)
     result = json.loads(out[-1])
     assert code == 0 and result["survival_rate"] == 1.0 and result["takes_command"] is True
-    assert TRACKING_FIELDS <= set(result["tracking"]) and set(result["tracking"]["settled_error"]) == set(COMMAND_NAMES)
+    assert TRACKING_FIELDS <= set(result["tracking"]) and set(result["tracking"]["settled_error"]) == set(POSTURE_NAMES)
     assert all(0 <= error < 0.02 for error in result["tracking"]["settled_error"].values())
     assert matplotlib.image.imread(path).shape[:2] == (900, 800)
 
@@ -234,8 +235,8 @@ def test_robustness_under_schedules_adds_tracking_to_the_rows(
     summary = json.loads(out[-1])
     row = summary["conditions"]["clean"]
     assert code == 0 and row["survival_rate"] == 1.0 and TRACKING_FIELDS <= set(row["tracking"])
-    assert set(row["tracking"]["settled_error"]) == set(COMMAND_NAMES)
-    assert out[0].split() == ["condition", "survival", "mean", "return", *COMMAND_NAMES]  # the table's columns
+    assert set(row["tracking"]["settled_error"]) == set(POSTURE_NAMES)  # the posture task's fields
+    assert out[0].split() == ["condition", "survival", "mean", "return", *POSTURE_NAMES]  # the table's columns
     saved = json.loads((tmp_path / "robustness_schedules.json").read_text())  # beside the standing suite's file
     assert (
         saved["conditions"]["clean"]["tracking"] == row["tracking"] and not (tmp_path / robustness.RESULT_FILE).exists()
@@ -253,7 +254,7 @@ def test_a_commanded_actor_reads_the_command_its_training_episode_follows() -> N
     obs, info = env.reset(seed=5)
     commands = []
     for _ in range(210):  # past the 3 s neutral start
-        np.testing.assert_array_equal(obs[-len(COMMAND_NAMES) :], info[COMMAND_INFO])
+        np.testing.assert_array_equal(obs[-len(POSTURE_NAMES) :], info[COMMAND_INFO][: len(POSTURE_NAMES)])
         commands.append(info[COMMAND_INFO])
         expert.set_command(info[COMMAND_INFO])
         obs, _, terminated, _, info = env.step(expert.act(obs[:348]))

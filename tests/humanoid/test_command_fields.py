@@ -7,10 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, CommandField, Readout
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, Readout
 from humanoid.commands import Tracking, task_for
 from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
-from humanoid.posture import NEUTRAL, Posture, posture_reference
+from humanoid.posture import NEUTRAL, Posture, axis_quaternion, multiply_quaternions, posture_reference
+from humanoid.sensors import body_axes
 from teleop.keyboard import KEY_ACTIONS, TeleopSession
 
 
@@ -40,7 +41,7 @@ def test_the_readout_reads_every_field_and_a_balanced_pose_reads_its_posture() -
     rest = np.zeros(model.nv)
     read = readout(posture_reference(model, posture)[0][2:], rest)
     assert tuple(read) == COMMAND_NAMES
-    assert [read[name].shape for name in COMMAND_NAMES] == [(1,), (1,), (1,), (1,), (6,)]
+    assert [read[name].shape for name in COMMAND_NAMES] == [(1,), (1,), (1,), (1,), (6,), (1,), (1,), (1,)]
     for name in ("lean_forward", "lean_left", "twist"):
         assert read[name][0] == pytest.approx(getattr(posture, name), abs=1e-9)
     crouched = readout(posture_reference(model, Posture(height=-0.06))[0][2:], rest)["height"]
@@ -73,33 +74,34 @@ def test_every_rows_keys_change_that_field_by_its_step(field) -> None:
             assert getattr(session.target, field.name) == field.clip(getattr(start, field.name) + sign * field.step)
 
 
-class ReadoutWithSpeed(Readout):
-    """The project's readout and a field read from the velocities: the root's forward speed (qvel's x)."""
-
-    def __call__(self, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
-        return {**super().__call__(qpos, qvel), "forward_speed": qvel[..., 0:1]}
-
-
-def test_a_field_tracked_as_its_value_is_one_row_and_its_reader() -> None:
-    """A velocity row added to the table (not posed) and its entry in the readout: tracking compares its reading with
-    the commanded value (clipped to its row's limits), the posed fields as before, the field's own error apart."""
-    speed = CommandField(
-        "forward_speed",
-        "m/s",
-        -0.3,
-        0.6,
-        0.1,
-        0.1,
-        (("j",), ("k",)),
-        ("walk back", "walk forward"),
-        (19, 20, 21),
-        posed=False,
-    )
+def test_the_velocities_read_in_the_heading_of_the_untwisted_torso() -> None:
+    """A body twisted at the waist (0.3 rad) and turned 0.5 rad about the vertical, moving 0.3 m/s along that heading
+    and 0.1 m/s to its left, turning at 0.2 rad/s: the readout gives those three numbers, the twist turning no walk."""
     model = nominal_model()
-    tracking = Tracking(model, (*COMMAND_FIELDS, speed), ReadoutWithSpeed(model))
+    qpos = posture_reference(model, Posture(twist=0.3))[0].copy()
+    qpos[3:7] = multiply_quaternions(axis_quaternion(2, 0.5), qpos[3:7])
+    qvel = np.zeros(model.nv)
+    heading = np.array([np.cos(0.5), np.sin(0.5)])
+    qvel[0:2] = 0.3 * heading + 0.1 * np.array([-heading[1], heading[0]])
+    qvel[3:6] = body_axes(qpos[3:7]) @ np.array([0.0, 0.0, 0.2])  # the world's yaw rate in the root's frame: R^T w
+    read = Readout(model)(qpos[2:], qvel)
+    assert read["forward_speed"][0] == pytest.approx(0.3, abs=1e-9)
+    assert read["sideways_speed"][0] == pytest.approx(0.1, abs=1e-9)
+    assert read["turn_rate"][0] == pytest.approx(0.2, abs=1e-9)
+
+
+def test_a_velocity_is_tracked_as_its_commanded_value_clipped_to_its_row() -> None:
+    """A velocity row is not posed: tracking compares the reading with the commanded value (clipped to the row's
+    limits), the posed fields as before."""
+    model = nominal_model()
+    tracking = Tracking(model)
     stand = posture_reference(model, NEUTRAL)[0][2:]
     observation = np.zeros((1, 348))
     observation[0, QPOS_OBS], observation[0, QVEL_OBS.start] = stand, 0.25
+    speed = COMMAND_NAMES.index("forward_speed")
     for commanded, error in ((0.4, 0.15), (0.25, 0.0), (1.0, 0.35)):  # 1.0 is clipped to the row's 0.6
-        command = np.array([[0.0] * len(COMMAND_FIELDS) + [commanded]])
-        np.testing.assert_allclose(tracking.errors(observation, command)[0], [0, 0, 0, 0, 0, error], atol=1e-9)
+        command = np.zeros((1, len(COMMAND_NAMES)))
+        command[0, speed] = commanded
+        np.testing.assert_allclose(
+            tracking.errors(observation, command)[0, : speed + 1], [0] * speed + [error], atol=1e-9
+        )

@@ -16,7 +16,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from common import columns
 from common.cli import UserError
 from common.seed_ranges import TRAINING_SEEDS
-from humanoid.command_fields import COMMAND_NAMES, FIELDS, TOLERANCES
+from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, POSTURE_NAMES, VELOCITY_NAMES
 from humanoid.commands import (
     COMMAND_INFO,
     DEFAULT_TASK,
@@ -102,7 +102,56 @@ def test_targets_lie_on_the_keys_grid_within_scale_of_the_limits() -> None:
                     assert value in (1.0, 2.0, 3.0)
                 else:
                     assert SCALE * field.low - 1e-9 <= value <= SCALE * field.high + 1e-9
-    assert commanded == set(COMMAND_NAMES)
+    assert commanded == set(POSTURE_NAMES)
+
+
+def test_walking_schedules_mix_walks_on_the_velocity_grid_with_postures_and_stands() -> None:
+    """Over 50 seeds with walks: a target walks (one or two velocity fields, no posture) or poses (posture fields
+    only, as a posture schedule) or stands; the walks are whole key presses over each velocity's range, and reach both
+    ends of it; reproducible per seed. Without walks no velocity is ever commanded."""
+    kinds, values = set(), {name: set() for name in VELOCITY_NAMES}
+    for seed in range(50):
+        targets = schedule_targets(seed, SECONDS, walking=True)
+        assert targets == schedule_targets(seed, SECONDS, walking=True)
+        for _, target in targets[1:]:
+            walks = [name for name in VELOCITY_NAMES if getattr(target, name)]
+            poses = [name for name in POSTURE_NAMES if getattr(target, name)]
+            assert not (walks and poses) and len(walks) <= 2, target
+            kinds.add("walk" if walks else "pose" if poses else "stand")
+            for name in walks:
+                value, field = getattr(target, name), FIELDS[name]
+                assert value / field.step == pytest.approx(round(value / field.step), abs=1e-6)
+                assert field.low - 1e-9 <= value <= field.high + 1e-9
+                values[name].add(round(value, 6))
+        assert not command_schedule(seed, EPISODE_STEPS, DT)[:, [COMMAND_NAMES.index(n) for n in VELOCITY_NAMES]].any()
+    assert kinds == {"walk", "pose", "stand"}
+    assert all({FIELDS[name].low, FIELDS[name].high} <= values[name] for name in VELOCITY_NAMES), values
+
+
+def test_a_walks_task_string_names_its_speeds() -> None:
+    assert task_for(Posture(forward_speed=0.4, turn_rate=-0.2)) == "Walk forward at 0.4 m/s, turn right at 0.2 rad/s."
+    assert task_for(Posture(sideways_speed=-0.1, arms=2.0)) == "Walk right at 0.1 m/s, arms up."
+    assert task_for(Posture(forward_speed=-0.3)) == "Walk backward at 0.3 m/s."
+
+
+def test_the_expert_ramps_a_velocity_setpoint_and_clips_it_without_moving_its_pose() -> None:
+    """A walk asked of the LQR expert (which stands: it does not step): the setpoint's speed is clipped to the row's
+    limit (0.6 m/s) and gets there over 0.6 / 0.4 = 1.5 s; the pose it holds and its gain stay the neutral stand's."""
+    expert, env = LQRExpert(), make_env()
+    obs, _ = env.reset(seed=3)
+    expert.reset(3)
+    pose, gain = expert.qpos_ref.copy(), expert.gain.copy()
+    expert.set_command(command_vector(Posture(forward_speed=2.0)))
+    assert expert.target == Posture(forward_speed=0.6)
+    speeds = []
+    for _ in range(round(1.5 / DT) + 5):
+        obs, *_ = env.step(expert.act(obs))
+        speeds.append(expert.setpoint()[COMMAND_NAMES.index("forward_speed")])
+    env.close()
+    assert speeds[round(1.5 / DT) - 10] < 0.6 and speeds[-1] == pytest.approx(0.6)
+    assert np.all(np.diff(speeds) >= 0)
+    np.testing.assert_array_equal(expert.qpos_ref, pose)
+    np.testing.assert_array_equal(expert.gain, gain)
 
 
 def test_a_schedule_starts_neutral_then_changes_and_holds_some_neutral_targets() -> None:
@@ -164,11 +213,11 @@ def test_known_perturbations_give_known_errors(model: mujoco.MjModel, tracking: 
     lowered[0, 0] -= 0.02
     arm[0, model.joint("right_elbow").qposadr[0] - 2] += 0.06
     expected = {
-        "twisted": (twisted, [0, 0, 0, 0.1, 0]),
-        "pitched": (pitched, [0.1, 0, 0, 0, 0]),
-        "rolled": (rolled, [0, 0.1, 0, 0, 0]),
-        "lowered": (lowered, [0, 0, 0.02, 0, 0]),
-        "arm": (arm, [0, 0, 0, 0, 0.01]),
+        "twisted": (twisted, [0, 0, 0, 0.1, 0, 0, 0, 0]),
+        "pitched": (pitched, [0.1, 0, 0, 0, 0, 0, 0, 0]),
+        "rolled": (rolled, [0, 0.1, 0, 0, 0, 0, 0, 0]),
+        "lowered": (lowered, [0, 0, 0.02, 0, 0, 0, 0, 0]),
+        "arm": (arm, [0, 0, 0, 0, 0.01, 0, 0, 0]),
     }
     for name, (obs, error) in expected.items():
         np.testing.assert_allclose(tracking.errors(obs, zero)[0], error, atol=1e-9, err_msg=name)
@@ -177,7 +226,7 @@ def test_known_perturbations_give_known_errors(model: mujoco.MjModel, tracking: 
         np.testing.assert_array_equal(one, tracking.errors(obs, zero)[0], err_msg=name)
     achieved = np.concatenate([tracking.achieved(obs) for obs in (pitched, rolled, lowered, twisted)])
     np.testing.assert_allclose(
-        achieved, [[0.1, 0, 0, 0], [0, -0.1, 0, 0], [0, 0, -0.02, 0], [0, 0, 0, -0.1]], atol=1e-9
+        achieved[:, :4], [[0.1, 0, 0, 0], [0, -0.1, 0, 0], [0, 0, -0.02, 0], [0, 0, 0, -0.1]], atol=1e-9
     )
 
 
@@ -188,7 +237,7 @@ def test_tracking_summary_of_hand_made_errors() -> None:
     its settle time is its whole 1.5 s. Mean settle time 1.3 s."""
     commands = np.zeros((45, len(COMMAND_NAMES)), np.float32)
     commands[30:, 0] = 0.1
-    inside = TOLERANCES / 2
+    inside = np.array([field.tolerance for field in COMMAND_FIELDS]) / 2
     errors = np.tile(inside, (45, 1))
     errors[:5] = 1.0
     errors[10, 2] = 0.03
@@ -317,13 +366,17 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
 def test_the_tracking_kernel_is_one_on_the_command_and_falls_with_the_error() -> None:
     """exp(-(error / tolerance)²) per field, averaged: 1 on the command; one field one tolerance off: (4 + 1/e) / 5,
     two fields: (3 + 2/e) / 5."""
-    assert tracking_reward(np.zeros(5)) == 1.0
+    tolerances = np.array([FIELDS[name].tolerance for name in POSTURE_NAMES])
+    assert tracking_reward(np.zeros(5), tolerances) == 1.0
     one_off = np.array([FIELDS["lean_forward"].tolerance, 0.0, 0.0, 0.0, 0.0])
-    assert tracking_reward(one_off) == pytest.approx((4 + np.exp(-1)) / 5)
+    assert tracking_reward(one_off, tolerances) == pytest.approx((4 + np.exp(-1)) / 5)
     two_off = one_off + np.array([0.0, 0.0, FIELDS["height"].tolerance, 0.0, 0.0])
-    assert tracking_reward(two_off) == pytest.approx((3 + 2 * np.exp(-1)) / 5)
-    assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, 0.0)}) == 1.0
-    assert tracking_score({"settled_error": dict.fromkeys(COMMAND_NAMES, float("nan"))}) == 0.0
+    assert tracking_reward(two_off, tolerances) == pytest.approx((3 + 2 * np.exp(-1)) / 5)
+    assert tracking_score({"settled_error": dict.fromkeys(POSTURE_NAMES, 0.0)}) == 1.0
+    assert tracking_score({"settled_error": dict.fromkeys(POSTURE_NAMES, float("nan"))}) == 0.0
+    # A summary's score is over the fields it measured: a walk's velocity one tolerance off counts as one field of 8.
+    walked = {**dict.fromkeys(COMMAND_NAMES, 0.0), "forward_speed": FIELDS["forward_speed"].tolerance}
+    assert tracking_score({"settled_error": walked}) == pytest.approx((7 + np.exp(-1)) / 8)
 
 
 def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracking() -> None:
@@ -345,9 +398,11 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
         action = expert.act(obs)
         obs, reward, *_, info = task.step(action)
         _, base, *_ = bare.step(action)
-        errors = task.tracking.errors(task.unwrapped.data.qpos[None, 2:], commands[t][None])
+        data = task.unwrapped.data
+        errors = task.tracking.error(data.qpos[2:], data.qvel, commands[t])
+        assert errors.shape == (len(POSTURE_NAMES),)  # the posture task tracks the posture fields
         extra.append(reward - base)
-        assert reward - base == pytest.approx(2.0 * tracking_reward(errors)[0])
+        assert reward - base == pytest.approx(2.0 * task.tracking.reward(errors))
         seen.append(info[COMMAND_INFO])
     np.testing.assert_array_equal(np.array(seen), commands[: len(seen)])
     assert (np.array(seen)[-1] != 0).any()  # past the neutral start, a command
@@ -380,4 +435,6 @@ def test_every_training_environment_measures_on_the_one_nominal_body() -> None:
     assert drawn.tracking.model is other.tracking.model is nominal_model()
     assert not np.array_equal(drawn.unwrapped.model.body_mass, nominal_model().body_mass)
     command = command_vector(Posture(lean_left=0.1, height=-0.05))
-    np.testing.assert_array_equal(drawn.tracking.target(command), Tracking(humanoid_model()).target(command))
+    np.testing.assert_array_equal(
+        drawn.tracking.target(command), Tracking(humanoid_model(), drawn.tracking.fields).target(command)
+    )

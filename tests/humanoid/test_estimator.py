@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from humanoid import estimator
+from humanoid.commands import command_vector
 from humanoid.conditions import ActionLatency
 from humanoid.controllers import make_controller
 from humanoid.env import humanoid_model, make_env
@@ -19,7 +20,7 @@ from humanoid.estimator import (
     odometry_names,
 )
 from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.posture import axis_quaternion, multiply_quaternions
+from humanoid.posture import Posture, axis_quaternion, multiply_quaternions
 from humanoid.sensors import Proprioception, body_axes, gravity_direction
 
 
@@ -97,7 +98,7 @@ def test_a_commanded_twist_turns_the_estimated_torso_as_it_turns_the_true_one() 
     model, data = env.unwrapped.model, env.unwrapped.data
     expert, sensed, odometry = LQRExpert(model), Proprioception(model), LegOdometry(model)
     obs, _ = env.reset(seed=4)
-    expert.set_command(np.array([0.0, 0.0, 0.0, 0.25, 0.0]))
+    expert.set_command(command_vector(Posture(twist=0.25)))
     angles = []
     for _ in range(150):
         qpos, _ = odometry(sensed(obs))

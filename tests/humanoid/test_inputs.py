@@ -14,7 +14,7 @@ from bc import train as bc_train
 from bc.data import load_demonstrations
 from common import columns
 from common.cli import UserError
-from humanoid.command_fields import COMMAND_NAMES
+from humanoid.command_fields import COMMAND_NAMES, POSTURE_NAMES
 from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
@@ -179,17 +179,20 @@ def test_a_checkpoint_on_the_removed_odometry_inputs_is_refused_naming_pending()
 
 
 def test_a_commanded_set_reads_its_base_then_the_command_as_it_is() -> None:
-    """Known answer: "pending+command" is "pending"'s inputs, then the five command fields, whatever they are."""
+    """Known answer: "pending+command" is "pending"'s inputs, then the five posture fields of the command, whatever
+    they are; the velocities it does not read."""
     model = humanoid_model()
     episode = expert_episode(0, seed=0)
-    command = np.array([0.1, -0.05, -0.04, 0.2, 3.0], np.float32)
+    posture = np.array([0.1, -0.05, -0.04, 0.2, 3.0], np.float32)
+    command = np.concatenate([posture, [0.4, -0.1, 0.3]]).astype(np.float32)
     base, commanded = INPUT_SETS["pending"](model), INPUT_SETS["pending+command"](model)
     frame = commanded.observe(episode.observation[5], command)
-    np.testing.assert_array_equal(frame[-5:], command)
+    np.testing.assert_array_equal(frame[-5:], posture)
     inputs = commanded(frame)
     np.testing.assert_array_equal(inputs[:-5], base(base.observe(episode.observation[5], command)))
-    np.testing.assert_array_equal(inputs[-5:], command)
-    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in COMMAND_NAMES]
+    np.testing.assert_array_equal(inputs[-5:], posture)
+    assert commanded.input_names(model)[-5:] == [f"command.{name}" for name in POSTURE_NAMES]
+    assert commanded.observed_names(model)[-5:] == list(POSTURE_NAMES) == list(COMMAND_NAMES[:5])
     assert commanded.takes_command and not base.takes_command
 
 

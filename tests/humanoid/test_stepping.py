@@ -5,11 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from humanoid.commands import command_vector
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
 from humanoid.expert import LQRExpert
 from humanoid.perturbations import VelocityKick
-from humanoid.stepping import STANCE_WIDTH, SteppingDesign, SteppingExpert, off_segment, planning_model, stance
+from humanoid.posture import Posture
+from humanoid.sensors import body_axes
+from humanoid.stepping import (
+    STANCE_WIDTH,
+    SteppingDesign,
+    SteppingExpert,
+    off_segment,
+    planning_model,
+    stance,
+    yaw_rate,
+)
 
 KICK_SEED = 1000
 KICK_STEPS = 330  # the kick at 2 s (133 steps), then about 3 s: the LQR expert is down by then
@@ -67,3 +78,36 @@ def test_a_kick_that_topples_the_lqr_expert_is_survived_by_stepping_the_same_way
     assert stood and stepping.planned > 100
     _, again = _episode(stepping, env, KICK_SEED)
     np.testing.assert_array_equal(np.array(actions), np.array(again))
+
+
+def test_the_yaw_rate_is_the_local_angular_velocity_turned_into_the_world() -> None:
+    """Known answer: a body pitched 90 degrees (its local x up) spinning about its local x turns about the vertical."""
+    qpos, qvel = np.zeros(7), np.zeros(6)
+    qpos[3:7] = [np.cos(np.pi / 4), 0.0, -np.sin(np.pi / 4), 0.0]  # -90 degrees about y: local x -> world z
+    qvel[3] = 0.3
+    assert yaw_rate(qpos, qvel) == pytest.approx(0.3)
+
+
+WALK_SEED, WALK_FROM, WALK_STEPS = 3000, 150, 450  # a selection seed; 4.5 s of a 0.4 m/s walk after the landing
+
+
+def test_a_forward_command_walks_the_body_along_its_heading() -> None:
+    """Under a forward speed of 0.4 m/s (ramped at 0.4 m/s^2) the walking planner takes over and the body moves
+    forward along its heading, upright; the LQR expert, told the same, stands."""
+    moved = {}
+    for controller in (SteppingExpert(), LQRExpert()):
+        env = make_env()
+        obs, _ = env.reset(seed=WALK_SEED)
+        controller.set_body(env.unwrapped.model)
+        controller.reset(WALK_SEED)
+        start = None
+        for t in range(WALK_STEPS):
+            if t == WALK_FROM:
+                controller.set_command(command_vector(Posture(forward_speed=0.4)))
+                start = env.unwrapped.data.qpos[:2].copy()
+            obs, _, terminated, _, _ = env.step(controller.act(obs))
+            assert not terminated, (controller, t)
+        heading = body_axes(env.unwrapped.data.qpos[3:7])[0, :2]
+        moved[type(controller)] = float((env.unwrapped.data.qpos[:2] - start) @ heading / np.linalg.norm(heading))
+        env.close()
+    assert moved[SteppingExpert] > 0.5 and abs(moved[LQRExpert]) < 0.05, moved

@@ -25,7 +25,7 @@ from bc.dagger import SOURCE_FILE, DaggerConfig
 from bc.train import TrainConfig
 from common import paths
 from common.cli import UserError, parse_config
-from humanoid.command_fields import COMMAND_NAMES
+from humanoid.command_fields import POSTURE_NAMES
 from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
 from humanoid.inputs import BLIND_INPUTS, STUDENT_INPUTS
@@ -249,7 +249,7 @@ def test_the_table_rows_every_controller_with_survival_and_tracking_per_field(
     ]
     assert table[2].startswith("| expert-sensed | 1/1 | 1/1 · 1.00 | ")  # the demonstrator follows the schedule
     fields = next(line for line in table if line.startswith("| condition | controller"))
-    assert fields == "| condition | controller | survivors | " + " | ".join(COMMAND_NAMES) + " | settle (s) |"
+    assert fields == "| condition | controller | survivors | " + " | ".join(POSTURE_NAMES) + " | settle (s) |"
     per_field = [line for line in table if line.startswith(("| clean | ", "| push10 | "))]
     assert len(per_field) == 12
 
@@ -623,7 +623,7 @@ def test_the_table_known_answer() -> None:
     command and over those that moved it (twice the tolerance; n/a where none did), n/a for a field never settled."""
     at_tolerance = {"lean_forward": 0.05, "lean_left": 0.05, "height": 0.02, "twist": 0.05, "arms": 0.1}
     moved = {**{name: 2 * error for name, error in at_tolerance.items()}, "height": float("nan")}
-    never = dict.fromkeys(COMMAND_NAMES, float("nan"))
+    never = dict.fromkeys(POSTURE_NAMES, float("nan"))
     tracked = {
         "p": {
             "seeds": [1000, 1001],

@@ -30,7 +30,8 @@ KEYBOARD_RECORDER = [sys.executable, "-m", "teleop.record", "--controller", "key
 
 @pytest.fixture(scope="module")
 def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    """One episode driven by keys (crouch, lean forward, arms up, neutral, push), one discarded, then quit."""
+    """One episode driven by keys (crouch, lean forward, arms up, walk forward, neutral, push), one discarded, then
+    quit."""
     root = tmp_path_factory.mktemp("keyboard") / "dataset"
     terminal = Terminal([*KEYBOARD_RECORDER, "--dataset", str(root), "--noise", "0", "--max-steps", "5000"])
     terminal.wait_for(b"keys:")
@@ -38,6 +39,7 @@ def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     terminal.press("ff", HOLD)  # crouch 4 cm
     terminal.press("ww", HOLD)  # lean forward 0.1 rad
     terminal.press("2", HOLD)  # arms up
+    terminal.press("\x1b[A\x1b[A", 1.0)  # walk forward at 0.2 m/s (the expert stands: it does not walk)
     terminal.press(" ", HOLD)  # back to neutral
     terminal.press("p", 1.5)  # push
     terminal.press("\r", 0.5)  # end and save
@@ -49,7 +51,7 @@ def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return root, terminal.output.decode(errors="replace")
 
 
-POSTURE = slice(None)  # the command is the posture (the push has its own column)
+POSTURE = slice(None)  # every field of the command (the push has its own column)
 
 
 def phases(command: np.ndarray) -> list[int]:
@@ -58,7 +60,7 @@ def phases(command: np.ndarray) -> list[int]:
 
 
 def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -> None:
-    """observation.command steps through crouch, lean, arms up and neutral, then records the push."""
+    """observation.command steps through crouch, lean, arms up, a walk and neutral, then records the push."""
     root, _ = teleoperated
     frames = read_frames(root, [columns.OBS_COMMAND, columns.PUSH, columns.SETPOINT, "episode_index"])
     command = frames[columns.OBS_COMMAND]
@@ -66,7 +68,14 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
     # Two presses that arrive together both act before the next step: the command jumps two notches.
     np.testing.assert_allclose(
         held,
-        [(0, 0, 0, 0, 0), (0, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 0), (0.1, 0, -0.04, 0, 2), (0, 0, 0, 0, 0)],
+        [
+            (0, 0, 0, 0, 0, 0, 0, 0),
+            (0, 0, -0.04, 0, 0, 0, 0, 0),
+            (0.1, 0, -0.04, 0, 0, 0, 0, 0),
+            (0.1, 0, -0.04, 0, 2, 0, 0, 0),
+            (0.1, 0, -0.04, 0, 2, 0.2, 0, 0),
+            (0, 0, 0, 0, 0, 0, 0, 0),
+        ],
         atol=1e-6,
     )
     # The expert's setpoint starts where the command does, moves toward each command and gets there.
@@ -76,7 +85,7 @@ def test_the_recorded_commands_follow_the_keys(teleoperated: tuple[Path, str]) -
     assert any((setpoint[start] != command[start]).any() for start in changes[1:])  # on its way
     np.testing.assert_allclose(setpoint[changes[2] - 1], command[changes[2] - 1], atol=1e-6)  # there
     pushed = np.flatnonzero(frames[columns.PUSH][:, 0] > 0)
-    assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[4]
+    assert 1 <= len(pushed) <= 10 and np.all(np.diff(pushed) == 1) and pushed[0] > phases(command)[5]
     assert np.all(frames["episode_index"] == 0)  # the discarded episode left nothing
 
 
@@ -107,6 +116,7 @@ def test_tasks_name_the_commands_in_dataset_and_mcap(teleoperated: tuple[Path, s
         "Crouch while standing.",
         "Lean forward, crouch while standing.",
         "Lean forward, crouch, arms up while standing.",
+        "Walk forward at 0.2 m/s, lean forward, crouch, arms up.",
     ]  # and back to the first
     assert episode[columns.EPISODE_CONTROLLER] == "keyboard"
     mcap = read_mcap_episode(root / episode[columns.EPISODE_MCAP])

@@ -193,8 +193,8 @@ def test_the_keys_lean_the_policys_trunk_and_back_within_3_s(played: Played) -> 
     assert env.unwrapped.dt == DT
     env.close()
     lean, back = changes
-    np.testing.assert_allclose(command[lean], [0.15, 0, 0, 0, 0], atol=1e-6)
-    np.testing.assert_array_equal(command[back], np.zeros(5))
+    np.testing.assert_allclose(command[lean], [0.15, 0, 0, 0, 0, 0, 0, 0], atol=1e-6)
+    np.testing.assert_array_equal(command[back], np.zeros(8))
     window = round(WITHIN / DT)
     assert back - lean >= window and len(command) - back >= window, (lean, back, len(command))
     tracking = Tracking(humanoid_model())
