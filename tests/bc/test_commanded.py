@@ -159,6 +159,7 @@ def test_play_refuses_a_policy_that_takes_no_command(tmp_path: Path, capsys: pyt
     [
         (["--plot", "TMP/x.txt"], "--plot must be a .png path, got TMP/x.txt"),
         (["--seed", "-1", "--schedules", "true"], "--seed must be >= 0, got -1"),  # a schedule's seed, too
+        (["--walking", "true", "--schedules", "false"], "--walking draws walking schedules: leave --schedules on"),
     ],
 )
 def test_bad_tracking_settings_of_eval_are_refused(

@@ -109,6 +109,8 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--kick", "-0.4"], "--kick must be >= 0"),
         (["--kick", "nan"], "--kick must be >= 0"),
         (["--controller", "keyboard", "--kick", "0.4"], "kicks with its k key: --kick must be 0"),
+        (["--walking", "true", "--schedules", "false"], "--walking draws the scripted operator's walking schedules"),
+        (["--controller", "keyboard", "--walking", "true"], "--walking draws the scripted operator"),
         (["--seed", "-1"], "--seed must be >= 0"),
         (["--seed", str(2**63 - 1), "--episodes", "2"], "below 2**63"),
     ],
