@@ -189,6 +189,11 @@ POSTURE_NAMES = tuple(field.name for field in POSTURE_FIELDS)
 VELOCITY_NAMES = tuple(field.name for field in COMMAND_FIELDS if field.group == VELOCITY)
 
 
+def field_positions(names: tuple[str, ...] | list[str]) -> list[int]:
+    """Where the fields `names` sit in a command vector (`COMMAND_NAMES` order)."""
+    return [COMMAND_NAMES.index(name) for name in names]
+
+
 def task_fields(walking: bool) -> tuple[CommandField, ...]:
     """The fields a task commands, tracks and scores: every field when walking, else the posture fields."""
     return COMMAND_FIELDS if walking else POSTURE_FIELDS

@@ -38,6 +38,7 @@ from humanoid.command_fields import (
     VELOCITY_NAMES,
     CommandField,
     Readout,
+    field_positions,
     task_fields,
 )
 from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
@@ -173,7 +174,6 @@ class Tracking:
     def __init__(self, model: mujoco.MjModel, fields: tuple[CommandField, ...] = COMMAND_FIELDS) -> None:
         self.model = model
         self.fields = fields
-        self.names = tuple(field.name for field in fields)
         self.tolerances = np.array([field.tolerance for field in fields])
         """Each field's tolerance, in `fields` order."""
         self.readout = Readout(model)
@@ -277,7 +277,7 @@ def tracking_summary(
     never settled counts its whole duration). NaN where no command was held long enough. `errors` (T, fields) are of
     `fields`, `commands` (T, COMMAND_SIZE) whole."""
     names = [field.name for field in fields]
-    columns, tolerances = [COMMAND_NAMES.index(name) for name in names], np.array([f.tolerance for f in fields])
+    columns, tolerances = field_positions(names), np.array([f.tolerance for f in fields])
     window = round(SETTLED_SECONDS / dt)
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
     settled, moved, times, previous = [], [], [], NEUTRAL

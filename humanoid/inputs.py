@@ -49,7 +49,7 @@ import numpy as np
 from common.cli import REMOVED_VALUES, Removed, UserError
 from common.columns import ACTION, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
-from humanoid.command_fields import ARM_JOINTS, COMMAND_NAMES, COMMAND_SIZE, POSTURE_FIELDS, POSTURE_NAMES
+from humanoid.command_fields import ARM_JOINTS, COMMAND_SIZE, POSTURE_FIELDS, POSTURE_NAMES, field_positions
 from humanoid.commands import COMMAND_INFO
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, nominal_model, observation_names
@@ -189,7 +189,7 @@ class PendingInputs(InputSet):
         return np.concatenate([odometry, self.pending, [float(self.delay)]])
 
 
-COMMANDED = tuple(COMMAND_NAMES.index(name) for name in POSTURE_NAMES)
+COMMANDED = tuple(field_positions(POSTURE_NAMES))
 """Where a commanded set's fields (the posture's) sit in a command vector: the fields it reads by name, so a dataset
 that records more (or, recorded before them, fewer) fields gives the same frames."""
 

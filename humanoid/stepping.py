@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from humanoid.command_fields import COMMAND_NAMES, VELOCITY_NAMES
+from humanoid.command_fields import VELOCITY_NAMES, field_positions
 from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
 from humanoid.expert import ExpertAround, LQRExpert
 from humanoid.lqr import CTRL_LIMIT
@@ -33,6 +33,7 @@ OMEGA = 3.4
 """sqrt(g / centre-of-mass height) of the standing body, 1/s: the capture point's time constant."""
 STANCE_WIDTH = 0.18
 """Sideways distance between the feet in the LQR's stance, m."""
+_VELOCITIES = field_positions(VELOCITY_NAMES)  # where the walk sits in the expert's setpoint
 HEAD_HEIGHT = 1.40
 """The head's height above the lower foot's centre in the LQR's stance, m: the cost asks for at least this (less
 the commanded crouch)."""
@@ -187,37 +188,17 @@ class StepPlanner:
         return knots[..., self._at, :] * (1.0 - share) + knots[..., self._at + 1, :] * share
 
     def cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        """Each rollout's cost (samples,) from its sensordata (samples, horizon, n), controls, qpos and qvel."""
-        if self.design.walk:
-            return self.walking_cost(sensors, controls, qpos, qvel)
-        w = self.design.weights
-        com, velocity = sensors[..., COM], sensors[..., COM_VEL]
-        left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
-        height = sensors[..., HEAD][..., 2] - np.minimum(left[..., 2], right[..., 2])
-        capture = com[..., :2] + 0.3 * velocity[..., :2]  # MuJoCo MPC's capture point
-        centre = 0.5 * (left[..., :2] + right[..., :2])
-        fore, side = stance(sensors)
-        cost = (
-            w["height"] * np.square(np.minimum(height - HEAD_HEIGHT - (self.reference[2] - self.standing_height), 0.0))
-            + w["capture"] * off_segment(capture, left[..., :2], right[..., :2])
-            + w["centre"] * np.linalg.norm(capture - centre, axis=-1)
-            + w["upright"] * np.square(sensors[..., TORSO_Z][..., :2]).sum(-1)
-            + w["velocity"] * np.square(velocity[..., :2]).sum(-1)
-            + w["posture"] * np.square(qpos[..., 7:] - self.reference[7:]).sum(-1)
-            + w["effort"] * np.square(controls).sum(-1)
-            + w["stance"] * (np.square(fore) + np.square(side - STANCE_WIDTH))
-            + w["fall"] * (com[..., 2] < 0.6)
-        )
-        cost[..., -1] *= 5.0
-        return cost.sum(-1)
+        """Each rollout's cost (samples,) from its sensordata (samples, horizon, n), controls, qpos and qvel.
 
-    def walking_cost(self, sensors: np.ndarray, controls: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        """`cost` for a walk: the balance terms with the capture point's target moved by the commanded velocity, the
-        stance's fore-aft term dropped and every step's velocity term handed to the horizon's mean, both in proportion
-        to how much walking is commanded; at the zero command, each step's yaw rate is held still too."""
-        w, k, command = self.design.weights, self.design.walk, self.velocity
-        walking = min(1.0, max(abs(command[0]) / k["full_speed"], abs(command[1]) / k["full_speed"]))
-        walking = min(1.0, max(walking, abs(command[2]) / k["full_turn"]))
+        A walking design (`WALKING`) changes the balance in proportion to how much walking is commanded: the capture
+        point's target moves by the commanded velocity, the stance's fore-aft term is dropped, and every step's
+        velocity term gives way to the horizon's mean velocity and yaw rate; at the zero command each step's yaw rate
+        is held still too. The kick planner's design commands no velocity: its terms are the balance's alone."""
+        w, walk, command = self.design.weights, self.design.walk, self.velocity
+        walking = 0.0
+        if walk:
+            walking = min(1.0, max(abs(command[0]) / walk["full_speed"], abs(command[1]) / walk["full_speed"]))
+            walking = min(1.0, max(walking, abs(command[2]) / walk["full_turn"]))
         com, velocity = sensors[..., COM], sensors[..., COM_VEL]
         left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
         heading = sensors[..., TORSO_X][..., :2]
@@ -225,10 +206,10 @@ class StepPlanner:
         cos, sin = heading[..., 0], heading[..., 1]
         asked = np.stack([cos * command[0] - sin * command[1], sin * command[0] + cos * command[1]], -1)  # world
         height = sensors[..., HEAD][..., 2] - np.minimum(left[..., 2], right[..., 2])
-        capture = com[..., :2] + 0.3 * (velocity[..., :2] - asked)
+        capture = com[..., :2] + 0.3 * (velocity[..., :2] - asked)  # MuJoCo MPC's capture point, moved by a walk
         centre = 0.5 * (left[..., :2] + right[..., :2])
         fore, side = stance(sensors)
-        yaw = yaw_rate(qpos, qvel)
+        yaw = yaw_rate(qpos, qvel) if walk else None
         still = 1.0 - walking
         cost = (
             w["height"] * np.square(np.minimum(height - HEAD_HEIGHT - (self.reference[2] - self.standing_height), 0.0))
@@ -236,10 +217,11 @@ class StepPlanner:
             + w["centre"] * np.linalg.norm(capture - centre, axis=-1)
             + w["upright"] * np.square(sensors[..., TORSO_Z][..., :2]).sum(-1)
             + still * w["velocity"] * np.square(velocity[..., :2] - asked).sum(-1)
-            + still * k["rest_yaw"] * np.square(yaw - command[2])
+            + (still * walk["rest_yaw"] * np.square(yaw - command[2]) if walk else 0.0)
             + w["posture"] * np.square(qpos[..., 7:] - self.reference[7:]).sum(-1)
             + w["effort"] * np.square(controls).sum(-1)
-            + w["stance"] * ((1.0 + walking * (k["fore"] - 1.0)) * np.square(fore) + np.square(side - STANCE_WIDTH))
+            + w["stance"]
+            * ((1.0 + walking * (walk.get("fore", 1.0) - 1.0)) * np.square(fore) + np.square(side - STANCE_WIDTH))
             + w["fall"] * (com[..., 2] < 0.6)
         )
         cost[..., -1] *= 5.0
@@ -252,7 +234,7 @@ class StepPlanner:
             total += (
                 walking * steps * w["velocity"] * (np.square(forward - command[0]) + np.square(sideways - command[1]))
             )
-            total += walking * steps * k["yaw"] * np.square(yaw.mean(-1) - command[2])
+            total += walking * steps * walk["yaw"] * np.square(yaw.mean(-1) - command[2])
         return total
 
     def act(self, start: np.ndarray) -> np.ndarray:
@@ -329,6 +311,3 @@ class SteppingExpert(ExpertAround):
                 self.planned += 1
                 return self.planner.act(action).astype(np.float32)
         return action
-
-
-_VELOCITIES = [COMMAND_NAMES.index(name) for name in VELOCITY_NAMES]

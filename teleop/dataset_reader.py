@@ -25,7 +25,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.command_fields import COMMAND_NAMES, COMMAND_SIZE
+from humanoid.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
 from humanoid.sensors import observation_index
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
@@ -175,7 +175,7 @@ def command_columns(info: dict[str, Any], frames: dict[str, np.ndarray]) -> dict
         if unknown:
             raise DatasetError(f"{key} names fields this version does not know: {', '.join(unknown)}")
         wide = np.zeros((len(frames[key]), COMMAND_SIZE), frames[key].dtype)
-        wide[:, [COMMAND_NAMES.index(name) for name in names]] = frames[key]
+        wide[:, field_positions(names)] = frames[key]
         out[key] = wide
     return out
 
