@@ -60,6 +60,7 @@ from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_
 from humanoid.env import make_env, nominal_model
 from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
+from humanoid.stepping import SensedSteppingExpert, SteppingExpert
 from policies import checkpoint
 from policies.folder import json_object
 from policies.mlp import MLPPolicy
@@ -75,6 +76,8 @@ MADE_BY = "bc.dagger"
 SOURCE_FILE = "demonstrations.json"
 """In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
+LABELLERS = {expert.name: expert for expert in (LQRExpert, SensedExpert, SteppingExpert, SensedSteppingExpert)}
+"""The registered controllers that can label DAgger's rollouts, by name."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -93,9 +96,10 @@ class DaggerConfig:
     )
     expert: str = setting(
         SensedExpert.name,
-        "who labels the policy's states: the expert on the full state, or the expert on leg odometry (the teacher "
-        "whose law INPUTS=pending can read; docs/concepts/controllers.md)",
-        choices=(LQRExpert.name, SensedExpert.name),
+        "who labels the policy's states: the expert on the full state, the expert on leg odometry (the teacher "
+        "whose law INPUTS=pending can read), or one that steps and walks (for INPUTS=pending+walk, whose rollouts "
+        "follow walking schedules; docs/concepts/controllers.md)",
+        choices=tuple(LABELLERS),
     )
     randomize: str | None = setting(
         None,
@@ -172,7 +176,9 @@ class DaggerResult:
 
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
-    input_set_named(cfg.inputs)
+    if input_set_named(cfg.inputs).walks and not LABELLERS[cfg.expert].walks:
+        walkers = " or ".join(f"--expert {name}" for name, labeller in LABELLERS.items() if labeller.walks)
+        raise UserError(f"--inputs {cfg.inputs} learns to walk, and --expert {cfg.expert} does not: give {walkers}")
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
     check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "seed")
     if cfg.latency is not None:
@@ -302,7 +308,8 @@ class DAggerTrainer:
         ":roundN" for the round whose aggregate trained it."""
         self.demos = demos
         self.training = training
-        self.rollouts = dataclasses.replace(rollouts, schedules=input_set_named(training.inputs).takes_command)
+        input_set = input_set_named(training.inputs)
+        self.rollouts = dataclasses.replace(rollouts, schedules=input_set.takes_command, walking=input_set.walks)
         self.action_space = action_space
         self.workers = workers
         self.name = name

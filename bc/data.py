@@ -32,6 +32,7 @@ import torch
 from common import columns
 from common.cli import DatasetError, UserError
 from common.paths import cache_dir
+from humanoid.command_fields import VELOCITY_NAMES
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
 from humanoid.episode import Episode
@@ -115,6 +116,14 @@ class Demonstrations:
         )
 
 
+def no_walks(inputs: str, root: Path) -> UserError:
+    """The refusal of a walking input set on the dataset at `root`, which commands no walk."""
+    return UserError(
+        f"--inputs {inputs} learns to walk on velocity commands, and {root} commands no walk: record walks "
+        "(make record CONTROLLER=expert-sensed-stepping WALKING=1; docs/how-to/walk.md)"
+    )
+
+
 def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[dict[str, Any], np.ndarray]:
     """(meta/info.json, where each frame entry sits among the observed columns' entries) of the dataset at
     `root`; DatasetError says in one line why it cannot train a policy on `inputs` for `env`."""
@@ -141,7 +150,10 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
     recorded = [name for key in input_set.observed_columns for name in features[key].get("names") or []]
     position = {name: i for i, name in enumerate(recorded)}
     wanted = input_set.observed_names(env.unwrapped.model)
-    if not set(wanted) <= position.keys():
+    missing = set(wanted) - position.keys()
+    if missing and missing <= set(VELOCITY_NAMES):  # recorded before the velocity fields: it holds no walk
+        raise no_walks(inputs, root)
+    if missing:
         raise DatasetError(
             f"{root}: its {' + '.join(input_set.observed_columns)} do not name every entry INPUTS={inputs} is computed "
             f"from (recorded before this version? its {columns.OBS_STATE} has "

@@ -32,7 +32,7 @@ from torch.nn import functional as F
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from bc.data import Demonstrations, episode_delays, load_demonstrations, split_by_episode
+from bc.data import Demonstrations, episode_delays, load_demonstrations, no_walks, split_by_episode
 from common import columns, paths
 from common.cli import (
     DatasetError,
@@ -48,13 +48,14 @@ from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
+from humanoid.command_fields import VELOCITY_NAMES, field_positions
 from humanoid.controllers import CONTROLLERS, KEYBOARD, KEYBOARD_EXPERT
 from humanoid.env import make_env
 from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
-from teleop.dataset_reader import read_episodes, read_frames
+from teleop.dataset_reader import command_columns, read_episodes, read_frames, read_info
 from teleop.record import TEACHER
 
 VAL_FRACTION = 0.1
@@ -281,7 +282,8 @@ def check_taught(cfg: TrainConfig) -> None:
         )
     if input_set.takes_command:
         try:
-            commands = read_frames(cfg.dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
+            frames = read_frames(cfg.dataset, [columns.OBS_COMMAND])
+            commands = command_columns(read_info(cfg.dataset), frames)[columns.OBS_COMMAND]
         except (OSError, KeyError, ValueError) as error:
             raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
         if len(np.unique(commands, axis=0)) < 2:
@@ -290,6 +292,8 @@ def check_taught(cfg: TrainConfig) -> None:
                 "record commanded demonstrations (make record: its schedules, SCHEDULES=1, are the default; or "
                 "CONTROLLER=keyboard)"
             )
+        if input_set.walks and not commands[:, field_positions(VELOCITY_NAMES)].any():
+            raise no_walks(cfg.inputs, cfg.dataset)
 
 
 def fit_demonstrations(
@@ -382,8 +386,13 @@ def evaluation_of(policy: MLPPolicy, cfg: TrainConfig) -> dict[str, Any]:
     """`policy` (the checkpoint `cfg.policy` becomes) and its teacher (`teacher_of`) side by side on the same
     EVAL_EPISODES held-out seeds, under held-out schedules for a policy that takes a command: what eval.json holds
     (its "expert_*" entries: the teacher's)."""
-    schedules = input_set_named(cfg.inputs).takes_command
-    settings = {"episodes": cfg.eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+    input_set = input_set_named(cfg.inputs)
+    settings = {
+        "episodes": cfg.eval_episodes,
+        "seed": EVAL_SEED,
+        "schedules": input_set.takes_command,
+        "walking": input_set.walks,
+    }
     runs = [((policy, str(cfg.policy)), settings), (teacher_of(cfg.dataset), settings)]
     with evaluation_pool(default_workers(len(runs))) as pool:
         evaluation, expert = evaluate_each(runs, pool)

@@ -26,7 +26,7 @@ from typing import Any
 import torch
 
 from bench.bc_benchmark import dart_policy
-from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
+from rl.finetune import FinetuneConfig, learner, vec_env
 from teleop.record import STANDING_NOISE
 
 
@@ -54,7 +54,7 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
 def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
     config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
-    env = vec_env(config, follows_commands(config))
+    env = vec_env(config)
     try:
         model = learner(config, env)
         simulation: list[float] = []

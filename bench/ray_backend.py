@@ -28,7 +28,7 @@ import torch
 from bench.bc_benchmark import dart_policy
 from bench.ppo_throughput import timed
 from common.ray_backend import BACKENDS, RaySession
-from rl.finetune import FinetuneConfig, follows_commands, learner, vec_env
+from rl.finetune import FinetuneConfig, learner, vec_env
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import STANDING, STANDING_NOISE, RecordConfig, RecordSummary
 from teleop.record import main as record
@@ -78,7 +78,7 @@ def ppo(backend: str, bc_policy: Path, timesteps: int) -> tuple[float, float, fl
     config = FinetuneConfig(bc_policy=bc_policy, workers=2, backend=backend, timesteps=timesteps)
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     start = time.perf_counter()
-    env = vec_env(config, follows_commands(config))
+    env = vec_env(config)
     startup = time.perf_counter() - start
     try:
         model = learner(config, env)

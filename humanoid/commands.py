@@ -363,10 +363,11 @@ class CommandedTask(gym.Wrapper):
     alone.
     """
 
-    def __init__(self, env: gym.Env, weight: float) -> None:
+    def __init__(self, env: gym.Env, weight: float, walking: bool = False) -> None:
         super().__init__(env)
         self.weight = weight
-        self.tracking = Tracking(nominal_model(), task_fields(False))  # the nominal body's, whatever is drawn later
+        self.walking = walking
+        self.tracking = Tracking(nominal_model(), task_fields(walking))  # the nominal body's, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
         self.t = 0
@@ -383,7 +384,9 @@ class CommandedTask(gym.Wrapper):
             self._rng = np.random.default_rng((seed, SCHEDULE_STREAM))
         obs, info = self.env.reset(seed=seed, options=options)
         schedule = int(self._rng.integers(*TRAINING_SEEDS))
-        self.commands = command_schedule(schedule, self.env.spec.max_episode_steps, self.env.unwrapped.dt)
+        self.commands = command_schedule(
+            schedule, self.env.spec.max_episode_steps, self.env.unwrapped.dt, walking=self.walking
+        )
         self.t = 0
         info[COMMAND_INFO] = self.commands[0]
         return obs, info

@@ -32,6 +32,8 @@ class Controller(Protocol):
     name: str
     takes_command: bool
     """Whether it follows the operator's command (the experts; a policy on commanded inputs)."""
+    walks: bool
+    """Whether it follows the command's velocity fields too (`expert-stepping`; a policy on a walking input set)."""
 
     def set_delay(self, steps: int) -> None:
         """The action latency, in steps, of the episodes from the next `reset` on."""
@@ -60,7 +62,7 @@ class RandomController:
     """Uniform random actions: the baseline that falls within a few dozen steps."""
 
     name = "random"
-    takes_command = False
+    takes_command = walks = False
 
     def __init__(self, action_space: gym.spaces.Box) -> None:
         self.low = action_space.low.astype(np.float32)
@@ -110,10 +112,17 @@ def _stepping_expert(env: gym.Env) -> Controller:
     return SteppingExpert(delay=action_delay(env))
 
 
+def _sensed_stepping_expert(env: gym.Env) -> Controller:
+    from humanoid.stepping import SensedSteppingExpert  # noqa: PLC0415 - as _expert
+
+    return SensedSteppingExpert(delay=action_delay(env))
+
+
 CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
     "expert": _expert,
     "expert-sensed": _sensed_expert,
     "expert-stepping": _stepping_expert,
+    "expert-sensed-stepping": _sensed_stepping_expert,
     "random": lambda env: RandomController(env.action_space),
 }
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.

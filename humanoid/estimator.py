@@ -207,11 +207,13 @@ class OdometryFeatures:
     def __init__(self, model: mujoco.MjModel) -> None:
         self.read = read_sensed(Proprioception(model).names)
         self.odometry = LegOdometry(model)
+        self.estimate: tuple[np.ndarray, np.ndarray] = (np.zeros(model.nq), np.zeros(model.nv))
+        """The last (qpos, qvel) `from_sensed` estimated."""
 
     def reset(self) -> None:
         self.odometry.reset()
 
     def from_sensed(self, sensed: np.ndarray) -> np.ndarray:
-        """This step's input from this step's sensed features (float64)."""
-        qpos, qvel = self.odometry(sensed)
+        """This step's input from this step's sensed features (float64); the estimated state stays in `estimate`."""
+        self.estimate = qpos, qvel = self.odometry(sensed)
         return np.concatenate([sensed[self.read], [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])

@@ -41,6 +41,7 @@ class LQRExpert:
 
     name = "expert"
     takes_command = True
+    walks = False
 
     def __init__(
         self,
@@ -226,6 +227,7 @@ class ExpertAround:
 
     expert: LQRExpert
     takes_command = True
+    walks = False
 
     def set_delay(self, steps: int) -> None:
         self.expert.set_delay(steps)

@@ -14,6 +14,9 @@
     pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
               move the teacher's labels are (docs/decisions/command-features.md)
+    pending+walk  pending+ramp reading every command field: the velocities on their ramp too (3), whether a walk has
+              begun (1), then the velocities as the leg odometry estimates them (3): a policy that walks on velocity
+              commands (docs/decisions/walking-student.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -49,7 +52,15 @@ import numpy as np
 from common.cli import REMOVED_VALUES, Removed, UserError
 from common.columns import ACTION, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
 from humanoid import commands, estimator, posture, sensors
-from humanoid.command_fields import ARM_JOINTS, COMMAND_SIZE, POSTURE_FIELDS, POSTURE_NAMES, field_positions
+from humanoid.command_fields import (
+    ARM_JOINTS,
+    COMMAND_SIZE,
+    POSTURE_FIELDS,
+    VELOCITY_NAMES,
+    Readout,
+    field_positions,
+    task_fields,
+)
 from humanoid.commands import COMMAND_INFO
 from humanoid.conditions import LATENCY_PARAMETER, action_delay
 from humanoid.env import actuator_names, nominal_model, observation_names
@@ -70,6 +81,8 @@ class InputSet(ABC):
     """Whether the operator's command is among the inputs (a `commanded_set`)."""
     reads_latency: ClassVar[bool] = False
     """Whether the inputs carry the action latency, which only delayed episodes teach."""
+    walks: ClassVar[bool] = False
+    """Whether the velocity command is among the inputs (a walking set): a policy that can be told to walk."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         """For `model`'s environment (its observation layout; a stateful set computes on this nominal body)."""
@@ -189,37 +202,41 @@ class PendingInputs(InputSet):
         return np.concatenate([odometry, self.pending, [float(self.delay)]])
 
 
-COMMANDED = tuple(field_positions(POSTURE_NAMES))
-"""Where a commanded set's fields (the posture's) sit in a command vector: the fields it reads by name, so a dataset
-that records more (or, recorded before them, fewer) fields gives the same frames."""
+def command_names(walking: bool) -> tuple[str, ...]:
+    """The command fields a commanded set reads by name (`task_fields`): the posture's, and with `walking` the
+    velocities too; so a dataset that records more (or, recorded before them, fewer) fields gives the same frames."""
+    return tuple(field.name for field in task_fields(walking))
 
 
-def commanded_set(base: type[InputSet]) -> type[InputSet]:
-    """`base`'s inputs, then the operator's posture command as it is (`observation.command`'s `POSTURE_NAMES`): the
+def commanded_set(base: type[InputSet], walking: bool = False) -> type[InputSet]:
+    """`base`'s inputs, then the operator's command as it is (`observation.command`'s `command_names(walking)`): the
     set named "BASE+command"."""
+    names = command_names(walking)
+    read = field_positions(names)
 
     class CommandedInputs(base):
         name = f"{base.name}+command"
         columns = (*base.columns, OBS_COMMAND)
         observed_columns = (*base.observed_columns, OBS_COMMAND)
         takes_command = True
+        walks = walking
         __doc__ = f"{base.__name__}'s inputs, then the operator's command."
 
         @staticmethod
         def input_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.input_names(model), *(f"command.{name}" for name in POSTURE_NAMES)]
+            return [*base.input_names(model), *(f"command.{name}" for name in names)]
 
         @staticmethod
         def observed_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.observed_names(model), *POSTURE_NAMES]
+            return [*base.observed_names(model), *names]
 
         def observe(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
             frame = base.observe(self, obs, command)
-            read = np.asarray(command)[..., COMMANDED]
-            return np.concatenate([frame, np.broadcast_to(read, (*frame.shape[:-1], len(COMMANDED)))], axis=-1)
+            given = np.asarray(command)[..., read]
+            return np.concatenate([frame, np.broadcast_to(given, (*frame.shape[:-1], len(read)))], axis=-1)
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
-            size = len(COMMANDED)
+            size = len(read)
             return np.concatenate([base.__call__(self, frame[..., :-size]), frame[..., -size:]], -1)
 
     CommandedInputs.__name__ = CommandedInputs.__qualname__ = f"Commanded{base.__name__}"
@@ -228,52 +245,78 @@ def commanded_set(base: type[InputSet]) -> type[InputSet]:
 
 _RAMP_FIELDS = tuple(field.name for field in POSTURE_FIELDS if not field.presets)
 RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for joint in ARM_JOINTS))
-"""A ramped set's last inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
+"""A ramped set's posture inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
+WALK_NAMES = (
+    *(f"ramp.{name}" for name in VELOCITY_NAMES),
+    "walked",
+    *(f"estimate.{name}" for name in VELOCITY_NAMES),
+)
+"""A walking set's last inputs: the velocity fields on their ramp, whether the ramp has left the zero walk since the
+episode began (1) or not (0), then the velocities as the leg odometry estimates them (`Readout` of the estimated
+state)."""
 
 
-def ramped_set(base: type[InputSet]) -> type[InputSet]:
+def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSet]:
     """`base`'s inputs, then the operator's command as the expert's setpoint moves toward it (`PosturePath`, run on
-    the command the frame records): the set named "BASE+ramp".
+    the command the frame records): the set named "BASE+ramp"; with `walking`, "BASE+walk": the velocity fields on
+    their ramp too, whether they have left the zero walk this episode, then the velocities as `base`'s leg odometry
+    estimates them (`WALK_NAMES`).
 
     Why: the expert's labels follow its setpoint, which reaches a new command over seconds; a policy that reads only
     the command cannot tell how far along that move it is, a policy reading the ramp can, and it is computed from the
     command alone, as a robot's command filter would (docs/decisions/command-features.md). The arm preset is read as
     the six angles the setpoint's arms have on the way: a preset's number halfway between two presets names a third.
+    A walking student is told how fast it goes in the terms it is commanded in, and when its teacher's walking
+    planner has taken over, which it keeps to the episode's end (docs/decisions/walking-student.md).
     Stateful: the ramp runs along the episode's frames, one env step per frame.
     """
-    commanded = commanded_set(base)
+    commanded = commanded_set(base, walking)
+    names = command_names(walking)
+    size = len(names)
+    velocities = VELOCITY_NAMES if walking else ()
 
     class RampedInputs(commanded):
-        name = f"{base.name}+ramp"
+        name = f"{base.name}+walk" if walking else f"{base.name}+ramp"
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
 
         @staticmethod
         def input_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.input_names(model), *RAMP_NAMES]
+            return [*base.input_names(model), *RAMP_NAMES, *(WALK_NAMES if walking else ())]
 
         def __init__(self, model: mujoco.MjModel) -> None:
             super().__init__(model)
             self.path = PosturePath(model)  # the design's env step, as the expert's
-            self.command = np.zeros(len(COMMANDED), np.float32)
+            self.command = np.zeros(size, np.float32)
+            self.readout = Readout(model)
+            self.walked = False
 
         def reset(self) -> None:
             base.reset(self)
             self.path.reset()
             self.command[:] = 0.0
+            self.walked = False
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
-            command = frame[-len(COMMANDED) :]
+            command = frame[-size:]
             if (command != self.command).any():  # as the expert's `set_command`: a new target starts a move
                 self.command[:] = command
-                target = Posture(**dict(zip(POSTURE_NAMES, map(float, command), strict=True))).clipped()
+                target = Posture(**dict(zip(names, map(float, command), strict=True))).clipped()
                 if target != self.path.target:
                     self.path.hold(target)
             self.path.step()  # as the expert's `act`: one env step along the move, if there is one
             posture = self.path.posture
             ramp = [*(getattr(posture, name) for name in _RAMP_FIELDS), *self.path.arms()]
-            return np.concatenate([base.__call__(self, frame[: -len(COMMANDED)]), np.array(ramp, frame.dtype)])
+            inputs = base.__call__(self, frame[:-size])  # runs the leg odometry on this frame
+            if walking:
+                speeds = [getattr(posture, name) for name in velocities]
+                self.walked = self.walked or any(speeds)  # as the walking teacher's hand-over, to the episode's end
+                ramp += [*speeds, float(self.walked)]
+                qpos, qvel = self.odometry.estimate
+                achieved = self.readout(qpos[2:], qvel)
+                ramp += [float(achieved[name][0]) for name in velocities]
+            return np.concatenate([inputs, np.array(ramp, frame.dtype)])
 
-    RampedInputs.__name__ = RampedInputs.__qualname__ = f"Ramped{base.__name__}"
+    RampedInputs.__name__ = RampedInputs.__qualname__ = f"{'Walking' if walking else 'Ramped'}{base.__name__}"
     return RampedInputs
 
 
@@ -286,6 +329,7 @@ INPUT_SETS: dict[str, type[InputSet]] = {
         commanded_set(FullInputs),  # the student of keyboard demonstrations, which delay no episode (make play)
         commanded_set(PendingInputs),
         ramped_set(PendingInputs),
+        ramped_set(PendingInputs, walking=True),
     )
 }
 INPUTS = tuple(INPUT_SETS)
@@ -294,6 +338,9 @@ STUDENT_INPUTS = "pending+ramp"
 the leg odometry computed from it, its command in flight and the delay, and the command through the teacher's ramp:
 with it DAgger follows every held-out schedule, with the bare command it does not
 (docs/decisions/pipeline-student.md)."""
+WALKING_INPUTS = "pending+walk"
+"""What the walking student reads: the deployable student's inputs, with the velocity fields of the command on their
+ramp and as the leg odometry estimates them (docs/decisions/walking-student.md)."""
 BLIND_INPUTS = "pending"
 """The same without the operator's command: the pipeline's blind student, which shows what the command buys."""
 

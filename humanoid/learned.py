@@ -44,6 +44,7 @@ class PolicyController:
         self.policy = policy.eval()
         self.name = name
         self.takes_command = self.input_set.takes_command
+        self.walks = self.input_set.walks
         self.command = np.zeros(COMMAND_SIZE, np.float32)
 
     @classmethod
@@ -101,10 +102,10 @@ def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
         )
 
 
-def takes_command(folder: Path) -> bool:
-    """Whether the policy checkpoint in `folder` reads the operator's command (a commanded input set)."""
-    spec = load(folder).spec
-    return spec.inputs in INPUT_SETS and INPUT_SETS[spec.inputs].takes_command
+def input_set_of(folder: Path) -> type[InputSet] | None:
+    """The input set the policy checkpoint in `folder` reads (whether it takes the command, walks), None if this
+    version computes no set of that name."""
+    return INPUT_SETS.get(load(folder).spec.inputs)
 
 
 class SB3Controller:
@@ -122,7 +123,7 @@ class SB3Controller:
             ) from None
         self.name = str(folder)
 
-    takes_command = False
+    takes_command = walks = False
 
     def set_command(self, command: np.ndarray) -> None:
         """It acts on the observation alone, whatever the command."""

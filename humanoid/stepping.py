@@ -24,7 +24,7 @@ from mujoco import rollout
 
 from humanoid.command_fields import VELOCITY_NAMES, field_positions
 from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
-from humanoid.expert import ExpertAround, LQRExpert
+from humanoid.expert import ExpertAround, LQRExpert, SensedExpert
 from humanoid.lqr import CTRL_LIMIT
 from humanoid.sensors import body_axes
 
@@ -267,11 +267,14 @@ class SteppingExpert(ExpertAround):
     """
 
     name = "expert-stepping"
+    walks = True
 
     def __init__(
         self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
     ) -> None:
-        self.expert = LQRExpert(delay=delay)
+        self.balance: LQRExpert | SensedExpert = self.balancer(delay)
+        """Who balances until a planner takes over (and gives the planners their first plan)."""
+        self.expert = self.balance if isinstance(self.balance, LQRExpert) else self.balance.expert
         self.design = design
         self.planner = StepPlanner(design, self.expert.qpos_ref)  # the setpoint, which the expert moves in place
         self.velocity = np.zeros(3)
@@ -279,11 +282,16 @@ class SteppingExpert(ExpertAround):
         self.planned = self.steps = 0
         self.walked = False
 
+    @staticmethod
+    def balancer(delay: int) -> LQRExpert | SensedExpert:
+        """The LQR expert told the simulator's state."""
+        return LQRExpert(delay=delay)
+
     def set_body(self, model: mujoco.MjModel) -> None:
-        self.expert.set_body(model)
+        self.balance.set_body(model)
 
     def reset(self, seed: int | None = None) -> None:
-        self.expert.reset(seed)
+        self.balance.reset(seed)
         self.planner.reset(seed)
         self.walker.reset(seed)
         self.planned = self.steps = 0
@@ -297,7 +305,7 @@ class SteppingExpert(ExpertAround):
         return off > self.design.trigger_offset or float(np.linalg.norm(velocity)) > self.design.trigger_speed
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        action = self.expert.act(obs)  # every step: its setpoint and pending actions stay current
+        action = self.balance.act(obs)  # every step: its setpoint and pending actions stay current
         self.steps += 1
         self.velocity[:] = self.expert.setpoint()[_VELOCITIES]
         if self.walked or self.velocity.any():
@@ -311,3 +319,17 @@ class SteppingExpert(ExpertAround):
                 self.planned += 1
                 return self.planner.act(action).astype(np.float32)
         return action
+
+
+class SensedSteppingExpert(SteppingExpert):
+    """`SteppingExpert` whose balance is the expert on leg odometry (`SensedExpert`): the teacher of students on what a
+    robot senses, which read what its balance acts on, as the pipeline's students read `expert-sensed`'s
+    (docs/decisions/deployable-inputs.md); the planners still plan on the simulator's state, as a teacher may
+    (docs/decisions/walking-student.md)."""
+
+    name = "expert-sensed-stepping"
+
+    @staticmethod
+    def balancer(delay: int) -> LQRExpert | SensedExpert:
+        """The LQR expert on the leg odometry's estimate."""
+        return SensedExpert(delay=delay)

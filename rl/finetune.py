@@ -298,8 +298,9 @@ def widened(cfg: FinetuneConfig) -> dict[str, float]:
     return {method: last for method, last in grown.items() if last > 0}
 
 
-def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
-    """The training environments of `cfg`; with `schedules` (`follows_commands`) on the operator's task."""
+def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
+    """The training environments of `cfg`, on its `task`: the operator's schedules if the actor takes a command, with
+    walks if it takes the velocity command (`rl.learner.training_env`)."""
     width = stage_width(0, len(stages(cfg)))  # a curriculum's first stage (1: no curriculum, the whole ranges)
     inputs = checkpoint.load(cfg.bc_policy).spec.inputs
     return make_vec_env(
@@ -314,13 +315,15 @@ def vec_env(cfg: FinetuneConfig, schedules: bool) -> WorkerGroupVecEnv:
         inputs,
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
-        tracking=cfg.tracking_weight if schedules else None,
+        tracking=cfg.tracking_weight if task(cfg)["schedules"] else None,
     )
 
 
-def follows_commands(cfg: FinetuneConfig) -> bool:
-    """Whether the BC policy takes a command: the task is then following the operator's schedules."""
-    return input_set_named(checkpoint.load(cfg.bc_policy).spec.inputs).takes_command
+def task(cfg: FinetuneConfig) -> dict[str, bool]:
+    """The task as `evaluation.evaluate` takes it: `schedules` if the BC policy takes a command (the task is then
+    following the operator's schedules), `walking` if it takes the velocity command too (schedules with walks)."""
+    input_set = input_set_named(checkpoint.load(cfg.bc_policy).spec.inputs)
+    return {"schedules": input_set.takes_command, "walking": input_set.walks}
 
 
 def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | None = None) -> WorkerRolloutPPO:
@@ -374,7 +377,7 @@ def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor
     return normalisation(torch.cat([observations, load_demonstrations(dataset, env, inputs=inputs).inputs], dim=1))
 
 
-def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], schedules: bool) -> dict[str, Any] | None:
+def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], on: dict[str, bool]) -> dict[str, Any] | None:
     """POLICY/eval.json of a run already finished there with these settings (not re-run; its final evaluation run
     now if a kill cut it short); else None."""
     if cfg.overwrite or not finished_with(cfg.policy, settings, resume.PRESENTATION):
@@ -382,18 +385,18 @@ def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], schedules: bo
     print(f"{cfg.policy} already holds this run, finished: not run again", file=sys.stderr)
     result = json.loads((cfg.policy / EVAL_FILE).read_text())
     if cfg.final_eval_episodes and "seeds" not in result:  # killed during its final evaluation
-        return final_evaluation(cfg, schedules, result)
+        return final_evaluation(cfg, on, result)
     return result
 
 
 def final_evaluation(
-    cfg: FinetuneConfig, schedules: bool, figures: dict[str, Any], pool: Executor | None = None
+    cfg: FinetuneConfig, on: dict[str, bool], figures: dict[str, Any], pool: Executor | None = None
 ) -> dict[str, Any]:
     """The published actor at POLICY on FINAL_EVAL_EPISODES seeds from EVAL_SEED (none if 0), clean and under the
-    validation push, with the training's `figures`: what POLICY/eval.json then holds."""
+    validation push, on the `task` `on`, with the training's `figures`: what POLICY/eval.json then holds."""
     if not cfg.final_eval_episodes:
         return figures  # eval.json holds them already
-    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "schedules": schedules}
+    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, **on}
     pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
     result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
     if pushed:
@@ -417,7 +420,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
     # A one-line CheckpointError now (missing, unreadable, other sizes) rather than after the environments start.
     PolicyController.load(cfg.bc_policy, make_env())
     demonstrations = bc_dataset(cfg.bc_policy)
-    schedules = follows_commands(cfg)
+    on = task(cfg)
     settings = {
         **config_dict(cfg),
         # The fixed settings too, so that config.json still holds every setting the run used.
@@ -425,7 +428,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
         "made_by": made_by,
         "bc_policy_sha256": weights_digest(cfg.bc_policy),
     }
-    finished = finished_result(cfg, settings, schedules)
+    finished = finished_result(cfg, settings, on)
     if finished is not None:
         return finished
     checkpoint.check_replaceable(cfg.policy, cfg.overwrite)
@@ -441,7 +444,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
     with evaluation_pool(min(cfg.workers, default_workers(1 + len(EVAL_CONDITIONS)))) as pool:
         with (
-            contextlib.closing(vec_env(cfg, schedules)) as env,
+            contextlib.closing(vec_env(cfg)) as env,
             checkpoint.running(cfg.policy, cfg.overwrite) as folder,
         ):
             model = learner(cfg, env, folder / TENSORBOARD_DIR)
@@ -455,7 +458,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,
                 conditions=EVAL_CONDITIONS,
-                schedules=schedules,
+                task=on,
                 settings=settings,
                 demonstrations=demonstrations,
                 folder=folder,
@@ -508,7 +511,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
             # Published with the weights: a kill during the final evaluation leaves a finished run (`finished_result`).
             checkpoint.write_json(folder / EVAL_FILE, figures)
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
-        return final_evaluation(cfg, schedules, figures, pool)
+        return final_evaluation(cfg, on, figures, pool)
 
 
 def plot_training(cfg: FinetuneConfig, curve: list[dict[str, Any]], path: Path) -> None:

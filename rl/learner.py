@@ -19,7 +19,7 @@ from common.workers import available_cores
 from humanoid.commands import CommandedTask
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import make_env
-from humanoid.inputs import InputObservation
+from humanoid.inputs import InputObservation, input_set_named
 from humanoid.perturbations import TorsoPushes
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
@@ -61,7 +61,7 @@ def training_env(
     if obs_noise is not None:
         env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
     if tracking is not None:
-        env = CommandedTask(env, tracking)
+        env = CommandedTask(env, tracking, walking=input_set_named(inputs).walks)
     return Monitor(InputObservation(env, inputs))
 
 

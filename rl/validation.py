@@ -81,7 +81,7 @@ class Validator(BaseCallback):
         settings: dict[str, Any],
         demonstrations: dict[str, Any] | None = None,
         conditions: Sequence[str] = (),
-        schedules: bool = False,
+        task: dict[str, bool] | None = None,
         folder: Path,
         bar: tqdm,
         pool: Executor | None = None,
@@ -90,7 +90,7 @@ class Validator(BaseCallback):
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
         self.floor_episodes = floor_episodes  # the clean condition's, which holds the floor
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
-        self.schedules = schedules  # every evaluation under held-out command schedules, tracking scored
+        self.task = task or {"schedules": False}  # held-out command schedules (with walks), tracking scored
         self.settings, self.folder, self.bar, self.pool = settings, folder, bar, pool
         self.demonstrations = demonstrations or {}  # what each checkpoint names as its training data (dataset.json)
         self.curve: list[dict[str, float]] = []
@@ -112,7 +112,7 @@ class Validator(BaseCallback):
             "survival_rate": result["survival_rate"],
         }
         for name, under in zip(self.conditions, conditions, strict=True):  # together they choose the actor kept
-            if name == "clean" and self.schedules:
+            if name == "clean" and self.task["schedules"]:
                 point["tracking_score"] = tracking_score(under["tracking"])
                 self.logger.record("eval/clean/tracking_score", point["tracking_score"])
             point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
@@ -134,7 +134,7 @@ class Validator(BaseCallback):
         (`holds_floor`), `episodes` for the others."""
         total = self.floor_episodes if run.get("condition") == "clean" else self.episodes
         return [
-            {"seed": self.seed + start, "episodes": min(self.episodes, total - start), "schedules": self.schedules}
+            {"seed": self.seed + start, "episodes": min(self.episodes, total - start), **self.task}
             for start in range(0, total, self.episodes)
         ]
 

@@ -281,17 +281,24 @@ def check_played(cfg: RecordConfig) -> None:
     if cfg.policy in CONTROLLERS:  # a registered controller: the experts follow the keys (`expert-stepping` steps)
         env = make_env()
         try:
-            commanded = make_controller(cfg.policy, env).takes_command
+            commanded = make_controller(cfg.policy, env)
         finally:
             env.close()
-        if not commanded:
+        if not commanded.takes_command:
             raise UserError(f"{cfg.policy} takes no command: the keys would change nothing")
-        return
-    from humanoid.learned import takes_command  # noqa: PLC0415 - reads the checkpoint (torch)
+    else:
+        from humanoid.learned import input_set_of  # noqa: PLC0415 - reads the checkpoint (torch)
 
-    if not takes_command(Path(cfg.policy)):
-        raise UserError(
-            f"{cfg.policy} takes no command: the keys would change nothing (train one with INPUTS=...+command)"
+        commanded = input_set_of(Path(cfg.policy))
+        if commanded is None or not commanded.takes_command:
+            raise UserError(
+                f"{cfg.policy} takes no command: the keys would change nothing (train one with INPUTS=...+command)"
+            )
+    if not commanded.walks:
+        print(
+            f"{cfg.policy} takes no velocity command: the arrows and z/c change nothing, the posture keys work "
+            f"(one that walks: POLICY=expert-stepping, or train one: docs/how-to/walk.md)",
+            file=sys.stderr,
         )
 
 

@@ -4,7 +4,10 @@ rl.finetune trains one on schedules; the bad input of the commands (one line, no
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import matplotlib.image
@@ -12,27 +15,32 @@ import numpy as np
 import pytest
 
 from bc import train as train_stage
+from common import columns
 from evaluation import evaluate as evaluate_stage
 from evaluation import robustness
 from evaluation.evaluate import plot_tracking, tracking
 from humanoid.command_fields import POSTURE_NAMES, task_fields
 from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
-from humanoid.env import make_env
+from humanoid.env import humanoid_model, make_env
 from humanoid.episode import run_episode
 from humanoid.expert import LQRExpert
-from humanoid.learned import PolicyController, takes_command
+from humanoid.inputs import INPUT_SETS, WALKING_INPUTS
+from humanoid.learned import PolicyController, input_set_of
 from policies import checkpoint
 from policies.mlp import MLPPolicy, MLPSpec
 from rl import finetune
 from rl.learner import training_env
 from support import SHORT_EPISODE, TINY_PPO, record_short, snapshot
 from teleop import record as record_stage
+from teleop.dataset_reader import read_frames
 
 TRACKING_FIELDS = {"settled_error", "moved_error", "settle_seconds"}
 # Steps of a short operator episode: the neutral start (200 steps), then the first command, held long enough to settle
 # (seed 1007's: lean forward 0.1 and left 0.1 from step 200 to 350), then a few steps of the next.
 OPERATOR_STEPS = 360
 OPERATOR_SEED = 1007
+WALK_SEED = 0  # the first command of seeds 0 and 1's walking schedules (at 3 s) is a walk forward
+DATASET_V1 = Path(__file__).parents[1] / "data" / "dataset_v1"
 TINY = ["--hidden", "8", "--epochs", "1", "--min-updates", "0", "--eval-episodes", "0", "--progress", "false"]
 
 
@@ -86,6 +94,58 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 
+@pytest.fixture(scope="module")
+def walked(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """2 short episodes of walking schedules whose first command (at 3 s) is a walk, under a step of latency. The LQR
+    expert stands through them (it does not walk): cheap demonstrations whose commands hold velocities."""
+    root = tmp_path_factory.mktemp("walked") / "dataset"
+    record_short(
+        root,
+        controller="expert",
+        schedules=True,
+        walking=True,
+        seed=WALK_SEED,
+        episodes=2,
+        max_steps=OPERATOR_STEPS,
+        latency=1.0,
+        noise=0.02,
+    )
+    return root
+
+
+@pytest.mark.parametrize("dataset", ["operated", "old"])
+def test_walking_inputs_on_a_dataset_without_walks_are_refused_naming_what_to_record(
+    request: pytest.FixtureRequest, tmp_path: Path, capsys: pytest.CaptureFixture[str], dataset: str
+) -> None:
+    """INPUTS=pending+walk on posture schedules, or on a dataset recorded before the velocity fields existed (read as
+    the zero walk): one line naming the recording that teaches it, no checkpoint, the dataset untouched."""
+    root = request.getfixturevalue("operated") if dataset == "operated" else DATASET_V1
+    before = snapshot(root)
+    args = [*TINY, "--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", WALKING_INPUTS]
+    code, out, err = stage_cli(train_stage, args, capsys)
+    assert code == 1 and out == [] and len(err) == 1, err
+    assert f"--inputs {WALKING_INPUTS} learns to walk on velocity commands" in err[0]
+    assert "make record CONTROLLER=expert-sensed-stepping WALKING=1" in err[0]
+    assert not (tmp_path / "policy").exists() and snapshot(root) == before
+
+
+def test_walking_inputs_train_on_walks_into_a_policy_that_walks_under_walking_schedules(
+    walked: Path, tmp_path: Path
+) -> None:
+    """The same settings on demonstrations that hold walk commands train; the policy takes the velocity command, and
+    its evaluation runs (and tracks) walking schedules."""
+    assert read_frames(walked, [columns.OBS_COMMAND])[columns.OBS_COMMAND][:, 5:].any()
+    folder = tmp_path / "policy"
+    config = train_stage.TrainConfig(
+        dataset=walked, policy=folder, inputs=WALKING_INPUTS, hidden=8, epochs=1, min_updates=0, eval_episodes=1
+    )
+    train_stage.main(dataclasses.replace(config, progress=False))
+    assert input_set_of(folder).walks and not input_set_of(full_checkpoint(tmp_path / "full")).walks
+    evaluation = json.loads((folder / "eval.json").read_text())
+    assert evaluation["walking"] is True
+    assert set(evaluation["tracking"]["settled_error"]) == {field.name for field in task_fields(walking=True)}
+
+
 def test_pending_command_inputs_without_latency_are_refused_for_the_latency(
     recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -104,7 +164,7 @@ def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_tak
     args = [*TINY, "--dataset", str(operated), "--policy", str(folder), "--inputs", "pending+command"]
     code, _, err = stage_cli(train_stage, args, capsys)
     assert code == 0, err
-    assert takes_command(folder) and not takes_command(full_checkpoint(tmp_path / "full"))
+    assert input_set_of(folder).takes_command and not input_set_of(full_checkpoint(tmp_path / "full")).takes_command
     env = make_env(SHORT_EPISODE)
     try:
         controller = PolicyController.load(folder, env)
@@ -149,6 +209,33 @@ def test_play_refuses_a_policy_that_takes_no_command(tmp_path: Path, capsys: pyt
     code, _, err = stage_cli(record_stage, args, capsys)
     assert code == 1 and len(err) == 1 and f"{folder} takes no command" in err[0]
     assert not (tmp_path / "new").exists()
+
+
+def untrained(folder: Path, inputs: str) -> Path:
+    """An untrained policy on `inputs`."""
+    kind = INPUT_SETS[inputs]
+    size = len(kind.input_names(humanoid_model()))
+    checkpoint.save(MLPPolicy(MLPSpec(kind.columns, size, 17, hidden=(8,), inputs=inputs)), folder, {}, {})
+    return folder
+
+
+@pytest.mark.parametrize("inputs", ["pending+ramp", WALKING_INPUTS])
+def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_path: Path, inputs: str) -> None:
+    """`make play POLICY=...` on a policy that follows postures only: one line says the walking keys change nothing,
+    before anything else (here the refusal of a stdin that is no terminal, which the suite has); on a walking policy,
+    no such line."""
+    folder = untrained(tmp_path / inputs, inputs)
+    args = ["--dataset", str(tmp_path / "new"), "--controller", "keyboard", "--policy", str(folder)]
+    played = subprocess.run(
+        [sys.executable, "-m", "teleop.record", *args], stdin=subprocess.DEVNULL, capture_output=True, text=True
+    )
+    code, err = played.returncode, played.stderr.strip().splitlines()
+    notice = f"{folder} takes no velocity command: the arrows and z/c change nothing"
+    assert code == 1 and err[-1].startswith("error: ") and not (tmp_path / "new").exists()
+    if inputs == WALKING_INPUTS:
+        assert len(err) == 1
+    else:
+        assert len(err) == 2 and err[0].startswith(notice)
 
 
 # evaluation.evaluate
@@ -276,3 +363,22 @@ def test_ppo_from_a_commanded_student_scores_tracking_on_held_out_schedules(
     assert [p["timesteps"] for p in result["training_curve"]] == [0, 256]
     assert all(0.0 <= p["tracking_score"] <= 1.0 for p in result["training_curve"])
     assert result["takes_command"] and set(result["tracking"]) >= TRACKING_FIELDS
+
+
+def test_ppo_from_a_walking_student_trains_and_is_judged_on_walking_schedules(walked: Path, tmp_path: Path) -> None:
+    """A student on `pending+walk`: PPO's environments draw walking schedules and reward the velocities' tracking too;
+    its validation and final evaluation run held-out walking schedules and score every field."""
+    env = training_env(None, inputs=WALKING_INPUTS, tracking=1.0)
+    env.reset(seed=5)
+    assert env.get_wrapper_attr("walking") and env.get_wrapper_attr("commands")[:, 5:].any()
+    student = tmp_path / "student"
+    train_stage.main(
+        train_stage.TrainConfig(
+            dataset=walked, policy=student, inputs=WALKING_INPUTS, hidden=8, epochs=1, min_updates=0, eval_episodes=0
+        )
+    )
+    config = finetune.FinetuneConfig(bc_policy=student, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO)
+    result = finetune.main(config)
+    assert all(0.0 <= p["tracking_score"] <= 1.0 for p in result["training_curve"])
+    assert result["walking"] is True
+    assert set(result["tracking"]["settled_error"]) == {field.name for field in task_fields(walking=True)}

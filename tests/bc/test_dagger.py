@@ -419,6 +419,7 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
         ("--workers", "0"),
         ("--inputs", "pending"),  # learns to act through latency: the recording has none
         ("--inputs", "full+command"),  # learns to follow a command: the recording's never changes
+        ("--inputs", "pending+walk"),  # learns to walk: the default expert does not
     ],
 )
 def test_bad_rollout_settings_are_refused(

@@ -14,14 +14,22 @@ from bc import train as bc_train
 from bc.data import load_demonstrations
 from common import columns
 from common.cli import UserError
-from humanoid.command_fields import COMMAND_NAMES, POSTURE_NAMES
+from humanoid.command_fields import COMMAND_NAMES, POSTURE_NAMES, VELOCITY_NAMES, Readout
 from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
 from humanoid.episode import Episode, run_episode
 from humanoid.estimator import odometry_names
 from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, PendingInputs, episode_inputs, input_set_named
+from humanoid.inputs import (
+    INPUT_SETS,
+    INPUTS,
+    RAMP_NAMES,
+    WALK_NAMES,
+    PendingInputs,
+    episode_inputs,
+    input_set_named,
+)
 from humanoid.learned import PolicyController
 from humanoid.posture import arm_angles
 from policies.checkpoint import CheckpointError
@@ -241,3 +249,62 @@ def test_a_policy_made_after_a_drawn_body_estimates_on_the_nominal_one() -> None
     controller = tiny_policy("pending", env)
     assert controller.input_set.odometry.odometry.mass == pytest.approx(float(humanoid_model().body_mass.sum()), 1e-12)
     assert controller.input_set.odometry.odometry.mass != pytest.approx(float(env.unwrapped.model.body_mass.sum()))
+
+
+WALK_STEPS = 130
+WALK_AT = 20  # steps: the walk commanded (with a twist)
+PUSH_AT = 90  # steps: after the landing, a push of the root (m/s, world x and y) the estimate must follow
+PUSH = (0.12, -0.06)
+SETTLE = 10  # steps the estimate takes to catch up with a push no force sensor felt
+
+
+def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_and_as_estimated() -> None:
+    """Known answer: under a walk command with a twist, "pending+walk" is "pending"'s inputs, then the expert's own
+    setpoint step for step (the posture's, as "pending+ramp" reads it, then the velocities'), whether that setpoint
+    has left the zero walk (as the walking teacher's hand-over), then the velocities the leg odometry estimates,
+    which follow the true ones (`Readout` of MuJoCo's state, turned by the heading with the twist undone) to 1 cm/s
+    and 0.01 rad/s before a push and once it has caught up with it."""
+    model = humanoid_model()
+    names = INPUT_SETS["pending+walk"].input_names(model)
+    at = {name: names.index(name) for name in names}
+    ramped = [at[f"ramp.{name}"] for name in (*POSTURE_NAMES[:4], *VELOCITY_NAMES)]
+    estimates = [at[f"estimate.{name}"] for name in VELOCITY_NAMES]
+    env = make_env(WALK_STEPS)
+    data = env.unwrapped.data
+    walk_command = np.zeros(len(COMMAND_NAMES), np.float32)
+    walk_command[COMMAND_NAMES.index("twist")] = 0.2
+    walk_command[[COMMAND_NAMES.index(name) for name in VELOCITY_NAMES]] = (0.3, -0.1, 0.2)
+    expert, walk, base = LQRExpert(), INPUT_SETS["pending+walk"](model), INPUT_SETS["pending"](model)
+    readout = Readout(model)
+    obs, _ = env.reset(seed=7)
+    expert.reset(7)
+    walk.reset()
+    base.reset()
+    command = np.zeros_like(walk_command)
+    setpoints, ramps, walked, estimated, true = [], [], [], [], []
+    for t in range(WALK_STEPS):
+        if t == WALK_AT:
+            command = walk_command
+            expert.set_command(command)
+        if t == PUSH_AT:
+            data.qvel[:2] += PUSH
+        action = expert.act(obs)
+        inputs = walk(walk.observe(obs, command))
+        np.testing.assert_array_equal(inputs[: base.size], base(base.observe(obs, command)))
+        setpoints.append(expert.setpoint()[[0, 1, 2, 3, 5, 6, 7]])
+        ramps.append(inputs[ramped])
+        walked.append(inputs[at["walked"]])
+        estimated.append(inputs[estimates])
+        achieved = readout(data.qpos[2:], data.qvel)
+        true.append([achieved[name][0] for name in VELOCITY_NAMES])
+        obs, *_ = env.step(action)
+    np.testing.assert_array_equal(np.array(ramps).astype(np.float32), np.array(setpoints))  # a command's float32
+    assert 0 < ramps[WALK_AT + 10][4] < ramps[-1][4] == np.float32(0.3)  # the forward speed ramps up to the command
+    assert walked == [0.0] * WALK_AT + [1.0] * (WALK_STEPS - WALK_AT)
+    errors = np.abs(np.array(estimated) - np.array(true))
+    assert np.abs(np.array(true)[PUSH_AT + 2 :, :2]).max() > 0.1  # the push moved the body
+    # The push changes the velocity without a force the feet's sensors feel: the feet's kinematics take a few steps.
+    settled = np.concatenate([errors[PUSH_AT - 30 : PUSH_AT], errors[PUSH_AT + SETTLE :]])
+    assert settled.max() < 0.01, settled.max(axis=0)
+    assert names[-len(WALK_NAMES) :] == list(WALK_NAMES) and len(names) == base.size + len(RAMP_NAMES) + 7
+    assert INPUT_SETS["pending+walk"].walks and not INPUT_SETS["pending+ramp"].walks

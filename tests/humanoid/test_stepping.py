@@ -8,7 +8,7 @@ import pytest
 from humanoid.commands import command_vector
 from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.expert import LQRExpert
+from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.perturbations import VelocityKick
 from humanoid.posture import Posture
 from humanoid.sensors import body_axes
@@ -60,13 +60,18 @@ def _episode(controller: object, env: object, seed: int) -> tuple[bool, list[np.
     return True, actions
 
 
-def test_without_a_kick_it_never_plans_and_acts_as_the_lqr_expert() -> None:
+@pytest.mark.parametrize(
+    ("name", "balance"), [("expert-stepping", LQRExpert), ("expert-sensed-stepping", SensedExpert)]
+)
+def test_without_a_kick_it_never_plans_and_acts_as_its_balance(name: str, balance: type) -> None:
+    """Without a kick or a walk the stepping experts are their balance, bit for bit: the expert told the simulator's
+    state, or the expert on leg odometry (the walking student's teacher)."""
     env = make_env(max_episode_steps=300)
-    stepping = make_controller("expert-stepping", env)
+    stepping = make_controller(name, env)
     stood, actions = _episode(stepping, env, 1000)
-    _, lqr = _episode(LQRExpert(), env, 1000)
-    assert stood and stepping.planned == 0
-    np.testing.assert_array_equal(np.array(actions), np.array(lqr))
+    _, balanced = _episode(balance(), env, 1000)
+    assert stood and stepping.planned == 0 and stepping.walks
+    np.testing.assert_array_equal(np.array(actions), np.array(balanced))
 
 
 def test_a_kick_that_topples_the_lqr_expert_is_survived_by_stepping_the_same_way_each_time() -> None:

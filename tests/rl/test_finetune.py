@@ -24,7 +24,7 @@ from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
-from rl.finetune import FinetuneConfig, cli, follows_commands, learner, main, print_summary, vec_env, weights_digest
+from rl.finetune import FinetuneConfig, cli, learner, main, print_summary, vec_env, weights_digest
 from rl.guards import Guards
 from rl.learner import training_env
 from rl.validation import Validator, better, falls_back, holds_floor, selection_score
@@ -61,7 +61,7 @@ def test_step_zero_actions_equal_the_bc_policy(bc_policy: Path) -> None:
 def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: Path) -> None:
     """A worker-sampled rollout holds the policy's values and log-probabilities, the steps and the scaled rewards."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
-    env = vec_env(config, follows_commands(config))
+    env = vec_env(config)
     try:
         model = learner(config, env)
         _, callback = model._setup_learn(config.rollout_steps, callback=None)
@@ -92,7 +92,7 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
 def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path) -> None:
     """Finished training episodes reach SB3's episode statistics (rollout/ep_rew_mean) unscaled: ~5 a step, not 0.05."""
     config = FinetuneConfig(bc_policy=bc_policy, **TINY_PPO)
-    env = vec_env(config, follows_commands(config))
+    env = vec_env(config)
     try:
         model = learner(config, env)
         model.learn(total_timesteps=512)
