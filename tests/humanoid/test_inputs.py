@@ -32,6 +32,7 @@ from humanoid.inputs import (
 )
 from humanoid.learned import PolicyController
 from humanoid.posture import arm_angles
+from humanoid.stepping import SensedSteppingExpert
 from policies.checkpoint import CheckpointError
 from policies.mlp import MLPPolicy, MLPSpec
 from rl.learner import training_env
@@ -308,3 +309,32 @@ def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_an
     assert settled.max() < 0.01, settled.max(axis=0)
     assert names[-len(WALK_NAMES) :] == list(WALK_NAMES) and len(names) == base.size + len(RAMP_NAMES) + 7
     assert INPUT_SETS["pending+walk"].walks and not INPUT_SETS["pending+ramp"].walks
+
+
+HAND_OVER_STEPS = 30
+
+
+def test_walked_flips_on_the_step_the_walking_teacher_hands_over() -> None:
+    """Known answer: under a walk commanded at step WALK_AT, "pending+walk"'s `walked` is 0 while
+    `expert-sensed-stepping` balances and 1 from the step its walking planner takes over (the command's step: the
+    ramp's first) to the end."""
+    model = humanoid_model()
+    at = INPUT_SETS["pending+walk"].input_names(model).index("walked")
+    env = make_env(HAND_OVER_STEPS)
+    teacher, walk = SensedSteppingExpert(), INPUT_SETS["pending+walk"](model)
+    walk_command = np.zeros(len(COMMAND_NAMES), np.float32)
+    walk_command[COMMAND_NAMES.index("forward_speed")] = 0.3
+    obs, _ = env.reset(seed=7)
+    teacher.reset(7)
+    walk.reset()
+    command, flags, handed = np.zeros_like(walk_command), [], []
+    for t in range(HAND_OVER_STEPS):
+        if t == WALK_AT:
+            command = walk_command
+            teacher.set_command(command)
+        action = teacher.act(obs)
+        flags.append(walk(walk.observe(obs, command))[at])
+        handed.append(teacher.walked)
+        obs, *_ = env.step(action)
+    assert flags == [float(h) for h in handed] == [0.0] * WALK_AT + [1.0] * (HAND_OVER_STEPS - WALK_AT)
+    assert teacher.planned == HAND_OVER_STEPS - WALK_AT  # the walking planner acted from that step on
