@@ -4,8 +4,8 @@
 
 Under the zero command and no push, for each held-out seed: whether the planner ever ran, and how far each foot moved
 over the episode's last 10 s (the issue's "stands without stepping": under 2 cm). Then the cost of one action side by
-side in this run: the LQR expert's, the stepping expert's while its trigger is armed but quiet, and a planned one
-(after a 0.4 m/s kick). The kick rows:
+side in this run: the LQR expert's, the stepping expert's while its trigger is armed but quiet, a planned one (after a
+0.4 m/s kick) and a walking one (the walking planner's longer horizon). The kick rows:
 `make robustness POLICY=expert-stepping CONDITIONS=clean,kick0.2,kick0.4,kick0.6 SCHEDULES=0`. Prints markdown tables.
 """
 
@@ -16,9 +16,11 @@ import time
 
 import numpy as np
 
+from humanoid.commands import command_vector
 from humanoid.env import make_env, model_and_data
 from humanoid.expert import LQRExpert
 from humanoid.perturbations import VelocityKick
+from humanoid.posture import Posture
 from humanoid.stepping import SteppingExpert
 
 FEET = ("left_foot", "right_foot")
@@ -50,10 +52,15 @@ def standing(seed: int) -> tuple[int, float]:
     return expert.planned, moved
 
 
-def seconds_per_action(controller: object, env: object, seed: int, steps: int, skip: int) -> float:
-    """Mean wall time of `controller.act` over `steps` env steps after the first `skip` of an episode."""
+def seconds_per_action(
+    controller: object, env: object, seed: int, steps: int, skip: int, command: np.ndarray | None = None
+) -> float:
+    """Mean wall time of `controller.act` over `steps` env steps after the first `skip` of an episode (told `command`
+    from its start, if given)."""
     obs, _ = env.reset(seed=seed)
     controller.reset(seed)
+    if command is not None:
+        controller.set_command(command)
     spent = 0.0
     for t in range(skip + steps):
         begin = time.perf_counter()
@@ -86,6 +93,9 @@ def main() -> None:
         "stepping expert, trigger armed, quiet": seconds_per_action(SteppingExpert(), quiet, args.seed, 400, 150),
         "stepping expert, planning (after a 0.4 m/s kick)": seconds_per_action(
             SteppingExpert(), kicked, args.seed, 200, 140
+        ),
+        "stepping expert, walking (0.3 m/s forward from the start)": seconds_per_action(
+            SteppingExpert(), make_env(), args.seed, 200, 20, command_vector(Posture(forward_speed=0.3))
         ),
     }
     print("| action | ms per action | x real time (0.015 s a step) |\n|---|---|---|")
