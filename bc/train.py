@@ -55,7 +55,7 @@ from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
-from teleop.dataset_reader import command_columns, read_episodes, read_frames, read_info
+from teleop.dataset_reader import read_commanded_frames, read_episodes
 from teleop.record import TEACHER
 
 VAL_FRACTION = 0.1
@@ -282,8 +282,7 @@ def check_taught(cfg: TrainConfig) -> None:
         )
     if input_set.takes_command:
         try:
-            frames = read_frames(cfg.dataset, [columns.OBS_COMMAND])
-            commands = command_columns(read_info(cfg.dataset), frames)[columns.OBS_COMMAND]
+            commands = read_commanded_frames(cfg.dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
         except (OSError, KeyError, ValueError) as error:
             raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
         if len(np.unique(commands, axis=0)) < 2:

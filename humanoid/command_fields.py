@@ -20,12 +20,13 @@ test_command_fields.py tracks a velocity row added to the table).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from humanoid.sensors import body_axes
+from humanoid.sensors import body_axes, yaw_rate
 
 
 @dataclass(frozen=True)
@@ -194,6 +195,11 @@ def field_positions(names: tuple[str, ...] | list[str]) -> list[int]:
     return [COMMAND_NAMES.index(name) for name in names]
 
 
+def tolerances(fields: Iterable[CommandField]) -> np.ndarray:
+    """The fields' tolerances, in their order."""
+    return np.array([field.tolerance for field in fields])
+
+
 def task_fields(walking: bool) -> tuple[CommandField, ...]:
     """The fields a task commands, tracks and scores: every field when walking, else the posture fields."""
     return COMMAND_FIELDS if walking else POSTURE_FIELDS
@@ -231,8 +237,7 @@ class Readout:
         half = abdomen_z / 2
         zero = np.zeros_like(half)
         unyaw = np.moveaxis(np.array([np.cos(half), zero, zero, np.sin(half)]), 0, -1)
-        root = body_axes(qpos[..., 1:5])
-        frame = np.swapaxes(body_axes(unyaw) @ root, -1, -2)  # R(root) R(unyaw)
+        frame = np.swapaxes(body_axes(unyaw) @ body_axes(qpos[..., 1:5]), -1, -2)  # R(root) R(unyaw)
         heading = np.arctan2(frame[..., 1, 0], frame[..., 0, 0])
         cos, sin, vx, vy = np.cos(heading), np.sin(heading), qvel[..., 0], qvel[..., 1]
         return {
@@ -243,5 +248,5 @@ class Readout:
             "arms": qpos[..., self.arms_at],
             "forward_speed": (cos * vx + sin * vy)[..., None],
             "sideways_speed": (cos * vy - sin * vx)[..., None],
-            "turn_rate": (root[..., :, 2] * qvel[..., 3:6]).sum(-1)[..., None],  # the local angular velocity's world z
+            "turn_rate": yaw_rate(qpos[..., 1:5], qvel[..., 3:6])[..., None],
         }

@@ -40,6 +40,7 @@ from humanoid.command_fields import (
     Readout,
     field_positions,
     task_fields,
+    tolerances,
 )
 from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.lqr import LQRDesign
@@ -174,7 +175,7 @@ class Tracking:
     def __init__(self, model: mujoco.MjModel, fields: tuple[CommandField, ...] = COMMAND_FIELDS) -> None:
         self.model = model
         self.fields = fields
-        self.tolerances = np.array([field.tolerance for field in fields])
+        self.tolerances = tolerances(fields)
         """Each field's tolerance, in `fields` order."""
         self.readout = Readout(model)
         self.speed_steps = round(SPEED_SECONDS / (LQRDesign().frame_skip * model.opt.timestep))
@@ -277,12 +278,12 @@ def tracking_summary(
     never settled counts its whole duration). NaN where no command was held long enough. `errors` (T, fields) are of
     `fields`, `commands` (T, COMMAND_SIZE) whole."""
     names = [field.name for field in fields]
-    columns, tolerances = field_positions(names), np.array([f.tolerance for f in fields])
+    columns, allowed = field_positions(names), tolerances(fields)
     window = round(SETTLED_SECONDS / dt)
     changes = np.flatnonzero(np.r_[True, (np.diff(commands, axis=0) != 0).any(axis=1)])
     settled, moved, times, previous = [], [], [], NEUTRAL
     for start, end in zip(changes, [*changes[1:], len(commands)], strict=True):
-        inside = (errors[start:end] <= tolerances).all(axis=1)
+        inside = (errors[start:end] <= allowed).all(axis=1)
         outside = np.flatnonzero(~inside)
         times.append((outside[-1] + 1 if len(outside) else 0) * dt)
         target = command_posture(commands[start]).clipped()
@@ -342,8 +343,7 @@ def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
     measured: 1 for exact tracking, 0 where nothing was held long enough to measure."""
     names = tracked_names(summary)
     errors = np.array([summary["settled_error"][name] for name in names])
-    tolerances = np.array([FIELDS[name].tolerance for name in names])
-    return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors, tolerances))
+    return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors, tolerances(FIELDS[name] for name in names)))
 
 
 COMMAND_INFO = "command"

@@ -287,7 +287,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
             super().__init__(model)
             self.path = PosturePath(model)  # the design's env step, as the expert's
             self.command = np.zeros(size, np.float32)
-            self.readout = Readout(model)
+            self.readout = Readout(model) if walking else None
             self.walked = False
 
         def reset(self) -> None:

@@ -74,6 +74,12 @@ def privileged_names(model: mujoco.MjModel) -> list[str]:
     return [name for name in observation_names(model) if name not in sensed]
 
 
+def yaw_rate(quaternion: np.ndarray, angular_velocity: np.ndarray) -> np.ndarray:
+    """The yaw rate about the world's vertical (...) of bodies oriented as `quaternion` (..., 4) turning at their local
+    `angular_velocity` (..., 3; a free joint's qvel 3:6): that velocity turned into the world, its z component."""
+    return (body_axes(quaternion)[..., :, 2] * angular_velocity).sum(-1)
+
+
 def body_axes(quaternion: np.ndarray) -> np.ndarray:
     """R^T, (..., 3, 3), of body orientations (..., 4) w-x-y-z, R mapping body to world: row i is the body's
     i-th axis in the world (R's i-th column). The state's quaternion drifts from unit length between

@@ -26,7 +26,7 @@ from humanoid.command_fields import VELOCITY_NAMES, field_positions
 from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
 from humanoid.expert import ExpertAround, LQRExpert, SensedExpert
 from humanoid.lqr import CTRL_LIMIT
-from humanoid.sensors import body_axes
+from humanoid.sensors import yaw_rate
 
 STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
 OMEGA = 3.4
@@ -123,12 +123,6 @@ def planning_model(design: SteppingDesign) -> mujoco.MjModel:
 COM, COM_VEL, LEFT_FOOT, RIGHT_FOOT, HEAD, TORSO_Z, TORSO_X = (slice(3 * i, 3 * i + 3) for i in range(7))
 
 
-def yaw_rate(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-    """The root's yaw rate about the world's vertical (...) of states: its local angular velocity (qvel 3:6) turned
-    into the world by the root's orientation (qpos 3:7), the z component."""
-    return (body_axes(qpos[..., 3:7])[..., :, 2] * qvel[..., 3:6]).sum(-1)
-
-
 def off_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance (...) from points (..., 2) to the segments from a to b (..., 2)."""
     ab = b - a
@@ -197,8 +191,8 @@ class StepPlanner:
         w, walk, command = self.design.weights, self.design.walk, self.velocity
         walking = 0.0
         if walk:
-            walking = min(1.0, max(abs(command[0]) / walk["full_speed"], abs(command[1]) / walk["full_speed"]))
-            walking = min(1.0, max(walking, abs(command[2]) / walk["full_turn"]))
+            speeds = (abs(command[0]) / walk["full_speed"], abs(command[1]) / walk["full_speed"])
+            walking = min(1.0, max(*speeds, abs(command[2]) / walk["full_turn"]))
         com, velocity = sensors[..., COM], sensors[..., COM_VEL]
         left, right = sensors[..., LEFT_FOOT], sensors[..., RIGHT_FOOT]
         heading = sensors[..., TORSO_X][..., :2]
@@ -209,7 +203,7 @@ class StepPlanner:
         capture = com[..., :2] + 0.3 * (velocity[..., :2] - asked)  # MuJoCo MPC's capture point, moved by a walk
         centre = 0.5 * (left[..., :2] + right[..., :2])
         fore, side = stance(sensors)
-        yaw = yaw_rate(qpos, qvel) if walk else None
+        yaw = yaw_rate(qpos[..., 3:7], qvel[..., 3:6]) if walk else None
         still = 1.0 - walking
         cost = (
             w["height"] * np.square(np.minimum(height - HEAD_HEIGHT - (self.reference[2] - self.standing_height), 0.0))

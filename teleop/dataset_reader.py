@@ -180,6 +180,11 @@ def command_columns(info: dict[str, Any], frames: dict[str, np.ndarray]) -> dict
     return out
 
 
+def read_commanded_frames(root: Path, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+    """`read_frames` with the command columns laid out as today's command (`command_columns`)."""
+    return command_columns(read_info(root), read_frames(root, columns))
+
+
 # Step fields read back, with the dtype of the matching LeRobot column.
 STEP_FIELDS = {
     "frame_index": np.int64,
@@ -243,7 +248,7 @@ def read_transitions(root: Path) -> list[Transitions]:
         columns.TERMINATED,
         columns.TRUNCATED,
     ]
-    frames = command_columns(read_info(root), read_frames(root, [*wanted, "episode_index"]))
+    frames = read_commanded_frames(root, [*wanted, "episode_index"])
     observations = np.concatenate([frames[columns.OBS_STATE], frames[columns.OBS_ENV_STATE]], axis=1)[:, index]
     finals = episodes.select(final_columns).to_pylist()
     result = []

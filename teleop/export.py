@@ -41,9 +41,8 @@ from humanoid.env import ENV_ID, make_env
 from humanoid.episode import EpisodeBuffer, run_episode
 from teleop.dataset_reader import (
     Transitions,
-    command_columns,
+    read_commanded_frames,
     read_episodes,
-    read_frames,
     read_info,
     read_transitions,
 )
@@ -220,7 +219,7 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
     info = read_info(dataset)
     if columns.OBS_COMMAND not in info["features"]:
         raise DatasetError(f"{dataset} has no {columns.OBS_COMMAND} (a lerobot-command copy already?)")
-    frames = command_columns(info, read_frames(dataset))
+    frames = read_commanded_frames(dataset)
     if not frames[columns.OBS_COMMAND].any():
         raise DatasetError(
             f"{dataset}'s command is zero in every frame (nothing was commanded): nothing to condition a policy on; "
@@ -265,7 +264,7 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
 
 def constant_fields(root: Path) -> list[str]:
     """The command's fields that hold one value in every frame of the dataset at `root`."""
-    command = command_columns(read_info(root), read_frames(root, [columns.OBS_COMMAND]))[columns.OBS_COMMAND]
+    command = read_commanded_frames(root, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
     return [name for name, column in zip(COMMAND_NAMES, command.T, strict=True) if (column == column[0]).all()]
 
 

@@ -31,7 +31,13 @@ from common.cli import UserError, config_dict, run_cli, setting
 from humanoid.env import make_env
 from humanoid.episode import Episode
 from teleop import recordings
-from teleop.dataset_reader import command_columns, read_episodes, read_frames, read_info, read_mcap_final, read_steps
+from teleop.dataset_reader import (
+    read_commanded_frames,
+    read_episodes,
+    read_info,
+    read_mcap_final,
+    read_steps,
+)
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.mcap_io.writer import TF_TOPIC
 from teleop.seeds import seed_clash
@@ -166,8 +172,7 @@ def main(cfg: MergeConfig) -> int:
         with recordings.logged(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions) as added:
             for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
                 if shard not in commands:
-                    frames = read_frames(shard, [*FRAME_COLUMNS, "episode_index"])
-                    commands[shard] = command_columns(read_info(shard), frames)
+                    commands[shard] = read_commanded_frames(shard, [*FRAME_COLUMNS, "episode_index"])
                 frames = commands[shard]
                 mine = frames["episode_index"] == row["episode_index"]
                 arrays = {key: frames[key][mine] for key in FRAME_COLUMNS}
