@@ -78,7 +78,7 @@ SOURCE_FILE = "demonstrations.json"
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
 LABELLERS = {expert.name: expert for expert in (LQRExpert, SensedExpert, SteppingExpert, SensedSteppingExpert)}
 """The registered controllers that can label DAgger's rollouts, by name."""
-SHAPING = ("inputs", "expert", "randomize", "latency", "noise", "episodes", "epochs", "min_updates", "seed")
+SHAPING = ("inputs", "expert", "randomize", "latency", "kick", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
 
@@ -109,6 +109,12 @@ class DaggerConfig:
     latency: float | None = setting(
         None,
         "the share of rollouts run with one step of action latency, as `make record LATENCY=`; default: DATASET's",
+    )
+    kick: float = setting(
+        0.0,
+        "one kick of the root's horizontal velocity per rollout, in m/s, as `make record KICK=` gives it (the "
+        "suite's kick conditions): the expert labels the states the kick leads to, so give one that steps "
+        "(docs/how-to/walk.md); 0 = none",
     )
     noise: float = setting(
         DART_NOISE,
@@ -180,7 +186,7 @@ def check_settings(cfg: DaggerConfig) -> None:
         walkers = " or ".join(f"--expert {name}" for name, labeller in LABELLERS.items() if labeller.walks)
         raise UserError(f"--inputs {cfg.inputs} learns to walk, and --expert {cfg.expert} does not: give {walkers}")
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
-    check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "seed")
+    check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "kick", "seed")
     if cfg.latency is not None:
         check_share(cfg, "latency")
     if cfg.randomize is not None:
@@ -418,7 +424,7 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         copy_demonstrations(cfg, made_by)
     check_resume(cfg)
     randomization = parse_randomization(cfg.randomize)
-    env = recording_env(make_env(), randomization, cfg.latency)
+    env = recording_env(make_env(), randomization, cfg.latency, cfg.kick)
     store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
     settle_spool(cfg.output, store.num_episodes)
     result = DaggerResult()
@@ -440,6 +446,7 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         max_steps=env.spec.max_episode_steps,
         randomization=randomization,
         latency=cfg.latency,
+        kick=cfg.kick,
         labeller=cfg.expert,
     )
     trainer: DAggerTrainer | None = None

@@ -261,6 +261,8 @@ class SensedExpert(ExpertAround):
         self.expert = LQRExpert(model, delay=delay, landing=False)
         self.sensed = Proprioception(self.expert.model)
         self.estimator = LegOdometry(self.expert.model)
+        self.estimate: tuple[np.ndarray, np.ndarray] = (np.zeros(self.expert.model.nq), np.zeros(self.expert.model.nv))
+        """The (qpos, qvel) the last `act` acted on."""
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""
@@ -270,4 +272,5 @@ class SensedExpert(ExpertAround):
         self.estimator.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.expert.act_on_state(*self.estimator(self.sensed(obs)))
+        self.estimate = self.estimator(self.sensed(obs))
+        return self.expert.act_on_state(*self.estimate)

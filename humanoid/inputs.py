@@ -67,6 +67,7 @@ from humanoid.env import actuator_names, nominal_model, observation_names
 from humanoid.estimator import OdometryFeatures, odometry_names
 from humanoid.posture import Posture, PosturePath
 from humanoid.sensors import Proprioception, proprioception_names
+from humanoid.stepping import EstimatedTrigger
 
 
 class InputSet(ABC):
@@ -248,26 +249,27 @@ RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for 
 """A ramped set's posture inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
 WALK_NAMES = (
     *(f"ramp.{name}" for name in VELOCITY_NAMES),
-    "walked",
+    "planning",
     *(f"estimate.{name}" for name in VELOCITY_NAMES),
 )
-"""A walking set's last inputs: the velocity fields on their ramp, whether the ramp has left the zero walk since the
-episode began (1) or not (0), then the velocities as the leg odometry estimates them (`Readout` of the estimated
-state)."""
+"""A walking set's last inputs: the velocity fields on their ramp; whether the stepping teacher's planners have had
+the body since the episode began (1) or not (0): the ramp has left the zero walk, or, once armed, the capture point of
+the leg odometry's estimate has left the feet (`humanoid.stepping.EstimatedTrigger`); then the velocities as the leg
+odometry estimates them (`Readout` of the estimated state)."""
 
 
 def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSet]:
     """`base`'s inputs, then the operator's command as the expert's setpoint moves toward it (`PosturePath`, run on
     the command the frame records): the set named "BASE+ramp"; with `walking`, "BASE+walk": the velocity fields on
-    their ramp too, whether they have left the zero walk this episode, then the velocities as `base`'s leg odometry
+    their ramp too, whether the stepping teacher's planners have the body, then the velocities as `base`'s leg odometry
     estimates them (`WALK_NAMES`).
 
     Why: the expert's labels follow its setpoint, which reaches a new command over seconds; a policy that reads only
     the command cannot tell how far along that move it is, a policy reading the ramp can, and it is computed from the
     command alone, as a robot's command filter would (docs/decisions/command-features.md). The arm preset is read as
     the six angles the setpoint's arms have on the way: a preset's number halfway between two presets names a third.
-    A walking student is told how fast it goes in the terms it is commanded in, and when its teacher's walking
-    planner has taken over, which it keeps to the episode's end (docs/decisions/walking-student.md).
+    A walking student is told how fast it goes in the terms it is commanded in, and when its teacher's planners have
+    taken over (a walk, or a kick), which they keep to the episode's end (docs/decisions/walking-student.md).
     Stateful: the ramp runs along the episode's frames, one env step per frame.
     """
     commanded = commanded_set(base, walking)
@@ -288,13 +290,16 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
             self.path = PosturePath(model)  # the design's env step, as the expert's
             self.command = np.zeros(size, np.float32)
             self.readout = Readout(model) if walking else None
-            self.walked = False
+            self.trigger = EstimatedTrigger() if walking else None
+            self.planning = False
+            self.steps = 0
 
         def reset(self) -> None:
             base.reset(self)
             self.path.reset()
             self.command[:] = 0.0
-            self.walked = False
+            self.planning = False
+            self.steps = 0
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
             command = frame[-size:]
@@ -309,9 +314,14 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
             inputs = base.__call__(self, frame[:-size])  # runs the leg odometry on this frame
             if walking:
                 speeds = [getattr(posture, name) for name in velocities]
-                self.walked = self.walked or any(speeds)  # as the walking teacher's hand-over, to the episode's end
-                ramp += [*speeds, float(self.walked)]
                 qpos, qvel = self.odometry.estimate
+                self.steps += 1  # as the teacher's hand-over (`SteppingExpert.act`), to the episode's end:
+                self.planning = (
+                    self.planning
+                    or any(speeds)
+                    or (self.steps > self.trigger.design.armed_after and self.trigger(qpos, qvel))
+                )
+                ramp += [*speeds, float(self.planning)]
                 achieved = self.readout(qpos[2:], qvel)
                 ramp += [float(achieved[name][0]) for name in velocities]
             return np.concatenate([inputs, np.array(ramp, frame.dtype)])

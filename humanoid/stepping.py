@@ -140,6 +140,36 @@ def stance(sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return fore, side
 
 
+def leaves_feet(design: SteppingDesign, sensors: np.ndarray) -> bool:
+    """Whether the capture point has left the segment between the feet or the body moves as no stance does, by
+    `design`'s thresholds, from a planning model's sensordata."""
+    velocity = sensors[COM_VEL][:2]
+    capture = sensors[COM][:2] + velocity / OMEGA
+    off = float(off_segment(capture, sensors[LEFT_FOOT][:2], sensors[RIGHT_FOOT][:2]))
+    return off > design.trigger_offset or float(np.linalg.norm(velocity)) > design.trigger_speed
+
+
+class EstimatedTrigger:
+    """`leaves_feet` of the leg odometry's estimated state: the kick planner's trigger as a robot computes it, shared
+    by the teacher on what a robot senses (`SensedSteppingExpert`) and its students' `planning` input, so the
+    student reads the step its teacher hands over on (docs/decisions/walking-student.md)."""
+
+    def __init__(self, design: SteppingDesign = SteppingDesign()) -> None:
+        self.design = design
+        self.model = planning_model(design)
+        self.data = mujoco.MjData(self.model)
+
+    def __call__(self, qpos: np.ndarray, qvel: np.ndarray) -> bool:
+        """Whether the body at the estimated (`qpos`, `qvel`) needs the planner."""
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_fwdPosition(self.model, self.data)
+        mujoco.mj_fwdVelocity(self.model, self.data)
+        mujoco.mj_sensorPos(self.model, self.data)
+        mujoco.mj_sensorVel(self.model, self.data)
+        return leaves_feet(self.design, self.data.sensordata)
+
+
 class StepPlanner:
     """Predictive sampling over linear-spline controls, one replan per env step."""
 
@@ -292,11 +322,8 @@ class SteppingExpert(ExpertAround):
         self.walked = False
 
     def triggered(self, sensors: np.ndarray) -> bool:
-        """Whether the capture point has left the segment between the feet or the body moves as no stance does."""
-        velocity = sensors[COM_VEL][:2]
-        capture = sensors[COM][:2] + velocity / OMEGA
-        off = float(off_segment(capture, sensors[LEFT_FOOT][:2], sensors[RIGHT_FOOT][:2]))
-        return off > self.design.trigger_offset or float(np.linalg.norm(velocity)) > self.design.trigger_speed
+        """Whether the kick planner takes over: `leaves_feet` of the simulator's state (the planner's `sensors`)."""
+        return leaves_feet(self.design, sensors)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action = self.balance.act(obs)  # every step: its setpoint and pending actions stay current
@@ -318,12 +345,23 @@ class SteppingExpert(ExpertAround):
 class SensedSteppingExpert(SteppingExpert):
     """`SteppingExpert` whose balance is the expert on leg odometry (`SensedExpert`): the teacher of students on what a
     robot senses, which read what its balance acts on, as the pipeline's students read `expert-sensed`'s
-    (docs/decisions/deployable-inputs.md); the planners still plan on the simulator's state, as a teacher may
-    (docs/decisions/walking-student.md)."""
+    (docs/decisions/deployable-inputs.md). Its kick planner takes over on that same estimate (`EstimatedTrigger`), so
+    its students can compute the hand-over (their `planning` input); the planners still plan on the simulator's
+    state, as a teacher may (docs/decisions/walking-student.md)."""
 
     name = "expert-sensed-stepping"
+
+    def __init__(
+        self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
+    ) -> None:
+        super().__init__(design, delay, walking)
+        self.estimated = EstimatedTrigger(design)
 
     @staticmethod
     def balancer(delay: int) -> LQRExpert | SensedExpert:
         """The LQR expert on the leg odometry's estimate."""
         return SensedExpert(delay=delay)
+
+    def triggered(self, sensors: np.ndarray) -> bool:
+        """`leaves_feet` of the state its balance acts on, the leg odometry's estimate: what its students compute."""
+        return self.estimated(*self.balance.estimate)

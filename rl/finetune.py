@@ -50,7 +50,7 @@ from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import EVAL_SEED, VALIDATION_SEED
 from common.workers import default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
-from humanoid.conditions import Randomization, parse_randomization
+from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
 from humanoid.inputs import input_set_named
 from humanoid.learned import PolicyController
@@ -120,6 +120,11 @@ class FinetuneConfig:
         None, "HOST:PORT of a running Ray cluster's head (--backend ray); default: a local Ray for this run"
     )
     push: float = setting(0.0, "train with horizontal pushes of this many newtons on the torso (0.1 s every 2 s)")
+    kick: float = setting(
+        0.0,
+        "train with one kick of the root's horizontal velocity per episode, in m/s, as the suite's kick conditions "
+        "give it (0.2, 0.4 or 0.6), beside the pushes, and choose the actor kept under that condition too; 0 = none",
+    )
     curriculum: str = setting(
         "0,2.5,5,7.5,10,15,20,30,40",
         "train with pushes whose force grows through these stages, in newtons (e.g. '0,10,20,40'; instead of "
@@ -243,7 +248,15 @@ def validate(cfg: FinetuneConfig) -> None:
     if workers(cfg) <= 0:
         raise UserError(f"--workers must be positive, got {workers(cfg)}")
     check_non_negative(
-        cfg, "push", "target_kl", "critic_warmup", "final_eval_episodes", "update_threads", "tracking_weight", "seed"
+        cfg,
+        "push",
+        "kick",
+        "target_kl",
+        "critic_warmup",
+        "final_eval_episodes",
+        "update_threads",
+        "tracking_weight",
+        "seed",
     )
     check_backend(cfg.backend, cfg.ray_address)
     if workers(cfg) > cfg.envs:
@@ -257,6 +270,9 @@ def validate(cfg: FinetuneConfig) -> None:
             raise UserError(f"{flag(name)} must be in [0, 1], got {getattr(cfg, name)}")
     if stages(cfg) and cfg.push:
         raise UserError("give --push or --curriculum, not both")
+    if cfg.kick and kick_condition(cfg) not in SUITE:
+        kicks = ", ".join(name.removeprefix("kick") for name in SUITE if name.startswith("kick"))
+        raise UserError(f"--kick must be 0 or one of the suite's kick speeds ({kicks} m/s), got {cfg.kick:g}")
     randomization(cfg)
 
 
@@ -285,6 +301,17 @@ def training_push(cfg: FinetuneConfig) -> float | None:
 def validation_push(cfg: FinetuneConfig) -> float:
     """The push of the evaluations during training, which choose the actor kept: the largest trained with."""
     return max(stages(cfg), default=cfg.push)
+
+
+def kick_condition(cfg: FinetuneConfig) -> str:
+    """The robustness condition of the training's kick (`humanoid.conditions.SUITE`'s "kick0.4" for 0.4 m/s)."""
+    return f"kick{cfg.kick:g}"
+
+
+def eval_conditions(cfg: FinetuneConfig) -> tuple[str, ...]:
+    """The conditions evaluated beside the validation push during training: EVAL_CONDITIONS, and the training's kick
+    if it has one (what it trains for then chooses the actor kept too)."""
+    return (*EVAL_CONDITIONS, kick_condition(cfg)) if cfg.kick else EVAL_CONDITIONS
 
 
 def widened(cfg: FinetuneConfig) -> dict[str, float]:
@@ -316,6 +343,7 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
         tracking=cfg.tracking_weight if task(cfg)["schedules"] else None,
+        kick=cfg.kick,
     )
 
 
@@ -442,7 +470,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
             f"settings to resume it, or remove that folder"
         )
     torch.set_num_threads(1)  # the rollouts' count; WorkerRolloutPPO raises it for its updates
-    with evaluation_pool(min(cfg.workers, default_workers(1 + len(EVAL_CONDITIONS)))) as pool:
+    with evaluation_pool(min(cfg.workers, default_workers(1 + len(eval_conditions(cfg))))) as pool:
         with (
             contextlib.closing(vec_env(cfg)) as env,
             checkpoint.running(cfg.policy, cfg.overwrite) as folder,
@@ -457,7 +485,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
                 seed=VALIDATION_SEED,
                 push=validation_push(cfg),
                 freq=cfg.eval_freq,
-                conditions=EVAL_CONDITIONS,
+                conditions=eval_conditions(cfg),
                 task=on,
                 settings=settings,
                 demonstrations=demonstrations,

@@ -20,7 +20,7 @@ from humanoid.commands import CommandedTask
 from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
 from humanoid.env import make_env
 from humanoid.inputs import InputObservation, input_set_named
-from humanoid.perturbations import TorsoPushes
+from humanoid.perturbations import TorsoPushes, VelocityKick
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
 from rl.rollouts import WorkerRolloutPPO
@@ -37,6 +37,7 @@ def training_env(
     latency: float | None = None,
     obs_noise: float | None = None,
     tracking: float | None = None,
+    kick: float = 0.0,
 ) -> gym.Env:
     """One training environment (module-level, so worker processes can build it).
 
@@ -47,7 +48,8 @@ def training_env(
     the estimator with it). A curriculum (`rl.curriculum`) changes all four from an episode to the
     next. With `tracking` (a reward weight, 0 included) the episodes follow the operator's command schedules and
     reward tracking them (`CommandedTask`), the actor told the
-    command. The observation is the environment's, then what an actor on `inputs` reads (`InputObservation`).
+    command. With `kick` (m/s) every episode is kicked once, as the suite's kick conditions do (`VelocityKick`).
+    The observation is the environment's, then what an actor on `inputs` reads (`InputObservation`).
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
     reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
@@ -56,6 +58,8 @@ def training_env(
         env = DomainRandomization(env, randomization, width)
     if push is not None:
         env = TorsoPushes(env, push)
+    if kick > 0:
+        env = VelocityKick(env, kick)
     if latency is not None:
         env = ActionLatency(env, SUITE["latency"].latency, share=latency)
     if obs_noise is not None:
@@ -78,11 +82,13 @@ def make_vec_env(
     latency: float | None = None,
     obs_noise: float | None = None,
     tracking: float | None = None,
+    kick: float = 0.0,
 ) -> WorkerGroupVecEnv:
     """`envs` training environments (`training_env`) over `workers` processes (or Ray actors), seeded from
     `seed`, for an actor on `inputs`."""
     env = WorkerGroupVecEnv(
-        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise, tracking)] * envs,
+        [functools.partial(training_env, push, randomization, width, inputs, latency, obs_noise, tracking, kick)]
+        * envs,
         workers,
         backend=backend,
         ray_address=ray_address,

@@ -31,6 +31,7 @@ from humanoid.inputs import (
     input_set_named,
 )
 from humanoid.learned import PolicyController
+from humanoid.perturbations import VelocityKick
 from humanoid.posture import arm_angles
 from humanoid.stepping import SensedSteppingExpert
 from policies.checkpoint import CheckpointError
@@ -262,9 +263,9 @@ SETTLE = 10  # steps the estimate takes to catch up with a push no force sensor 
 def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_and_as_estimated() -> None:
     """Known answer: under a walk command with a twist, "pending+walk" is "pending"'s inputs, then the expert's own
     setpoint step for step (the posture's, as "pending+ramp" reads it, then the velocities'), whether that setpoint
-    has left the zero walk (as the walking teacher's hand-over), then the velocities the leg odometry estimates,
-    which follow the true ones (`Readout` of MuJoCo's state, turned by the heading with the twist undone) to 1 cm/s
-    and 0.01 rad/s before a push and once it has caught up with it."""
+    has left the zero walk (as the walking teacher's hand-over: `planning`), then the velocities the leg odometry
+    estimates, which follow the true ones (`Readout` of MuJoCo's state, turned by the heading with the twist undone)
+    to 1 cm/s and 0.01 rad/s before a push and once it has caught up with it."""
     model = humanoid_model()
     names = INPUT_SETS["pending+walk"].input_names(model)
     at = {name: names.index(name) for name in names}
@@ -282,7 +283,7 @@ def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_an
     walk.reset()
     base.reset()
     command = np.zeros_like(walk_command)
-    setpoints, ramps, walked, estimated, true = [], [], [], [], []
+    setpoints, ramps, planning, estimated, true = [], [], [], [], []
     for t in range(WALK_STEPS):
         if t == WALK_AT:
             command = walk_command
@@ -294,14 +295,14 @@ def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_an
         np.testing.assert_array_equal(inputs[: base.size], base(base.observe(obs, command)))
         setpoints.append(expert.setpoint()[[0, 1, 2, 3, 5, 6, 7]])
         ramps.append(inputs[ramped])
-        walked.append(inputs[at["walked"]])
+        planning.append(inputs[at["planning"]])
         estimated.append(inputs[estimates])
         achieved = readout(data.qpos[2:], data.qvel)
         true.append([achieved[name][0] for name in VELOCITY_NAMES])
         obs, *_ = env.step(action)
     np.testing.assert_array_equal(np.array(ramps).astype(np.float32), np.array(setpoints))  # a command's float32
     assert 0 < ramps[WALK_AT + 10][4] < ramps[-1][4] == np.float32(0.3)  # the forward speed ramps up to the command
-    assert walked == [0.0] * WALK_AT + [1.0] * (WALK_STEPS - WALK_AT)
+    assert planning == [0.0] * WALK_AT + [1.0] * (WALK_STEPS - WALK_AT)
     errors = np.abs(np.array(estimated) - np.array(true))
     assert np.abs(np.array(true)[PUSH_AT + 2 :, :2]).max() > 0.1  # the push moved the body
     # The push changes the velocity without a force the feet's sensors feel: the feet's kinematics take a few steps.
@@ -314,12 +315,12 @@ def test_a_walking_set_reads_the_ramped_set_then_the_velocities_on_their_ramp_an
 HAND_OVER_STEPS = 30
 
 
-def test_walked_flips_on_the_step_the_walking_teacher_hands_over() -> None:
-    """Known answer: under a walk commanded at step WALK_AT, "pending+walk"'s `walked` is 0 while
+def test_planning_flips_on_the_step_the_walking_teacher_hands_over() -> None:
+    """Known answer: under a walk commanded at step WALK_AT, "pending+walk"'s `planning` is 0 while
     `expert-sensed-stepping` balances and 1 from the step its walking planner takes over (the command's step: the
     ramp's first) to the end."""
     model = humanoid_model()
-    at = INPUT_SETS["pending+walk"].input_names(model).index("walked")
+    at = INPUT_SETS["pending+walk"].input_names(model).index("planning")
     env = make_env(HAND_OVER_STEPS)
     teacher, walk = SensedSteppingExpert(), INPUT_SETS["pending+walk"](model)
     walk_command = np.zeros(len(COMMAND_NAMES), np.float32)
@@ -338,3 +339,31 @@ def test_walked_flips_on_the_step_the_walking_teacher_hands_over() -> None:
         obs, *_ = env.step(action)
     assert flags == [float(h) for h in handed] == [0.0] * WALK_AT + [1.0] * (HAND_OVER_STEPS - WALK_AT)
     assert teacher.planned == HAND_OVER_STEPS - WALK_AT  # the walking planner acted from that step on
+
+
+KICKED_AT = 277  # the env step of seed 0's kick (`VelocityKick`'s draw)
+KICK_STEPS = KICKED_AT + 25
+
+
+def test_planning_flips_on_the_step_the_kick_planner_takes_over() -> None:
+    """Known answer: under the zero command and a 0.4 m/s kick at step KICKED_AT, "pending+walk"'s `planning` is 0
+    while `expert-sensed-stepping` balances and 1 from the step its kick planner takes over, a few steps after the
+    kick (when the leg odometry's estimate, which both read, puts the capture point off the feet) to the end."""
+    model = humanoid_model()
+    at = INPUT_SETS["pending+walk"].input_names(model).index("planning")
+    env = VelocityKick(make_env(KICK_STEPS), 0.4)
+    teacher, student = SensedSteppingExpert(), INPUT_SETS["pending+walk"](model)
+    obs, _ = env.reset(seed=0)
+    teacher.reset(0)
+    student.reset()
+    command = np.zeros(len(COMMAND_NAMES), np.float32)
+    flags, handed = [], []
+    for _ in range(KICK_STEPS):
+        action = teacher.act(obs)
+        flags.append(student(student.observe(obs, command))[at])
+        handed.append(float(teacher.planned > 0))
+        obs, *_ = env.step(action)
+    assert env.pushes and env.pushes[0][0] == KICKED_AT
+    first = handed.index(1.0)
+    assert flags == handed == [0.0] * first + [1.0] * (KICK_STEPS - first)
+    assert KICKED_AT < first < KICKED_AT + 10, first

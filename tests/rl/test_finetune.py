@@ -19,12 +19,25 @@ import torch
 
 from common import paths
 from common.cli import config_dict
+from humanoid.env import make_env
+from humanoid.expert import LQRExpert
 from humanoid.learned import PolicyController
+from humanoid.perturbations import VelocityKick
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
-from rl.finetune import FinetuneConfig, cli, learner, main, print_summary, vec_env, weights_digest
+from rl.finetune import (
+    EVAL_CONDITIONS,
+    FinetuneConfig,
+    cli,
+    eval_conditions,
+    learner,
+    main,
+    print_summary,
+    vec_env,
+    weights_digest,
+)
 from rl.guards import Guards
 from rl.learner import training_env
 from rl.validation import Validator, better, falls_back, holds_floor, selection_score
@@ -87,6 +100,30 @@ def test_sampled_rollouts_are_what_the_policy_and_environments_give(bc_policy: P
         np.testing.assert_array_equal(buffer.observations[step, 0], expected, err_msg=f"step {step}")
         expected, reward, *_ = replay.step(np.clip(buffer.actions[step, 0], -0.4, 0.4))
         assert buffer.rewards[step, 0] == pytest.approx(0.01 * reward, rel=1e-6), f"step {step}"
+
+
+def test_kicked_training_episodes_are_kicked_once_at_their_seeds_step() -> None:
+    """--kick: each training episode is kicked as the suite's kick condition kicks it (seed 0: step 277, by 0.4 m/s),
+    and the run's validation adds that condition to those that choose the actor kept."""
+    env = training_env(None, kick=0.4)
+    kicker, expert = env, LQRExpert()
+    while not isinstance(kicker, VelocityKick):
+        kicker = kicker.env
+    obs, _ = env.reset(seed=0)
+    expert.reset(0)
+    size = make_env().observation_space.shape[0]
+    data = env.unwrapped.data
+    for step in range(KICKED_AT + 1):
+        before = data.qvel[:2].copy()
+        obs, *_ = env.step(expert.act(obs[:size]))
+        if step == KICKED_AT:
+            assert np.linalg.norm(data.qvel[:2] - before) > 0.3  # the kick, on top of the step's own change
+    assert [at for at, _ in kicker.pushes] == [KICKED_AT]
+    assert eval_conditions(FinetuneConfig(kick=0.4)) == (*EVAL_CONDITIONS, "kick0.4")
+    assert eval_conditions(FinetuneConfig()) == EVAL_CONDITIONS
+
+
+KICKED_AT = 277  # seed 0's kick (humanoid.perturbations.VelocityKick's draw)
 
 
 def test_training_episodes_are_logged_in_the_environments_units(bc_policy: Path) -> None:
@@ -433,6 +470,8 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--gae-lambda", "-1"], "--gae-lambda must be in [0, 1]"),
         (["--batch-size", "1"], "--batch-size must be at least 2"),
         (["--seed", "-1"], "--seed must be >= 0"),
+        (["--kick", "-0.4"], "--kick must be >= 0"),
+        (["--kick", "0.3"], "--kick must be 0 or one of the suite's kick speeds (0.2, 0.4, 0.6 m/s), got 0.3"),
         (["--randomize", "wild"], "--randomize 'wild': unknown preset"),
         (["--randomize", "mass=1.2:0.8"], "mass range has low 1.2 > high 0.8"),
     ],
