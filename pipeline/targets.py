@@ -86,7 +86,7 @@ class Target:
 
 _LIVE = ("live", "live_port", "live_host")
 _BACKEND = ("workers", "backend", "ray_address")
-_PPO = ("bc_policy", "policy", "timesteps", *_BACKEND, "envs", "push", "curriculum", "randomize", "overwrite")
+_PPO = ("bc_policy", "policy", "timesteps", *_BACKEND, "envs", "push", "kick", "curriculum", "randomize", "overwrite")
 
 TARGETS: dict[str, Target] = {
     "record": Target(
@@ -155,6 +155,7 @@ TARGETS: dict[str, Target] = {
             "expert",
             "randomize",
             "latency",
+            "kick",
             "noise",
             "rounds",
             "episodes",
