@@ -14,9 +14,9 @@
     pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
               move the teacher's labels are (docs/decisions/command-features.md)
-    pending+walk  pending+ramp reading every command field: the velocities on their ramp too (3), whether a walk has
-              begun (1), then the velocities as the leg odometry estimates them (3): a policy that walks on velocity
-              commands (docs/decisions/walking-student.md)
+    pending+walk  pending+ramp reading every command field: the velocities on their ramp too (3), whether the
+              stepping teacher's planners have the body (`planning`, 1), then the velocities as the leg odometry
+              estimates them (3): a policy that walks on velocity commands (docs/decisions/walking-student.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -317,9 +317,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
                 qpos, qvel = self.odometry.estimate
                 self.steps += 1  # as the teacher's hand-over (`SteppingExpert.act`), to the episode's end:
                 self.planning = (
-                    self.planning
-                    or any(speeds)
-                    or (self.steps > self.trigger.design.armed_after and self.trigger(qpos, qvel))
+                    self.planning or any(speeds) or (self.trigger.design.armed(self.steps) and self.trigger(qpos, qvel))
                 )
                 ramp += [*speeds, float(self.planning)]
                 achieved = self.readout(qpos[2:], qvel)

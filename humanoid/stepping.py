@@ -78,6 +78,10 @@ class SteppingDesign:
     walk: dict[str, float] = field(default_factory=dict)
     """The walking cost's terms (`WALKING`'s; empty: the kick planner's design, which walks nothing)."""
 
+    def armed(self, steps: int) -> bool:
+        """Whether the kick trigger is armed at the `steps`-th env step of an episode (the first is 1)."""
+        return steps > self.armed_after
+
 
 WALKING = SteppingDesign(
     horizon=45,
@@ -334,7 +338,7 @@ class SteppingExpert(ExpertAround):
             self.walker.observe(obs)
             self.planned += 1
             return self.walker.act(action).astype(np.float32)
-        if self.planned or self.steps > self.design.armed_after:
+        if self.planned or self.design.armed(self.steps):
             sensors = self.planner.observe(obs)
             if self.planned or self.triggered(sensors):
                 self.planned += 1
