@@ -56,14 +56,21 @@ from common.cli import (
     setting,
 )
 from common.workers import default_workers
-from humanoid.conditions import NO_RANDOMIZATION, parse_randomization, recorded_parameters, recording_env
+from humanoid.conditions import (
+    NO_RANDOMIZATION,
+    Condition,
+    parse_randomization,
+    recorded_parameters,
+    recording_condition,
+)
 from humanoid.env import make_env, nominal_model
-from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
-from humanoid.stepping import SensedSteppingExpert, SteppingExpert
 from policies import checkpoint
 from policies.folder import json_object
 from policies.mlp import MLPPolicy
+from rollout.episode import EpisodeFailure
+from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
+from teachers.expert import SensedExpert
+from teachers.registry import TEACHERS, able, teacher_named
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.lerobot_io.format import INFO_PATH
@@ -76,8 +83,6 @@ MADE_BY = "bc.dagger"
 SOURCE_FILE = "demonstrations.json"
 """In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
-LABELLERS = {expert.name: expert for expert in (LQRExpert, SensedExpert, SteppingExpert, SensedSteppingExpert)}
-"""The registered controllers that can label DAgger's rollouts, by name."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "kick", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -98,8 +103,8 @@ class DaggerConfig:
         SensedExpert.name,
         "who labels the policy's states: the expert on the full state, the expert on leg odometry (the teacher "
         "whose law INPUTS=pending can read), or one that steps and walks (for INPUTS=pending+walk, whose rollouts "
-        "follow walking schedules; docs/concepts/controllers.md)",
-        choices=tuple(LABELLERS),
+        "follow walking schedules; docs/concepts/controllers.md); any registered teacher that labels: "
+        + ", ".join(able("labels")),
     )
     randomize: str | None = setting(
         None,
@@ -182,8 +187,13 @@ class DaggerResult:
 
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
-    if input_set_named(cfg.inputs).walks and not LABELLERS[cfg.expert].walks:
-        walkers = " or ".join(f"--expert {name}" for name, labeller in LABELLERS.items() if labeller.walks)
+    expert = teacher_named(cfg.expert, "--expert")
+    if not expert.labels:
+        raise UserError(
+            f"--expert {cfg.expert} cannot label states it did not lead to: give {' or '.join(able('labels'))}"
+        )
+    if input_set_named(cfg.inputs).walks and not expert.walks:
+        walkers = " or ".join(f"--expert {name}" for name in able("walks") if TEACHERS[name].labels)
         raise UserError(f"--inputs {cfg.inputs} learns to walk, and --expert {cfg.expert} does not: give {walkers}")
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
     check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "kick", "seed")
@@ -236,13 +246,19 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
         )
     episodes = read_parameters(root)
     drawn = set(episodes[0]) if episodes else set()
-    rolled = set(recorded_parameters(parse_randomization(cfg.randomize), cfg.latency))
+    rolled = set(recorded_parameters(condition(cfg)))
     if drawn != rolled:
         raise DatasetError(
             f"{root}'s episodes draw {sorted(drawn) or 'no parameter'}; rollouts with RANDOMIZE={cfg.randomize} "
             f"LATENCY={cfg.latency} would draw {sorted(rolled) or 'none'}: give the conditions it was recorded in"
         )
     return cfg
+
+
+def condition(cfg: DaggerConfig) -> Condition:
+    """What each rollout's environment changes: the recording's conditions (RANDOMIZE, LATENCY, resolved) and the
+    KICK (`humanoid.conditions.recording_condition`)."""
+    return recording_condition(parse_randomization(cfg.randomize), cfg.latency, cfg.kick)
 
 
 def is_dagger_run(line: dict[str, Any]) -> bool:
@@ -314,8 +330,7 @@ class DAggerTrainer:
         ":roundN" for the round whose aggregate trained it."""
         self.demos = demos
         self.training = training
-        input_set = input_set_named(training.inputs)
-        self.rollouts = dataclasses.replace(rollouts, schedules=input_set.takes_command, walking=input_set.walks)
+        self.rollouts = dataclasses.replace(rollouts, task=input_set_named(training.inputs).task)
         self.action_space = action_space
         self.workers = workers
         self.name = name
@@ -335,9 +350,9 @@ class DAggerTrainer:
         self.policy = fit_demonstrations(demos, self.training, self.action_space).policy
         return self.policy
 
-    def _rolled_out(self, root: Path, seeds: list[int], name: str) -> Iterator[Path]:
+    def _rolled_out(self, root: Path, seeds: list[int], name: str) -> Iterator[Path | EpisodeFailure]:
         """The spool file (in `root`'s DAGGER_SPOOL) of each of `seeds` as the current policy (called `name`) rolls them
-        out, in their order."""
+        out (or its `EpisodeFailure`, where a controller failed in it), in their order."""
         if not seeds:
             return iter(())
         if self._processes is None:
@@ -369,6 +384,9 @@ class DAggerTrainer:
         try:
             for seed in bar:
                 path = spool.path_of(seed) if seed in waiting else next(rolled)
+                if isinstance(path, EpisodeFailure):  # that episode alone is lost: the round goes on without it
+                    tqdm.write(f"warning: round {round_index}: {path.message}", file=sys.stderr)
+                    continue
                 episode = Spool.load(path)
                 episode.dagger_round = round_index
                 committed = store.append(episode, spooled=path)
@@ -423,9 +441,9 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
     if not cfg.output.exists():
         copy_demonstrations(cfg, made_by)
     check_resume(cfg)
-    randomization = parse_randomization(cfg.randomize)
-    env = recording_env(make_env(), randomization, cfg.latency, cfg.kick)
-    store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(randomization, cfg.latency)))
+    rolled = condition(cfg)
+    env = rolled.wrap(make_env())
+    store = EpisodeStore(cfg.output, DatasetSpec.from_env(env, recorded_parameters(rolled)))
     settle_spool(cfg.output, store.num_episodes)
     result = DaggerResult()
     context = {"dagger": config_dict(cfg), "demonstrations": copied_from(cfg.output).get("fingerprint")}
@@ -444,10 +462,8 @@ def main(cfg: DaggerConfig, made_by: str = MADE_BY) -> DaggerResult:
         controller=cfg.policy.name,  # each round's policy goes by it (`DAggerTrainer`)
         noise=cfg.noise,
         max_steps=env.spec.max_episode_steps,
-        randomization=randomization,
-        latency=cfg.latency,
-        kick=cfg.kick,
-        labeller=cfg.expert,
+        condition=rolled,
+        labeller=TEACHERS[cfg.expert],  # the class: a teacher registered here is known in the workers too
     )
     trainer: DAggerTrainer | None = None
     try:

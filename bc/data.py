@@ -32,15 +32,15 @@ import torch
 from common import columns
 from common.cli import DatasetError, UserError
 from common.paths import cache_dir
-from humanoid.command_fields import VELOCITY_NAMES
 from humanoid.conditions import LATENCY_PARAMETER
 from humanoid.env import ENV_ID
-from humanoid.episode import Episode
-from humanoid.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set_named
+from rollout.episode import Episode
+from students.inputs import INPUT_SETS, computation_digest, episode_inputs, input_set_named
+from task.command_fields import VELOCITY_NAMES
 from teleop.dataset_reader import fingerprint, iter_frames, read_episodes, read_info, read_parameters
 from teleop.lerobot_io.format import CODEBASE_VERSION, INFO_PATH
 
-# The policy's input is computed by its input set (`humanoid.inputs.INPUT_SETS`) along each recorded episode
+# The policy's input is computed by its input set (`students.inputs.INPUT_SETS`) along each recorded episode
 # (`episode_inputs`), as a rollout runs it: each frame the entries of its `observed_columns`, placed by name in
 # `observed_names` order (the gymnasium observation's for "full", whichever way a dataset split it), then the
 # frame's action sent (its label, or what ran where another controller labelled: `labelled_by_another`); each episode
@@ -63,7 +63,7 @@ class Demonstrations:
     seconds: float  # time to load, from files to tensors
     from_cache: bool
     fingerprint: str = ""  # `teleop.dataset_reader.fingerprint` of the dataset, taken before reading it
-    input_set_name: str = "full"  # humanoid.inputs.INPUT_SETS: which input set `inputs` holds
+    input_set_name: str = "full"  # students.inputs.INPUT_SETS: which input set `inputs` holds
 
     @property
     def frames(self) -> int:
@@ -120,7 +120,7 @@ def no_walks(inputs: str, root: Path) -> UserError:
     """The refusal of a walking input set on the dataset at `root`, which commands no walk."""
     return UserError(
         f"--inputs {inputs} learns to walk on velocity commands, and {root} commands no walk: record walks "
-        "(make record CONTROLLER=expert-sensed-stepping WALKING=1; docs/how-to/walk.md)"
+        "(make record CONTROLLER=expert-sensed-stepping TASK=walk; docs/how-to/walk.md)"
     )
 
 

@@ -48,13 +48,14 @@ from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
 from common.workers import available_cores, default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
-from humanoid.command_fields import VELOCITY_NAMES, field_positions
-from humanoid.controllers import CONTROLLERS, KEYBOARD, KEYBOARD_EXPERT
 from humanoid.env import make_env
-from humanoid.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
+from rollout.controllers import KEYBOARD, KEYBOARD_EXPERT, built
+from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
+from task.command_fields import VELOCITY_NAMES, field_positions
+from teachers.registry import TEACHERS
 from teleop.dataset_reader import read_commanded_frames, read_episodes
 from teleop.record import TEACHER
 
@@ -288,8 +289,8 @@ def check_taught(cfg: TrainConfig) -> None:
         if len(np.unique(commands, axis=0)) < 2:
             raise UserError(
                 f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
-                "record commanded demonstrations (make record: its schedules, SCHEDULES=1, are the default; or "
-                "CONTROLLER=keyboard)"
+                "record commanded demonstrations (make record: its posture schedules, TASK=posture, are the default; "
+                "or CONTROLLER=keyboard)"
             )
         if input_set.walks and not commands[:, field_positions(VELOCITY_NAMES)].any():
             raise no_walks(cfg.inputs, cfg.dataset)
@@ -374,27 +375,33 @@ def train_and_save(
 
 
 def teacher_of(dataset: Path) -> str:
-    """Who labelled the dataset's actions (its episodes' labeller, a registered controller; the keyboard's episodes
-    the expert the keys drive): the student's teacher, else the default teacher."""
-    labellers = set(read_episodes(dataset, [columns.EPISODE_LABELLER])[columns.EPISODE_LABELLER].to_pylist())
-    labellers = {KEYBOARD_EXPERT if labeller == KEYBOARD else labeller for labeller in labellers}
-    return labellers.pop() if len(labellers) == 1 and labellers <= CONTROLLERS.keys() else TEACHER
+    """Who labelled the dataset's actions (its episodes' labeller; the keyboard's episodes the expert the keys drive):
+    the student's teacher, which its evaluation compares it with. Where several labelled it, or none that is a
+    registered teacher (a policy's recording), one line on stderr names them and the one compared with: the registered
+    teacher that labelled the most frames, else the default teacher."""
+    table = read_episodes(dataset, [columns.EPISODE_LABELLER, "length"]).to_pydict()
+    frames: dict[str, int] = {}
+    for labeller, length in zip(table[columns.EPISODE_LABELLER], table["length"], strict=True):
+        labeller = KEYBOARD_EXPERT if labeller == KEYBOARD else labeller
+        frames[labeller] = frames.get(labeller, 0) + int(length)
+    teachers = {name: count for name, count in frames.items() if name in TEACHERS}
+    teacher = max(teachers, key=teachers.__getitem__) if teachers else TEACHER
+    if len(frames) > 1 or not teachers:
+        listed = ", ".join(f"{name} ({count} frames)" for name, count in sorted(frames.items(), key=lambda x: -x[1]))
+        print(f"note: {dataset} was labelled by {listed}: the student is compared with {teacher}", file=sys.stderr)
+    return teacher
 
 
 def evaluation_of(policy: MLPPolicy, cfg: TrainConfig) -> dict[str, Any]:
     """`policy` (the checkpoint `cfg.policy` becomes) and its teacher (`teacher_of`) side by side on the same
-    EVAL_EPISODES held-out seeds, under held-out schedules for a policy that takes a command: what eval.json holds
-    (its "expert_*" entries: the teacher's)."""
-    input_set = input_set_named(cfg.inputs)
-    settings = {
-        "episodes": cfg.eval_episodes,
-        "seed": EVAL_SEED,
-        "schedules": input_set.takes_command,
-        "walking": input_set.walks,
-    }
-    runs = [((policy, str(cfg.policy)), settings), (teacher_of(cfg.dataset), settings)]
+    EVAL_EPISODES held-out seeds, on the task its inputs follow (held-out schedules for a policy that takes a
+    command): what eval.json holds (its "expert_*" entries: the teacher's, named by "expert")."""
+    settings = {"episodes": cfg.eval_episodes, "seed": EVAL_SEED, "task": input_set_named(cfg.inputs).task}
+    teacher = teacher_of(cfg.dataset)
+    runs = [((policy, str(cfg.policy)), settings), (built(teacher), settings)]
     with evaluation_pool(default_workers(len(runs))) as pool:
         evaluation, expert = evaluate_each(runs, pool)
+    evaluation["expert"] = teacher
     evaluation["expert_mean_return"] = expert["mean_return"]
     evaluation["expert_survival_rate"] = expert["survival_rate"]
     evaluation["expert_tracking"] = expert["tracking"]

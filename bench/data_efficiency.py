@@ -38,7 +38,8 @@ from bench.bc_benchmark import RESULTS
 from common import columns
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
-from humanoid.learned import PolicyController
+from students.learned import PolicyController
+from task.command_fields import STAND
 from teleop.dataset_reader import read_episodes
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import STANDING_NOISE, RecordConfig
@@ -118,7 +119,7 @@ def recorded(
         controller=teacher,
         noise=noise,
         latency=latency,
-        schedules=False,
+        task=STAND,
         workers=workers,
         progress=False,
     )

@@ -14,10 +14,10 @@ import time
 import numpy as np
 
 from humanoid.env import humanoid_model, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
-from humanoid.expert import LQRExpert
-from humanoid.landing import design_landing
-from humanoid.lqr import LQRDesign, design_lqr, load_or_design
+from rollout.episode import EpisodeBuffer, run_episode
+from teachers.expert import LQRExpert
+from teachers.landing import design_landing
+from teachers.lqr import LQRDesign, design_lqr, load_or_design
 
 
 def time_setup() -> tuple[float, float, float]:

@@ -4,7 +4,7 @@
         [--work FOLDER] [--json bench/results/latency_students.json]
 
 Why: one step of latency topples a student on the leg odometry alone, which acts as if its command ran at
-once; the "pending" inputs add that command and the delay (humanoid/inputs.py). Whether that is
+once; the "pending" inputs add that command and the delay (students/inputs.py). Whether that is
 enough, and from how many demonstrations, is measured here, not assumed (the student on the odometry
 alone, `INPUTS=odometry`, was removed once this measured it: docs/decisions/pending-inputs.md).
 
@@ -31,7 +31,7 @@ from bench.data_efficiency import EVAL_EPISODES, RESULTS, check_seeds, dataset_d
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from humanoid.conditions import LATENCY_PARAMETER
-from humanoid.learned import PolicyController
+from students.learned import PolicyController
 from teleop.dataset_reader import read_parameters
 from teleop.record import DART_NOISE
 

@@ -19,9 +19,9 @@ import time
 
 from websockets.sync.client import connect
 
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from rollout.controllers import make_controller
+from rollout.episode import EpisodeBuffer, run_episode
 from teleop.live import LivePublisher
 
 SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]

@@ -21,10 +21,11 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.command_fields import FIELDS
 from humanoid.env import make_env, model_and_data
-from humanoid.expert import LQRExpert
-from humanoid.posture import Posture, posture_reference
+from task.command_fields import FIELDS
+from task.posture import Posture
+from teachers.expert import LQRExpert
+from teachers.postures import posture_reference
 
 SETTLE_S = 2.0
 MAGNITUDES: dict[str, tuple[float, ...]] = {

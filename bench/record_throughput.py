@@ -25,9 +25,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from rollout.controllers import make_controller
+from rollout.episode import EpisodeBuffer, run_episode
 from teleop.lerobot_io.format import INFO_PATH
 from teleop.record import STANDING, STANDING_NOISE, RecordConfig, main
 

@@ -6,7 +6,7 @@ Under the zero command and no push, for each held-out seed: whether the planner 
 over the episode's last 10 s (the issue's "stands without stepping": under 2 cm). Then the cost of one action side by
 side in this run: the LQR expert's, the stepping expert's while its trigger is armed but quiet, a planned one (after a
 0.4 m/s kick) and a walking one (the walking planner's longer horizon). The kick rows:
-`make robustness POLICY=expert-stepping CONDITIONS=clean,kick0.2,kick0.4,kick0.6 SCHEDULES=0`. Prints markdown tables.
+`make robustness POLICY=expert-stepping CONDITIONS=clean,kick0.2,kick0.4,kick0.6 TASK=stand`. Prints markdown tables.
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from humanoid.commands import command_vector
 from humanoid.env import make_env, model_and_data
-from humanoid.expert import LQRExpert
 from humanoid.perturbations import VelocityKick
-from humanoid.posture import Posture
-from humanoid.stepping import SteppingExpert
+from task.posture import Posture
+from task.schedules import command_vector
+from teachers.expert import LQRExpert
+from teachers.stepping import SteppingExpert
 
 FEET = ("left_foot", "right_foot")
 STILL_SECONDS = 10.0

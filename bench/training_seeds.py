@@ -20,11 +20,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from humanoid.commands import tracking_score
 from humanoid.conditions import SUITE
 from pipeline import report
 from pipeline import run as pipeline
 from pipeline.run import PipelineConfig, stages
+from task.tracking import tracking_score
 
 ROLES = ("blind", "student", "dagger", "fine-tuned", "scratch")
 """The learned rows of the pipeline's table, in its order (`pipeline.run_stages`)."""

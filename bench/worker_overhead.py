@@ -35,10 +35,10 @@ import numpy as np
 import torch
 
 from humanoid.env import humanoid_model, model_and_data
-from humanoid.inputs import FullInputs
 from policies.mlp import MLPPolicy, MLPSpec
 from rl.finetune import FinetuneConfig
 from rl.learner import build_model, make_vec_env
+from students.inputs import FullInputs
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import STANDING_NOISE
 from teleop.spool import Spool

@@ -51,7 +51,7 @@ class Removed:
 _ADAPTIVE = Removed("controller 'expert-adaptive'", "use expert-sensed", "identification")
 _OPERATOR = Removed(
     "controller 'operator'",
-    "every stage follows the operator's schedules by default (SCHEDULES=1); the expert told the simulator's state "
+    "every stage follows the operator's schedules by default (TASK=posture); the expert told the simulator's state "
     "under them: expert",
     "pipeline-task",
 )
@@ -89,11 +89,13 @@ REMOVED_FLAGS: dict[str, Removed] = {
         Removed("--sensed-noise", "RECORD.NOISE is the pipeline's one recording's DART noise", "pipeline-task"),
         Removed("--sensed-latency", "RECORD.LATENCY is the pipeline's one recording's delayed share", "pipeline-task"),
         Removed("--odometry-policy", "BC.POLICY is the pipeline's student on what a robot senses", "pipeline-task"),
+        Removed("--schedules", "give --task (TASK=stand|posture|walk; SCHEDULES=0 is TASK=stand)", "task-setting"),
+        Removed("--walking", "give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)", "task-setting"),
     )
 }
-"""Make variables an earlier version's `make pipeline` had (the Makefile's REMOVED.pipeline still passes them, which
-Make would otherwise ignore): refused in one line naming what to use instead. A stage's flags that went are refused by
-argparse itself, in one line too."""
+"""Flags and Make variables an earlier version had (the Makefile's REMOVED.<target> still passes them, which Make would
+otherwise ignore): refused in one line naming what to use instead, by every stage that no longer has them. Other flags
+that went are refused by argparse itself, in one line too."""
 
 REMOVED_VALUES: dict[tuple[str, str], Removed] = {
     ("controller", "expert-adaptive"): _ADAPTIVE,  # make record
@@ -101,7 +103,7 @@ REMOVED_VALUES: dict[tuple[str, str], Removed] = {
     ("expert", "expert-adaptive"): _ADAPTIVE,  # make dagger
     ("controller", "operator"): _OPERATOR,  # make record
     ("policy", "operator"): _OPERATOR,  # make eval, make robustness
-    # make train-bc, make dagger; humanoid.inputs.removed_inputs refuses it from a checkpoint too
+    # make train-bc, make dagger; students.inputs.removed_inputs refuses it from a checkpoint too
     ("inputs", "odometry"): Removed(
         "inputs 'odometry'", "use pending: the same inputs, then the command in flight and the delay", "pending-inputs"
     ),

@@ -32,9 +32,9 @@ EXECUTED_ACTION = "executed_action"
 TERMINATED = "next.terminated"
 TASK = "task"
 
-# The operator's command in force at each step, one entry per command field (humanoid.command_fields, which names
+# The operator's command in force at each step, one entry per command field (task.command_fields, which names
 # them; all zeros for a controller nobody commands: standing is the zero command). An observation, so a policy can be
-# conditioned on it (INPUTS=...+command, humanoid.inputs).
+# conditioned on it (INPUTS=...+command, students.inputs).
 OBS_COMMAND = "observation.command"
 # Where the expert's setpoint is at each step on its way to the commanded posture (the same fields): the teacher's
 # internal state, not an input a deployed policy gets. A controller without a setpoint of its own records the command.

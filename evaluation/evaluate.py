@@ -15,12 +15,11 @@ them) to callers such as `bc.train`.
                docs/concepts/robustness-suite.md)
     VIDEO=f    an MP4 of every episode, rendered offscreen on the CPU: a frame every step, so slow
                (docs/how-to/evaluate.md); use a few episodes
-    SCHEDULES=1  (the default; SCHEDULES=0 holds the zero command) the operator's command follows the schedule drawn
-               from each seed (held out: seeds from 1000 are never recorded); the JSON adds "tracking": per
-               command field the error once settled, and the time to settle (`humanoid.commands`;
-               docs/how-to/follow-commands.md)
-    WALKING=1  the schedules mix walks in (forward, sideways and turning speeds: `humanoid.commands.WALKING_SHARE`),
-               and tracking measures the velocity fields too (docs/how-to/walk.md)
+    TASK=posture  (the default) the operator's command follows the posture schedule drawn from each seed (held out:
+               seeds from 1000 are never recorded); the JSON adds "tracking": per command field the error once
+               settled, and the time to settle (`task.tracking`; docs/how-to/follow-commands.md). TASK=walk: the
+               schedules mix walks in (forward, sideways and turning speeds: `task.schedules.WALKING_SHARE`), and
+               tracking measures the velocity fields too (docs/how-to/walk.md); TASK=stand: the zero command
     PLOT=f.png commanded against achieved posture over the first episode, a panel per field
 """
 
@@ -51,21 +50,22 @@ from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.threads import one_blas_thread
 from common.workers import forkserver_context
-from humanoid.command_fields import COMMAND_NAMES, task_fields
-from humanoid.commands import PLOTTED, Tracking, combine_tracking, trailing_mean
-from humanoid.conditions import SUITE
-from humanoid.controllers import CONTROLLERS, Controller, make_controller
+from humanoid.conditions import SUITE, Condition
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
-from humanoid.episode import Episode, EpisodeBuffer, run_episode
-from humanoid.learned import PolicyController
-from humanoid.perturbations import TorsoPushes, VelocityKick, perturbation, toppling
+from humanoid.perturbations import VelocityKick, perturbation, toppling
 from humanoid.video import CAMERA, VideoRecorder
 from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
+from rollout.controllers import Controller, make_controller, registered
+from rollout.episode import Episode, EpisodeBuffer, run_episode
+from students.learned import PolicyController
+from task.command_fields import COMMAND_NAMES, POSTURE_TASK, STAND, TASKS, task_fields
+from task.tracking import PLOTTED, Tracking, combine_tracking, trailing_mean
+from teachers.base import Teacher
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
 
 POLICY_HELP = (
-    f"policy checkpoint folder, a registered controller ({', '.join(CONTROLLERS)}), or '{NEWEST}': the newest of "
+    f"policy checkpoint folder, a registered controller ({', '.join(registered())}), or '{NEWEST}': the newest of "
     f"{', '.join(map(str, paths.LEARNED))}"
 )
 """What `make eval`'s and `make robustness`'s POLICY takes."""
@@ -89,16 +89,12 @@ class EvalConfig:
         "clean", f"a condition of the robustness suite: {', '.join(SUITE)} (docs/concepts/robustness-suite.md)"
     )
     video: Path | None = setting(None, "write an MP4 of the episodes here (offscreen on the CPU, a frame a step: slow)")
-    schedules: bool = setting(
-        True,
-        "the operator's command follows the held-out schedule drawn from each episode's seed; the JSON adds the "
-        "tracking error per command field (a policy that takes no command is run blind to it); false: the zero "
-        "command, stand still",
-    )
-    walking: bool = setting(
-        False,
-        "the schedules mix walks in (forward, sideways and turning speeds), and the tracking measures them too "
-        "(docs/how-to/walk.md)",
+    task: str = setting(
+        POSTURE_TASK,
+        "what the operator commands, the held-out schedule drawn from each episode's seed: stand (the zero command), "
+        "posture, or walk (walks mixed in, their speeds tracked too: docs/how-to/walk.md); the JSON adds the tracking "
+        "error per command field (a policy that takes no command, or no velocity, is run blind to it)",
+        choices=TASKS,
     )
     plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
     progress: bool = setting(True, "show a progress bar")
@@ -125,14 +121,12 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError("--condition brings its own perturbation: leave --push, --kick and --noise at 0 with it")
     if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
         raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
-    if cfg.walking and not cfg.schedules:
-        raise UserError("--walking draws walking schedules: leave --schedules on with it")
     if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
         raise UserError(f"--plot must be a .png path, got {cfg.plot}")
 
 
 def evaluate(
-    controller: Controller | str,
+    controller: Controller | str | type[Teacher],
     episodes: int = 20,
     seed: int = EVAL_SEED,
     push: float = 0.0,
@@ -141,32 +135,27 @@ def evaluate(
     progress: bool = False,
     condition: str = "clean",
     live: tuple[str, int] | None = None,
-    schedules: bool = False,
     plot: Path | None = None,
     kick: float = 0.0,
-    walking: bool = False,
+    task: str = STAND,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
-    `push`, `kick` and `noise` add to what the robustness `condition` (by name) brings; `live` = (host, port)
-    publishes every step to a Foxglove WebSocket server there (`teleop.live`). With `schedules` the operator's
-    command follows each seed's schedule (`walking`: with walks) and the summary adds "tracking" (`tracking`, of the
-    fields the schedules command); `plot` draws the first episode's commanded and achieved posture.
+    `push`, `kick` and `noise` add to what the robustness `condition` (by name) brings (`evaluated_condition`);
+    `live` = (host, port) publishes every step to a Foxglove WebSocket server there (`teleop.live`). The operator
+    commands `task` (`task.schedules.task_commands`): under a schedule the summary adds "tracking" (`tracking`, of the
+    fields the task commands); `plot` draws the first episode's commanded and achieved posture.
     """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
-    suite_condition = SUITE[condition]
-    env = suite_condition.wrap(env)
-    noise = noise + suite_condition.action_noise
-    if push > 0:
-        env = TorsoPushes(env, push)
-    if kick > 0:
-        env = VelocityKick(env, kick)
+    evaluated = evaluated_condition(condition, push, kick, noise)
+    env = evaluated.wrap(env)
+    noise = evaluated.action_noise
     if video is not None:
         env = VideoRecorder(env, video)
     publisher = None
     try:
         publisher = None if live is None else start_live(env, *live)
-        if isinstance(controller, str):
+        if isinstance(controller, (str, type)):
             try:
                 controller = make_controller(controller, env)
             except ValueError as error:
@@ -176,9 +165,7 @@ def evaluate(
         pusher = perturbation(env)  # the toppling breakdown of pushes, or of a kick
         results, directions, toppled = [], [], []
         for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
-            results.append(
-                run_episode(env, controller, s, noise, buffer, observer=publisher, schedules=schedules, walking=walking)
-            )
+            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, task=task))
             if pusher is not None:
                 directions += [direction for _, direction in pusher.pushes]
                 toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
@@ -186,7 +173,7 @@ def evaluate(
         if publisher is not None:
             publisher.close()
         env.close()
-    measure = Tracking(nominal_model(), task_fields(walking))  # the nominal body's targets, solved once per process
+    measure = Tracking(nominal_model(), task_fields(task))  # the nominal body's targets, solved once per process
     if plot is not None:
         plot_tracking(results[0], measure, env.unwrapped.dt, plot)
     returns = np.array([episode.episode_return for episode in results])
@@ -216,9 +203,22 @@ def evaluate(
         "parameters": [episode.parameters for episode in results],
         "video": None if video is None else str(video),
         "takes_command": controller.takes_command,
-        "walking": walking,
-        "tracking": tracking(results, measure, env.unwrapped.dt) if schedules else None,
+        "walks": controller.walks,
+        "task": task,
+        "tracking": tracking(results, measure, env.unwrapped.dt) if task != STAND else None,
     }
+
+
+def evaluated_condition(name: str, push: float = 0.0, kick: float = 0.0, noise: float = 0.0) -> Condition:
+    """The suite's condition `name`, with a push of `push` N, a kick of `kick` m/s and action noise `noise` on top
+    (`make eval PUSH= KICK= NOISE=`; `validate` keeps those to the clean condition)."""
+    suite = SUITE[name]
+    return dataclasses.replace(
+        suite,
+        push=push if push > 0 else suite.push,
+        kick=kick or suite.kick,
+        action_noise=suite.action_noise + noise,
+    )
 
 
 def kick_size(pusher: object) -> dict[str, float] | None:
@@ -228,7 +228,7 @@ def kick_size(pusher: object) -> dict[str, float] | None:
 
 def tracking(episodes: list[Episode], measure: Tracking, dt: float) -> dict[str, Any]:
     """Over `episodes` (until each ends): per command field the mean error once settled, the mean time to settle
-    (`humanoid.commands.tracking_summary`), and each episode's."""
+    (`task.tracking.tracking_summary`), and each episode's."""
     each = [measure.summary(measure.errors(e.observation, e.command), e.command, dt) for e in episodes]
     return {**combine_tracking(each), "episodes": each}
 
@@ -274,10 +274,9 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         cfg.progress,
         condition=cfg.condition,
         live=(cfg.live_host, cfg.live_port) if cfg.live else None,
-        schedules=cfg.schedules,
         plot=cfg.plot,
         kick=cfg.kick,
-        walking=cfg.walking,
+        task=cfg.task,
     )
     return {**result, "config": config_dict(cfg)}
 
@@ -327,13 +326,14 @@ def evaluation_pool(workers: int) -> Iterator[Executor | None]:
                 del _open_pools[workers]
 
 
-Evaluated = str | tuple[MLPPolicy, str]
-"""What `evaluate_each` evaluates: a registered controller's name or a checkpoint folder, or a policy in memory and
-the name its results go by (the policy travels to a worker pickled; its inputs are rebuilt there)."""
+Evaluated = str | type[Teacher] | tuple[MLPPolicy, str]
+"""What `evaluate_each` evaluates: a registered controller's name or a checkpoint folder, a teacher's class
+(`rollout.controllers.built`), or a policy in memory and the name its results go by (the policy travels to a worker
+pickled; its inputs are rebuilt there)."""
 
 
 def _evaluate(what: Evaluated, settings: dict[str, Any]) -> dict[str, Any]:
-    return evaluate(what if isinstance(what, str) else PolicyController(*what), **settings)
+    return evaluate(what if isinstance(what, (str, type)) else PolicyController(*what), **settings)
 
 
 def evaluate_each(runs: Sequence[tuple[Evaluated, dict[str, Any]]], pool: Executor | None = None) -> Iterator[dict]:

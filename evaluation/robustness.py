@@ -29,18 +29,20 @@ from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers
 from evaluation.evaluate import POLICY_HELP, evaluate_each, evaluation_pool, init_worker
-from humanoid.commands import combine_tracking, tracked_names
 from humanoid.conditions import SUITE, condition
-from humanoid.controllers import CONTROLLERS, check_controller
 from policies import checkpoint
 from policies.folder import chosen_policy
+from rollout.controllers import check_controller, registered
+from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
+from task.tracking import combine_tracking, tracked_names
 
 SECTOR_DEGREES = 45
 """Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
 RESULT_FILE = "robustness.json"
 FIGURE_FILE = "robustness.png"
-SCHEDULES_SUFFIX = "_schedules"
-"""Under command schedules the files are robustness_schedules.json and .png: a policy keeps both suites' results."""
+SUFFIXES = {STAND: "", POSTURE_TASK: "_schedules", WALK: "_walk"}
+"""The files of each task: robustness.json and .png standing, robustness_schedules.* under posture schedules,
+robustness_walk.* under walking ones: a policy keeps every task's results."""
 CONTROLLER_FOLDER = Path("policies")
 """Where a registered controller's results go (`policies/expert/`): it has no checkpoint folder of its own."""
 
@@ -58,18 +60,19 @@ class RobustnessConfig:
     episodes: int = setting(20, "episodes per condition (seeds SEED..SEED+EPISODES-1, the same for every condition)")
     seed: int = setting(EVAL_SEED, "seed of the first episode")
     conditions: str = setting("all", f"comma-separated conditions, or 'all': {', '.join(SUITE)}")
-    schedules: bool = setting(
-        True,
-        "the operator's command follows each seed's held-out schedule (evaluation.evaluate --schedules): rows add "
-        "tracking; false: the zero command, stand still",
+    task: str = setting(
+        POSTURE_TASK,
+        "what the operator commands (evaluation.evaluate --task): the held-out posture schedule of each seed, rows "
+        "adding tracking; walk: walks mixed in; stand: the zero command",
+        choices=TASKS,
     )
     workers: int | None = setting(
         None, f"processes the episodes are spread over; default: the machine's cores, at most {MOST_WORKERS}"
     )
     output: Path | None = setting(
         None,
-        f"folder for {RESULT_FILE} and {FIGURE_FILE} (robustness{SCHEDULES_SUFFIX}.* under --schedules; default: "
-        "POLICY's folder)",
+        f"folder for {RESULT_FILE} and {FIGURE_FILE} (robustness{SUFFIXES[POSTURE_TASK]}.* under --task "
+        f"{POSTURE_TASK}, robustness{SUFFIXES[WALK]}.* under --task {WALK}; default: POLICY's folder)",
     )
     progress: bool = setting(True, "show a progress bar")
 
@@ -103,7 +106,7 @@ def validate(cfg: RobustnessConfig) -> list[str]:
 def output_folder(cfg: RobustnessConfig) -> Path:
     if cfg.output is not None:
         return cfg.output
-    return CONTROLLER_FOLDER / cfg.policy if cfg.policy in CONTROLLERS else Path(cfg.policy)
+    return CONTROLLER_FOLDER / cfg.policy if cfg.policy in registered() else Path(cfg.policy)
 
 
 def worker_count(workers: int | None) -> int:
@@ -113,7 +116,7 @@ def worker_count(workers: int | None) -> int:
 
 def result_paths(cfg: RobustnessConfig) -> tuple[Path, Path]:
     """Where `cfg`'s results and figure go."""
-    folder, suffix = output_folder(cfg), SCHEDULES_SUFFIX if cfg.schedules else ""
+    folder, suffix = output_folder(cfg), SUFFIXES[cfg.task]
     return tuple(folder / name.replace(".", f"{suffix}.") for name in (RESULT_FILE, FIGURE_FILE))
 
 
@@ -167,13 +170,13 @@ class SuiteRuns:
         return {name: summarise(chunks[name]) for name in self.names}
 
 
-def suite_runs(policy: str, names: list[str], seeds: range, workers: int, schedules: bool = False) -> SuiteRuns:
-    """Every condition in `names` on `seeds` (under command `schedules`), in chunks for `workers` processes."""
+def suite_runs(policy: str, names: list[str], seeds: range, workers: int, task: str = STAND) -> SuiteRuns:
+    """Every condition in `names` on `seeds` (the operator commanding `task`), in chunks for `workers` processes."""
     chunk = max(1, len(seeds) // 2) if workers > 1 else len(seeds)
     return SuiteRuns(
         names,
         [
-            (policy, {"episodes": len(part), "seed": part.start, "condition": name, "schedules": schedules})
+            (policy, {"episodes": len(part), "seed": part.start, "condition": name, "task": task})
             for name in names
             for part in (seeds[i : i + chunk] for i in range(0, len(seeds), chunk))
         ],
@@ -197,14 +200,14 @@ def evaluate_suites(suites: Sequence[SuiteRuns], workers: int, bar: tqdm | None 
 
 
 def run_suite(
-    policy: str, names: list[str], seeds: range, workers: int, progress: bool = False, schedules: bool = False
+    policy: str, names: list[str], seeds: range, workers: int, progress: bool = False, task: str = STAND
 ) -> dict:
-    """Every condition in `names` on `seeds` (under command `schedules`), in chunks over `workers` processes; results
-    per condition."""
+    """Every condition in `names` on `seeds` (the operator commanding `task`), in chunks over `workers` processes;
+    results per condition."""
     with tqdm(
         total=len(names) * len(seeds), unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True
     ) as bar:
-        [rows] = evaluate_suites([suite_runs(policy, names, seeds, workers, schedules)], workers, bar)
+        [rows] = evaluate_suites([suite_runs(policy, names, seeds, workers, task)], workers, bar)
     return rows
 
 
@@ -265,7 +268,7 @@ def main(cfg: RobustnessConfig) -> dict[str, Any]:
     cfg = dataclasses.replace(cfg, policy=chosen_policy(cfg.policy, paths.LEARNED, "make train-bc"))
     names = validate(cfg)
     seeds = range(cfg.seed, cfg.seed + cfg.episodes)
-    return save(cfg, run_suite(cfg.policy, names, seeds, worker_count(cfg.workers), cfg.progress, cfg.schedules))
+    return save(cfg, run_suite(cfg.policy, names, seeds, worker_count(cfg.workers), cfg.progress, cfg.task))
 
 
 def save(cfg: RobustnessConfig, conditions: dict[str, dict[str, Any]]) -> dict[str, Any]:

@@ -1,13 +1,14 @@
 """Off-nominal conditions as gymnasium wrappers: domain randomisation, action latency, sensor noise.
 
-Data flow of one condition (`Condition.wrap`), innermost first:
+A `Condition` says everything an episode's environment changes; `Condition.wrap` is the one builder of its stack,
+which recording, evaluation, the robustness suite, DAgger and PPO all use, innermost first:
 
     Humanoid-v5 --DomainRandomization (masses, friction, motor strength; drawn at reset)
-               --TorsoPushes (humanoid.perturbations)
-               --ActionLatency (the env executes the action of k steps before)
-               --ObservationNoise (what the policy reads)
+               --TorsoPushes (humanoid.perturbations), or --VelocityKick (one kick an episode)
+               --ActionLatency (the env executes the action of k steps before; a share of the episodes)
+               --ObservationNoise (what the policy reads; a share of the episodes)
 
-Executed-action noise is not a wrapper: the rollout adds it (`humanoid.episode.injected_noise`), as
+Executed-action noise is not a wrapper: the rollout adds it (`rollout.episode.injected_noise`), as
 it does for DART recordings. Every draw comes from a random stream of the reset's seed, so an
 episode repeats exactly; the model's nominal values are restored before each draw and on close.
 `parse_randomization` reads the `--randomize` setting (a preset of PRESETS or a list of ranges)
@@ -31,9 +32,9 @@ from humanoid.perturbations import TorsoPushes, VelocityKick
 RANDOMIZATION_STREAM = 3  # random stream of the physical parameters: (seed, 3); pushes use 2, action noise 1
 OBS_NOISE_STREAM = 4  # random stream of the sensor noise: (seed, 4)
 LATENCY_STREAM = 5  # which episodes are delayed, when only a share is (PPO's training, recording): (seed, 5)
-# (seed, 6): the schedules of PPO's training episodes on commands (humanoid.commands.SCHEDULE_STREAM)
+# (seed, 6): the schedules of PPO's training episodes on commands (task.tracking.SCHEDULE_STREAM)
 # (seed, 7): a kick's time and direction (humanoid.perturbations.KICK_STREAM)
-# (seed, 8): the stepping expert's samples (humanoid.stepping.STEPPING_STREAM)
+# (seed, 8): the stepping expert's samples (teachers.stepping.STEPPING_STREAM)
 LATENCY_PARAMETER = "latency_steps"  # the episode's delay among its drawn parameters (ActionLatency's reset info)
 
 # The sensed parts of the observation are its qpos and qvel (`QPOS_OBS`, `QVEL_OBS`); the rest is left noiseless.
@@ -272,7 +273,7 @@ def action_delay(env: gym.Env) -> int:
     its reset when only a share of the episodes is delayed; before the first reset, their `steps`).
 
     A known property of the system, as a robot's actuation delay is measured: the rollout tells it to
-    every controller that can use it (`humanoid.episode.tell_delay`), the expert predicting through it,
+    every controller that can use it (`rollout.episode.tell_delay`), the expert predicting through it,
     a policy on the "pending" inputs reading it.
     """
     delay = 0
@@ -283,22 +284,19 @@ def action_delay(env: gym.Env) -> int:
     return delay
 
 
-def recording_env(env: gym.Env, randomization: Randomization, latency_share: float, kick: float = 0.0) -> gym.Env:
-    """`env` as `make record` drives it: the physical parameters drawn per episode, one step of action latency
-    on `latency_share` of the episodes (also drawn per episode), and one `kick` (m/s) per episode as the suite's kick
-    conditions give it (`VelocityKick`, recorded in the push column); `recorded_parameters` names what is drawn."""
-    if randomization.active:
-        env = DomainRandomization(env, randomization)  # draws at each seeded reset; the controller sees nominal
-    if latency_share > 0:
-        env = ActionLatency(env, 1, latency_share)
-    if kick > 0:
-        env = VelocityKick(env, kick)
-    return env
+def recording_condition(randomization: Randomization, latency_share: float, kick: float = 0.0) -> Condition:
+    """The condition `make record` (and DAgger's rollouts) records under: the physical parameters drawn per episode,
+    one step of action latency on `latency_share` of the episodes (also drawn per episode), and one `kick` (m/s) per
+    episode as the suite's kick conditions give it (`VelocityKick`, recorded in the push column)."""
+    return Condition(
+        randomization=randomization, latency=1 if latency_share > 0 else 0, latency_share=latency_share, kick=kick
+    )
 
 
-def recorded_parameters(randomization: Randomization, latency_share: float) -> tuple[str, ...]:
-    """The names of the values `recording_env` draws for each episode (the dataset's `randomization.*` columns)."""
-    return (*randomization.parameters, *((LATENCY_PARAMETER,) if latency_share > 0 else ()))
+def recorded_parameters(condition: Condition) -> tuple[str, ...]:
+    """The names of the values `condition`'s stack draws for each episode (the dataset's `randomization.*` columns):
+    the randomised parameters', and the delay's where a share of the episodes is delayed."""
+    return (*condition.randomization.parameters, *((LATENCY_PARAMETER,) if condition.latency > 0 else ()))
 
 
 class ObservationNoise(gym.Wrapper):
@@ -349,32 +347,42 @@ class ObservationNoise(gym.Wrapper):
 
 @dataclass(frozen=True)
 class Condition:
-    """One condition of the robustness suite: what is changed, each part off by default."""
+    """What an episode's environment changes, each part off by default: a condition of the robustness suite, a
+    recording's draws, PPO's training episodes."""
 
     action_noise: float = 0.0
     """Std of Gaussian noise added to every executed action (the rollout adds it)."""
-    push: float = 0.0
-    """Newtons of a horizontal torso push for 0.1 s every 2 s (`TorsoPushes`)."""
+    push: float | None = None
+    """Newtons of a horizontal torso push for 0.1 s every 2 s (`TorsoPushes`); None: no pusher (0: one at 0 N, which
+    a curriculum raises)."""
     kick: float = 0.0
-    """Metres per second of one horizontal kick of the root's velocity (`VelocityKick`)."""
+    """Metres per second of one horizontal kick of the root's velocity (`VelocityKick`); 0: none."""
     randomization: Randomization = field(default_factory=Randomization)
+    """The physical parameters drawn at each reset (`DomainRandomization`)."""
+    width: float = 1.0
+    """The share of the randomisation's ranges drawn from (a curriculum's stage: `DomainRandomization.set_width`)."""
     latency: int = 0
-    """Env steps between choosing an action and its execution."""
+    """Env steps between choosing an action and its execution (`ActionLatency`); 0: none."""
+    latency_share: float = 1.0
+    """The share of the episodes so delayed, drawn at each reset (0 included: a curriculum raises it)."""
     obs_noise: float = 0.0
-    """Scale of `OBS_NOISE_STD` on what the policy reads."""
+    """Scale of `OBS_NOISE_STD` on what the policy reads (`ObservationNoise`); 0: none."""
+    obs_noise_share: float = 1.0
+    """The share of the episodes with that noise, drawn at each reset."""
 
     def wrap(self, env: gym.Env) -> gym.Env:
-        """`env` under this condition (the action noise excepted: pass `action_noise` to the rollout)."""
+        """`env` under this condition (the action noise excepted: pass `action_noise` to the rollout): the one
+        builder of the stack, in the module's order."""
         if self.randomization.active:
-            env = DomainRandomization(env, self.randomization)
-        if self.push > 0:
+            env = DomainRandomization(env, self.randomization, self.width)
+        if self.push is not None:
             env = TorsoPushes(env, self.push)
         if self.kick > 0:
             env = VelocityKick(env, self.kick)
         if self.latency > 0:
-            env = ActionLatency(env, self.latency)
+            env = ActionLatency(env, self.latency, self.latency_share)
         if self.obs_noise > 0:
-            env = ObservationNoise(env, self.obs_noise)
+            env = ObservationNoise(env, self.obs_noise, self.obs_noise_share)
         return env
 
 

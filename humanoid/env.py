@@ -17,6 +17,8 @@ from gymnasium.envs import mujoco as mujoco_envs  # its assets folder holds Huma
 
 ENV_ID = "Humanoid-v5"
 EPISODE_STEPS = 1000
+FRAME_SKIP = 5
+"""MuJoCo steps per env step: Humanoid-v5's default `frame_skip`, which every controller's model of one step takes."""
 # LeRobot stores fps as an int; the true rate is 1 / 0.015 s = 66.67 Hz. MCAP timestamps use the
 # exact step duration (`step_duration_ns`), LeRobot timestamps are frame_index / LEROBOT_FPS.
 LEROBOT_FPS = 67
@@ -46,7 +48,7 @@ def humanoid_model() -> mujoco.MjModel:
 @functools.cache
 def nominal_model() -> mujoco.MjModel:
     """Humanoid-v5's model, one instance per process, never changed, for whatever computes on the nominal body (the
-    experts' designs, the tracking's targets, the observation's layout): `humanoid.posture` caches its designs per
+    experts' designs, the tracking's targets, the observation's layout): `task.posture` caches its designs per
     model object, so each new expert, tracked episode or training environment reuses what an earlier one solved."""
     return humanoid_model()
 
@@ -55,6 +57,11 @@ def model_and_data(env: gym.Env) -> tuple[mujoco.MjModel, mujoco.MjData]:
     """The MuJoCo model and live data behind a (wrapped) Humanoid env."""
     base = env.unwrapped
     return base.model, base.data
+
+
+def step_seconds(model: mujoco.MjModel) -> float:
+    """Simulated seconds of one env step of `model`: `FRAME_SKIP` of its timesteps (0.015 s for Humanoid-v5)."""
+    return FRAME_SKIP * model.opt.timestep
 
 
 def step_duration_ns(env: gym.Env) -> int:

@@ -34,7 +34,8 @@ import mujoco
 import numpy as np
 
 from humanoid import physics
-from humanoid.lqr import LQRDesign, load_or_design
+from humanoid.balance import standing_pose
+from humanoid.env import step_seconds
 from humanoid.sensors import GRAVITY_NAMES, GYRO_NAMES, Proprioception, contact_names, force_names
 
 GRAVITY = 9.81
@@ -76,12 +77,13 @@ def level_quaternion(gravity: np.ndarray) -> np.ndarray:
 class LegOdometry:
     """(qpos, qvel) of the nominal model estimated from one sensed-feature vector per env step."""
 
-    def __init__(self, model: mujoco.MjModel, step_seconds: float | None = None) -> None:
+    def __init__(self, model: mujoco.MjModel, seconds: float | None = None) -> None:
         """On a copy of `model` as it is now (the nominal one: later draws of a randomised env do not reach it);
-        `step_seconds` defaults to one Humanoid-v5 env step (`LQRDesign.frame_skip` MuJoCo steps)."""
+        `seconds`, one step's, default to one Humanoid-v5 env step (`humanoid.env.step_seconds`)."""
+        standing = standing_pose(model)
         self.model = model = copy.copy(model)
         self.data = mujoco.MjData(model)
-        self.dt = LQRDesign.frame_skip * model.opt.timestep if step_seconds is None else step_seconds
+        self.dt = step_seconds(model) if seconds is None else seconds
         self.mass = float(model.body_mass.sum())
         names = Proprioception(model).names
         index = {name: i for i, name in enumerate(names)}
@@ -96,7 +98,7 @@ class LegOdometry:
         self._jac = np.zeros((3, model.nv))
         self._gains = np.array([HORIZONTAL_GAIN, HORIZONTAL_GAIN, VERTICAL_GAIN])
         self._turned = np.zeros(4)
-        self.clearance = self._clearance(load_or_design(model).qpos_ref)
+        self.clearance = self._clearance(standing)
         self.reset()
 
     def reset(self) -> None:
@@ -108,7 +110,7 @@ class LegOdometry:
         self._first = True
 
     def _clearance(self, qpos: np.ndarray) -> float:
-        """How high the feet's spheres rest above the floor in `qpos`, the design's balanced pose: inside the contacts'
+        """How high the feet's spheres rest above the floor in `qpos`, the standing pose: inside the contacts'
         margin, where their force carries the body (about 1 mm; taken as 0 the height estimate was that much low and
         the expert leant to make up for it: docs/decisions/estimator-heading.md)."""
         self.data.qpos[:] = qpos
@@ -201,7 +203,7 @@ class OdometryFeatures:
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/decisions/deployable-inputs.md). Stateful like
     the estimator: `reset` at every episode's start. The "pending" inputs
-    (`humanoid.inputs.PendingInputs`) begin with these.
+    (`students.inputs.PendingInputs`) begin with these.
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:

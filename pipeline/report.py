@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from humanoid.commands import tracked_names, tracking_score
+from task.tracking import tracked_names, tracking_score
 
 
 def survivors(row: dict[str, Any]) -> int:
@@ -30,7 +30,7 @@ def _number(value: float, digits: int) -> str:
 def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[str, Any]]) -> str:
     """The pipeline's closing table, in two parts. First a row per controller: survivors with the command zero
     (`standing`: one evaluation each, clean), then, on held-out command schedules (`tracked`: `evaluation.robustness`
-    results under schedules), survivors and the tracking score (`humanoid.commands.tracking_score`: 1 on the
+    results under schedules), survivors and the tracking score (`task.tracking.tracking_score`: 1 on the
     command) per condition, and the mean return over the conditions (what "× scratch" compares). Then a row per
     condition and controller: the settled tracking error per command field, over every command held and over those
     that move the field (where a policy that holds the stand but ignores a field shows it), and the time to settle."""

@@ -69,11 +69,8 @@ from common.ray_backend import BACKENDS
 from common.seed_ranges import EVAL_SEED
 from evaluation import robustness
 from evaluation.robustness import RobustnessConfig
-from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
-from humanoid.controllers import CONTROLLERS, INTERACTIVE
 from humanoid.env import nominal_model
-from humanoid.inputs import BLIND_INPUTS
 from humanoid.sensors import proprioception_names
 from pipeline import report
 from policies.folder import (
@@ -91,6 +88,10 @@ from rl.finetune import FinetuneConfig, print_summary, weights_digest
 from rl.finetune import main as ppo_main
 from rl.finetune import validate as validate_ppo
 from rl.scratch import ScratchConfig
+from rollout.controllers import INTERACTIVE, registered
+from students.inputs import BLIND_INPUTS
+from task.command_fields import POSTURE_TASK, STAND
+from task.tracking import ERROR_KINDS
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
@@ -229,10 +230,8 @@ def check(cfg: PipelineConfig) -> list[str]:
         )
     if cfg.robustness_episodes < 1:
         raise UserError(f"--robustness-episodes must be at least 1, got {cfg.robustness_episodes}")
-    if not cfg.record.schedules or cfg.record.controller in INTERACTIVE:  # what `bc.train.check_taught` would refuse
-        given = (
-            "--record.schedules false" if not cfg.record.schedules else f"--record.controller {cfg.record.controller}"
-        )
+    if cfg.record.task == STAND or cfg.record.controller in INTERACTIVE:  # what `bc.train.check_taught` would refuse
+        given = f"--record.task {STAND}" if cfg.record.task == STAND else f"--record.controller {cfg.record.controller}"
         raise UserError(
             f"{given}: the students learn to follow the operator's command, which the pipeline's recording changes "
             "only by the scripted schedules"
@@ -624,7 +623,7 @@ def measure(
         print(f"pipeline: {name} on held-out schedules: {how}", flush=True)
     planned = [
         *(robustness.suite_runs(name, ["clean"], seeds, count) for name in names),
-        *(robustness.suite_runs(name, conditions, seeds, count, schedules=True) for name in fresh),
+        *(robustness.suite_runs(name, conditions, seeds, count, POSTURE_TASK) for name in fresh),
     ]
     rows = list(robustness.evaluate_suites(planned, count))
     standing = {name: row["clean"] for name, row in zip(names, rows[: len(names)], strict=True)}
@@ -638,7 +637,7 @@ def suite_config(policy: str, episodes: int, conditions: list[str], workers: int
         policy=policy,
         episodes=episodes,
         conditions=",".join(conditions),
-        schedules=True,
+        task=POSTURE_TASK,
         workers=workers,
         progress=False,
     )
@@ -650,7 +649,7 @@ def saved_suite(cfg: RobustnessConfig) -> dict[str, Any] | None:
     saved = robustness.result_paths(cfg)[0]
     policy = Path(cfg.policy)
     weights = policy / (SB3_FILE if is_sb3_policy(policy) else WEIGHTS_FILE)
-    if not saved.is_file() or not (cfg.policy in CONTROLLERS or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
+    if not saved.is_file() or not (cfg.policy in registered() or saved.stat().st_mtime_ns > weights.stat().st_mtime_ns):
         return None
     result = json_object(saved)
     if not result:  # unreadable (written before it was written whole): made again

@@ -97,8 +97,7 @@ TARGETS: dict[str, Target] = {
             "episodes",
             "seed",
             "controller",
-            "schedules",
-            "walking",
+            "task",
             "kick",
             "noise",
             "randomize",
@@ -108,6 +107,7 @@ TARGETS: dict[str, Target] = {
             "front_end",
             *_LIVE,
         ),
+        removed=("schedules", "walking"),
     ),
     # `make record CONTROLLER=keyboard` with a learned policy instead of the expert, into its own dataset, and no DART
     # noise: the keys drive the policy as it is (noise is for demonstrations a student learns from).
@@ -130,8 +130,7 @@ TARGETS: dict[str, Target] = {
             "policy",
             "episodes",
             "seed",
-            "schedules",
-            "walking",
+            "task",
             "push",
             "kick",
             "noise",
@@ -140,9 +139,13 @@ TARGETS: dict[str, Target] = {
             "plot",
             *_LIVE,
         ),
+        removed=("schedules", "walking"),
     ),
     "robustness": Target(
-        "evaluation.robustness", RobustnessConfig, ("policy", "episodes", "seed", "conditions", "schedules", "workers")
+        "evaluation.robustness",
+        RobustnessConfig,
+        ("policy", "episodes", "seed", "conditions", "task", "workers"),
+        removed=("schedules", "walking"),
     ),
     "dagger": Target(
         "bc.dagger",

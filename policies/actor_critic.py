@@ -5,7 +5,7 @@ SB3's `ActorCriticPolicy` maps observations through an "mlp_extractor" to a late
 branch is the BC policy (normalisation, MLP, tanh scaling included) and `action_net` is the
 identity, so the Gaussian's mean is exactly the BC policy's action; the critic is a separate MLP on the
 gymnasium observation, normalised. The environment appends the actor's inputs to that observation
-(`humanoid.inputs.InputObservation`), computed as the live controller computes them: the actor reads
+(`students.inputs.InputObservation`), computed as the live controller computes them: the actor reads
 those, the critic all of it, the privileged observation included (an asymmetric actor-critic). Orthogonal
 initialisation is off: it would overwrite the loaded weights. The log std starts small (`log_std_init`):
 SB3's default std of 1 puts most samples far outside the ±0.4 action bounds.

@@ -31,7 +31,7 @@ class MLPSpec:
     """What sizes an `MLPPolicy` (stored in the checkpoint's config.json; the weights hold the rest)."""
 
     input_keys: tuple[str, ...]
-    """Dataset columns the input is built from (`humanoid.inputs.InputSet.columns` of `inputs`)."""
+    """Dataset columns the input is built from (`students.inputs.InputSet.columns` of `inputs`)."""
     input_dim: int
     action_dim: int
     hidden: tuple[int, ...] = (256, 256)
@@ -39,7 +39,7 @@ class MLPSpec:
     """Hidden units (ACTIVATIONS). `make train-bc` writes ELU networks (`bc.train.ACTIVATION` says why); this
     default stays the ReLU that spec had before, so a spec built without the field means what it meant."""
     inputs: str = "full"
-    """What the policy reads: the name of an input set (`humanoid.inputs.INPUT_SETS`: docs/concepts/inputs.md).
+    """What the policy reads: the name of an input set (`students.inputs.INPUT_SETS`: docs/concepts/inputs.md).
     Checkpoints written before this field read "full"."""
 
     def __post_init__(self) -> None:

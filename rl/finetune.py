@@ -52,8 +52,6 @@ from common.workers import default_workers
 from evaluation.evaluate import evaluate_each, evaluation_pool
 from humanoid.conditions import SUITE, Randomization, parse_randomization
 from humanoid.env import make_env
-from humanoid.inputs import input_set_named
-from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies.folder import (
     DATASET_FILE,
@@ -73,6 +71,9 @@ from rl.learner import build_model, fresh_actor, make_vec_env
 from rl.rollouts import WorkerRolloutPPO
 from rl.validation import CURVE_FILE, Validator, falls_back, plot_curves, selection_score
 from rl.vec_env import WorkerGroupVecEnv
+from students.inputs import input_set_named
+from students.learned import PolicyController
+from task.command_fields import STAND
 
 EVAL_CONDITIONS = ("clean", "push20", "mass")
 """Robustness conditions (docs/concepts/robustness-suite.md) evaluated beside the validation one at every
@@ -157,7 +158,7 @@ class FinetuneConfig:
         10.0,
         "for a BC policy that takes a command: its training episodes follow the operator's command schedules, and "
         "each step's reward adds this times the tracking term (the mean over the fields of exp(-(error/tolerance)²), "
-        "at most 1, beside standing's 5: humanoid.commands.CommandedTask; why 10: docs/decisions/tracking-weight.md); "
+        "at most 1, beside standing's 5: task.tracking.CommandedTask; why 10: docs/decisions/tracking-weight.md); "
         "evaluations run held-out schedules",
     )
     overwrite: bool = setting(False, "replace an existing checkpoint at POLICY")
@@ -342,16 +343,15 @@ def vec_env(cfg: FinetuneConfig) -> WorkerGroupVecEnv:
         inputs,
         latency=width * cfg.latency_share if cfg.latency_share else None,
         obs_noise=width * cfg.obs_noise_share if cfg.obs_noise_share else None,
-        tracking=cfg.tracking_weight if task(cfg)["schedules"] else None,
+        tracking=cfg.tracking_weight if task(cfg) != STAND else None,
         kick=cfg.kick,
     )
 
 
-def task(cfg: FinetuneConfig) -> dict[str, bool]:
-    """The task as `evaluation.evaluate` takes it: `schedules` if the BC policy takes a command (the task is then
-    following the operator's schedules), `walking` if it takes the velocity command too (schedules with walks)."""
-    input_set = input_set_named(checkpoint.load(cfg.bc_policy).spec.inputs)
-    return {"schedules": input_set.takes_command, "walking": input_set.walks}
+def task(cfg: FinetuneConfig) -> str:
+    """The task the BC policy's inputs follow (`students.inputs.InputSet.task`): posture schedules if it takes a
+    command, with walks if it takes the velocity command too; else standing."""
+    return input_set_named(checkpoint.load(cfg.bc_policy).spec.inputs).task
 
 
 def learner(cfg: FinetuneConfig, env: WorkerGroupVecEnv, tensorboard: Path | None = None) -> WorkerRolloutPPO:
@@ -405,7 +405,7 @@ def critic_normalisation(cfg: FinetuneConfig, inputs: str) -> tuple[torch.Tensor
     return normalisation(torch.cat([observations, load_demonstrations(dataset, env, inputs=inputs).inputs], dim=1))
 
 
-def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], on: dict[str, bool]) -> dict[str, Any] | None:
+def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], on: str) -> dict[str, Any] | None:
     """POLICY/eval.json of a run already finished there with these settings (not re-run; its final evaluation run
     now if a kill cut it short); else None."""
     if cfg.overwrite or not finished_with(cfg.policy, settings, resume.PRESENTATION):
@@ -418,13 +418,13 @@ def finished_result(cfg: FinetuneConfig, settings: dict[str, Any], on: dict[str,
 
 
 def final_evaluation(
-    cfg: FinetuneConfig, on: dict[str, bool], figures: dict[str, Any], pool: Executor | None = None
+    cfg: FinetuneConfig, on: str, figures: dict[str, Any], pool: Executor | None = None
 ) -> dict[str, Any]:
     """The published actor at POLICY on FINAL_EVAL_EPISODES seeds from EVAL_SEED (none if 0), clean and under the
     validation push, on the `task` `on`, with the training's `figures`: what POLICY/eval.json then holds."""
     if not cfg.final_eval_episodes:
         return figures  # eval.json holds them already
-    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, **on}
+    final = {"episodes": cfg.final_eval_episodes, "seed": EVAL_SEED, "task": on}
     pushes = [{"push": validation_push(cfg)}] if validation_push(cfg) else []
     result, *pushed = evaluate_each([(str(cfg.policy), {**final, **extra}) for extra in [{}, *pushes]], pool)
     if pushed:

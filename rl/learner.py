@@ -16,15 +16,14 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
 from common.workers import available_cores
-from humanoid.commands import CommandedTask
-from humanoid.conditions import SUITE, ActionLatency, DomainRandomization, ObservationNoise, Randomization
+from humanoid.conditions import SUITE, Condition, Randomization
 from humanoid.env import make_env
-from humanoid.inputs import InputObservation, input_set_named
-from humanoid.perturbations import TorsoPushes, VelocityKick
 from policies.actor_critic import BCActorCriticPolicy
 from policies.mlp import MLPPolicy
 from rl.rollouts import WorkerRolloutPPO
 from rl.vec_env import WorkerGroupVecEnv
+from students.inputs import InputObservation, input_set_named
+from task.tracking import CommandedTask
 
 NOMINAL = Randomization()  # nothing drawn: the nominal body and floor
 
@@ -53,20 +52,32 @@ def training_env(
     SB3's `Monitor` records each episode's return and length (the environment's own rewards, before any
     reward scale) for TensorBoard's rollout/ep_rew_mean and ep_len_mean.
     """
-    env = make_env()
-    if randomization.active:
-        env = DomainRandomization(env, randomization, width)
-    if push is not None:
-        env = TorsoPushes(env, push)
-    if kick > 0:
-        env = VelocityKick(env, kick)
-    if latency is not None:
-        env = ActionLatency(env, SUITE["latency"].latency, share=latency)
-    if obs_noise is not None:
-        env = ObservationNoise(env, SUITE["obs_noise"].obs_noise, share=obs_noise)
+    env = training_condition(push, randomization, width, latency, obs_noise, kick).wrap(make_env())
     if tracking is not None:
-        env = CommandedTask(env, tracking, walking=input_set_named(inputs).walks)
+        env = CommandedTask(env, tracking, input_set_named(inputs).task)
     return Monitor(InputObservation(env, inputs))
+
+
+def training_condition(
+    push: float | None,
+    randomization: Randomization = NOMINAL,
+    width: float = 1.0,
+    latency: float | None = None,
+    obs_noise: float | None = None,
+    kick: float = 0.0,
+) -> Condition:
+    """What a training episode changes (`training_env`'s settings): the suite's latency and sensor noise on a share
+    of the episodes (None: neither; 0 included: a curriculum raises the share)."""
+    return Condition(
+        push=push,
+        kick=kick,
+        randomization=randomization,
+        width=width,
+        latency=0 if latency is None else SUITE["latency"].latency,
+        latency_share=latency or 0.0,
+        obs_noise=0.0 if obs_noise is None else SUITE["obs_noise"].obs_noise,
+        obs_noise_share=obs_noise or 0.0,
+    )
 
 
 def make_vec_env(

@@ -9,7 +9,7 @@ What a reader of that tutorial would have got:
   bias), so `make eval`, `make robustness` and `make record CONTROLLER=` run it like any policy.
 - **PPO** (`tutorial_ppo`): stable-baselines3's `PPO("MlpPolicy", env, learning_rate=0.005,
   ent_coef=0.005)` on one environment, every other setting SB3's default; saved by SB3
-  (`policies.folder.SB3_FILE`) and run by `humanoid.learned.SB3Controller`.
+  (`policies.folder.SB3_FILE`) and run by `students.learned.SB3Controller`.
 
 Both train to stand, on the clean task without a command, for TIMESTEPS environment steps (by default the
 PPO stages' budget). The pipeline leaves them out: its table is about following commands, which neither
@@ -40,11 +40,11 @@ from common.cli import UserError, check_non_negative, check_positive, config_dic
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from humanoid.env import make_env
-from humanoid.inputs import FullInputs
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR, finished_with
 from policies.mlp import MLPPolicy, MLPSpec
 from rl.finetune import FinetuneConfig
+from students.inputs import FullInputs
 
 LEARNERS = ("preferred", "ppo")
 MADE_BY = "rl.tutorial"

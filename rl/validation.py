@@ -16,9 +16,10 @@ from common.cli import config_text
 from common.figures import save_figure
 from evaluation.evaluate import evaluate_each
 from evaluation.robustness import summarise
-from humanoid.commands import tracking_score
 from policies import checkpoint
 from policies.folder import CONFIG_TAG
+from task.command_fields import STAND
+from task.tracking import tracking_score
 
 CURVE_FILE = "learning_curve.json"
 CHECKPOINTS_DIR = "checkpoints"
@@ -81,7 +82,7 @@ class Validator(BaseCallback):
         settings: dict[str, Any],
         demonstrations: dict[str, Any] | None = None,
         conditions: Sequence[str] = (),
-        task: dict[str, bool] | None = None,
+        task: str = STAND,
         folder: Path,
         bar: tqdm,
         pool: Executor | None = None,
@@ -90,7 +91,7 @@ class Validator(BaseCallback):
         self.episodes, self.seed, self.push, self.freq = episodes, seed, push, freq
         self.floor_episodes = floor_episodes  # the clean condition's, which holds the floor
         self.conditions = list(conditions)  # robustness conditions evaluated beside the validation one
-        self.task = task or {"schedules": False}  # held-out command schedules (with walks), tracking scored
+        self.task = task  # what the operator commands: under schedules (with walks) the tracking is scored
         self.settings, self.folder, self.bar, self.pool = settings, folder, bar, pool
         self.demonstrations = demonstrations or {}  # what each checkpoint names as its training data (dataset.json)
         self.curve: list[dict[str, float]] = []
@@ -112,7 +113,7 @@ class Validator(BaseCallback):
             "survival_rate": result["survival_rate"],
         }
         for name, under in zip(self.conditions, conditions, strict=True):  # together they choose the actor kept
-            if name == "clean" and self.task["schedules"]:
+            if name == "clean" and self.task != STAND:
                 point["tracking_score"] = tracking_score(under["tracking"])
                 self.logger.record("eval/clean/tracking_score", point["tracking_score"])
             point[f"{name}_survival_rate"], point[f"{name}_mean_return"] = under["survival_rate"], under["mean_return"]
@@ -134,7 +135,7 @@ class Validator(BaseCallback):
         (`holds_floor`), `episodes` for the others."""
         total = self.floor_episodes if run.get("condition") == "clean" else self.episodes
         return [
-            {"seed": self.seed + start, "episodes": min(self.episodes, total - start), **self.task}
+            {"seed": self.seed + start, "episodes": min(self.episodes, total - start), "task": self.task}
             for start in range(0, total, self.episodes)
         ]
 

@@ -25,8 +25,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
 from humanoid.sensors import observation_index
+from task.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
 from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 

@@ -14,7 +14,7 @@ commanded anything, each observation is a Dict of the gymnasium observation and 
 Arrow, and what Minari does with fewer observations than it needs: docs/how-to/minari.md.
 
 `lerobot-command`: a copy of DATASET as a LeRobot v3.0 dataset whose `observation.state` ends with the operator's
-command (`command.<field>`, `humanoid.command_fields`), in place of `observation.command`: LeRobot's own policies
+command (`command.<field>`, `task.command_fields`), in place of `observation.command`: LeRobot's own policies
 read only `observation.state` and `observation.environment_state`, so this is how `lerobot-train` conditions one on
 the command (docs/how-to/lerobot-train.md). Written by this project's LeRobot writer, statistics included.
 """
@@ -35,10 +35,10 @@ import numpy as np
 from common import columns, paths
 from common.cli import DatasetError, UserError, check_positive, run_cli, setting
 from common.seed_ranges import EVAL_SEED
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES
-from humanoid.controllers import make_controller
 from humanoid.env import ENV_ID, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
+from rollout.controllers import make_controller
+from rollout.episode import EpisodeBuffer, run_episode
+from task.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from teleop.dataset_reader import (
     Transitions,
     read_commanded_frames,

@@ -1,7 +1,7 @@
 """Keyboard teleoperation (`make record CONTROLLER=keyboard`, `make play POLICY=...`): keys set the command.
 
 Balancing 17 motors by hand is impossible, so a key changes the operator's command, a posture
-(`humanoid.posture`, `humanoid.commands`), and the controller keeps the body up while it follows it: the
+(`task.posture`, `task.schedules`), and the controller keeps the body up while it follows it: the
 LQR expert, or with `--policy` a learned policy that takes a command (`make play`). One key pushes the
 torso, a perturbation to recover from. Every step of an episode is recorded as with the expert, plus the
 command in force (`observation.command`, the `/command` MCAP channel), the task string that names it, the
@@ -29,14 +29,14 @@ import gymnasium as gym
 import numpy as np
 
 from common.cli import UserError
-from humanoid.command_fields import COMMAND_FIELDS, CommandField
-from humanoid.commands import command_vector, task_for
-from humanoid.controllers import KEYBOARD, KEYBOARD_EXPERT, Controller, make_controller
 from humanoid.env import model_and_data
-from humanoid.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
 from humanoid.perturbations import kick, kick_force
 from humanoid.physics import TORSO_BODY, torso_height
-from humanoid.posture import NEUTRAL, Posture
+from rollout.controllers import KEYBOARD, KEYBOARD_EXPERT, Controller, make_controller
+from rollout.episode import EpisodeBuffer, StepObserver, injected_noise, rollout_step
+from task.command_fields import COMMAND_FIELDS, CommandField
+from task.posture import NEUTRAL, Posture
+from task.schedules import command_vector, task_for
 
 if TYPE_CHECKING:
     from teleop.store import CommittedEpisode, EpisodeSink

@@ -3,7 +3,7 @@
 The Foxglove app opens `ws://127.0.0.1:8765` ("Open connection") and gets the topics an episode's
 MCAP file holds, the same messages encoded the same way (`teleop.mcap_io`):
 
-    rollout step t (humanoid.episode.StepObserver) --> /step, /tf, /command  (one message each, same schemas)
+    rollout step t (rollout.episode.StepObserver) --> /step, /tf, /command  (one message each, same schemas)
     episode start                                  --> /scene (again every SCENE_EVERY steps, for late joiners)
                                                         \\--> foxglove-sdk server (a Rust thread) --> clients
 
@@ -26,10 +26,10 @@ from google.protobuf.message import Message
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from common.cli import UserError
-from humanoid.commands import Tracking
 from humanoid.env import body_names, model_and_data, nominal_model, step_duration_ns
-from humanoid.episode import EpisodeBuffer
 from humanoid.sensors import Proprioception
+from rollout.episode import EpisodeBuffer
+from task.tracking import Tracking
 from teleop.mcap_io.schema import COMMAND_VALUES, Command, Step, command_values
 from teleop.mcap_io.wire import FrameTransformsEncoder
 from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, WORLD_FRAME, scene_update
@@ -46,7 +46,7 @@ def _schema(message: type[Message]) -> foxglove.Schema:
 
 
 class LivePublisher:
-    """A Foxglove WebSocket server publishing one rollout's steps (a `humanoid.episode.StepObserver`)."""
+    """A Foxglove WebSocket server publishing one rollout's steps (a `rollout.episode.StepObserver`)."""
 
     def __init__(self, env: gym.Env, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> None:
         model, _ = model_and_data(env)

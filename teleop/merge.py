@@ -29,7 +29,7 @@ from tqdm import tqdm
 from common import columns, paths
 from common.cli import UserError, config_dict, run_cli, setting
 from humanoid.env import make_env
-from humanoid.episode import Episode
+from rollout.episode import Episode
 from teleop import recordings
 from teleop.dataset_reader import (
     read_commanded_frames,

@@ -21,31 +21,30 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.workers import Channel, Worker, close_all
-from humanoid.conditions import Randomization
-from humanoid.episode import Episode, EpisodeBuffer, run_episode
+from humanoid.conditions import Condition
+from rollout.episode import ControllerFailure, Episode, EpisodeBuffer, EpisodeFailure, run_episode
+from task.command_fields import STAND
 from teleop.spool import SPOOL_DIR, Spool
 
 if TYPE_CHECKING:
     from policies.mlp import MLPPolicy
+    from teachers.base import Teacher
 
 SEEDS_AHEAD = 2  # seeds a worker holds: the one it simulates and the next one
 # What `_work` imports.
-WORKER_MODULES = ("humanoid.conditions", "humanoid.controllers", "humanoid.env", "humanoid.episode", "teleop.spool")
+WORKER_MODULES = ("humanoid.conditions", "rollout.controllers", "humanoid.env", "rollout.episode", "teleop.spool")
 
 
 @dataclass(frozen=True)
 class RolloutSettings:
     """What a worker needs to reproduce the recorder's rollout of a seed."""
 
-    controller: str
+    controller: str | type[Teacher]  # a teacher (its class: `rollout.controllers.built`), or a name or policy folder
     noise: float
     max_steps: int
-    randomization: Randomization = Randomization()  # domain randomisation drawn at each episode's reset
-    latency: float = 0.0  # share of the episodes delayed by one step, drawn at each reset
-    schedules: bool = False  # the operator's command follows the schedule drawn from each seed
-    kick: float = 0.0  # one kick of the root's velocity per episode, m/s (humanoid.perturbations.VelocityKick)
-    walking: bool = False  # the schedules mix walks in (humanoid.commands.WALKING_SHARE)
-    labeller: str | None = None  # a registered controller that labels every state (DAgger's expert), or none
+    condition: Condition = Condition()  # what the environment changes (`humanoid.conditions.recording_condition`)
+    task: str = STAND  # what the operator commands (`task.schedules.task_commands`)
+    labeller: type[Teacher] | None = None  # the teacher that labels every state (DAgger's expert), or none
     policy: MLPPolicy | None = None  # the controller's weights, held in memory (DAgger's round policy, `controller`
     # naming it), instead of a registered controller or checkpoint folder by that name
 
@@ -54,12 +53,11 @@ class Simulator:
     """One worker's environment and controller: `run(seed)` is the episode the recorder records for that seed."""
 
     def __init__(self, settings: RolloutSettings) -> None:
-        from humanoid.conditions import recording_env  # noqa: PLC0415 - heavy imports in the worker only
-        from humanoid.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
         from humanoid.env import make_env  # noqa: PLC0415 - heavy imports in the worker only
+        from rollout.controllers import make_controller  # noqa: PLC0415 - heavy imports in the worker only
 
         self.settings = settings
-        self.env = recording_env(make_env(settings.max_steps), settings.randomization, settings.latency, settings.kick)
+        self.env = settings.condition.wrap(make_env(settings.max_steps))
         if settings.policy is None:
             self.controller = make_controller(settings.controller, self.env)
         else:
@@ -67,22 +65,19 @@ class Simulator:
         self.labeller = None if settings.labeller is None else make_controller(settings.labeller, self.env)
         self.buffer = EpisodeBuffer(self.env, settings.max_steps)
 
-    def run(self, seed: int) -> Episode:
+    def run(self, seed: int) -> Episode | EpisodeFailure:
+        """The episode of `seed`, or, where a controller fails in it, why (`rollout.episode.ControllerFailure`)."""
         settings = self.settings
-        return run_episode(
-            self.env,
-            self.controller,
-            seed,
-            settings.noise,
-            self.buffer,
-            labeller=self.labeller,
-            schedules=settings.schedules,
-            walking=settings.walking,
-        )
+        try:
+            return run_episode(
+                self.env, self.controller, seed, settings.noise, self.buffer, labeller=self.labeller, task=settings.task
+            )
+        except ControllerFailure as failure:
+            return EpisodeFailure(seed, str(failure))
 
     def act_with(self, policy: MLPPolicy, name: str) -> None:
         """From the next seed on, `policy` (in memory, called `name`) acts: DAgger's next round."""
-        from humanoid.learned import PolicyController  # noqa: PLC0415 - torch, for a policy's worker only
+        from students.learned import PolicyController  # noqa: PLC0415 - torch, for a policy's worker only
 
         self.controller = PolicyController(policy, name, self.env)
 
@@ -96,15 +91,19 @@ class NextPolicy:
 
 
 def _work(channel: Channel, settings: RolloutSettings, dataset: Path, spool_name: str) -> None:
-    """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed; a `NextPolicy`
-    changes who acts."""
+    """A worker (`common.workers`): simulate each seed received, spool the episode, report the seed (or the
+    `EpisodeFailure` of one a controller failed in); a `NextPolicy` changes who acts."""
     simulator = Simulator(settings)
     spool = Spool(dataset, spool_name)
     for message in channel:
         if isinstance(message, NextPolicy):
             simulator.act_with(message.policy, message.name)
             continue
-        spool.put(simulator.run(message))
+        outcome = simulator.run(message)
+        if isinstance(outcome, EpisodeFailure):
+            channel.send(outcome)
+            continue
+        spool.put(outcome)
         channel.send(message)
 
 
@@ -126,14 +125,17 @@ class ParallelRollouts:
             self.close(interrupted=True)
             raise
 
-    def in_seed_order(self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None) -> Iterator[Path]:
-        """The spool file of each seed's episode, in the order of `seeds`, as soon as all before it are done.
+    def in_seed_order(
+        self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None
+    ) -> Iterator[Path | EpisodeFailure]:
+        """The spool file of each seed's episode (or its `EpisodeFailure`), in the order of `seeds`, as soon as all
+        before it are done.
 
         `meanwhile` runs once the workers have their first seeds, before waiting for them.
         """
         handed = 0
         holding = dict.fromkeys(self._workers, 0)
-        done: set[int] = set()
+        done: dict[int, EpisodeFailure | None] = {}
 
         def hand_out(worker: Worker) -> None:
             nonlocal handed
@@ -149,11 +151,13 @@ class ParallelRollouts:
             while seed not in done:
                 for worker in wait(self._workers):
                     # A worker's failure is raised here as one line (a UserError), as is a worker that died.
-                    done.add(worker.recv())
+                    finished = worker.recv()
+                    failed = isinstance(finished, EpisodeFailure)
+                    done[finished.seed if failed else finished] = finished if failed else None
                     holding[worker] -= 1
                     hand_out(worker)
-            done.discard(seed)
-            yield self._spool.path_of(seed)
+            failure = done.pop(seed)
+            yield self._spool.path_of(seed) if failure is None else failure
 
     def act_with(self, policy: MLPPolicy, name: str) -> None:
         """Every worker rolls out `policy` (called `name`) from the next seed handed out on (DAgger's next round)."""

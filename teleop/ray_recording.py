@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from common.ray_backend import RaySession, RayWorker, WorkerLost
+from rollout.episode import EpisodeFailure
 from teleop.parallel import SEEDS_AHEAD, RolloutSettings, Simulator
 from teleop.spool import Spool
 
@@ -46,15 +47,18 @@ class RayRollouts:
             self._session.close()
             raise
 
-    def in_seed_order(self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None) -> Iterator[Path]:
-        """The spool file of each seed's episode, in the order of `seeds`, as soon as all before it are done.
+    def in_seed_order(
+        self, seeds: Sequence[int], meanwhile: Callable[[], None] = lambda: None
+    ) -> Iterator[Path | EpisodeFailure]:
+        """The spool file of each seed's episode (or its `EpisodeFailure`), in the order of `seeds`, as soon as all
+        before it are done.
 
         `meanwhile` runs once the workers have their first seeds, before waiting for them.
         """
         position = {seed: index for index, seed in enumerate(seeds)}
         queue = list(seeds)  # seeds not handed out, in order
         running: dict[object, tuple[RayWorker, int]] = {}  # a call in flight: its worker and seed
-        done: set[int] = set()
+        done: dict[int, EpisodeFailure | None] = {}
         workers = list(self._workers)
 
         def hand_out(worker: RayWorker) -> None:
@@ -87,11 +91,14 @@ class RayRollouts:
                         lose(worker, error)
                         continue
                     del running[ref]
-                    self._spool.put(episode)  # before anything else: a kill -9 from here on loses nothing
-                    done.add(finished)
+                    if isinstance(episode, EpisodeFailure):
+                        done[finished] = episode
+                    else:
+                        self._spool.put(episode)  # before anything else: a kill -9 from here on loses nothing
+                        done[finished] = None
                     hand_out(worker)
-            done.discard(seed)
-            yield self._spool.path_of(seed)
+            failure = done.pop(seed)
+            yield self._spool.path_of(seed) if failure is None else failure
 
     def close(self, interrupted: bool = False) -> None:
         """Stop the workers. Idempotent.

@@ -59,15 +59,18 @@ from humanoid.conditions import (
     NO_RANDOMIZATION,
     PRESETS,
     RANDOMIZE_EXAMPLE,
+    Condition,
     parse_randomization,
     recorded_parameters,
-    recording_env,
+    recording_condition,
 )
-from humanoid.controllers import CONTROLLERS, INTERACTIVE, check_controller, make_controller
 from humanoid.env import EPISODE_STEPS, make_env
-from humanoid.episode import EpisodeBuffer, run_episode
-from humanoid.expert import SensedExpert
 from policies.folder import chosen_policy
+from rollout.controllers import INTERACTIVE, built, check_controller, make_controller, registered
+from rollout.episode import ControllerFailure, EpisodeBuffer, EpisodeFailure, run_episode
+from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
+from teachers.expert import SensedExpert
+from teachers.registry import TEACHERS
 from teleop import recordings
 from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
@@ -88,9 +91,9 @@ odometry, half its episodes delayed, falls in most and its students stood under 
 (docs/decisions/dart-noise.md)."""
 STANDING_NOISE = 0.05
 """The standing recipe's DART noise, for the expert told the simulator's state (`make record CONTROLLER=expert
-SCHEDULES=0 NOISE=0.05 LATENCY=0`): at 0.05 it stands on most seeds and its students on every unseen one
+TASK=stand NOISE=0.05 LATENCY=0`): at 0.05 it stands on most seeds and its students on every unseen one
 (docs/decisions/dart-noise.md)."""
-STANDING = {"controller": "expert", "schedules": False, "latency": 0.0}
+STANDING = {"controller": "expert", "task": STAND, "latency": 0.0}
 """The standing recipe's other recording settings (with NOISE=STANDING_NOISE): the expert told the simulator's state,
 the zero command, no episode delayed; the benchmarks' expert episodes and most recording tests use it."""
 LATENCY_SHARE = 0.5
@@ -119,7 +122,7 @@ class RecordConfig:
         TEACHER,
         "who acts: a registered controller (by default the teacher on what a robot senses; expert: the one told the "
         "simulator's state) or a policy checkpoint folder",
-        metavar="{" + ",".join([*CONTROLLERS, *INTERACTIVE]) + "}|PATH",
+        metavar="{" + ",".join([*registered(), *INTERACTIVE]) + "}|PATH",
     )
     noise: float = setting(DART_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
     randomize: str = setting(
@@ -141,16 +144,13 @@ class RecordConfig:
         "expert-stepping",
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
-    schedules: bool = setting(
-        True,
-        "the scripted operator's command follows a schedule drawn from each episode's seed (humanoid.commands): the "
-        "controller is told each command, the dataset records it; false: the zero command, stand still (with "
-        "--controller keyboard the keys set it)",
-    )
-    walking: bool = setting(
-        False,
-        "the schedules mix walks in (forward, sideways and turning speeds; humanoid.commands.WALKING_SHARE): for a "
-        "controller that walks, expert-stepping (docs/how-to/walk.md)",
+    task: str = setting(
+        POSTURE_TASK,
+        "what the scripted operator commands, drawn from each episode's seed (task.schedules): stand (the zero "
+        "command), posture (schedules of postures) or walk (schedules that mix walks in: for a controller that walks, "
+        "docs/how-to/walk.md); the controller is told each command, the dataset records it (with --controller "
+        "keyboard the keys set it)",
+        choices=TASKS,
     )
     policy: str | None = setting(
         None,
@@ -229,8 +229,7 @@ def validate(cfg: RecordConfig) -> None:
     check_non_negative(cfg, "noise", "kick")
     if cfg.controller in INTERACTIVE and cfg.kick:
         raise UserError(f"--controller {cfg.controller} kicks with its k key: --kick must be 0")
-    if cfg.walking and (cfg.controller in INTERACTIVE or not cfg.schedules):
-        raise UserError("--walking draws the scripted operator's walking schedules: --schedules on, no keyboard")
+    check_task(cfg.controller, cfg.task)
     if cfg.seed is not None and not 0 <= cfg.seed <= SEED_LIMIT - cfg.episodes:
         raise UserError(f"--seed must be >= 0 and its episodes' seeds below 2**63 (a dataset's int64), got {cfg.seed}")
     check_backend(cfg.backend, cfg.ray_address)
@@ -261,13 +260,38 @@ def validate(cfg: RecordConfig) -> None:
     check_destination(cfg.dataset)
 
 
+def check_task(controller: str, task: str) -> None:
+    """UserError in one line, before anything is written, where `controller` cannot do `task`: a walking task needs a
+    controller that walks (a teacher that declares it, or a policy on a walking input set); the keys command
+    themselves."""
+    if task != WALK:
+        return
+    if controller in INTERACTIVE:
+        raise UserError(f"--task {WALK} draws the scripted operator's walking schedules: the keys command themselves")
+    if controller in TEACHERS:
+        walks = TEACHERS[controller].walks
+    elif controller in registered():
+        walks = False
+    else:
+        from students.learned import input_set_of  # noqa: PLC0415 - reads the checkpoint (torch), for a policy only
+
+        walks = bool((input_set := input_set_of(Path(controller))) and input_set.walks)
+    if not walks:
+        walkers = ", ".join(name for name, teacher in TEACHERS.items() if teacher.walks)
+        raise UserError(
+            f"--task {WALK}: {controller} does not walk, so nobody would follow the walks recorded; give a controller "
+            f"that walks ({walkers}, or a policy on a walking input set)"
+        )
+
+
 def effective(cfg: RecordConfig) -> RecordConfig:
-    """`cfg` as it records: with the keys (`--controller keyboard`) the command is theirs and no episode is delayed,
-    and `--policy newest` is the newest of the chain's policies (`common.paths.LEARNED`)."""
+    """`cfg` as it records: with the keys (`--controller keyboard`) the command is theirs (no scripted task) and no
+    episode is delayed, and `--policy newest` is the newest of the chain's policies (`common.paths.LEARNED`)."""
     if cfg.controller not in INTERACTIVE:
         return cfg
     policy = None if cfg.policy is None else chosen_policy(cfg.policy, paths.LEARNED, "make train-bc")
-    return dataclasses.replace(cfg, schedules=False, latency=0.0, policy=policy)
+    task = cfg.task if cfg.task == WALK else STAND  # a walk is refused in one line by `validate`
+    return dataclasses.replace(cfg, task=task, latency=0.0, policy=policy)
 
 
 def check_played(cfg: RecordConfig) -> None:
@@ -278,7 +302,7 @@ def check_played(cfg: RecordConfig) -> None:
         check_controller(cfg.policy, interactive=False)
     except ValueError as error:
         raise UserError(str(error)) from None
-    if cfg.policy in CONTROLLERS:  # a registered controller: the experts follow the keys (`expert-stepping` steps)
+    if cfg.policy in registered():  # a registered controller: the teachers follow the keys (`expert-stepping` steps)
         env = make_env()
         try:
             commanded = make_controller(cfg.policy, env)
@@ -287,7 +311,7 @@ def check_played(cfg: RecordConfig) -> None:
         if not commanded.takes_command:
             raise UserError(f"{cfg.policy} takes no command: the keys would change nothing")
     else:
-        from humanoid.learned import input_set_of  # noqa: PLC0415 - reads the checkpoint (torch)
+        from students.learned import input_set_of  # noqa: PLC0415 - reads the checkpoint (torch)
 
         commanded = input_set_of(Path(cfg.policy))
         if commanded is None or not commanded.takes_command:
@@ -348,15 +372,19 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
     return {"randomization": ranges} if ranges else {}
 
 
+def condition(cfg: RecordConfig) -> Condition:
+    """What each episode's environment changes (`humanoid.conditions.recording_condition`)."""
+    return recording_condition(parse_randomization(cfg.randomize), cfg.latency, cfg.kick)
+
+
 def _record(
     cfg: RecordConfig,
     rollouts: ParallelRollouts | RayRollouts | None,
     summary: RecordSummary,
     made_by: str | None,
 ) -> RecordSummary:
-    randomization = parse_randomization(cfg.randomize)
-    env = recording_env(make_env(cfg.max_steps), randomization, cfg.latency, cfg.kick)
-    parameters = recorded_parameters(randomization, cfg.latency)
+    env = condition(cfg).wrap(make_env(cfg.max_steps))
+    parameters = recorded_parameters(condition(cfg))
     # Before the dataset opens: a port in use or a bad host is refused with nothing written.
     live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
@@ -413,16 +441,11 @@ def _record(
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps)
             for seed in seeds:
-                episode = run_episode(
-                    env,
-                    controller,
-                    seed,
-                    cfg.noise,
-                    buffer,
-                    observer=live,
-                    schedules=cfg.schedules,
-                    walking=cfg.walking,
-                )
+                try:
+                    episode = run_episode(env, controller, seed, cfg.noise, buffer, observer=live, task=cfg.task)
+                except ControllerFailure as failure:
+                    skipped(EpisodeFailure(seed, str(failure)))
+                    continue
                 report(sink.submit(episode))
         else:
             _record_in_parallel(rollouts, seeds, sink, report)
@@ -441,16 +464,7 @@ def _record(
 def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
-    settings = RolloutSettings(
-        cfg.controller,
-        cfg.noise,
-        cfg.max_steps,
-        parse_randomization(cfg.randomize),
-        cfg.latency,
-        cfg.schedules,
-        cfg.kick,
-        cfg.walking,
-    )
+    settings = RolloutSettings(built(cfg.controller), cfg.noise, cfg.max_steps, condition(cfg), cfg.task)
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":
         from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend
@@ -468,12 +482,21 @@ def _record_in_parallel(
     interrupted = True
     try:
         for spooled in rollouts.in_seed_order(seeds, meanwhile=store.prepare):
+            if isinstance(spooled, EpisodeFailure):
+                skipped(spooled)
+                continue
             report([store.append(store.spool.load(spooled), spooled=spooled)])
         interrupted = False
     finally:
         rollouts.close(interrupted)
         # After Ctrl-C or a worker's error: the episodes finished beyond the first unfinished one.
         report(store.commit_spool())
+
+
+def skipped(failure: EpisodeFailure) -> None:
+    """Say in one line that `failure`'s episode is not recorded; the recording goes on (the episodes before and after
+    it are kept)."""
+    tqdm.write(f"warning: episode {failure.seed} not recorded: {failure.message}", file=sys.stderr)
 
 
 def _main_and_print(cfg: RecordConfig) -> None:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from humanoid.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
+from rollout.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
 
 SPOOL_DIR = ".spool"
 DAGGER_SPOOL = ".dagger-spool"

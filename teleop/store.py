@@ -30,7 +30,6 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
     ENV_ID,
@@ -42,8 +41,9 @@ from humanoid.env import (
     model_and_data,
     step_duration_ns,
 )
-from humanoid.episode import Episode
 from humanoid.sensors import ObservationSplit, privileged_names, proprioception_names
+from rollout.episode import Episode
+from task.command_fields import COMMAND_NAMES
 from teleop.lerobot_io.format import check_destination
 from teleop.lerobot_io.writer import LeRobotWriter
 from teleop.mcap_io.writer import scene_update, write_episode_mcap

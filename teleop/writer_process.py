@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from common.workers import Channel, Worker
 
 if TYPE_CHECKING:
-    from humanoid.episode import Episode
+    from rollout.episode import Episode
     from teleop.store import CommittedEpisode
 
 WRITER_MODULES = ("humanoid.env", "teleop.store")  # what `_serve` imports

@@ -26,10 +26,13 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from common import columns
 from common.cli import flag
 from common.columns import PUSH_NAMES
-from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
+from task.command_fields import COMMAND_NAMES
+from teachers.base import Teacher
+from teachers.expert import LQRExpert
+from teachers.registry import TEACHERS
 from teleop.dataset_reader import STEP_FIELDS, read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC, METADATA_NAME, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC
 from teleop.record import STANDING, RecordConfig, main
@@ -358,3 +361,41 @@ class RayCluster:
     def shutdown(self) -> None:
         self.process.stdin.close()
         self.process.wait(timeout=60)
+
+
+class StandingWalker(LQRExpert):
+    """A toy teacher: the LQR expert, declared to walk. It stands through a walk, so walking schedules record cheaply
+    (a registered walker plans 55 ms an action). A class of its own module, so that worker processes, which are sent
+    the class (`rollout.controllers.built`), import it."""
+
+    name = "toy-walker"
+    walks = True
+
+
+@contextlib.contextmanager
+def registered(teacher: type[Teacher]) -> Iterator[type[Teacher]]:
+    """`teacher` registered (`teachers.registry.register`) for the block, as one line of the registry would."""
+    assert teacher.name not in TEACHERS
+    TEACHERS[teacher.name] = teacher
+    try:
+        yield teacher
+    finally:
+        del TEACHERS[teacher.name]
+
+
+class FailingTeacher(LQRExpert):
+    """A toy teacher that fails: on the episode of seed `FAILING_SEED` its action raises at step `FAILING_STEP`."""
+
+    name = "toy-failing"
+    FAILING_SEED = 1
+    FAILING_STEP = 5
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self.failing, self.steps = seed == self.FAILING_SEED, 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        self.steps += 1
+        if self.failing and self.steps > self.FAILING_STEP:
+            raise RuntimeError("no balanced pose: the iteration is not making good progress")
+        return super().act(obs)

@@ -10,9 +10,27 @@ import subprocess
 import sys
 from pathlib import Path
 
+from common.digest import imported_names
+
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("common", "policies", "humanoid", "teleop", "evaluation", "bc", "rl", "pipeline", "bench", "tests")
-"""Bottom to top: a package may import only those before it (and itself)."""
+PACKAGES = (
+    "common",
+    "policies",
+    "humanoid",
+    "task",
+    "teachers",
+    "students",
+    "rollout",
+    "teleop",
+    "evaluation",
+    "bc",
+    "rl",
+    "pipeline",
+    "bench",
+    "tests",
+)
+"""Bottom to top: a package may import only those before it (and itself): the body, the task, the teachers, the
+students' inputs, the rollout that runs any of them, then the stages."""
 
 
 def module_name(path: Path) -> str:
@@ -26,14 +44,7 @@ def project_modules() -> dict[str, Path]:
 
 def imported(path: Path, modules: dict[str, Path]) -> set[str]:
     """The project modules `path` imports anywhere in its body (module level, functions, TYPE_CHECKING)."""
-    names: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            names |= {alias.name for alias in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            # `from pkg import mod` imports the module pkg.mod; `from mod import name` imports mod
-            names |= {f"{node.module}.{alias.name}" for alias in node.names} | {node.module}
-    return {name for name in names if name in modules}
+    return {name for name in imported_names(path) if name in modules}
 
 
 def import_graph() -> dict[str, set[str]]:
@@ -83,6 +94,15 @@ def test_packages_import_only_those_below() -> None:
     assert wrong == []
 
 
+def test_the_students_inputs_import_no_teacher() -> None:
+    """What a student computes (its inputs, the hand-over flag among them) lives below the teachers: a student reads
+    the rule its teacher runs (`task.handover`), never a teacher's internals."""
+    graph = import_graph()
+    assert {t for name, targets in graph.items() if name.startswith("students") for t in targets} & {
+        name for name in graph if name.startswith("teachers")
+    } == set()
+
+
 def test_common_imports_nothing_of_ours() -> None:
     graph = import_graph()
     assert {
@@ -118,7 +138,7 @@ def test_recorder_and_writer_start_without_torch() -> None:
     """Checking a recording, building the random controller and the writer process's modules leave torch unimported."""
     code = (
         "import sys; from teleop.record import validate, RecordConfig; import teleop.writer_process; "
-        "from humanoid.controllers import make_controller; from humanoid.env import make_env; "
+        "from rollout.controllers import make_controller; from humanoid.env import make_env; "
         "validate(RecordConfig()); make_controller('random', make_env()); print('torch' in sys.modules)"
     )
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)

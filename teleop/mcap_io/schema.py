@@ -18,8 +18,8 @@ import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 
 from common.columns import PUSH_NAMES
-from humanoid.command_fields import COMMAND_FIELDS
-from humanoid.commands import PLOTTED
+from task.command_fields import COMMAND_FIELDS
+from task.tracking import PLOTTED
 
 PACKAGE = "humanoid_bc"
 STEP_TYPE = f"{PACKAGE}.Step"

@@ -34,9 +34,9 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
-from humanoid.commands import Tracking
 from humanoid.env import nominal_model
-from humanoid.episode import Episode
+from rollout.episode import Episode
+from task.tracking import Tracking
 from teleop.mcap_io.bulk import BulkMcapWriter
 from teleop.mcap_io.schema import Command, Step, command_values
 from teleop.mcap_io.wire import CommandEncoder, FrameTransformsEncoder, StepEncoder

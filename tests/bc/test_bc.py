@@ -28,21 +28,22 @@ from bc.train import (
     lr_factor,
     main,
     planned_epochs,
+    teacher_of,
 )
 from common import columns
 from common.cli import UserError, config_dict
 from evaluation.evaluate import evaluate
-from humanoid.controllers import make_controller
 from humanoid.env import observation_names
-from humanoid.inputs import FullInputs
-from humanoid.learned import PolicyController
 from policies import checkpoint
 from policies import folder as policy_files
 from policies.folder import CONFIG_TAG, TENSORBOARD_DIR
 from policies.mlp import STD_FLOOR
-from support import join_observation, one_core, snapshot, tensorboard_text
+from rollout.controllers import make_controller
+from students.inputs import FullInputs
+from students.learned import PolicyController
+from support import join_observation, one_core, record_short, snapshot, tensorboard_text
 from teleop.dataset_reader import fingerprint, read_frames
-from teleop.record import STANDING, STANDING_NOISE, RecordConfig, validate
+from teleop.record import STANDING, STANDING_NOISE, TEACHER, RecordConfig, validate
 from teleop.record import main as record
 
 TINY = {
@@ -510,3 +511,30 @@ def test_episodes_join_the_demonstrations_after_the_last_one_only() -> None:
         small_demos().with_episodes([(three, three, 2)])
     with pytest.raises(ValueError, match="episode 4 does not come after episode 4"):
         small_demos().with_episodes([(three, three, 4), (one, one, 4)])
+
+
+def test_a_dataset_several_teachers_labelled_names_them_and_the_one_compared_with(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The student is compared with its teacher; where several labelled the dataset, one line names each (with its
+    frames) and the one compared with, the one that labelled the most; where no registered teacher did, the default
+    teacher, said the same way. One teacher: no line."""
+    mixed = tmp_path / "mixed"
+    record_short(mixed, controller="expert", episodes=2, max_steps=20)
+    record_short(mixed, controller="expert-sensed", episodes=1, max_steps=20)
+    capsys.readouterr()
+    assert teacher_of(mixed) == "expert"
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == (
+        f"note: {mixed} was labelled by expert (40 frames), expert-sensed (20 frames): the student is compared with "
+        "expert"
+    )
+    randomly = tmp_path / "random"
+    record_short(randomly, controller="random", episodes=1, max_steps=20)
+    capsys.readouterr()
+    assert teacher_of(randomly) == TEACHER
+    assert capsys.readouterr().err.splitlines()[0].endswith(f"the student is compared with {TEACHER}")
+    single = tmp_path / "single"
+    record_short(single, controller="expert-sensed", episodes=1, max_steps=20)
+    capsys.readouterr()
+    assert teacher_of(single) == "expert-sensed" and capsys.readouterr().err == ""

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import matplotlib.image
@@ -19,18 +20,19 @@ from common import columns
 from evaluation import evaluate as evaluate_stage
 from evaluation import robustness
 from evaluation.evaluate import plot_tracking, tracking
-from humanoid.command_fields import POSTURE_NAMES, task_fields
-from humanoid.commands import COMMAND_INFO, Tracking, command_schedule
 from humanoid.env import humanoid_model, make_env
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert
-from humanoid.inputs import INPUT_SETS, WALKING_INPUTS
-from humanoid.learned import PolicyController, input_set_of
 from policies import checkpoint
 from policies.mlp import MLPPolicy, MLPSpec
 from rl import finetune
 from rl.learner import training_env
-from support import SHORT_EPISODE, TINY_PPO, record_short, snapshot
+from rollout.episode import run_episode
+from students.inputs import INPUT_SETS, WALKING_INPUTS
+from students.learned import PolicyController, input_set_of
+from support import SHORT_EPISODE, TINY_PPO, StandingWalker, record_short, registered, snapshot
+from task.command_fields import POSTURE_NAMES, task_fields
+from task.schedules import command_schedule
+from task.tracking import COMMAND_INFO, Tracking
+from teachers.expert import LQRExpert
 from teleop import record as record_stage
 from teleop.dataset_reader import read_frames
 
@@ -56,7 +58,7 @@ def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 short episodes of the scripted operator, each under a step of action latency: commands that change."""
     root = tmp_path_factory.mktemp("operated") / "dataset"
     record_short(
-        root, controller="expert", schedules=True, episodes=2, max_steps=OPERATOR_STEPS, latency=1.0, noise=0.02
+        root, controller="expert", task="posture", episodes=2, max_steps=OPERATOR_STEPS, latency=1.0, noise=0.02
     )
     return root
 
@@ -90,27 +92,28 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     args = [*TINY, "--dataset", str(delayed), "--policy", str(tmp_path / "policy"), "--inputs", inputs]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
-    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "SCHEDULES=1" in err[0]
+    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "TASK=posture" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 
 @pytest.fixture(scope="module")
-def walked(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """2 short episodes of walking schedules whose first command (at 3 s) is a walk, under a step of latency. The LQR
-    expert stands through them (it does not walk): cheap demonstrations whose commands hold velocities."""
+def walked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """2 short episodes of walking schedules whose first command (at 3 s) is a walk, under a step of latency. A toy
+    walker (`support.StandingWalker`, registered while the module's tests run) stands through them: cheap
+    demonstrations whose commands hold velocities."""
     root = tmp_path_factory.mktemp("walked") / "dataset"
-    record_short(
-        root,
-        controller="expert",
-        schedules=True,
-        walking=True,
-        seed=WALK_SEED,
-        episodes=2,
-        max_steps=OPERATOR_STEPS,
-        latency=1.0,
-        noise=0.02,
-    )
-    return root
+    with registered(StandingWalker):
+        record_short(
+            root,
+            controller=StandingWalker.name,
+            task="walk",
+            seed=WALK_SEED,
+            episodes=2,
+            max_steps=OPERATOR_STEPS,
+            latency=1.0,
+            noise=0.02,
+        )
+        yield root
 
 
 @pytest.mark.parametrize("dataset", ["operated", "old"])
@@ -125,7 +128,7 @@ def test_walking_inputs_on_a_dataset_without_walks_are_refused_naming_what_to_re
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1, err
     assert f"--inputs {WALKING_INPUTS} learns to walk on velocity commands" in err[0]
-    assert "make record CONTROLLER=expert-sensed-stepping WALKING=1" in err[0]
+    assert "make record CONTROLLER=expert-sensed-stepping TASK=walk" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(root) == before
 
 
@@ -142,8 +145,8 @@ def test_walking_inputs_train_on_walks_into_a_policy_that_walks_under_walking_sc
     train_stage.main(dataclasses.replace(config, progress=False))
     assert input_set_of(folder).walks and not input_set_of(full_checkpoint(tmp_path / "full")).walks
     evaluation = json.loads((folder / "eval.json").read_text())
-    assert evaluation["walking"] is True
-    assert set(evaluation["tracking"]["settled_error"]) == {field.name for field in task_fields(walking=True)}
+    assert evaluation["task"] == "walk"
+    assert set(evaluation["tracking"]["settled_error"]) == {field.name for field in task_fields("walk")}
 
 
 def test_pending_command_inputs_without_latency_are_refused_for_the_latency(
@@ -169,7 +172,7 @@ def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_tak
     try:
         controller = PolicyController.load(folder, env)
         assert controller.takes_command
-        episode = run_episode(env, controller, 0, schedules=True)
+        episode = run_episode(env, controller, 0, task="posture")
     finally:
         env.close()
     assert episode.length >= 1 and np.isfinite(episode.action).all()
@@ -245,8 +248,9 @@ def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_pat
     ("args", "message"),
     [
         (["--plot", "TMP/x.txt"], "--plot must be a .png path, got TMP/x.txt"),
-        (["--seed", "-1", "--schedules", "true"], "--seed must be >= 0, got -1"),  # a schedule's seed, too
-        (["--walking", "true", "--schedules", "false"], "--walking draws walking schedules: leave --schedules on"),
+        (["--seed", "-1", "--task", "posture"], "--seed must be >= 0, got -1"),  # a schedule's seed, too
+        (["--walking", "true"], "--walking was removed; give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)"),
+        (["--schedules", "0"], "--schedules was removed; give --task (TASK=stand|posture|walk; SCHEDULES=0 is"),
     ],
 )
 def test_bad_tracking_settings_of_eval_are_refused(
@@ -263,8 +267,8 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
     on every field, and `plot_tracking` writes a PNG with a panel per field."""
     env = make_env(OPERATOR_STEPS)
     try:
-        episode = run_episode(env, LQRExpert(), OPERATOR_SEED, schedules=True)
-        measure = Tracking(env.unwrapped.model, task_fields(walking=False))
+        episode = run_episode(env, LQRExpert(), OPERATOR_SEED, task="posture")
+        measure = Tracking(env.unwrapped.model, task_fields("posture"))
         result = tracking([episode], measure, env.unwrapped.dt)
         plot_tracking(episode, measure, env.unwrapped.dt, tmp_path / "tracking.png")
     finally:
@@ -284,7 +288,7 @@ def test_tracking_of_the_expert_on_a_short_schedule_and_its_plot(tmp_path: Path)
 def test_eval_plots_the_first_episode_without_schedules(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """--plot alone: the PNG of the (zero) command and what was achieved; no tracking in the JSON."""
     path = tmp_path / "plots" / "random.png"
-    args = ["--policy", "random", "--episodes", "1", "--plot", str(path), "--progress", "false", "--schedules", "0"]
+    args = ["--policy", "random", "--episodes", "1", "--plot", str(path), "--progress", "false", "--task", "stand"]
     code, out, _ = stage_cli(evaluate_stage, args, capsys)
     result = json.loads(out[-1])
     assert code == 0 and result["tracking"] is None and result["takes_command"] is False
@@ -293,7 +297,7 @@ def test_eval_plots_the_first_episode_without_schedules(tmp_path: Path, capsys: 
 
 def test_a_policy_that_falls_at_once_has_no_settled_error_and_no_warning(recwarn: pytest.WarningsRecorder) -> None:
     """Random actions fall before any command is held long enough: NaN per field, quietly."""
-    result = evaluate_stage.evaluate("random", episodes=2, schedules=True)
+    result = evaluate_stage.evaluate("random", episodes=2, task="posture")
     assert all(np.isnan(error) for error in result["tracking"]["settled_error"].values())
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
 
@@ -302,7 +306,7 @@ def test_eval_under_schedules_reports_tracking_and_plots_it(tmp_path: Path, caps
     """`make eval POLICY=expert SCHEDULES=1 PLOT=...` for one whole episode: the expert survives it and tracks every
     field within the tolerance; the PNG is written."""
     path = tmp_path / "tracking.png"
-    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--schedules", "true", "--plot", str(path)]
+    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--task", "posture", "--plot", str(path)]
     code, out, _ = stage_cli(evaluate_stage, [*args, "--progress", "false"], capsys)
     result = json.loads(out[-1])
     assert code == 0 and result["survival_rate"] == 1.0 and result["takes_command"] is True
@@ -317,7 +321,7 @@ def test_eval_under_schedules_reports_tracking_and_plots_it(tmp_path: Path, caps
 def test_robustness_under_schedules_adds_tracking_to_the_rows(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--conditions", "clean", "--schedules", "true"]
+    args = ["--policy", "expert", "--episodes", "1", "--seed", "1000", "--conditions", "clean", "--task", "posture"]
     args += ["--workers", "1", "--output", str(tmp_path), "--progress", "0"]
     code, out, _ = stage_cli(robustness, args, capsys)
     summary = json.loads(out[-1])
@@ -370,7 +374,7 @@ def test_ppo_from_a_walking_student_trains_and_is_judged_on_walking_schedules(wa
     its validation and final evaluation run held-out walking schedules and score every field."""
     env = training_env(None, inputs=WALKING_INPUTS, tracking=1.0)
     env.reset(seed=5)
-    assert env.get_wrapper_attr("walking") and env.get_wrapper_attr("commands")[:, 5:].any()
+    assert env.get_wrapper_attr("task") == "walk" and env.get_wrapper_attr("commands")[:, 5:].any()
     student = tmp_path / "student"
     train_stage.main(
         train_stage.TrainConfig(
@@ -380,5 +384,5 @@ def test_ppo_from_a_walking_student_trains_and_is_judged_on_walking_schedules(wa
     config = finetune.FinetuneConfig(bc_policy=student, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO)
     result = finetune.main(config)
     assert all(0.0 <= p["tracking_score"] <= 1.0 for p in result["training_curve"])
-    assert result["walking"] is True
-    assert set(result["tracking"]["settled_error"]) == {field.name for field in task_fields(walking=True)}
+    assert result["task"] == "walk"
+    assert set(result["tracking"]["settled_error"]) == {field.name for field in task_fields("walk")}

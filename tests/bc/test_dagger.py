@@ -32,14 +32,15 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from common import columns
 from common.cli import DatasetError, config_dict
-from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_env
+from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_condition
 from humanoid.env import make_env
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.inputs import INPUT_SETS, INPUTS
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
+from rollout.episode import run_episode
+from students.inputs import INPUT_SETS, INPUTS
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
+from teachers.expert import LQRExpert, SensedExpert
+from teachers.registry import TEACHERS
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
 from teleop.parallel import RolloutSettings, Simulator
@@ -262,9 +263,10 @@ def one_round(
     4 on) under `latency`, labelled by `expert`, appended to `root`; the seeds `waiting` rolled out beforehand and
     left in the spool, as a killed run leaves episodes it finished beyond one it had not."""
     shutil.copytree(delayed, root)
-    env = recording_env(make_env(STEPS), Randomization(), latency)
+    condition = recording_condition(Randomization(), latency)
+    env = condition.wrap(make_env(STEPS))
     training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
-    rollouts = RolloutSettings("dagger", 0.0, STEPS, Randomization(), latency, labeller=expert)
+    rollouts = RolloutSettings("dagger", 0.0, STEPS, condition, labeller=TEACHERS[expert])
     demos = load_demonstrations(root, env, cache=False, inputs=inputs)
     trainer = DAggerTrainer(demos, training, rollouts, env.action_space)
     store = EpisodeStore(root, DatasetSpec.from_env(env, (LATENCY_PARAMETER,)))

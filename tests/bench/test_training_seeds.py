@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from bench.training_seeds import ROLES, seed_config, spread_table
-from humanoid.command_fields import COMMAND_NAMES
 from humanoid.conditions import SUITE
 from pipeline.run import PipelineConfig, stages
+from task.command_fields import COMMAND_NAMES
 
 
 def test_seed_zero_is_the_pipelines_run_and_other_seeds_train_apart() -> None:

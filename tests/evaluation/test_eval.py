@@ -94,7 +94,7 @@ def test_a_suite_condition_is_applied_by_name(capsys: pytest.CaptureFixture[str]
     clean = evaluate("expert", episodes=1, seed=1000)
     pushed = evaluate("expert", episodes=1, seed=1000, condition="push20")
     assert clean["survival_rate"] == 1.0 and pushed["survival_rate"] == 0.0
-    code, out, _ = eval_cli(["--policy", "expert", "--episodes", "1", "--condition", "push20", "--schedules=0"], capsys)
+    code, out, _ = eval_cli(["--policy", "expert", "--episodes", "1", "--condition", "push20", "--task=stand"], capsys)
     assert code == 0 and json.loads(out[-1])["returns"] == pushed["returns"]
 
 

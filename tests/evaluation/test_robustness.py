@@ -27,7 +27,7 @@ def test_suite_prints_a_table_then_one_json_line_and_writes_the_files(
 ) -> None:
     code = cli(
         ["--policy", "expert", "--episodes", "2", "--seed", "1000", "--output", str(tmp_path), "--progress", "0"]
-        + ["--schedules", "false"]
+        + ["--task", "stand"]
     )
     lines = capsys.readouterr().out.strip().splitlines()
     assert code == 0

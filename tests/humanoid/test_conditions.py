@@ -8,11 +8,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from bc import dagger
+from evaluation.evaluate import evaluated_condition
 from humanoid.conditions import (
     LATENCY_PARAMETER,
     OBS_NOISE_STD,
     SUITE,
     ActionLatency,
+    Condition,
     DomainRandomization,
     ObservationNoise,
     Randomization,
@@ -21,6 +24,8 @@ from humanoid.conditions import (
     parse_randomization,
 )
 from humanoid.env import QPOS_OBS, QVEL_OBS, make_env, model_and_data
+from rl.learner import training_condition
+from teleop import record
 
 MODEL_FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "geom_friction", "actuator_gear", "dof_damping")
 
@@ -203,3 +208,59 @@ def test_bad_randomize_text_is_one_line_naming_the_flag(text: str, problem: str)
         parse_randomization(text)
     message = str(error.value)
     assert message.startswith(f"--randomize {text!r}: ") and problem in message and "\n" not in message
+
+
+def stack(env: gym.Env) -> list[tuple[str, tuple]]:
+    """The wrappers around `make_env`'s Humanoid-v5 (gymnasium's own left out), outermost first, each with what it
+    changes."""
+    layers = []
+    while isinstance(env, gym.Wrapper) and not isinstance(env, gym.wrappers.TimeLimit):
+        settings = {
+            "DomainRandomization": lambda w: (tuple(w.randomization.ranges.items()), w.width),
+            "TorsoPushes": lambda w: (w.force,),
+            "VelocityKick": lambda w: (w.speed, w.window),
+            "ActionLatency": lambda w: (w.steps, w.latency_share),
+            "ObservationNoise": lambda w: (tuple(w.std), w.noise_share),
+        }.get(type(env).__name__, lambda w: ())
+        layers.append((type(env).__name__, settings(env)))
+        env = env.env
+    return layers
+
+
+def stacks(conditions: dict[str, Condition]) -> dict[str, list[tuple[str, tuple]]]:
+    built = {}
+    for stage, changed in conditions.items():
+        env = changed.wrap(make_env())
+        built[stage] = stack(env)
+        env.close()
+    return built
+
+
+def test_one_condition_builds_one_stack_in_every_stage() -> None:
+    """Recording, DAgger's rollouts, evaluation, the robustness suite and PPO's training build a condition's
+    environment with the one builder (`Condition.wrap`), in one order: a kick alone, and a kick on a drawn body whose
+    every episode is delayed, give the same wrappers in each stage that can express them."""
+    kicked = stacks(
+        {
+            "record": record.condition(record.RecordConfig(kick=0.4, latency=0.0)),
+            "dagger": dagger.condition(dagger.DaggerConfig(kick=0.4, latency=0.0, randomize="none")),
+            "eval": evaluated_condition("clean", kick=0.4),
+            "robustness": evaluated_condition("kick0.4"),
+            "ppo": training_condition(None, kick=0.4),
+        }
+    )
+    assert kicked["record"] == [("VelocityKick", (0.4, (4.0, 8.0)))]
+    assert all(layers == kicked["record"] for layers in kicked.values()), kicked
+
+    drawn = Randomization(mass=(0.8, 1.2))
+    combined = stacks(
+        {
+            "record": record.condition(record.RecordConfig(kick=0.4, latency=1.0, randomize="mass=0.8:1.2")),
+            "dagger": dagger.condition(dagger.DaggerConfig(kick=0.4, latency=1.0, randomize="mass=0.8:1.2")),
+            "ppo": training_condition(None, drawn, latency=1.0, kick=0.4),
+        }
+    )
+    names = [name for name, _ in combined["record"]]
+    assert names == ["ActionLatency", "VelocityKick", "DomainRandomization"]
+    assert all(layers == combined["record"] for layers in combined.values()), combined
+    assert stacks({"suite": SUITE["latency"]})["suite"] == [("ActionLatency", (1, 1.0))]

@@ -8,20 +8,20 @@ import numpy as np
 import pytest
 
 from humanoid import estimator
-from humanoid.commands import command_vector
 from humanoid.conditions import ActionLatency
-from humanoid.controllers import make_controller
 from humanoid.env import humanoid_model, make_env
-from humanoid.episode import injected_noise, run_episode
 from humanoid.estimator import (
     GRAVITY,
     LegOdometry,
     level_quaternion,
     odometry_names,
 )
-from humanoid.expert import LQRExpert, SensedExpert
-from humanoid.posture import Posture, axis_quaternion, multiply_quaternions
 from humanoid.sensors import Proprioception, body_axes, gravity_direction
+from rollout.controllers import make_controller
+from rollout.episode import injected_noise, run_episode
+from task.posture import Posture, axis_quaternion, multiply_quaternions
+from task.schedules import command_vector
+from teachers.expert import LQRExpert, SensedExpert
 
 
 @pytest.fixture(autouse=True)

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from humanoid.env import make_env, model_and_data, observation_names
-from humanoid.expert import LQRExpert
 from humanoid.sensors import (
     ObservationSplit,
     Proprioception,
@@ -15,6 +14,7 @@ from humanoid.sensors import (
     privileged_names,
     proprioception_names,
 )
+from teachers.expert import LQRExpert
 
 
 def contact_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.ndarray:

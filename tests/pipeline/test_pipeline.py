@@ -25,10 +25,7 @@ from bc.dagger import SOURCE_FILE, DaggerConfig
 from bc.train import TrainConfig
 from common import paths
 from common.cli import UserError, parse_config
-from humanoid.command_fields import POSTURE_NAMES
-from humanoid.commands import ERROR_KINDS
 from humanoid.conditions import SUITE
-from humanoid.inputs import BLIND_INPUTS, STUDENT_INPUTS
 from pipeline import report
 from pipeline import run as pipeline
 from pipeline.run import (
@@ -51,7 +48,10 @@ from policies import checkpoint
 from policies.folder import CONFIG_FILE, EVAL_FILE
 from rl.finetune import FinetuneConfig
 from rl.scratch import ScratchConfig
+from students.inputs import BLIND_INPUTS, STUDENT_INPUTS
 from support import snapshot
+from task.command_fields import POSTURE_NAMES
+from task.tracking import ERROR_KINDS
 from teleop import recordings
 from teleop.dataset_reader import fingerprint
 from teleop.record import DART_NOISE, LATENCY_SHARE, RecordConfig, record
@@ -91,7 +91,7 @@ def tiny_stages(
         "controller": "expert-sensed",
         "noise": DART_NOISE,
         "latency": LATENCY_SHARE,
-        "schedules": True,
+        "task": "posture",
         "writer": "inline",
         "progress": False,
         **(record or {}),
@@ -222,7 +222,7 @@ def test_the_pipeline_records_the_operator_and_its_students_read_the_command_or_
     read the DAgger student's inputs."""
     folder = first_run[0]
     (run,) = recordings.read(folder / "data")
-    assert run["config"]["schedules"] and run["config"]["controller"] == "expert-sensed"
+    assert run["config"]["task"] == "posture" and run["config"]["controller"] == "expert-sensed"
     assert checkpoint.load(folder / "bc").spec.inputs == STUDENT_INPUTS
     assert checkpoint.load(folder / "blind").spec.inputs == BLIND_INPUTS
     assert checkpoint.load(folder / "dagger").spec.inputs == STUDENT_INPUTS
@@ -535,7 +535,7 @@ def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
         (["--bc.dataset", "elsewhere"], "--bc.dataset elsewhere: the pipeline ties it to --record.dataset"),
         (["--ppo.bc-policy", "blind"], "--ppo.bc-policy blind: the pipeline ties it to --dagger.policy"),
         (["--ppo.scratch-policy", "x"], "--ppo.scratch-policy x: the pipeline ties it to --scratch-policy"),
-        (["--record.schedules", "false"], "--record.schedules false: the students learn to follow the operator's"),
+        (["--record.task", "stand"], "--record.task stand: the students learn to follow the operator's"),
         (["--record.controller", "keyboard"], "--record.controller keyboard: the students learn to follow"),
     ],
 )

@@ -20,8 +20,6 @@ import torch
 from common import paths
 from common.cli import config_dict
 from humanoid.env import make_env
-from humanoid.expert import LQRExpert
-from humanoid.learned import PolicyController
 from humanoid.perturbations import VelocityKick
 from policies import checkpoint
 from policies import folder as policy_files
@@ -42,7 +40,9 @@ from rl.guards import Guards
 from rl.learner import training_env
 from rl.validation import Validator, better, falls_back, holds_floor, selection_score
 from rl.vec_env import WorkerGroupVecEnv
+from students.learned import PolicyController
 from support import TINY_PPO, snapshot, tensorboard_text
+from teachers.expert import LQRExpert
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 

@@ -11,12 +11,12 @@ import pytest
 from stable_baselines3 import PPO
 
 from evaluation.evaluate import evaluate
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.learned import SB3Controller
 from policies import checkpoint
 from policies.folder import CONFIG_FILE, CONFIG_TAG, EVAL_FILE, SB3_FILE, TENSORBOARD_DIR
 from rl.tutorial import PreferredActionLearner, TutorialConfig, cli, main
+from rollout.controllers import make_controller
+from students.learned import SB3Controller
 from support import scalars, snapshot, tensorboard_text
 
 LOW, HIGH = -0.4 * np.ones(17), 0.4 * np.ones(17)

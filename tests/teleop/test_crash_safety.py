@@ -14,9 +14,9 @@ import pytest
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import run_episode
+from rollout.controllers import make_controller
+from rollout.episode import run_episode
 from support import assert_consistent, assert_no_leftovers, committed_episodes, start_recording, wait_for_episodes
 from teleop import recordings
 from teleop.dataset_reader import read_episodes

@@ -13,9 +13,9 @@ import numpy as np
 
 from bc.data import load_demonstrations
 from common import columns
-from humanoid.command_fields import COMMAND_NAMES, POSTURE_NAMES, VELOCITY_NAMES
 from humanoid.env import make_env
-from humanoid.inputs import STUDENT_INPUTS
+from students.inputs import STUDENT_INPUTS
+from task.command_fields import COMMAND_NAMES, POSTURE_NAMES, VELOCITY_NAMES
 from teleop.dataset_reader import command_columns, read_frames, read_info, read_transitions
 from teleop.merge import MergeConfig, main
 

@@ -17,8 +17,8 @@ import pytest
 from common import columns
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
-from humanoid.command_fields import COMMAND_NAMES, FIELDS
 from support import snapshot
+from task.command_fields import COMMAND_NAMES, FIELDS
 from teleop.dataset_reader import read_frames
 from teleop.export import ExportConfig, dataset_id, main
 

@@ -18,9 +18,9 @@ from matplotlib import image
 
 from common import columns
 from humanoid.env import make_env
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert
+from rollout.episode import run_episode
 from support import snapshot
+from teachers.expert import LQRExpert
 from teleop.dataset_reader import read_episodes, read_info
 from teleop.inspect_dataset import PLOT_NAME, cli
 from teleop.lerobot_io.format import INFO_PATH

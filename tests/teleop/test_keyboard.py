@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from common import columns
-from humanoid.commands import DEFAULT_TASK, task_for
-from humanoid.controllers import make_controller
 from humanoid.env import make_env, model_and_data
-from humanoid.expert import LQRExpert
-from humanoid.posture import Posture
+from rollout.controllers import make_controller
 from support import Terminal, join_observation, read_mcap_episode
+from task.posture import Posture
+from task.schedules import DEFAULT_TASK, task_for
+from teachers.expert import LQRExpert
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import KEY_MAP, KICK_SPEED, TeleopSession, key_help, parse_keys
 from teleop.record import cli

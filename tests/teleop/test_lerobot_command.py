@@ -21,8 +21,8 @@ from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.policies.factory import make_pre_post_processors
 
 from common import columns
-from humanoid.command_fields import COMMAND_NAMES
 from support import run_lerobot_train, snapshot
+from task.command_fields import COMMAND_NAMES
 from teleop.dataset_reader import read_episodes, read_frames, read_info
 from teleop.export import COMMAND_STATE_NAMES, ExportConfig, main
 

@@ -20,9 +20,9 @@ from websockets.sync.client import connect
 from common import columns
 from evaluation.evaluate import cli as evaluate_cli
 from humanoid.env import make_env
-from humanoid.episode import EpisodeBuffer
-from humanoid.expert import LQRExpert
+from rollout.episode import EpisodeBuffer
 from support import read_mcap_episode
+from teachers.expert import LQRExpert
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
 from teleop.mcap_io.schema import Step

@@ -11,9 +11,9 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from humanoid.env import body_names, body_poses, make_env, mjcf_path, model_and_data
 from support import McapEpisode, join_observation, read_mcap_episode
+from task.command_fields import COMMAND_FIELDS, COMMAND_NAMES
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.mcap_io.schema import Command
 from teleop.mcap_io.writer import COMMAND_TOPIC, FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from common import columns
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import run_episode
+from rollout.controllers import make_controller
+from rollout.episode import run_episode
 from support import (
     SHORT_EPISODE,
     assert_consistent,

@@ -19,14 +19,14 @@ import pytest
 from bc.train import TrainConfig, teacher_of
 from bc.train import main as train
 from common import columns
-from humanoid.commands import Tracking
 from humanoid.env import humanoid_model, make_env, model_and_data
-from humanoid.expert import LQRExpert
 from pipeline.targets import TARGETS
 from policies.folder import WEIGHTS_FILE
 from rl.finetune import FinetuneConfig
 from rl.finetune import main as finetune
 from support import Terminal, join_observation, one_core, snapshot
+from task.tracking import Tracking
+from teachers.expert import LQRExpert
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
 from teleop.store import DatasetSpec, EpisodeStore

@@ -11,9 +11,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from common import columns
 from humanoid.conditions import PRESETS, DomainRandomization
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import run_episode
+from rollout.controllers import make_controller
+from rollout.episode import run_episode
 from support import STANDING_FLAGS, mcap_parameters, read_mcap_episode, record_short, snapshot
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters

@@ -14,8 +14,16 @@ import teleop.record
 from common import columns
 from common.cli import config_dict, parse_config
 from humanoid.env import make_env
-from humanoid.episode import injected_noise, run_episode
-from support import SHORT_EPISODE, STANDING_FLAGS, assert_consistent, record_short, snapshot
+from rollout.episode import injected_noise, run_episode
+from support import (
+    SHORT_EPISODE,
+    STANDING_FLAGS,
+    FailingTeacher,
+    assert_consistent,
+    record_short,
+    registered,
+    snapshot,
+)
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
 from teleop.record import STANDING, RecordConfig, cli
@@ -109,8 +117,11 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--kick", "-0.4"], "--kick must be >= 0"),
         (["--kick", "nan"], "--kick must be >= 0"),
         (["--controller", "keyboard", "--kick", "0.4"], "kicks with its k key: --kick must be 0"),
-        (["--walking", "true", "--schedules", "false"], "--walking draws the scripted operator's walking schedules"),
-        (["--controller", "keyboard", "--walking", "true"], "--walking draws the scripted operator"),
+        (["--walking", "true"], "--walking was removed; give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)"),
+        (["--schedules", "false"], "--schedules was removed; give --task (TASK=stand|posture|walk; SCHEDULES=0 is"),
+        (["--task", "walk"], "--task walk: expert-sensed does not walk, so nobody would follow the walks recorded"),
+        (["--task", "walk", "--controller", "random"], "--task walk: random does not walk"),
+        (["--controller", "keyboard", "--task", "walk"], "--task walk draws the scripted operator's walking schedules"),
         (["--seed", "-1"], "--seed must be >= 0"),
         (["--seed", str(2**63 - 1), "--episodes", "2"], "below 2**63"),
     ],
@@ -275,9 +286,27 @@ def test_a_kicked_recording_holds_the_kicks_impulse_in_its_push_column(tmp_path:
     """`make record KICK=0.4`: each episode is kicked once at its seeded step, whose push column holds the force that
     gives the impulse over that step (seed 0 is kicked at step 277); every other row is zero."""
     root = tmp_path / "kicked"
-    record_short(root, controller="expert", episodes=1, max_steps=300, kick=0.4, schedules=False, latency=0.0)
+    record_short(root, controller="expert", episodes=1, max_steps=300, kick=0.4, task="stand", latency=0.0)
     push = read_frames(root)[columns.PUSH]
     model = make_env().unwrapped.model
     force = 0.4 * float(model.body_subtreemass[0]) / 0.015
     assert np.flatnonzero(np.linalg.norm(push, axis=1)).tolist() == [277]
     assert np.linalg.norm(push[277]) == pytest.approx(force, rel=1e-5)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_controller_that_fails_ends_its_episode_alone(
+    workers: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A controller that raises in one episode (`support.FailingTeacher`, on seed 1's): that episode is not recorded,
+    one line names its seed, step and command, and the episodes before and after are kept, in one process or over
+    workers."""
+    root = tmp_path / "failing"
+    with registered(FailingTeacher):
+        record_short(root, controller=FailingTeacher.name, task="posture", episodes=3, max_steps=30, workers=workers)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "not recorded" in line]
+    assert len(lines) == 1
+    assert lines[0].startswith("warning: episode 1 not recorded: controller 'toy-failing' failed at step 5 of the ")
+    assert "with seed 1, commanded 'stand still on both feet': RuntimeError: no balanced pose" in lines[0]
+    assert read_episodes(root, [columns.EPISODE_SEED]).to_pydict()[columns.EPISODE_SEED] == [0, 2]
+    assert_consistent(root, 2)

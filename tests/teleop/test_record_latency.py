@@ -10,9 +10,9 @@ import pytest
 from bc.data import load_demonstrations
 from common import columns
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import run_episode
+from rollout.controllers import make_controller
+from rollout.episode import run_episode
 from support import drawn_delay, mcap_parameters
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.inspect_dataset import InspectConfig
@@ -92,6 +92,6 @@ def test_a_latency_share_outside_0_1_is_refused_in_one_line(
 
 def test_the_keyboard_records_no_delayed_episode_and_no_schedule() -> None:
     """With the keys the command is theirs and no episode is delayed, whatever the recording's defaults say."""
-    keyed = effective(RecordConfig(controller="keyboard", latency=0.5, schedules=True))
-    assert (keyed.latency, keyed.schedules) == (0.0, False)
+    keyed = effective(RecordConfig(controller="keyboard", latency=0.5, task="posture"))
+    assert (keyed.latency, keyed.task) == (0.0, "stand")
     assert effective(RecordConfig(latency=0.5)) == RecordConfig(latency=0.5)

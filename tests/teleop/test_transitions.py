@@ -12,9 +12,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.controllers import make_controller
 from humanoid.env import make_env
-from humanoid.episode import run_episode
+from rollout.controllers import make_controller
+from rollout.episode import run_episode
 from support import SHORT_EPISODE, snapshot
 from teleop.dataset_reader import read_episodes, read_frames, read_mcap_final, read_transitions
 from teleop.record import RecordConfig, main

@@ -20,8 +20,8 @@ import pytest
 from PIL import Image, ImageGrab
 
 from common import columns
-from humanoid.command_fields import COMMAND_NAMES
 from support import join_observation
+from task.command_fields import COMMAND_NAMES
 from teleop.dataset_reader import read_frames
 
 pytestmark = [

@@ -8,10 +8,10 @@
               and that latency in steps (176 + 17 + 1): what a robot knows of itself and of its own actuation
               delay (docs/decisions/pending-inputs.md)
     full+command, pending+command  full or pending, then the operator's posture command (`observation.command`'s
-              5 posture fields: humanoid.command_fields.POSTURE_NAMES): a policy that follows posture commands;
+              5 posture fields: task.command_fields.POSTURE_NAMES): a policy that follows posture commands;
               standing still is the zero command
               (docs/concepts/commands.md); full+command learns from keyboard demonstrations, which delay no episode
-    pending+ramp  pending, then the command as the expert's setpoint moves toward it (`humanoid.posture.PosturePath`
+    pending+ramp  pending, then the command as the expert's setpoint moves toward it (`task.posture.PosturePath`
               run on the recorded command: 4 posture fields and the 6 arm angles on the way, 10): where along a
               move the teacher's labels are (docs/decisions/command-features.md)
     pending+walk  pending+ramp reading every command field: the velocities on their ramp too (3), whether the
@@ -20,7 +20,7 @@
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
-the same way: the live controller (`humanoid.learned.PolicyController`), the offline loader along each
+the same way: the live controller (`students.learned.PolicyController`), the offline loader along each
 recorded episode (`episode_inputs`, used by `bc.data`), and PPO's environments (`InputObservation`, whose
 appended entries PPO's actor reads). Per episode:
 
@@ -40,9 +40,7 @@ to `observe` live and decoded with the frame offline; a set without it ignores t
 
 from __future__ import annotations
 
-import hashlib
 from abc import ABC, abstractmethod
-from pathlib import Path
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -51,23 +49,25 @@ import numpy as np
 
 from common.cli import REMOVED_VALUES, Removed, UserError
 from common.columns import ACTION, OBS_COMMAND, OBS_ENV_STATE, OBS_STATE
-from humanoid import commands, estimator, posture, sensors
-from humanoid.command_fields import (
+from common.digest import source_digest
+from humanoid.conditions import LATENCY_PARAMETER, action_delay
+from humanoid.env import actuator_names, nominal_model, observation_names
+from humanoid.estimator import OdometryFeatures, odometry_names
+from humanoid.sensors import Proprioception, proprioception_names
+from task.command_fields import (
     ARM_JOINTS,
     COMMAND_SIZE,
-    POSTURE_FIELDS,
+    POSTURE_TASK,
+    STAND,
     VELOCITY_NAMES,
+    WALK,
     Readout,
     field_positions,
     task_fields,
 )
-from humanoid.commands import COMMAND_INFO
-from humanoid.conditions import LATENCY_PARAMETER, action_delay
-from humanoid.env import actuator_names, nominal_model, observation_names
-from humanoid.estimator import OdometryFeatures, odometry_names
-from humanoid.posture import Posture, PosturePath
-from humanoid.sensors import Proprioception, proprioception_names
-from humanoid.stepping import EstimatedTrigger
+from task.handover import STEPPING, HandOverFlag
+from task.posture import POSED, Posture, PosturePath
+from task.tracking import COMMAND_INFO
 
 
 class InputSet(ABC):
@@ -84,6 +84,8 @@ class InputSet(ABC):
     """Whether the inputs carry the action latency, which only delayed episodes teach."""
     walks: ClassVar[bool] = False
     """Whether the velocity command is among the inputs (a walking set): a policy that can be told to walk."""
+    task: ClassVar[str] = STAND
+    """The task (`task.command_fields.TASKS`) its policy is trained and evaluated on: what its command asks."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         """For `model`'s environment (its observation layout; a stateful set computes on this nominal body)."""
@@ -206,7 +208,7 @@ class PendingInputs(InputSet):
 def command_names(walking: bool) -> tuple[str, ...]:
     """The command fields a commanded set reads by name (`task_fields`): the posture's, and with `walking` the
     velocities too; so a dataset that records more (or, recorded before them, fewer) fields gives the same frames."""
-    return tuple(field.name for field in task_fields(walking))
+    return tuple(field.name for field in task_fields(WALK if walking else POSTURE_TASK))
 
 
 def commanded_set(base: type[InputSet], walking: bool = False) -> type[InputSet]:
@@ -221,6 +223,7 @@ def commanded_set(base: type[InputSet], walking: bool = False) -> type[InputSet]
         observed_columns = (*base.observed_columns, OBS_COMMAND)
         takes_command = True
         walks = walking
+        task = WALK if walking else POSTURE_TASK
         __doc__ = f"{base.__name__}'s inputs, then the operator's command."
 
         @staticmethod
@@ -244,7 +247,7 @@ def commanded_set(base: type[InputSet], walking: bool = False) -> type[InputSet]
     return CommandedInputs
 
 
-_RAMP_FIELDS = tuple(field.name for field in POSTURE_FIELDS if not field.presets)
+_RAMP_FIELDS = tuple(field.name for field in POSED)
 RAMP_NAMES = (*(f"ramp.{name}" for name in _RAMP_FIELDS), *(f"ramp.{joint}" for joint in ARM_JOINTS))
 """A ramped set's posture inputs: the posture fields but the arm preset, then the six arm angles (`ARM_JOINTS`)."""
 WALK_NAMES = (
@@ -254,7 +257,7 @@ WALK_NAMES = (
 )
 """A walking set's last inputs: the velocity fields on their ramp; whether the stepping teacher's planners have had
 the body since the episode began (1) or not (0): the ramp has left the zero walk, or, once armed, the capture point of
-the leg odometry's estimate has left the feet (`humanoid.stepping.EstimatedTrigger`); then the velocities as the leg
+the leg odometry's estimate has left the feet (their rule: `task.handover.STEPPING`); then the velocities as the leg
 odometry estimates them (`Readout` of the estimated state)."""
 
 
@@ -287,19 +290,17 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
 
         def __init__(self, model: mujoco.MjModel) -> None:
             super().__init__(model)
-            self.path = PosturePath(model)  # the design's env step, as the expert's
+            self.path = PosturePath(model)  # the env step, as the teacher's
             self.command = np.zeros(size, np.float32)
             self.readout = Readout(model) if walking else None
-            self.trigger = EstimatedTrigger() if walking else None
-            self.planning = False
-            self.steps = 0
+            self.planning = HandOverFlag(model, HANDOVER) if walking else None
 
         def reset(self) -> None:
             base.reset(self)
             self.path.reset()
             self.command[:] = 0.0
-            self.planning = False
-            self.steps = 0
+            if walking:
+                self.planning.reset()
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
             command = frame[-size:]
@@ -315,11 +316,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
             if walking:
                 speeds = [getattr(posture, name) for name in velocities]
                 qpos, qvel = self.odometry.estimate
-                self.steps += 1  # as the teacher's hand-over (`SteppingExpert.act`), to the episode's end:
-                self.planning = (
-                    self.planning or any(speeds) or (self.trigger.design.armed(self.steps) and self.trigger(qpos, qvel))
-                )
-                ramp += [*speeds, float(self.planning)]
+                ramp += [*speeds, float(self.planning(any(speeds), qpos, qvel))]  # as the teacher hands over
                 achieved = self.readout(qpos[2:], qvel)
                 ramp += [float(achieved[name][0]) for name in velocities]
             return np.concatenate([inputs, np.array(ramp, frame.dtype)])
@@ -327,6 +324,10 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
     RampedInputs.__name__ = RampedInputs.__qualname__ = f"{'Walking' if walking else 'Ramped'}{base.__name__}"
     return RampedInputs
 
+
+HANDOVER = STEPPING
+"""The hand-over rule the walking sets' `planning` computes: their teachers' (`teachers.registry` declares each
+teacher's; tests/teachers/test_registry.py holds every teacher a walking student learns from to it)."""
 
 INPUT_SETS: dict[str, type[InputSet]] = {
     input_set.name: input_set
@@ -370,10 +371,10 @@ def input_set_named(inputs: str) -> type[InputSet]:
 
 
 def computation_digest() -> str:
-    """A digest of the code that computes every input set from recorded frames, so that inputs an earlier
-    version computed and cached are not reused."""
-    source = b"".join(Path(module.__file__).read_bytes() for module in (commands, estimator, posture, sensors))
-    return hashlib.sha256(Path(__file__).read_bytes() + source).hexdigest()[:16]
+    """A digest of the code that computes every input set from recorded frames, every project module this one imports
+    at any depth (`common.digest.source_digest`), so that inputs an earlier version computed and cached are not
+    reused."""
+    return source_digest(__name__)
 
 
 def episode_inputs(
@@ -414,7 +415,7 @@ class InputObservation(gym.Wrapper):
         super().__init__(env)
         self.input_set = INPUT_SETS[inputs](nominal_model())
         self.command = np.zeros(COMMAND_SIZE, np.float32)
-        """The operator's command the inputs carry (a commanded set's): an inner `humanoid.commands.CommandedTask`'s,
+        """The operator's command the inputs carry (a commanded set's): an inner `task.tracking.CommandedTask`'s,
         which it gives in the info at the reset and after every step; without one, zero (standing still) unless set."""
         space = env.observation_space
         extra = np.full(self.input_set.size, np.inf)

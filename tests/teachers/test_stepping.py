@@ -5,21 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from humanoid.commands import command_vector
-from humanoid.controllers import make_controller
+from humanoid.capture import off_segment
 from humanoid.env import make_env
-from humanoid.expert import LQRExpert, SensedExpert
 from humanoid.perturbations import VelocityKick
-from humanoid.posture import Posture
 from humanoid.sensors import body_axes, yaw_rate
-from humanoid.stepping import (
-    STANCE_WIDTH,
-    SteppingDesign,
-    SteppingExpert,
-    off_segment,
-    planning_model,
-    stance,
-)
+from rollout.controllers import make_controller
+from task.posture import Posture
+from task.schedules import command_vector
+from teachers.expert import LQRExpert, SensedExpert
+from teachers.stepping import STANCE_WIDTH, SteppingDesign, SteppingExpert, planning_model, stance
 
 KICK_SEED = 1000
 KICK_STEPS = 330  # the kick at 2 s (133 steps), then about 3 s: the LQR expert is down by then

@@ -1,4 +1,4 @@
-"""`humanoid.command_fields`: the command's fields as one table, which every user reads."""
+"""`task.command_fields`: the command's fields as one table, which every user reads."""
 
 from __future__ import annotations
 
@@ -7,11 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, Readout
-from humanoid.commands import Tracking, task_for
 from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
-from humanoid.posture import NEUTRAL, Posture, axis_quaternion, multiply_quaternions, posture_reference
 from humanoid.sensors import body_axes
+from task.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, Readout
+from task.posture import NEUTRAL, Posture, axis_quaternion, multiply_quaternions
+from task.schedules import task_for
+from task.tracking import Tracking
+from teachers.postures import posture_reference
 from teleop.keyboard import KEY_ACTIONS, TeleopSession
 
 

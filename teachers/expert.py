@@ -1,7 +1,8 @@
-"""Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5.
+"""Scripted LQR standing controller ("the expert") for gymnasium's Humanoid-v5: the teachers `expert` and
+`expert-sensed` (`teachers.registry`).
 
-The gains come from `humanoid.lqr`; the landing after each reset from `humanoid.landing`;
-commanded postures (`hold`) from `humanoid.posture`. At run time the action is
+The gains come from `teachers.lqr`; the landing after each reset from `teachers.landing`;
+commanded postures (`hold`) from `teachers.postures`. At run time the action is
 ``ctrl_ff - gain @ state``, clipped to the motors' range; for the first steps after a reset
 the landing plan's time-varying version of it.
 """
@@ -14,11 +15,14 @@ from collections import deque
 import mujoco
 import numpy as np
 
-from humanoid.commands import command_posture, command_vector
-from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
+from humanoid.env import FRAME_SKIP, QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.estimator import LegOdometry
-from humanoid.landing import Landing, load_or_design_landing
-from humanoid.lqr import (
+from humanoid.sensors import Proprioception
+from task.posture import NEUTRAL, Posture
+from task.schedules import command_posture, command_vector
+from teachers.base import Teacher
+from teachers.landing import Landing, load_or_design_landing
+from teachers.lqr import (
     ROOT_XY,
     LQRDesign,
     LQRGains,
@@ -26,22 +30,19 @@ from humanoid.lqr import (
     load_or_design,
     steady_action,
 )
-from humanoid.posture import NEUTRAL, Posture, PostureRamp, body_gains
-from humanoid.sensors import Proprioception
+from teachers.postures import PostureRamp, body_gains
 
 
-class LQRExpert:
+class LQRExpert(Teacher):
     """Standing controller acting from the Humanoid-v5 observation alone.
 
     ``qpos_ref``, ``ctrl_ff`` and ``gain`` are the setpoint, its feed-forward and the feedback
     gain: the design's until ``hold`` commands a posture (lean, crouch, twist, arms;
-    ``humanoid.posture``), toward whose own (balanced pose, feed-forward, gain) they then move
+    ``task.posture``), toward whose own (balanced pose, feed-forward, gain) they then move
     gradually. The neutral gain alone does not hold most postures: it lets them oscillate or fall.
     """
 
     name = "expert"
-    takes_command = True
-    walks = False
 
     def __init__(
         self,
@@ -49,12 +50,11 @@ class LQRExpert:
         design: LQRDesign = LQRDesign(),
         delay: int = 0,
         landing: bool = True,
-        name: str = "expert",
     ) -> None:
         """Design (or load from the cache) the gains for ``model``, by default Humanoid-v5's.
 
         With ``landing`` (and ``design.landing_steps`` > 0) the first steps after each `reset` track the
-        planned landing (`humanoid.landing`) on the design's body without delay and until a posture is
+        planned landing (`teachers.landing`) on the design's body without delay and until a posture is
         commanded; the plan is the nominal body's and assumes each action executes at once. Without it
         the steady gain acts from the first step, as before the landing was planned.
 
@@ -64,7 +64,6 @@ class LQRExpert:
         the model (the nominal one: it knows no randomised parameter) from the observed state.
         Without it one step of latency topples the expert at once (docs/decisions/expert-delay.md).
         """
-        self.name = name
         self.model = nominal_model() if model is None else model
         self.design = design
         self._key = cache_key(self.model, design)  # the body the gains are designed on, as it is now
@@ -85,18 +84,18 @@ class LQRExpert:
         self._moving = False  # one attribute test per act while the setpoint is still
 
     def set_delay(self, steps: int) -> None:
-        """The action latency from the next `reset` on, told for each episode (`humanoid.episode.tell_delay`)."""
+        """The action latency from the next `reset` on, told for each episode (`rollout.episode.tell_delay`)."""
         if steps < 0:
             raise ValueError(f"delay must be >= 0 steps, got {steps}")
         self.delay = steps
         if steps and self._predictor is None:
-            self._predictor = Predictor(self._body_model(), self.design.frame_skip)
+            self._predictor = Predictor(self._body_model(), FRAME_SKIP)
 
     def set_body(self, model: mujoco.MjModel) -> None:
-        """The body of the episodes from the next `reset` on, told by the rollout (`humanoid.episode.tell_body`).
+        """The body of the episodes from the next `reset` on, told by the rollout (`rollout.episode.tell_body`).
 
         A body other than the design's (drawn masses, friction or motors: `humanoid.conditions.DomainRandomization`)
-        gets its own balanced stance and gain (`humanoid.posture.body_gains`, about 0.1 s), and the predictor
+        gets its own balanced stance and gain (`teachers.postures.body_gains`, about 0.1 s), and the predictor
         steps it; the design's body gets the design's gains. The expert reads the simulator's observation,
         whose `cinert` holds the masses anyway: a privileged teacher. Without this the nominal stance tips
         a drawn body (docs/decisions/expert-body.md). Commanded postures stay the design's.
@@ -108,7 +107,7 @@ class LQRExpert:
             body = copy.copy(model)  # the env draws its next body into `model` in place
             self._body = body, body_gains(body, self.design, self.gains.qpos_ref)
         if self._predictor is not None and (previous is not None or self._body is not None):
-            self._predictor = Predictor(self._body_model(), self.design.frame_skip)
+            self._predictor = Predictor(self._body_model(), FRAME_SKIP)
 
     def _body_model(self) -> mujoco.MjModel:
         """A model of the body acted on, for the predictor to step."""
@@ -221,13 +220,11 @@ class Predictor:
         return data.qpos.copy(), data.qvel.copy()
 
 
-class ExpertAround:
+class ExpertAround(Teacher):
     """A controller built around an `LQRExpert` (`self.expert`): the command, the delay, its setpoint and the actions
     that ran are the expert's; what it reads and how it acts are the subclass's."""
 
     expert: LQRExpert
-    takes_command = True
-    walks = False
 
     def set_delay(self, steps: int) -> None:
         self.expert.set_delay(steps)

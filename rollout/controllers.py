@@ -1,14 +1,13 @@
-"""The controller interface the recorder drives, and the registry that builds one by name.
+"""The controller interface every rollout drives, and the one place a controller is built from its name.
 
-Every source of actions (the LQR expert, a random baseline, keyboard teleoperation, a learned
-policy) implements `Controller`, so the recorder and the evaluator run any of them. A name is
-either registered in `CONTROLLERS` or the path of a policy checkpoint folder (`policies/`), or of a
-folder holding a stable-baselines3 policy saved by SB3 (`policies.folder.SB3_FILE`).
+Every source of actions (a teacher, a random baseline, keyboard teleoperation, a learned policy) implements
+`Controller`, so the recorder, the evaluator and DAgger run any of them. A name is a registered teacher
+(`teachers.registry.TEACHERS`), `random`, the keyboard (the recorder's only), or the path of a policy checkpoint folder
+(`policies/`), or of a folder holding a stable-baselines3 policy saved by SB3 (`policies.folder.SB3_FILE`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -18,14 +17,17 @@ import numpy as np
 
 from humanoid.conditions import action_delay
 from policies.folder import checkpoint_problem, is_sb3_policy  # torch-free: policies are imported on use
+from teachers.base import Teacher
+from teachers.expert import LQRExpert
+from teachers.registry import TEACHERS
 
 
 @runtime_checkable
 class Controller(Protocol):
     """Maps a gymnasium observation to an action within the action bounds.
 
-    Before each `reset` the rollout tells it the episode's action latency (`set_delay`, `humanoid.episode.tell_delay`)
-    and drawn body (`set_body`, `humanoid.episode.tell_body`), and after it, at each change, the operator's command
+    Before each `reset` the rollout tells it the episode's action latency (`set_delay`, `rollout.episode.tell_delay`)
+    and drawn body (`set_body`, `rollout.episode.tell_body`), and after it, at each change, the operator's command
     (`set_command`; zeros: stand still); one that has no use for them ignores them.
     """
 
@@ -45,7 +47,7 @@ class Controller(Protocol):
         """Start a new episode; stochastic controllers reseed from `seed`."""
 
     def set_command(self, command: np.ndarray) -> None:
-        """The operator's command (`humanoid.command_fields.COMMAND_NAMES`) from this step on, until the next."""
+        """The operator's command (`task.command_fields.COMMAND_NAMES`) from this step on, until the next."""
 
     def setpoint(self) -> np.ndarray | None:
         """Where it steers now on its way to the command (the expert's setpoint), or None without one of its own."""
@@ -91,43 +93,18 @@ class RandomController:
         return self.rng.uniform(self.low, self.high).astype(np.float32)
 
 
-def _expert(env: gym.Env) -> Controller:
-    from humanoid.expert import LQRExpert  # noqa: PLC0415 - the LQR design imports scipy; only pay for it when used
-
-    # Designed on Humanoid-v5's own model, not `env`'s: a randomised env's model holds whatever body it drew
-    # last. The rollout tells the expert each episode's body (`humanoid.episode.tell_body`).
-    return LQRExpert(delay=action_delay(env))
+RANDOM = RandomController.name
 
 
-def _sensed_expert(env: gym.Env) -> Controller:
-    from humanoid.expert import SensedExpert  # noqa: PLC0415 - as _expert
-
-    # The nominal model too, and never told the body: it acts on what a robot senses, its estimator included.
-    return SensedExpert(delay=action_delay(env))
-
-
-def _stepping_expert(env: gym.Env) -> Controller:
-    from humanoid.stepping import SteppingExpert  # noqa: PLC0415 - as _expert
-
-    return SteppingExpert(delay=action_delay(env))
+def registered() -> tuple[str, ...]:
+    """The names of the registered controllers now: the teachers (`teachers.registry`, a test may add one) and
+    `random`."""
+    return (*TEACHERS, RANDOM)
 
 
-def _sensed_stepping_expert(env: gym.Env) -> Controller:
-    from humanoid.stepping import SensedSteppingExpert  # noqa: PLC0415 - as _expert
-
-    return SensedSteppingExpert(delay=action_delay(env))
-
-
-CONTROLLERS: dict[str, Callable[[gym.Env], Controller]] = {
-    "expert": _expert,
-    "expert-sensed": _sensed_expert,
-    "expert-stepping": _stepping_expert,
-    "expert-sensed-stepping": _sensed_stepping_expert,
-    "random": lambda env: RandomController(env.action_space),
-}
 # Controllers driven by a person in real time (`teleop.keyboard`): the recorder runs them, the evaluator cannot.
 KEYBOARD = "keyboard"
-KEYBOARD_EXPERT = "expert"
+KEYBOARD_EXPERT = LQRExpert.name
 """Who the keys drive unless told a policy (`make play`): the expert told the simulator's state, which a keyboard
 episode's labeller, KEYBOARD, stands for."""
 INTERACTIVE = (KEYBOARD,)
@@ -145,25 +122,37 @@ def check_controller(name: str, interactive: bool = True) -> None:
         if interactive:
             return
         raise ValueError(f"controller {name!r} is driven by a person: only the recorder runs it")
-    if name in CONTROLLERS:
+    if name in registered():
         return
     if not _is_path(name):
-        known = ", ".join([*CONTROLLERS, *INTERACTIVE])
+        known = ", ".join([*registered(), *INTERACTIVE])
         raise ValueError(f"unknown controller {name!r} (known: {known}, or a policy checkpoint folder)")
     problem = None if is_sb3_policy(Path(name)) else checkpoint_problem(Path(name))
     if problem:
         raise ValueError(problem)
 
 
-def make_controller(name: str, env: gym.Env) -> Controller:
-    """Build the controller registered as `name`, or the policy saved in folder `name`, for `env`.
+def built(name: str) -> str | type[Teacher]:
+    """What a worker process builds the controller called `name` from: the teacher class registered so (sent along:
+    one a test registered here is known there too), else the name."""
+    return TEACHERS.get(name, name)
+
+
+def make_controller(what: str | type[Teacher], env: gym.Env) -> Controller:
+    """Build the teacher `what` (a class, or its registered name), the random baseline, or the policy saved in folder
+    `what`, for `env`: a teacher is told `env`'s action latency as built (`cls(delay=...)`).
 
     ValueError for an unknown name; a `UserError` (CheckpointError) for a folder that is not a usable checkpoint.
     """
-    if name in CONTROLLERS:
-        return CONTROLLERS[name](env)
+    if isinstance(what, type):
+        return what(delay=action_delay(env))
+    name = what
+    if name in TEACHERS:
+        return TEACHERS[name](delay=action_delay(env))
+    if name == RANDOM:
+        return RandomController(env.action_space)
     check_controller(name, interactive=False)
-    from humanoid.learned import PolicyController, SB3Controller  # noqa: PLC0415 - imports torch: only for policies
+    from students.learned import PolicyController, SB3Controller  # noqa: PLC0415 - imports torch: only for policies
 
     if is_sb3_policy(Path(name)):
         return SB3Controller(Path(name))

@@ -1,4 +1,4 @@
-"""A saved policy as a `humanoid.controllers.Controller`, so the recorder and the evaluator run it.
+"""A saved policy as a `rollout.controllers.Controller`, so the recorder and the evaluator run it.
 
 Two kinds: this project's `MLPPolicy` checkpoints (`PolicyController`), and policies stable-baselines3
 saved itself (`SB3Controller`, the tutorial's PPO baseline of `rl.tutorial`).
@@ -18,12 +18,12 @@ import mujoco
 import numpy as np
 import torch
 
-from humanoid.command_fields import COMMAND_SIZE
 from humanoid.env import make_env, nominal_model
-from humanoid.inputs import INPUT_SETS, InputSet, removed_inputs
 from policies.checkpoint import CheckpointError, load
 from policies.folder import SB3_FILE
 from policies.mlp import MLPPolicy
+from students.inputs import INPUT_SETS, InputSet, removed_inputs
+from task.command_fields import COMMAND_SIZE
 
 
 class PolicyController:
@@ -57,7 +57,7 @@ class PolicyController:
         self.input_set.reset()
 
     def set_delay(self, steps: int) -> None:
-        """The episode's action latency, told by the rollout (`humanoid.episode.tell_delay`) to the inputs."""
+        """The episode's action latency, told by the rollout (`rollout.episode.tell_delay`) to the inputs."""
         self.input_set.set_delay(steps)
 
     def set_body(self, model: mujoco.MjModel) -> None:

@@ -1,4 +1,4 @@
-"""Operator commands (humanoid.commands): scripted schedules, the range check, tracking and its summary, and the
+"""Operator commands (task.schedules): scripted schedules, the range check, tracking and its summary, and the
 expert under the zero command and under schedules (real MuJoCo; known answers)."""
 
 from __future__ import annotations
@@ -16,32 +16,35 @@ from mcap_protobuf.decoder import DecoderFactory
 from common import columns
 from common.cli import UserError
 from common.seed_ranges import TRAINING_SEEDS
-from humanoid.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, POSTURE_NAMES, VELOCITY_NAMES
-from humanoid.commands import (
-    COMMAND_INFO,
+from humanoid.conditions import DomainRandomization, Randomization
+from humanoid.env import EPISODE_STEPS, QPOS_OBS, QVEL_OBS, humanoid_model, make_env, nominal_model
+from rollout.episode import run_episode
+from support import join_observation, read_mcap_episode, record_short
+from task.command_fields import COMMAND_FIELDS, COMMAND_NAMES, FIELDS, POSTURE_NAMES, VELOCITY_NAMES
+from task.posture import NEUTRAL, Posture, move_seconds
+from task.schedules import (
     DEFAULT_TASK,
     FIRST_NEUTRAL_SECONDS,
     HOLD_SECONDS,
-    PLOTTED,
     SCALE,
-    SCHEDULE_STREAM,
-    CommandedTask,
-    Tracking,
     command_posture,
     command_schedule,
     command_vector,
     schedule_targets,
     task_for,
+)
+from task.tracking import (
+    COMMAND_INFO,
+    PLOTTED,
+    SCHEDULE_STREAM,
+    CommandedTask,
+    Tracking,
     tracking_reward,
     tracking_score,
     tracking_summary,
 )
-from humanoid.conditions import DomainRandomization, Randomization
-from humanoid.env import EPISODE_STEPS, QPOS_OBS, QVEL_OBS, humanoid_model, make_env, nominal_model
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert
-from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
-from support import join_observation, read_mcap_episode, record_short
+from teachers.expert import LQRExpert
+from teachers.postures import posture_reference
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.mcap_io.writer import COMMAND_TOPIC
 
@@ -319,7 +322,7 @@ def test_the_zero_command_leaves_the_plain_expert_as_it_was(short_env: gym.Env) 
     assert not plain.command.any() and not plain.setpoint.any() and set(plain.tasks) == {DEFAULT_TASK}
     np.testing.assert_array_equal(plain.action, np.array(actions))
     reused = LQRExpert()
-    run_episode(short_env, reused, 4, schedules=True)
+    run_episode(short_env, reused, 4, task="posture")
     np.testing.assert_array_equal(run_episode(short_env, reused, 3).action, plain.action)
 
 
@@ -329,7 +332,7 @@ def test_the_operator_records_the_command_names_it_and_its_setpoint_moves_there(
     there within its move time."""
     seed = 5
     record_short(
-        tmp_path / "operator", controller="expert", schedules=True, episodes=1, seed=seed, max_steps=SHORT, noise=0.0
+        tmp_path / "operator", controller="expert", task="posture", episodes=1, seed=seed, max_steps=SHORT, noise=0.0
     )
     root = tmp_path / "operator"
     frames = read_frames(root, [columns.OBS_COMMAND, columns.SETPOINT, columns.TERMINATED])
@@ -383,7 +386,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
     """Under `CommandedTask` the info carries the schedule's command at the reset and after each step (a neutral
     start, then a change), the same per reset seed, from a schedule seed past every evaluation's; the reward is the
     environment's plus the weight times the tracking kernel of the true posture against the command."""
-    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0)
+    expert, task = LQRExpert(), CommandedTask(make_env(), weight=2.0, task="posture")
     bare = make_env()
     obs, info = task.reset(seed=11)
     bare.reset(seed=11)
@@ -415,7 +418,7 @@ def test_training_episodes_follow_schedules_no_evaluation_uses_and_reward_tracki
 
 def test_a_saved_stream_draws_the_same_next_schedule() -> None:
     """`random_state` / `set_random_state` (what a resumed PPO run restores): the next unseeded reset repeats."""
-    task = CommandedTask(make_env(), weight=1.0)
+    task = CommandedTask(make_env(), weight=1.0, task="posture")
     task.reset(seed=3)
     state = task.random_state()
     task.reset()
@@ -429,9 +432,9 @@ def test_every_training_environment_measures_on_the_one_nominal_body() -> None:
     """PPO runs dozens of `CommandedTask`s per process: each measures on the process's nominal model, so a target one
     environment solved (`posture_reference` caches per model object) is the next one's too, and no body drawn in
     place reaches the targets."""
-    drawn = CommandedTask(DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2))), weight=1.0)
+    drawn = CommandedTask(DomainRandomization(make_env(), Randomization(mass=(0.8, 1.2))), weight=1.0, task="posture")
     drawn.reset(seed=0)
-    other = CommandedTask(make_env(), weight=1.0)
+    other = CommandedTask(make_env(), weight=1.0, task="posture")
     assert drawn.tracking.model is other.tracking.model is nominal_model()
     assert not np.array_equal(drawn.unwrapped.model.body_mass, nominal_model().body_mass)
     command = command_vector(Posture(lean_left=0.1, height=-0.05))

@@ -1,4 +1,4 @@
-"""Tests of commanded postures: the balanced pose solve and the expert holding a posture (real MuJoCo)."""
+"""The LQR teacher's postures: the balanced pose solve, its gains, and the expert holding a posture (real MuJoCo)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from humanoid import physics
-from humanoid.command_fields import FIELDS
 from humanoid.env import make_env, model_and_data
-from humanoid.expert import LQRExpert
-from humanoid.lqr import CTRL_LIMIT
-from humanoid.posture import NEUTRAL, Posture, posture_gain, posture_reference
+from task.command_fields import FIELDS
+from task.posture import NEUTRAL, Posture
+from teachers.expert import LQRExpert
+from teachers.lqr import CTRL_LIMIT
+from teachers.postures import posture_gain, posture_reference
 
 SETTLE_STEPS = 133  # 2 s of neutral stand after the env's reset drop
 HOLD_STEPS = 150  # about 2 s at the posture once the ramp has got there

@@ -14,12 +14,12 @@ import pytest
 
 from humanoid import physics
 from humanoid.conditions import ActionLatency, DomainRandomization, Randomization, action_delay
-from humanoid.controllers import RandomController, make_controller
 from humanoid.env import humanoid_model, model_and_data
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert, Predictor
-from humanoid.lqr import CTRL_LIMIT, LQRDesign, design_lqr, load_or_design
-from humanoid.posture import body_gains
+from rollout.controllers import RandomController, make_controller
+from rollout.episode import run_episode
+from teachers.expert import LQRExpert, Predictor
+from teachers.lqr import CTRL_LIMIT, LQRDesign, design_lqr, load_or_design
+from teachers.postures import body_gains
 
 STANDING_RETURN = 4_900.0
 

@@ -1,11 +1,12 @@
-"""The LQR design behind the standing expert (`humanoid.expert`) and its postures (`humanoid.posture`).
+"""The LQR design behind the standing expert (`teachers.expert`) and its postures (`teachers.postures`).
 
 The design, run once per model and cached on disk (docs/concepts/controllers.md, "The expert"):
 
-1. a statically balanced pose: knees at ``LQRDesign.knee``, torso height and both hip_y angles
-   solved so that inverse dynamics leaves no vertical force and no pitch moment on the root;
-2. feed-forward control: the joint torques of that inverse dynamics, through the actuator moments;
-3. a linear model of one env step (``frame_skip`` x ``mj_step``) by central finite differences,
+1. the body's standing pose (`humanoid.balance.standing_pose`: knees at `STANCE_KNEE`, torso height and both hip_y
+   angles solved so that inverse dynamics leaves no vertical force and no pitch moment on the root);
+2. feed-forward control: the joint torques of that inverse dynamics, through the actuator moments
+   (`humanoid.balance.feed_forward`);
+3. a linear model of one env step (`humanoid.env.FRAME_SKIP` x ``mj_step``) by central finite differences,
    on a copy of the model whose constraint solver is converged (the env's PGS solver stops after
    one or two iterations, which turns small differences into noise);
 4. discrete LQR on that model.
@@ -19,26 +20,15 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import hashlib
-import json
-import logging
-import os
-import tempfile
-import zipfile
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
 
 import mujoco
 import numpy as np
 
-from common.paths import cache_dir
-from common.threads import openblas_kernels
+from common.cache import load_or_build
 from humanoid import physics
-
-log = logging.getLogger(__name__)
-
-T = TypeVar("T")  # what load_or_build caches (a TypeVar, not 3.12's syntax: tests/test_layout.py says why)
+from humanoid.balance import feed_forward, model_key, standing_pose
+from humanoid.env import FRAME_SKIP
 
 CTRL_LIMIT = 0.4
 """Every Humanoid-v5 motor accepts ctrl in [-CTRL_LIMIT, CTRL_LIMIT]."""
@@ -47,15 +37,12 @@ _CACHE_FORMAT = 1  # bump when design_lqr changes what it computes, so old cache
 ROOT_XY = 2  # the free joint's leading x, y coordinates, left out of the LQR state
 HEIGHT = 0  # index of the root height error in the position part of the state
 VERTICAL_VEL = 2  # index of the root vertical velocity in qvel
-_PITCH = 4  # free-joint dof of the moment about the body y axis
 
 
 @dataclass(frozen=True)
 class LQRDesign:
     """Design parameters of the standing controller; every field is part of the cache key."""
 
-    knee: float = -0.3
-    """Knee angle of the balanced pose (rad). -0.1 also stands; -0.6 does not."""
     q_com: float = 1000.0
     """Cost weight on the horizontal offset of the centre of mass from the feet mid-point."""
     q_pos: float = 3.0
@@ -69,11 +56,9 @@ class LQRDesign:
     height_vel_clip: float = 0.2
     """Run-time clip of the vertical velocity (m/s), for the same reason."""
     landing_steps: int = 200
-    """Env steps after each reset spent tracking the planned landing (``humanoid.landing``); 0: none."""
+    """Env steps after each reset spent tracking the planned landing (``teachers.landing``); 0: none."""
     fd_eps: float = 1e-6
     """Finite-difference step of the linearisation."""
-    frame_skip: int = 5
-    """mj_step calls per env step (Humanoid-v5's default)."""
     solver_iterations: int = 300
     """Constraint-solver iterations of the linearisation model."""
     solver_tolerance: float = 1e-13
@@ -99,50 +84,6 @@ def state_error(model: mujoco.MjModel, qpos_ref: np.ndarray, qpos: np.ndarray, q
     return np.concatenate([dq[ROOT_XY:], qvel])
 
 
-def balanced_pose(model: mujoco.MjModel, knee: float) -> np.ndarray:
-    """Pose with both knees at ``knee`` whose height and hip_y angles leave no vertical force or pitch moment.
-
-    Enough for a left-right symmetric body, which needs no roll moment; a body with drawn masses does, and
-    ``humanoid.posture.body_gains`` balances that too.
-    """
-    hips = [model.joint(f"{side}_hip_y").qposadr[0] for side in ("right", "left")]
-    knees = [model.joint(f"{side}_knee").qposadr[0] for side in ("right", "left")]
-    data = mujoco.MjData(model)
-
-    def pose(height: float, hip: float) -> np.ndarray:
-        qpos = model.qpos0.copy()
-        qpos[2], qpos[hips], qpos[knees] = height, hip, knee
-        return qpos
-
-    # Start with the feet just touching the floor, so the contacts exist from the first guess.
-    data.qpos[:] = pose(0.0, 0.0)
-    mujoco.mj_kinematics(model, data)
-    lowest = min(data.geom(g).xpos[2] - model.geom(g).size[0] for g in physics.FOOT_GEOMS)
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        data.qpos[:] = pose(*x)
-        return physics.static_inverse_dynamics(model, data)[[2, _PITCH]]
-
-    import scipy.optimize  # noqa: PLC0415 - scipy costs 0.3 s to import; only a design (cache miss) needs it
-
-    solution = scipy.optimize.root(residual, x0=[-lowest, 0.0], tol=1e-12)
-    if not solution.success:
-        raise RuntimeError(f"no balanced pose for knee={knee}: {solution.message}")
-    return pose(*solution.x)
-
-
-def feed_forward(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """Control whose actuator forces equal the joint torques that hold ``qpos`` at rest."""
-    data = mujoco.MjData(model)
-    data.qpos[:] = qpos
-    torque = physics.static_inverse_dynamics(model, data)
-    moment = np.zeros((model.nu, model.nv))
-    mujoco.mju_sparse2dense(moment, data.actuator_moment, data.moment_rownnz, data.moment_rowadr, data.moment_colind)
-    # Only the joints are actuated; the root's residual is what balanced_pose drove to zero.
-    ctrl, *_ = np.linalg.lstsq(moment[:, 6:].T, torque[6:], rcond=None)
-    return ctrl
-
-
 def _converged_copy(model: mujoco.MjModel, design: LQRDesign) -> mujoco.MjModel:
     """Copy of ``model`` whose Newton solver converges, so that finite differences are smooth."""
     sim = copy.deepcopy(model)
@@ -162,7 +103,7 @@ def linearise(
     """Central-difference Jacobians (A, B) of one env step from qpos_ref (at rest, or with ``qvel``) under ctrl_ref.
 
     The next state's error is taken from where the unperturbed step goes: from rest in a balanced pose
-    that is qpos_ref itself (the steady design keeps using it); along the landing (``humanoid.landing``)
+    that is qpos_ref itself (the steady design keeps using it); along the landing (``teachers.landing``)
     it is the step's own result.
     """
     sim = _converged_copy(model, design)
@@ -176,7 +117,7 @@ def linearise(
     mujoco.mj_forward(sim, nominal)
     if qvel is not None:
         mujoco.mj_copyData(scratch, sim, nominal)
-        mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
+        mujoco.mj_step(sim, scratch, nstep=FRAME_SKIP)
         origin = scratch.qpos.copy()
 
     def step(z: np.ndarray) -> np.ndarray:
@@ -186,7 +127,7 @@ def linearise(
         mujoco.mj_integratePos(sim, scratch.qpos, dq, 1.0)
         scratch.qvel[:] += z[sim.nv - ROOT_XY : nx]
         scratch.ctrl[:] += z[nx:]
-        mujoco.mj_step(sim, scratch, nstep=design.frame_skip)
+        mujoco.mj_step(sim, scratch, nstep=FRAME_SKIP)
         return state_error(sim, origin, scratch.qpos, scratch.qvel)
 
     eps = design.fd_eps
@@ -196,7 +137,7 @@ def linearise(
 
 def design_lqr(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
     """Balanced pose, feed-forward and LQR feedback gain for ``model`` (under a second; cached: ``load_or_design``)."""
-    qpos_ref = balanced_pose(model, design.knee)
+    qpos_ref = standing_pose(model).copy()
     ctrl_ff = feed_forward(model, qpos_ref)
     if np.abs(ctrl_ff).max() > CTRL_LIMIT:
         raise RuntimeError(f"feed-forward {np.abs(ctrl_ff).max():.3f} exceeds the motor range")
@@ -229,7 +170,7 @@ def riccati(
     discount: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``design_gain``'s gain K and the cost-to-go matrix P it comes from (the landing's recursion ends in P)."""
-    import scipy.linalg  # noqa: PLC0415 - as in balanced_pose
+    import scipy.linalg  # noqa: PLC0415 - scipy costs 0.3 s to import; only a design (cache miss) needs it
 
     a, b = linearise(model, qpos_ref, ctrl_ff, design)
     if discount != 1.0:
@@ -246,7 +187,7 @@ def riccati_gain(a: np.ndarray, b: np.ndarray, r: np.ndarray, p: np.ndarray) -> 
 
 def lqr_cost(model: mujoco.MjModel, qpos_ref: np.ndarray, design: LQRDesign) -> tuple[np.ndarray, np.ndarray]:
     """The design's state and control cost matrices (Q, R), the centre of mass's offset taken at qpos_ref."""
-    import scipy.linalg  # noqa: PLC0415 - as in balanced_pose
+    import scipy.linalg  # noqa: PLC0415 - scipy costs 0.3 s to import; only a design (cache miss) needs it
 
     data = mujoco.MjData(model)
     data.qpos[:] = qpos_ref
@@ -279,46 +220,9 @@ def steady_action(
 
 def cache_key(model: mujoco.MjModel, design: LQRDesign) -> str:
     """Hash of the compiled model, the design, the MuJoCo version and the BLAS kernels: equal keys, equal gains."""
-    # The MJB serialisation covers everything the XML compiles to (and Python-side edits).
-    mjb = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
-    mujoco.mj_saveModel(model, None, mjb)
-    # The BLAS kernels too: gains designed under one are other numbers than under another (common.threads).
-    meta = json.dumps(
-        {
-            "design": dataclasses.asdict(design),
-            "mujoco": mujoco.__version__,
-            "format": _CACHE_FORMAT,
-            "openblas": openblas_kernels(),
-        },
-        sort_keys=True,
-    )
-    return hashlib.sha256(mjb.tobytes() + meta.encode()).hexdigest()
+    return model_key(model, {"design": dataclasses.asdict(design), "format": _CACHE_FORMAT})
 
 
 def load_or_design(model: mujoco.MjModel, design: LQRDesign = LQRDesign()) -> LQRGains:
     """``design_lqr`` through the on-disk cache: a file per (model, design) key, rebuilt when missing or stale."""
     return load_or_build("lqr", cache_key(model, design), LQRGains, lambda: design_lqr(model, design))
-
-
-def load_or_build(kind: str, key: str, cls: type[T], build: Callable[[], T]) -> T:
-    """The dataclass of arrays ``cls`` cached under ``key`` (a file per kind and key), or ``build()`` written there."""
-    path = cache_dir() / f"{kind}-{key[:16]}.npz"
-    fields = [f.name for f in dataclasses.fields(cls)]
-    try:
-        with np.load(path) as cached:
-            if str(cached["key"]) == key:
-                return cls(**{name: cached[name] for name in fields})
-    # Missing, truncated, or written by an older format:
-    except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as error:
-        log.debug("no usable cache at %s: %s", path, error)
-
-    built = build()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # Write-then-rename, so concurrent processes never read a half-written file.
-        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".npz", delete=False) as tmp:
-            np.savez(tmp, key=key, **dataclasses.asdict(built))
-        os.replace(tmp.name, path)
-    except OSError as error:
-        log.warning("could not cache %s at %s: %s", kind, path, error)
-    return built

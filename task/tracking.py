@@ -1,20 +1,11 @@
-"""Operator commands: the posture an operator asks for, as a policy reads it, as a script draws it, and how
-well a controller tracks it (docs/concepts/commands.md).
+"""How well a controller follows the operator: the error per command field, and PPO's task of following it
+(docs/concepts/commands.md).
 
-A command is a `humanoid.posture.Posture`, carried as a vector in the order of `humanoid.command_fields`' table
-(the dataset's `observation.command`, a commanded policy's last inputs); each field's limits, step, tolerance,
-keys and words come from its row there. Standing still is the zero command.
-
-- `command_schedule(seed, steps)`: the scripted operator (`make record`'s schedules, and the held-out
-  schedules of `make eval`): after a neutral start, targets on the keyboard's grid (each field's
-  `step`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
-  `HOLD_SECONDS` once the expert's setpoint has got there; drawn from the seed alone, so reproducible.
+- `Tracking`: the error between commanded and achieved command per field, from the observation alone (root
+  orientation, height and the joint angles a recorded frame holds), and `tracking_summary` over an episode: the error
+  once settled and the time to settle (defined under `SETTLED_SECONDS`, each field's tolerance).
 - `CommandedTask`: PPO's training episodes under schedules drawn from seeds no recording or evaluation uses, the
   tracking rewarded with an exponential kernel on the error (`tracking_reward`).
-- `Tracking`: the error between commanded and achieved posture per field, from the observation alone
-  (root orientation, height and the joint angles a recorded frame holds), and `tracking_summary` over an
-  episode: the error once settled and the time to settle (defined under `SETTLED_SECONDS`, each field's
-  tolerance).
 """
 
 from __future__ import annotations
@@ -25,129 +16,21 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from common.cli import UserError
 from common.seed_ranges import TRAINING_SEEDS
-from humanoid.command_fields import (
+from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model, step_seconds
+from task.command_fields import (
     COMMAND_FIELDS,
     COMMAND_NAMES,
     COMMAND_SIZE,
     FIELDS,
-    POSTURE_FIELDS,
-    POSTURE_NAMES,
-    VELOCITY,
-    VELOCITY_NAMES,
     CommandField,
     Readout,
     field_positions,
     task_fields,
     tolerances,
 )
-from humanoid.env import QPOS_OBS, QVEL_OBS, nominal_model
-from humanoid.lqr import LQRDesign
-from humanoid.posture import NEUTRAL, Posture, move_seconds, posture_reference
-
-DEFAULT_TASK = "Stand still on both feet."
-"""The task string of the zero command."""
-
-# A scripted schedule. The first stretch is neutral: the body drops about 12 cm after reset and the expert's planned
-# landing holds the neutral stance (humanoid.landing) for its first 3 s. Then each target is held HOLD_SECONDS once
-# the setpoint has got there (move_seconds). Docs: docs/decisions/command-schedules.md.
-FIRST_NEUTRAL_SECONDS = 3.0
-HOLD_SECONDS = (2.0, 4.0)
-NEUTRAL_SHARE = 0.2
-"""Share of the targets after the first that are the neutral stand: standing stays in the data and the tests."""
-FIELDS_AT_ONCE = (0.5, 0.35, 0.15)
-"""Probabilities that a target moves 1, 2 or 3 fields away from neutral."""
-SCALE = 0.5
-"""Posture targets stay within this share of each field's limits: at 0.7 the expert fell on 2 of 40
-held-out schedules, at 0.5 on none (docs/decisions/command-schedules.md). Velocity targets span their whole range."""
-WALKING_SHARE = 0.5
-"""In a walking schedule, the share of the targets after the first that are a walk (one or two velocity fields, no
-posture); of the others, `NEUTRAL_SHARE` stand still and the rest are postures, as in a posture schedule."""
-WALK_FIELDS_AT_ONCE = (0.6, 0.4)
-"""Probabilities that a walk sets 1 or 2 velocity fields."""
-
-
-def command_vector(posture: Posture) -> np.ndarray:
-    """The command `posture` as a policy reads it: float32, `COMMAND_NAMES` order."""
-    return np.array([getattr(posture, name) for name in COMMAND_NAMES], np.float32)
-
-
-def command_posture(command: np.ndarray) -> Posture:
-    """The posture a command vector asks for (as given: the expert clips what it holds)."""
-    return Posture(**{name: float(value) for name, value in zip(COMMAND_NAMES, command, strict=True)})
-
-
-def _grid(name: str) -> np.ndarray:
-    """The nonzero values of field `name` on the keyboard's grid within SCALE of its limits (a velocity's: within its
-    limits; every preset)."""
-    field = FIELDS[name]
-    if field.presets:
-        return np.arange(1.0, field.high + 1.0)  # a preset: no fraction of one
-    if field.group == VELOCITY:
-        low, high = round(field.low / field.step), round(field.high / field.step)
-    else:  # truncated, as it always was: lean_left's 0.5 * 0.3 / 0.05 falls just short of 3, so it stops at 0.1
-        low, high = int(SCALE * field.low / field.step), int(SCALE * field.high / field.step)
-    return np.array([round(k * field.step, 6) for k in range(low, high + 1) if k != 0])
-
-
-def _target(rng: np.random.Generator, names: tuple[str, ...], at_once: tuple[float, ...]) -> Posture:
-    """A target setting 1, 2, ... (probabilities `at_once`) of the fields `names` to values on their grids."""
-    count = 1 + int(rng.choice(len(at_once), p=at_once))
-    fields = rng.choice(names, size=count, replace=False)
-    return Posture(**{str(name): float(rng.choice(_grid(str(name)))) for name in fields})
-
-
-def schedule_targets(seed: int, seconds: float, walking: bool = False) -> list[tuple[float, Posture]]:
-    """(start time in s, target) of each command of the schedule drawn from `seed`, covering `seconds`: postures, or
-    with `walking` walks too (`WALKING_SHARE`)."""
-    if seed < 0:
-        raise UserError(f"a schedule's seed must be >= 0, got {seed}")
-    rng = np.random.default_rng((seed, 2))  # its own stream: the seed's noise and randomisation use others
-    targets = [(0.0, NEUTRAL)]
-    now, previous = FIRST_NEUTRAL_SECONDS, NEUTRAL
-    while now < seconds:
-        if walking and rng.random() < WALKING_SHARE:
-            target = _target(rng, VELOCITY_NAMES, WALK_FIELDS_AT_ONCE)
-        elif rng.random() < NEUTRAL_SHARE:
-            target = NEUTRAL
-        else:
-            target = _target(rng, POSTURE_NAMES, FIELDS_AT_ONCE)
-        if target == previous:
-            first = COMMAND_FIELDS[0]
-            target = NEUTRAL if previous != NEUTRAL else Posture(**{first.name: first.step})
-        targets.append((now, target))
-        now += move_seconds(previous, target) + float(rng.uniform(*HOLD_SECONDS))
-        previous = target
-    return targets
-
-
-def command_schedule(seed: int, steps: int, dt: float, walking: bool = False) -> np.ndarray:
-    """The commands (steps, COMMAND_SIZE) float32 of the schedule drawn from `seed` (`walking`: with walks), one row
-    per env step of `dt` s."""
-    commands = np.empty((steps, COMMAND_SIZE), np.float32)
-    targets = schedule_targets(seed, steps * dt, walking)
-    for (start, target), (end, _) in zip(targets, [*targets[1:], (np.inf, NEUTRAL)], strict=True):
-        commands[int(round(start / dt)) : int(min(round(end / dt), steps)) if np.isfinite(end) else steps] = (
-            command_vector(target)
-        )
-    return commands
-
-
-def task_for(posture: Posture) -> str:
-    """The task string naming a command: its fields' phrases (their rows'), those away from neutral, a velocity's with
-    its value ("Walk forward at 0.4 m/s, turn left at 0.2 rad/s."), a posture alone "... while standing."."""
-    moving = [
-        f"{FIELDS[name].phrase(value)} at {abs(value):g} {FIELDS[name].unit}"
-        for name in VELOCITY_NAMES
-        if (value := round(getattr(posture, name), 6))
-    ]
-    posed = [field.phrase(value) for field in POSTURE_FIELDS if (value := getattr(posture, field.name))]
-    if not moving and not posed:
-        return DEFAULT_TASK
-    sentence = ", ".join(moving + posed) + ("." if moving else " while standing.")
-    return sentence[0].upper() + sentence[1:]
-
+from task.posture import NEUTRAL, commanded_pose, move_seconds
+from task.schedules import command_posture, command_vector, task_commands
 
 # Tracking. The achieved command is read from the observation's qpos and qvel parts (`QPOS_OBS`, `QVEL_OBS`), in both
 # the full observation and a recorded frame; settled means every field's error within its row's tolerance (about one
@@ -165,8 +48,8 @@ episode's end cuts short, which may still be on its way."""
 class Tracking:
     """Commanded against achieved command, per field, for observations of `model`'s Humanoid-v5.
 
-    Achieved: each field's coordinates as `humanoid.command_fields.Readout` reads them from the body. Commanded: for a
-    posed field the same coordinates of the balanced pose that realises the command (`posture_reference`), so a body
+    Achieved: each field's coordinates as `task.command_fields.Readout` reads them from the body. Commanded: for a
+    posed field the same coordinates of the balanced pose that realises the command (`commanded_pose`), so a body
     held exactly there has no error; for another (a velocity) its commanded value. A field's error is the mean over
     its coordinates (the arms' six angles). `fields`: those measured, in the table's order (a task's: `task_fields`);
     commands are whole command vectors (`COMMAND_NAMES` order) whatever the fields.
@@ -178,7 +61,7 @@ class Tracking:
         self.tolerances = tolerances(fields)
         """Each field's tolerance, in `fields` order."""
         self.readout = Readout(model)
-        self.speed_steps = round(SPEED_SECONDS / (LQRDesign().frame_skip * model.opt.timestep))
+        self.speed_steps = round(SPEED_SECONDS / step_seconds(model))
         """`SPEED_SECONDS` in env steps."""
         self._rest = np.zeros(model.nv)
         read = self.readout(model.qpos0[2:], self._rest)
@@ -200,7 +83,7 @@ class Tracking:
         key = tuple(float(v) for v in command)
         if key not in self._targets:
             posture = command_posture(np.asarray(command)).clipped()
-            pose = posture_reference(self.model, posture.posed())[0][2:]
+            pose = commanded_pose(self.model, posture.posed())[2:]
             target = self.coordinates(pose, self._rest)
             for field, part in zip(self.fields, self.slices, strict=True):
                 if not field.posed:
@@ -347,27 +230,26 @@ def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
 
 
 COMMAND_INFO = "command"
-"""The info key under which `CommandedTask` gives the command in force (`humanoid.inputs.InputObservation` reads it)."""
+"""The info key under which `CommandedTask` gives the command in force (`students.inputs.InputObservation` reads it)."""
 SCHEDULE_STREAM = 6  # random stream of the training schedules' seeds: (seed, 6); humanoid.conditions lists the others
 
 
 class CommandedTask(gym.Wrapper):
     """PPO's task of following the operator (`make finetune-rl` from a student that takes a command).
 
-    Each episode follows a schedule (`command_schedule`: a neutral start, targets held a few seconds, some of them
-    the zero command) whose seed is drawn from the wrapper's stream, seeded by the reset's seed, so episodes repeat
-    exactly (and a resumed run replays them: `random_state`). The command in force goes out in `info[COMMAND_INFO]`
-    at the reset and after every step, for the actor's inputs; each step's reward adds `weight` ×
-    `tracking_reward` of the true posture reached against the command acted
-    under (the simulator's, not the possibly noisy observation's). With `weight` 0 the reward is the environment's
-    alone.
+    Each episode follows a schedule (`task.schedules.task_commands` of `task`: a neutral start, targets held a few
+    seconds, some of them the zero command) whose seed is drawn from the wrapper's stream, seeded by the reset's seed,
+    so episodes repeat exactly (and a resumed run replays them: `random_state`). The command in force goes out in
+    `info[COMMAND_INFO]` at the reset and after every step, for the actor's inputs; each step's reward adds `weight` ×
+    `tracking_reward` of the true posture reached against the command acted under (the simulator's, not the possibly
+    noisy observation's). With `weight` 0 the reward is the environment's alone.
     """
 
-    def __init__(self, env: gym.Env, weight: float, walking: bool = False) -> None:
+    def __init__(self, env: gym.Env, weight: float, task: str) -> None:
         super().__init__(env)
         self.weight = weight
-        self.walking = walking
-        self.tracking = Tracking(nominal_model(), task_fields(walking))  # the nominal body's, whatever is drawn later
+        self.task = task
+        self.tracking = Tracking(nominal_model(), task_fields(task))  # the nominal body's, whatever is drawn later
         self._rng = np.random.default_rng()
         self.commands = np.zeros((env.spec.max_episode_steps, COMMAND_SIZE), np.float32)
         self.t = 0
@@ -384,9 +266,7 @@ class CommandedTask(gym.Wrapper):
             self._rng = np.random.default_rng((seed, SCHEDULE_STREAM))
         obs, info = self.env.reset(seed=seed, options=options)
         schedule = int(self._rng.integers(*TRAINING_SEEDS))
-        self.commands = command_schedule(
-            schedule, self.env.spec.max_episode_steps, self.env.unwrapped.dt, walking=self.walking
-        )
+        self.commands = task_commands(self.task, schedule, self.env.spec.max_episode_steps, self.env.unwrapped.dt)
         self.t = 0
         info[COMMAND_INFO] = self.commands[0]
         return obs, info

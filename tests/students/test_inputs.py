@@ -1,4 +1,4 @@
-"""The input sets (humanoid.inputs): one computation, the same features live, offline and in PPO's environments."""
+"""The input sets (students.inputs): one computation, the same features live, offline and in PPO's environments."""
 
 from __future__ import annotations
 
@@ -14,30 +14,22 @@ from bc import train as bc_train
 from bc.data import load_demonstrations
 from common import columns
 from common.cli import UserError
-from humanoid.command_fields import COMMAND_NAMES, POSTURE_NAMES, VELOCITY_NAMES, Readout
-from humanoid.commands import FIRST_NEUTRAL_SECONDS, command_schedule
 from humanoid.conditions import LATENCY_PARAMETER, ActionLatency, DomainRandomization, Randomization
 from humanoid.env import humanoid_model, make_env
-from humanoid.episode import Episode, run_episode
 from humanoid.estimator import odometry_names
-from humanoid.expert import LQRExpert
-from humanoid.inputs import (
-    INPUT_SETS,
-    INPUTS,
-    RAMP_NAMES,
-    WALK_NAMES,
-    PendingInputs,
-    episode_inputs,
-    input_set_named,
-)
-from humanoid.learned import PolicyController
 from humanoid.perturbations import VelocityKick
-from humanoid.posture import arm_angles
-from humanoid.stepping import SensedSteppingExpert
 from policies.checkpoint import CheckpointError
 from policies.mlp import MLPPolicy, MLPSpec
 from rl.learner import training_env
+from rollout.episode import Episode, run_episode
+from students.inputs import INPUT_SETS, INPUTS, RAMP_NAMES, WALK_NAMES, PendingInputs, episode_inputs, input_set_named
+from students.learned import PolicyController
 from support import record_short
+from task.command_fields import COMMAND_NAMES, POSTURE_NAMES, VELOCITY_NAMES, Readout
+from task.posture import arm_angles
+from task.schedules import FIRST_NEUTRAL_SECONDS, command_schedule
+from teachers.expert import LQRExpert
+from teachers.stepping import SensedSteppingExpert
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 
 STEPS = 40
@@ -59,7 +51,7 @@ def delayed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     enough for the schedule's first command."""
     root = tmp_path_factory.mktemp("inputs") / "dataset"
     record_short(
-        root, episodes=2, max_steps=SCHEDULED_STEPS, latency=1.0, noise=0.0, controller="expert", schedules=True
+        root, episodes=2, max_steps=SCHEDULED_STEPS, latency=1.0, noise=0.0, controller="expert", task="posture"
     )
     return root
 

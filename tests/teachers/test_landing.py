@@ -10,10 +10,10 @@ import pytest
 
 from humanoid.conditions import DomainRandomization, Randomization
 from humanoid.env import make_env, model_and_data
-from humanoid.episode import run_episode
-from humanoid.expert import LQRExpert
-from humanoid.landing import Landing
-from humanoid.posture import Posture
+from rollout.episode import run_episode
+from task.posture import Posture
+from teachers.expert import LQRExpert
+from teachers.landing import Landing
 
 NOISY_LANDING_SEED = 9021
 """Under DART noise σ 0.05 the steady gain falls within 60 steps of this reset; the planned landing stands."""

@@ -3,18 +3,19 @@
 One row per field says everything the project does with it: its name (the entry of the dataset's
 `observation.command`, `Posture`'s keyword, a policy's `command.<name>` input), unit and limits, one key press's
 step (also the grid the scripted schedules draw from), the tolerance that counts as on the command, the keys
-that change it, the phrase a task string names it with, and the numbers of its MCAP `/command` fields. Every
-user reads the table: `humanoid.posture.Posture`, `humanoid.commands` (schedules, task strings, tracking and its
-reward), `teleop.keyboard` (bindings and status line), `teleop.mcap_io.schema` (the `/command` message) and the
-dataset's feature names (`teleop.store`).
+that change it, the phrase a task string names it with, the numbers of its MCAP `/command` fields, and how the
+command filter ramps it (its `rate`; a posed field's `waypoint_step` and `gain_step`, which the LQR teacher's ramp
+reads). Every user reads the table: `task.posture` (`Posture`, the command filter), `task.schedules` (schedules, task
+strings), `task.tracking` (tracking and its reward), `teachers.postures` (the ramp), `teleop.keyboard` (bindings and
+status line), `teleop.mcap_io.schema` (the `/command` message) and the dataset's feature names (`teleop.store`).
 
 How the achieved value is read from the body is the one piece of code a field adds besides its row
 (`Readout`): the trunk's pitch for `lean_forward`, the six arm joint angles for `arms`, and so on.
 
 Adding a field: a row here (`posed=False` for one tracked as its value, not as a pose), its entry in
 `Readout.__call__`, and the code that realises it (the standing expert realises a posed field as a balanced pose:
-`humanoid.posture.posture_pose`). Its MCAP numbers must be new ones: a file written before the field existed still
-decodes with today's `Command` message (tests/teleop/test_mcap.py holds such a file; tests/humanoid/
+`task.posture.posture_pose`). Its MCAP numbers must be new ones: a file written before the field existed still
+decodes with today's `Command` message (tests/teleop/test_mcap.py holds such a file; tests/task/
 test_command_fields.py tracks a velocity row added to the table).
 """
 
@@ -55,11 +56,19 @@ class CommandField:
     presets: bool = False
     """Whether its values name presets (0, 1, ... len(phrases) - 1) rather than a quantity."""
     posed: bool = True
-    """Whether the standing expert realises it as a balanced pose (`humanoid.posture.posture_pose`), whose coordinates
+    """Whether the standing expert realises it as a balanced pose (`task.posture.posture_pose`), whose coordinates
     are then its tracking target; otherwise the commanded value itself is (a velocity, say)."""
     group: str = "posture"
     """`POSTURE` (what the body holds where it stands) or `VELOCITY` (how it moves over the floor): the walking task
     commands both, the posture task the posture fields alone (`task_fields`)."""
+    rate: float = 0.0
+    """Mean speed (unit per second) at which the command filter moves the setpoint toward a new value
+    (`task.posture.PosturePath`); the arm preset's: rad/s of the arm joint with the farthest to go."""
+    waypoint_step: float = 0.0
+    """A posed field's largest change between two of the balanced waypoints a teacher's ramp solves on its way
+    (`teachers.postures.PostureRamp`, about 3 ms each); the arm preset's: of any arm joint, rad."""
+    gain_step: float = 0.0
+    """A posed field's largest change between two LQR gains designed on that way (0.05 to 0.2 s each)."""
 
     def clip(self, value: float) -> float:
         """`value` inside [low, high], a preset field's rounded to a preset."""
@@ -78,7 +87,11 @@ POSTURE, VELOCITY = "posture", "velocity"
 
 COMMAND_FIELDS: tuple[CommandField, ...] = (
     # Limits measured by bench/posture_ranges.py (5 seeds, held 3 s after the ramp): about 75 % of the largest
-    # magnitude that stayed up, and was reached, on every seed (docs/concepts/commands.md).
+    # magnitude that stayed up, and was reached, on every seed (docs/concepts/commands.md). Rates: crouching is slow
+    # because the LQR teacher clips its height error to 2 cm (`teachers.lqr.LQRDesign.height_clip`, for the drop after
+    # reset): at 0.05 m/s and more the torso lags the setpoint and the body falls; at 1.5 rad/s the arms' swing toppled
+    # the body; a walk speeds up and slows down over about a second, as a step takes a third of one
+    # (docs/decisions/walking-teacher.md).
     CommandField(
         "lean_forward",
         "rad",
@@ -89,6 +102,9 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         keys=(("s",), ("w",)),
         phrases=("lean back", "lean forward"),
         mcap=(2, 10, 15),
+        rate=0.5,
+        waypoint_step=0.05,
+        gain_step=0.2,
     ),
     CommandField(
         "lean_left",
@@ -100,6 +116,9 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         keys=(("d",), ("a",)),
         phrases=("lean right", "lean left"),
         mcap=(3, 11, 16),
+        rate=0.5,
+        waypoint_step=0.05,
+        gain_step=0.2,
     ),
     CommandField(
         "height",
@@ -111,6 +130,9 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         keys=(("f",), ("r",)),
         phrases=("crouch", "rise"),
         mcap=(4, 12, 17),
+        rate=0.025,
+        waypoint_step=0.01,
+        gain_step=0.06,
     ),
     CommandField(
         "twist",
@@ -122,6 +144,9 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         keys=(("e",), ("q",)),
         phrases=("twist right", "twist left"),
         mcap=(5, 13, 18),
+        rate=0.8,
+        waypoint_step=0.05,
+        gain_step=0.3,
     ),
     CommandField(
         "arms",
@@ -134,6 +159,9 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         phrases=("arms neutral", "arms forward", "arms up", "arms out"),
         mcap=(6, 14, None),
         presets=True,
+        rate=0.4,
+        waypoint_step=0.1,
+        gain_step=0.5,
     ),
     # Velocities in the world frame turned with the body's heading (`Readout`): the ranges of issue 61, which the
     # stepping expert walks (docs/decisions/walking-teacher.md); a key press is a tenth.
@@ -149,6 +177,7 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         mcap=(19, 20, 21),
         posed=False,
         group=VELOCITY,
+        rate=0.4,
     ),
     CommandField(
         "sideways_speed",
@@ -162,6 +191,7 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         mcap=(22, 23, 24),
         posed=False,
         group=VELOCITY,
+        rate=0.4,
     ),
     CommandField(
         "turn_rate",
@@ -175,6 +205,7 @@ COMMAND_FIELDS: tuple[CommandField, ...] = (
         mcap=(25, 26, 27),
         posed=False,
         group=VELOCITY,
+        rate=0.5,
     ),
 )
 """Every field, in the order of `observation.command`: a dataset recorded before a field existed lacks its entry,
@@ -186,7 +217,7 @@ COMMAND_NAMES = tuple(FIELDS)
 COMMAND_SIZE = len(COMMAND_NAMES)
 POSTURE_FIELDS = tuple(field for field in COMMAND_FIELDS if field.group == POSTURE)
 POSTURE_NAMES = tuple(field.name for field in POSTURE_FIELDS)
-"""The posture fields' names: what a posture-commanded policy reads (`humanoid.inputs`)."""
+"""The posture fields' names: what a posture-commanded policy reads (`students.inputs`)."""
 VELOCITY_NAMES = tuple(field.name for field in COMMAND_FIELDS if field.group == VELOCITY)
 
 
@@ -200,9 +231,16 @@ def tolerances(fields: Iterable[CommandField]) -> np.ndarray:
     return np.array([field.tolerance for field in fields])
 
 
-def task_fields(walking: bool) -> tuple[CommandField, ...]:
-    """The fields a task commands, tracks and scores: every field when walking, else the posture fields."""
-    return COMMAND_FIELDS if walking else POSTURE_FIELDS
+STAND, POSTURE_TASK, WALK = "stand", "posture", "walk"
+TASKS = (STAND, POSTURE_TASK, WALK)
+"""What the operator asks for (`TASK=`, every stage's `--task`): `stand` still (the zero command), follow `posture`
+commands (the scripted operator's schedules of the posture fields; the pipeline's task), or `walk` too (schedules that
+mix walks in: every field). A controller that follows them says so (`takes_command`, `walks`)."""
+
+
+def task_fields(task: str) -> tuple[CommandField, ...]:
+    """The fields `task` commands, tracks and scores: every field when walking, else the posture fields."""
+    return COMMAND_FIELDS if task == WALK else POSTURE_FIELDS
 
 
 ARM_JOINTS = (
@@ -213,7 +251,7 @@ ARM_JOINTS = (
     "left_shoulder2",
     "left_elbow",
 )
-"""The joints the arm presets set (`humanoid.posture.ARM_POSES`), whose angles `Readout` reads for `arms`."""
+"""The joints the arm presets set (`task.posture.ARM_POSES`), whose angles `Readout` reads for `arms`."""
 
 
 class Readout:

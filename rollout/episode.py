@@ -6,6 +6,7 @@ The rollout is shared by the recorder, the benchmarks and evaluation, so that "r
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -15,12 +16,12 @@ import numpy as np
 
 from common.cli import UserError
 from common.columns import PUSH_NAMES
-from humanoid.command_fields import COMMAND_NAMES
-from humanoid.commands import command_posture, command_schedule, task_for
 from humanoid.conditions import action_delay
-from humanoid.controllers import Controller
 from humanoid.env import body_poses, model_and_data
 from humanoid.perturbations import perturbation
+from rollout.controllers import Controller
+from task.command_fields import COMMAND_NAMES, STAND
+from task.schedules import command_posture, task_commands, task_for
 
 
 @dataclass
@@ -82,6 +83,34 @@ class StepObserver(Protocol):
 
 class NonFiniteActionError(UserError):
     """A controller returned NaN or infinity: MuJoCo would integrate it into garbage, so the rollout stops."""
+
+
+class ControllerFailure(UserError):
+    """A controller raised an error in an episode: that episode ends unrecorded (one line naming its seed, step and
+    command), and a recording goes on with the next seed (`EpisodeFailure`)."""
+
+
+@dataclass(frozen=True)
+class EpisodeFailure:
+    """A seed whose episode a controller failed in (`ControllerFailure`): what a recording worker hands back instead
+    of the episode."""
+
+    seed: int
+    message: str
+
+
+def controlled(call: Callable[..., Any], controller: Controller, seed: int, t: int, task: str, *args: Any) -> Any:
+    """`call(*args)`, one of `controller`'s methods at step `t` of the episode with `seed` under the command the task
+    string `task` names; a `ControllerFailure` in one line if it raises (a `UserError` passes as it is)."""
+    try:
+        return call(*args)
+    except UserError:
+        raise
+    except Exception as error:
+        raise ControllerFailure(
+            f"controller {controller.name!r} failed at step {t} of the episode with seed {seed}, commanded "
+            f"{task[:-1].lower()!r}: {type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+        ) from error
 
 
 def injected_noise(seed: int, steps: int, noise_std: float, action_dim: int) -> np.ndarray:
@@ -183,8 +212,7 @@ def run_episode(
     buffer: EpisodeBuffer | None = None,
     labeller: Controller | None = None,
     observer: StepObserver | None = None,
-    schedules: bool = False,
-    walking: bool = False,
+    task: str = STAND,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
@@ -192,20 +220,16 @@ def run_episode(
     labeller's action in the state the controller led to. Perturbations, domain randomisation and
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
-    An `observer` sees every step as it completes. With `schedules` the operator's command follows the schedule
-    drawn from `seed` (`humanoid.commands.command_schedule`; `walking`: with walks), told to the controller and the
-    labeller at each change; without, it is zero (stand still). The task string names the command in force
-    (`humanoid.commands.task_for`).
+    An `observer` sees every step as it completes. The operator's command is `task`'s (`task.schedules.task_commands`:
+    zero to stand, else the schedule drawn from `seed`), told to the controller and the labeller at each change; the
+    task string names the command in force (`task.schedules.task_for`). A controller that raises ends the episode with
+    a `ControllerFailure`.
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
-    commands = (
-        command_schedule(seed, max_steps, env.unwrapped.dt, walking)
-        if schedules
-        else np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
-    )
+    commands = task_commands(task, seed, max_steps, env.unwrapped.dt)
     acting = [controller] if labeller is None else [controller, labeller]
     perturbed = perturbation(env)
 
@@ -219,9 +243,9 @@ def run_episode(
     t = 0
     while True:
         if t == 0 or (commands[t] != commands[t - 1]).any():
+            named = task_for(command_posture(commands[t]))
             for each in acting:
-                each.set_command(commands[t])
-            task = task_for(command_posture(commands[t]))
+                controlled(each.set_command, each, seed, t, named, commands[t])
         push = None if perturbed is None else perturbed.recorded_push(t)
         obs, _, terminated, truncated = rollout_step(
             env,
@@ -233,7 +257,7 @@ def run_episode(
             noise,
             buffer,
             commands[t],
-            task,
+            named,
             labeller=labeller,
             push=push,
             observer=observer,
@@ -269,13 +293,14 @@ def rollout_step(
     observer: StepObserver | None = None,
 ) -> tuple[np.ndarray, float, bool, bool]:
     """Step t of an episode, as every rollout takes it (`run_episode`, the keyboard's session): `controller` acts on
-    `obs` (checked), the episode's `noise` is added (`executed_action`), `labeller` (DAgger) labels the state, row t
-    is recorded with the teacher's setpoint (the labeller's, else the controller's) and the `push` in force, the env
-    steps, and `observer` sees the row. Returns (o_t+1, r_t, terminated, truncated)."""
-    action = controller.act(obs)
+    `obs` (checked; a failure is `controlled`'s), the episode's `noise` is added (`executed_action`), `labeller`
+    (DAgger) labels the state, row t is recorded with the teacher's setpoint (the labeller's, else the controller's)
+    and the `push` in force, the env steps, and `observer` sees the row. Returns (o_t+1, r_t, terminated,
+    truncated)."""
+    action = controlled(controller.act, controller, seed, t, task, obs)
     check_action(action, controller, t, seed)
     executed = executed_action(action, noise, t, env.action_space)
-    label = action if labeller is None else labeller.act(obs)
+    label = action if labeller is None else controlled(labeller.act, labeller, seed, t, task, obs)
     if labeller is not None:
         labeller.ran(executed)  # what is in flight is what ran, not its label
     teacher = controller if labeller is None else labeller  # whose actions are the labels

@@ -7,7 +7,7 @@ on disk like the steady gains:
 
 1. the nominal landing: the steady expert's own rollout from the nominal reset state (``qpos0`` at
    rest, no reset noise) on the env's model and solver, so the plan is what the env does;
-2. the env-level linear model along it (``humanoid.lqr.linearise`` from each moving state);
+2. the env-level linear model along it (`teachers.lqr.linearise` from each moving state);
 3. the finite-horizon Riccati recursion with the steady design's costs, back from its cost-to-go,
    over ``SETTLE`` steps more than the plan keeps: its gains at the plan's end are then near the
    steady gain, and the hand-over is smooth.
@@ -23,13 +23,14 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from humanoid.lqr import (
+from common.cache import load_or_build
+from humanoid.env import FRAME_SKIP
+from teachers.lqr import (
     CTRL_LIMIT,
     LQRDesign,
     LQRGains,
     cache_key,
     linearise,
-    load_or_build,
     load_or_design,
     lqr_cost,
     riccati,
@@ -56,7 +57,7 @@ class Landing:
     ctrl: np.ndarray
     """(T, nu) its actions."""
     gain: np.ndarray
-    """(T, nu, nx) the feedback gain at each step, on ``humanoid.lqr.state_error`` from the nominal state."""
+    """(T, nu, nx) the feedback gain at each step, on `teachers.lqr.state_error` from the nominal state."""
 
     def __len__(self) -> int:
         return len(self.ctrl)
@@ -78,7 +79,7 @@ def nominal_landing(
     for t in range(steps):
         qpos[t], qvel[t] = data.qpos, data.qvel
         ctrl[t] = data.ctrl[:] = steady_action(model, design, setpoint, data.qpos, data.qvel)
-        mujoco.mj_step(model, data, nstep=design.frame_skip)  # what MujocoEnv.do_simulation does
+        mujoco.mj_step(model, data, nstep=FRAME_SKIP)  # what MujocoEnv.do_simulation does
     return qpos, qvel, ctrl
 
 
@@ -101,6 +102,6 @@ def design_landing(model: mujoco.MjModel, gains: LQRGains, design: LQRDesign) ->
 
 def load_or_design_landing(model: mujoco.MjModel, design: LQRDesign) -> Landing:
     """``design_landing`` for the steady gains of (model, design) through the on-disk cache
-    (``humanoid.lqr.load_or_build``), keyed like those gains."""
+    (`common.cache.load_or_build`), keyed like those gains."""
     key = hashlib.sha256(f"{cache_key(model, design)} landing {_CACHE_FORMAT}".encode()).hexdigest()
     return load_or_build("landing", key, Landing, lambda: design_landing(model, load_or_design(model, design), design))

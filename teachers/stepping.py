@@ -2,9 +2,10 @@
 once it leaves (docs/decisions/stepping-teacher.md).
 
 Humanoid-v5's feet are spheres with no ankle: without a step the hips absorb about 0.16 m/s of the body's velocity,
-and every standing controller falls to a 0.2 m/s kick. `SteppingExpert` runs the LQR expert (`humanoid.expert`)
+and every standing controller falls to a 0.2 m/s kick. `SteppingExpert` runs the LQR expert (`teachers.expert`)
 until the capture point (centre of mass + its velocity / ω) leaves the segment between the feet, or the centre of
-mass moves faster than a standing body does, and from then on plans every env step by predictive sampling, MuJoCo
+mass moves faster than a standing body does (the hand-over rule its students compute too: `task.handover`), and from
+then on plans every env step by predictive sampling, MuJoCo
 MPC's way: spline controls around the previous plan, rolled out on a planning copy of the model (`mujoco.rollout`),
 the cheapest kept. Its cost is MuJoCo MPC's humanoid balance: the capture point over the feet, head high, torso
 upright, feet back at the stance's width, small velocity and effort. Under the zero command and no push the trigger
@@ -22,15 +23,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from humanoid.command_fields import VELOCITY_NAMES, field_positions
+from humanoid.capture import Support, capture_offset, off_segment
 from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
-from humanoid.expert import ExpertAround, LQRExpert, SensedExpert
-from humanoid.lqr import CTRL_LIMIT
 from humanoid.sensors import yaw_rate
+from task.command_fields import VELOCITY_NAMES, field_positions
+from task.handover import STEPPING
+from teachers.expert import ExpertAround, LQRExpert, SensedExpert
+from teachers.lqr import CTRL_LIMIT
 
 STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
-OMEGA = 3.4
-"""sqrt(g / centre-of-mass height) of the standing body, 1/s: the capture point's time constant."""
 STANCE_WIDTH = 0.18
 """Sideways distance between the feet in the LQR's stance, m."""
 _VELOCITIES = field_positions(VELOCITY_NAMES)  # where the walk sits in the expert's setpoint
@@ -41,7 +42,7 @@ the commanded crouch)."""
 
 @dataclass(frozen=True)
 class SteppingDesign:
-    """The planner's settings and the trigger's (docs/decisions/stepping-teacher.md)."""
+    """The planner's settings (docs/decisions/stepping-teacher.md)."""
 
     samples: int = 64
     """Control sequences rolled out per env step (the previous plan among them): 32 survived 0.4 m/s kicks about
@@ -54,13 +55,6 @@ class SteppingDesign:
     """Std of the knots' Gaussian perturbation (the motors accept ±0.4)."""
     dt: float = 0.015
     """The planning model's step, one env step, with the implicitfast integrator (the env's is RK4 at 0.003 x 5)."""
-    trigger_offset: float = 0.02
-    """Plan once the capture point is this far (m) off the segment between the feet: the LQR's schedules reach
-    0.0075 at most."""
-    trigger_speed: float = 0.12
-    """Or once the centre of mass moves this fast (m/s) horizontally: the LQR's schedules reach 0.03."""
-    armed_after: int = 100
-    """Env steps after a reset before the trigger is armed: the landing's drop is the LQR's."""
     weights: dict[str, float] = field(
         default_factory=lambda: {
             "height": 30.0,
@@ -77,10 +71,6 @@ class SteppingDesign:
     """The cost's terms per planning step (`StepPlanner.cost`); the horizon's last step counts 5 times."""
     walk: dict[str, float] = field(default_factory=dict)
     """The walking cost's terms (`WALKING`'s; empty: the kick planner's design, which walks nothing)."""
-
-    def armed(self, steps: int) -> bool:
-        """Whether the kick trigger is armed at the `steps`-th env step of an episode (the first is 1)."""
-        return steps > self.armed_after
 
 
 WALKING = SteppingDesign(
@@ -127,13 +117,6 @@ def planning_model(design: SteppingDesign) -> mujoco.MjModel:
 COM, COM_VEL, LEFT_FOOT, RIGHT_FOOT, HEAD, TORSO_Z, TORSO_X = (slice(3 * i, 3 * i + 3) for i in range(7))
 
 
-def off_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (...) from points (..., 2) to the segments from a to b (..., 2)."""
-    ab = b - a
-    t = np.clip(((point - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-9), 0.0, 1.0)
-    return np.linalg.norm(point - (a + t[..., None] * ab), axis=-1)
-
-
 def stance(sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(fore-aft, sideways) offset of the left foot from the right, in the torso's heading, of sensordata (..., n)."""
     heading = sensors[..., TORSO_X][..., :2]
@@ -144,34 +127,9 @@ def stance(sensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return fore, side
 
 
-def leaves_feet(design: SteppingDesign, sensors: np.ndarray) -> bool:
-    """Whether the capture point has left the segment between the feet or the body moves as no stance does, by
-    `design`'s thresholds, from a planning model's sensordata."""
-    velocity = sensors[COM_VEL][:2]
-    capture = sensors[COM][:2] + velocity / OMEGA
-    off = float(off_segment(capture, sensors[LEFT_FOOT][:2], sensors[RIGHT_FOOT][:2]))
-    return off > design.trigger_offset or float(np.linalg.norm(velocity)) > design.trigger_speed
-
-
-class EstimatedTrigger:
-    """`leaves_feet` of the leg odometry's estimated state: the kick planner's trigger as a robot computes it, shared
-    by the teacher on what a robot senses (`SensedSteppingExpert`) and its students' `planning` input, so the
-    student reads the step its teacher hands over on (docs/decisions/walking-student.md)."""
-
-    def __init__(self, design: SteppingDesign = SteppingDesign()) -> None:
-        self.design = design
-        self.model = planning_model(design)
-        self.data = mujoco.MjData(self.model)
-
-    def __call__(self, qpos: np.ndarray, qvel: np.ndarray) -> bool:
-        """Whether the body at the estimated (`qpos`, `qvel`) needs the planner."""
-        self.data.qpos[:] = qpos
-        self.data.qvel[:] = qvel
-        mujoco.mj_fwdPosition(self.model, self.data)
-        mujoco.mj_fwdVelocity(self.model, self.data)
-        mujoco.mj_sensorPos(self.model, self.data)
-        mujoco.mj_sensorVel(self.model, self.data)
-        return leaves_feet(self.design, self.data.sensordata)
+def capture_of(sensors: np.ndarray) -> tuple[float, float]:
+    """`humanoid.capture.capture_offset` of a planning model's sensordata."""
+    return capture_offset(sensors[COM], sensors[COM_VEL], sensors[LEFT_FOOT], sensors[RIGHT_FOOT])
 
 
 class StepPlanner:
@@ -291,11 +249,12 @@ class SteppingExpert(ExpertAround):
 
     Told what the LQR expert is told (the 348-dim observation, the body, the delay, the command); deterministic given
     the reset's seed. The walk follows the expert's setpoint, whose velocities ramp toward the command
-    (`humanoid.posture.RATES`). `planned` counts the episode's planned steps.
+    (each field's `rate`: `task.posture.PosturePath`). `planned` counts the episode's planned steps.
     """
 
     name = "expert-stepping"
     walks = True
+    handover = STEPPING
 
     def __init__(
         self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
@@ -326,8 +285,9 @@ class SteppingExpert(ExpertAround):
         self.walked = False
 
     def triggered(self, sensors: np.ndarray) -> bool:
-        """Whether the kick planner takes over: `leaves_feet` of the simulator's state (the planner's `sensors`)."""
-        return leaves_feet(self.design, sensors)
+        """Whether the kick planner takes over: its `handover` rule on the simulator's state (the planner's
+        `sensors`)."""
+        return self.handover.leaves(*capture_of(sensors))
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action = self.balance.act(obs)  # every step: its setpoint and pending actions stay current
@@ -338,7 +298,7 @@ class SteppingExpert(ExpertAround):
             self.walker.observe(obs)
             self.planned += 1
             return self.walker.act(action).astype(np.float32)
-        if self.planned or self.design.armed(self.steps):
+        if self.planned or self.handover.armed(self.steps):
             sensors = self.planner.observe(obs)
             if self.planned or self.triggered(sensors):
                 self.planned += 1
@@ -349,9 +309,9 @@ class SteppingExpert(ExpertAround):
 class SensedSteppingExpert(SteppingExpert):
     """`SteppingExpert` whose balance is the expert on leg odometry (`SensedExpert`): the teacher of students on what a
     robot senses, which read what its balance acts on, as the pipeline's students read `expert-sensed`'s
-    (docs/decisions/deployable-inputs.md). Its kick planner takes over on that same estimate (`EstimatedTrigger`), so
-    its students can compute the hand-over (their `planning` input); the planners still plan on the simulator's
-    state, as a teacher may (docs/decisions/walking-student.md)."""
+    (docs/decisions/deployable-inputs.md). Its kick planner takes over on that same estimate, so its students can
+    compute the hand-over (their `planning` input, `task.handover.HandOverFlag`); the planners still plan on the
+    simulator's state, as a teacher may (docs/decisions/walking-student.md)."""
 
     name = "expert-sensed-stepping"
 
@@ -359,7 +319,7 @@ class SensedSteppingExpert(SteppingExpert):
         self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
     ) -> None:
         super().__init__(design, delay, walking)
-        self.estimated = EstimatedTrigger(design)
+        self.support = Support(self.expert.model)
 
     @staticmethod
     def balancer(delay: int) -> LQRExpert | SensedExpert:
@@ -367,5 +327,6 @@ class SensedSteppingExpert(SteppingExpert):
         return SensedExpert(delay=delay)
 
     def triggered(self, sensors: np.ndarray) -> bool:
-        """`leaves_feet` of the state its balance acts on, the leg odometry's estimate: what its students compute."""
-        return self.estimated(*self.balance.estimate)
+        """Its `handover` rule on the state its balance acts on, the leg odometry's estimate: what its students
+        compute."""
+        return self.handover.leaves(*self.support(*self.balance.estimate))
