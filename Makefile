@@ -18,12 +18,13 @@ PYTHON312 ?= $(shell for p in python3.12 python3.13 python3 $(HOME)/.pyenv/versi
 	command -v $$p >/dev/null 2>&1 && $$p -c 'import sys; sys.exit(sys.version_info < (3, 12))' 2>/dev/null \
 	&& { command -v $$p; break; }; done)
 
-# One OpenBLAS kernel and one MKL path on every x86-64 CPU with AVX2, so that results are the same on any of them
-# (common/threads.py's PINNED; docs/decisions/cpu-kernels.md). Set before the libraries load, hence here; a value
-# already in the environment wins.
+# One OpenBLAS kernel, one MKL path and numpy's AVX2 loops on every x86-64 CPU with AVX2, Intel's and AMD's, so that
+# results are the same on any of them (common/threads.py's PINNED; docs/decisions/cpu-kernels.md). Set before the
+# libraries load, hence here; a value already in the environment wins.
 ifneq ($(shell grep -m1 -ow avx2 /proc/cpuinfo 2>/dev/null),)
 export OPENBLAS_CORETYPE ?= Haswell
 export MKL_CBWR ?= AVX2,STRICT
+export NPY_DISABLE_CPU_FEATURES ?= AVX512F,AVX512CD,AVX512_KNL,AVX512_KNM,AVX512_SKX,AVX512_CLX,AVX512_CNL,AVX512_ICL
 endif
 export HF_HUB_OFFLINE := 1
 export HF_DATASETS_OFFLINE := 1

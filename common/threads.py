@@ -7,9 +7,10 @@ expert's evaluations ran 2.3x slower, with the same results (docs/decisions/blas
 (the policies, BC and PPO's updates) are not BLAS threads of these libraries and keep their settings.
 
 One kernel: OpenBLAS picks its kernels by CPU, and so the LQR gains, the demonstrations and everything learnt from
-them differed between two x86 machines; torch's MKL likewise for BC's weights. `PINNED` are the settings under which
-they are the same on any x86-64 CPU with AVX2; the Makefile exports them, since they act only when set before the
-libraries load (docs/decisions/cpu-kernels.md).
+them differed between two x86 machines; torch's MKL likewise for BC's weights, numpy its loops for the tracking's
+trigonometry. `PINNED` are the settings under which they are the same on any x86-64 CPU with AVX2 (MKL's on any of
+Intel's: it runs the branch it is told on Intel's CPUs only); the Makefile exports them, since they act only when set
+before the libraries load (docs/decisions/cpu-kernels.md).
 """
 
 from __future__ import annotations
@@ -20,10 +21,16 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_info, threadpool_limits
 
-PINNED = {"OPENBLAS_CORETYPE": "Haswell", "MKL_CBWR": "AVX2,STRICT"}
-"""The environment the Makefile sets on an x86-64 CPU with AVX2: OpenBLAS's Haswell kernels (which AMD's Zen CPUs
-run too) and MKL's AVX2 path in its strict mode (the same bits whatever the threads and the batch), whatever
-CPU runs them."""
+PINNED = {
+    "OPENBLAS_CORETYPE": "Haswell",
+    "MKL_CBWR": "AVX2,STRICT",
+    "NPY_DISABLE_CPU_FEATURES": "AVX512F,AVX512CD,AVX512_KNL,AVX512_KNM,AVX512_SKX,AVX512_CLX,AVX512_CNL,AVX512_ICL",
+}
+"""The environment the Makefile sets on an x86-64 CPU with AVX2: OpenBLAS's Haswell kernels (which AMD's Zen CPUs run
+too); MKL's AVX2 branch in its strict mode (the same bits whatever the threads and the batch of 4 rows or more), which
+MKL runs on Intel's CPUs only: on AMD's it runs its own branch whatever it is told, and its one branch common to both,
+COMPATIBLE, cost 1.6x the training and gave other bits for other batch sizes; and numpy's AVX2 loops where the CPU has
+AVX-512 too (its AVX-512 ones compute the tracking's arctangents to other last bits)."""
 
 
 def pinnable() -> bool:
@@ -55,6 +62,7 @@ def unpinned() -> str | None:
     pinned = PINNED["OPENBLAS_CORETYPE"]
     if kernels and kernels != [pinned]:
         return f"OpenBLAS runs its {', '.join(kernels)} kernels here, not {pinned}"
-    if os.environ.get("MKL_CBWR", "").upper() != PINNED["MKL_CBWR"]:
-        return f"MKL_CBWR is not {PINNED['MKL_CBWR']}"
+    for name in ("MKL_CBWR", "NPY_DISABLE_CPU_FEATURES"):
+        if os.environ.get(name, "").upper() != PINNED[name]:
+            return f"{name} is not {PINNED[name]}"
     return None
