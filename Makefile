@@ -46,6 +46,7 @@ VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES EVAL_EPISODES OVERWRIT
 VARS.eval := POLICY EPISODES SEED TASK PUSH KICK NOISE CONDITION VIDEO PLOT LIVE LIVE_PORT LIVE_HOST
 VARS.play := POLICY DATASET EPISODES NOISE FRONT_END LIVE LIVE_PORT LIVE_HOST
 VARS.robustness := POLICY EPISODES SEED CONDITIONS TASK WORKERS
+VARS.tune-walker := GENERATIONS POPULATION WALKS KICKS KICK NOISE SEED CMA_SEED SIGMA SENSED WORKERS START RUN OUT
 VARS.dagger := DATASET OUTPUT POLICY INPUTS EXPERT RANDOMIZE LATENCY KICK NOISE ROUNDS EPISODES EPOCHS MIN_UPDATES \
 	EVAL_EPISODES WORKERS SEED OVERWRITE
 VARS.finetune-rl := BC_POLICY POLICY TIMESTEPS WORKERS BACKEND RAY_ADDRESS ENVS PUSH KICK CURRICULUM RANDOMIZE OVERWRITE
@@ -65,7 +66,7 @@ REMOVED.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS BC_
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
-.PHONY: help venv record play merge inspect export train-bc eval robustness dagger finetune-rl scratch-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
+.PHONY: help venv record play merge inspect export train-bc eval robustness tune-walker dagger finetune-rl scratch-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 
 # The variables come from the stages' configs (pipeline/targets.py), so they need .venv.
 help:  ## list the targets and their variables
@@ -94,7 +95,7 @@ record: $(STAMP)  ## record demonstrations (LeRobot v3.0 + MCAP), appended to th
 	$(PY) -m teleop.record $(flags)
 
 # The keys command a learned policy (one that takes a command): pipeline/targets.py's preset flags, then the variables.
-play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY: the newest of the chain's, a folder, or expert-stepping)
+play: $(STAMP)  ## drive a learned policy with the keyboard (POLICY: the newest of the chain's, a folder, or a teacher such as walker-sensed)
 	$(PY) -m teleop.record --controller=keyboard --policy=newest --dataset=datasets/play --noise=0 $(flags)
 
 merge: $(STAMP)  ## merge datasets recorded apart (SHARDS, disjoint seeds) into DATASET, as one recorder writes it
@@ -114,6 +115,9 @@ eval: $(STAMP)  ## evaluate a policy (or POLICY=expert), print JSON
 
 robustness: $(STAMP)  ## a policy (or POLICY=expert) under every condition of the robustness suite
 	$(PY) -m evaluation.robustness $(flags)
+
+tune-walker: $(STAMP)  ## tune the walker's gait by CMA-ES on selection seeds (resumes RUN; writes OUT, the walker's gait file)
+	$(PY) -m evaluation.tune_walker $(flags)
 
 dagger: $(STAMP)  ## DAgger with the expert as oracle, on a copy of the dataset
 	$(PY) -m bc.dagger $(flags)
@@ -160,6 +164,7 @@ bench: $(STAMP)  ## run the benchmarks of docs/benchmarks.md (about 2 hours)
 	$(PY) -m bench.data_efficiency
 	$(PY) -m bench.latency_students
 	$(PY) -m bench.live_cost
+	$(PY) -m bench.walker
 	$(PY) -m bench.stepping
 	$(PY) -m bench.posture_solves
 	$(PY) -m bench.ppo_throughput

@@ -69,8 +69,7 @@ from policies.folder import json_object
 from policies.mlp import MLPPolicy
 from rollout.episode import EpisodeFailure
 from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
-from teachers.expert import SensedExpert
-from teachers.registry import TEACHERS, able, teacher_named
+from teachers.registry import TEACHER, TEACHERS, WALKING_TEACHER, able, teacher_named
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_parameters
 from teleop.lerobot_io.format import INFO_PATH
@@ -99,12 +98,11 @@ class DaggerConfig:
         "what the student reads (`make train-bc`'s INPUTS); EXPERT labels from the sensed features or the full state",
         metavar="{" + ",".join(INPUTS) + "}",
     )
-    expert: str = setting(
-        SensedExpert.name,
-        "who labels the policy's states: the expert on the full state, the expert on leg odometry (the teacher "
-        "whose law INPUTS=pending can read), or one that steps and walks (for INPUTS=pending+walk, whose rollouts "
-        "follow walking schedules; docs/concepts/controllers.md); any registered teacher that labels: "
-        + ", ".join(able("labels")),
+    expert: str | None = setting(
+        None,
+        f"who labels the policy's states, any registered teacher that labels ({', '.join(able('labels'))}); "
+        f"default: the teacher on leg odometry, {TEACHER}, or for a walking student (INPUTS=...+walk or +gait, "
+        f"whose rollouts follow walking schedules) {WALKING_TEACHER} (docs/concepts/controllers.md)",
     )
     randomize: str | None = setting(
         None,
@@ -185,8 +183,16 @@ class DaggerResult:
         return "\n".join([*lines, self.final.describe()])
 
 
+def expert_of(cfg: DaggerConfig) -> str:
+    """Who labels: --expert, else the default teacher for the student's inputs (`WALKING_TEACHER` for a walking one)."""
+    if cfg.expert is not None:
+        return cfg.expert
+    return WALKING_TEACHER if input_set_named(cfg.inputs).walks else TEACHER
+
+
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
+    cfg = dataclasses.replace(cfg, expert=expert_of(cfg))
     expert = teacher_named(cfg.expert, "--expert")
     if not expert.labels:
         raise UserError(
@@ -234,8 +240,10 @@ def recorded_conditions(root: Path) -> tuple[str, float]:
 
 
 def resolved(cfg: DaggerConfig) -> DaggerConfig:
-    """`cfg` with RANDOMIZE and LATENCY filled in from the aggregate's recordings where not given; DatasetError if
-    its episodes draw other parameters than rollouts under them would (the store could not append them)."""
+    """`cfg` with EXPERT (`expert_of`), RANDOMIZE and LATENCY filled in from the aggregate's recordings where not
+    given; DatasetError if its episodes draw other parameters than rollouts under them would (the store could not append
+    them)."""
+    cfg = dataclasses.replace(cfg, expert=expert_of(cfg))
     root = cfg.output if cfg.output.exists() else cfg.dataset
     if cfg.randomize is None or cfg.latency is None:  # given, they stand: the drawn parameters are checked below
         randomize, latency = recorded_conditions(root)

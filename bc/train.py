@@ -55,9 +55,8 @@ from policies.mlp import MLPPolicy, MLPSpec
 from rollout.controllers import KEYBOARD, KEYBOARD_EXPERT, built
 from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from task.command_fields import VELOCITY_NAMES, field_positions
-from teachers.registry import TEACHERS
+from teachers.registry import TEACHER, TEACHERS
 from teleop.dataset_reader import read_commanded_frames, read_episodes
-from teleop.record import TEACHER
 
 VAL_FRACTION = 0.1
 """Share of the episodes held out for validation (at least one): whole episodes, never single frames."""

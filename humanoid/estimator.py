@@ -130,8 +130,11 @@ class LegOdometry:
             heights.append(-point[2])
         return np.array(velocities), np.array(heights)
 
-    def __call__(self, sensed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The estimated (qpos with root x = y = 0, qvel) after this step's sensed features."""
+    def __call__(self, sensed: np.ndarray, still: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The estimated (qpos with root x = y = 0, qvel) after this step's sensed features. `still` (a bool per foot,
+        `physics.FOOT_GEOMS` order), when given, says which feet the controller's contact schedule holds still: a foot
+        the sensors say is down corrects the velocity only if it is one of them (a walker's swing foot that grazes the
+        floor, or its stance foot as it leaves, slides); without it every foot down does, as when standing."""
         model, data = self.model, self.data
         data.qpos[:3] = 0.0
         data.qpos[3:7] = level_quaternion(sensed[self._gravity])
@@ -157,8 +160,8 @@ class LegOdometry:
             predicted = self.com_velocity + self.dt * (force / self.mass - np.array([0.0, 0.0, GRAVITY]))
             if down.all() and self.steps_down <= LANDING_STEPS:
                 self.com_velocity = feet_velocity.mean(axis=0) + relative
-            elif down.any() and self.steps_down > LANDING_STEPS:
-                measured = feet_velocity[down].mean(axis=0) + relative
+            elif (anchored := down if still is None else down & still).any() and self.steps_down > LANDING_STEPS:
+                measured = feet_velocity[anchored].mean(axis=0) + relative
                 self.com_velocity = predicted + self._gains * (measured - predicted)
             else:
                 self.com_velocity = predicted
@@ -211,11 +214,15 @@ class OdometryFeatures:
         self.odometry = LegOdometry(model)
         self.estimate: tuple[np.ndarray, np.ndarray] = (np.zeros(model.nq), np.zeros(model.nv))
         """The last (qpos, qvel) `from_sensed` estimated."""
+        self.still: np.ndarray | None = None
+        """The feet held still at the next `from_sensed` (a bool per foot), None: every foot down."""
 
     def reset(self) -> None:
         self.odometry.reset()
+        self.still = None
 
     def from_sensed(self, sensed: np.ndarray) -> np.ndarray:
-        """This step's input from this step's sensed features (float64); the estimated state stays in `estimate`."""
-        self.estimate = qpos, qvel = self.odometry(sensed)
+        """This step's input from this step's sensed features (float64); the estimated state stays in `estimate`. The
+        feet `still` says are held still (a walker's gait: `LegOdometry`), None: every foot down."""
+        self.estimate = qpos, qvel = self.odometry(sensed, self.still)
         return np.concatenate([sensed[self.read], [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])

@@ -100,3 +100,17 @@ def static_root_residual(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarr
     residual = static_inverse_dynamics(model, data)
     moment = data.xmat[model.body(TORSO_BODY).id].reshape(3, 3) @ residual[3:6]
     return np.array([residual[2], moment[0], moment[1]])
+
+
+def turned(qpos: np.ndarray, qvel: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """Copies of a state (qpos, qvel) turned by `yaw` (rad) about the vertical through the root: the root's orientation
+    and its world-frame linear velocity turned (its body-frame angular velocity and the joints as they are). The
+    dynamics do not change with the heading, so a controller designed facing +x acts on `turned(q, v, -heading)`."""
+    qpos, qvel = qpos.copy(), qvel.copy()
+    half = 0.5 * yaw
+    rotation = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+    mujoco.mju_mulQuat(qpos[3:7], rotation, qpos[3:7].copy())
+    c, s = np.cos(yaw), np.sin(yaw)
+    qpos[:2] = c * qpos[0] - s * qpos[1], s * qpos[0] + c * qpos[1]
+    qvel[:2] = c * qvel[0] - s * qvel[1], s * qvel[0] + c * qvel[1]
+    return qpos, qvel

@@ -92,10 +92,11 @@ from rollout.controllers import INTERACTIVE, registered
 from students.inputs import BLIND_INPUTS
 from task.command_fields import POSTURE_TASK, STAND
 from task.tracking import ERROR_KINDS
+from teachers.registry import TEACHER
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import TEACHER, RecordConfig, record
+from teleop.record import RecordConfig, record
 from teleop.record import validate as validate_record
 
 MADE_BY = "pipeline.run"

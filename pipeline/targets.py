@@ -34,6 +34,7 @@ from common.cli import field_default, flag, flat_fields
 from common.paths import NEWEST
 from evaluation.evaluate import EvalConfig
 from evaluation.robustness import RobustnessConfig
+from evaluation.tune_walker import TuneConfig
 from pipeline.run import SHARED_WORKERS, TIES, PipelineConfig
 from rl.finetune import FinetuneConfig
 from rl.scratch import ScratchConfig
@@ -146,6 +147,26 @@ TARGETS: dict[str, Target] = {
         RobustnessConfig,
         ("policy", "episodes", "seed", "conditions", "task", "workers"),
         removed=("schedules", "walking"),
+    ),
+    "tune-walker": Target(
+        "evaluation.tune_walker",
+        TuneConfig,
+        (
+            "generations",
+            "population",
+            "walks",
+            "kicks",
+            "kick",
+            "noise",
+            "seed",
+            "cma_seed",
+            "sigma",
+            "sensed",
+            "workers",
+            "start",
+            "run",
+            "out",
+        ),
     ),
     "dagger": Target(
         "bc.dagger",

@@ -17,6 +17,10 @@
     pending+walk  pending+ramp reading every command field: the velocities on their ramp too (3), whether the
               stepping teacher's planners have the body (`planning`, 1), then the velocities as the leg odometry
               estimates them (3): a policy that walks on velocity commands (docs/decisions/walking-student.md)
+    pending+gait  pending+walk with the walker's gait clock in place of `planning`: whether a walk is on, its phase,
+              which foot swings, how far the step has gone, where the foot lands (`task.gait.GaitClock.features`,
+              9), run on the same leg odometry as the walker on what a robot senses (`walker-sensed`): its student
+              (docs/decisions/walking-teacher.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -40,6 +44,7 @@ to `observe` live and decoded with the frame offline; a set without it ignores t
 
 from __future__ import annotations
 
+import hashlib
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
@@ -65,6 +70,7 @@ from task.command_fields import (
     field_positions,
     task_fields,
 )
+from task.gait import GAIT_FILE, GaitClock, load_gait
 from task.handover import STEPPING, HandOverFlag
 from task.posture import POSED, Posture, PosturePath
 from task.tracking import COMMAND_INFO
@@ -261,7 +267,16 @@ the leg odometry's estimate has left the feet (their rule: `task.handover.STEPPI
 odometry estimates them (`Readout` of the estimated state)."""
 
 
-def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSet]:
+GAIT_NAMES = (
+    *(f"ramp.{name}" for name in VELOCITY_NAMES),
+    *(f"gait.{name}" for name in GaitClock.FEATURES),
+    *(f"estimate.{name}" for name in VELOCITY_NAMES),
+)
+"""The walker's students' last inputs: the velocity fields on their ramp, the gait clock's features
+(`task.gait.GaitClock.features`), then the velocities as the leg odometry estimates them."""
+
+
+def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = False) -> type[InputSet]:
     """`base`'s inputs, then the operator's command as the expert's setpoint moves toward it (`PosturePath`, run on
     the command the frame records): the set named "BASE+ramp"; with `walking`, "BASE+walk": the velocity fields on
     their ramp too, whether the stepping teacher's planners have the body, then the velocities as `base`'s leg odometry
@@ -275,32 +290,36 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
     taken over (a walk, or a kick), which they keep to the episode's end (docs/decisions/walking-student.md).
     Stateful: the ramp runs along the episode's frames, one env step per frame.
     """
+    walking = walking or gait
     commanded = commanded_set(base, walking)
     names = command_names(walking)
     size = len(names)
     velocities = VELOCITY_NAMES if walking else ()
 
     class RampedInputs(commanded):
-        name = f"{base.name}+walk" if walking else f"{base.name}+ramp"
+        name = f"{base.name}+gait" if gait else f"{base.name}+walk" if walking else f"{base.name}+ramp"
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
 
         @staticmethod
         def input_names(model: mujoco.MjModel) -> list[str]:
-            return [*base.input_names(model), *RAMP_NAMES, *(WALK_NAMES if walking else ())]
+            return [*base.input_names(model), *RAMP_NAMES, *(GAIT_NAMES if gait else WALK_NAMES if walking else ())]
 
         def __init__(self, model: mujoco.MjModel) -> None:
             super().__init__(model)
             self.path = PosturePath(model)  # the env step, as the teacher's
             self.command = np.zeros(size, np.float32)
             self.readout = Readout(model) if walking else None
-            self.planning = HandOverFlag(model, HANDOVER) if walking else None
+            self.planning = HandOverFlag(model, HANDOVER) if walking and not gait else None
+            self.clock = GaitClock(model, load_gait()) if gait else None
 
         def reset(self) -> None:
             base.reset(self)
             self.path.reset()
             self.command[:] = 0.0
-            if walking:
+            if self.planning is not None:
                 self.planning.reset()
+            if self.clock is not None:
+                self.clock.reset()
 
         def __call__(self, frame: np.ndarray) -> np.ndarray:
             command = frame[-size:]
@@ -312,11 +331,19 @@ def ramped_set(base: type[PendingInputs], walking: bool = False) -> type[InputSe
             self.path.step()  # as the expert's `act`: one env step along the move, if there is one
             posture = self.path.posture
             ramp = [*(getattr(posture, name) for name in _RAMP_FIELDS), *self.path.arms()]
+            if gait:  # the walker's odometry trusts only the feet its gait holds still
+                self.odometry.still = self.clock.still() if self.clock.active else None
             inputs = base.__call__(self, frame[:-size])  # runs the leg odometry on this frame
             if walking:
                 speeds = [getattr(posture, name) for name in velocities]
                 qpos, qvel = self.odometry.estimate
-                ramp += [*speeds, float(self.planning(any(speeds), qpos, qvel))]  # as the teacher hands over
+                if gait:  # as the walker's clock runs: a tick before its controls, the advance after
+                    velocity = np.array(speeds)
+                    self.clock.tick(qpos, qvel, velocity)
+                    self.clock.advance(velocity)
+                    ramp += [*speeds, *self.clock.features()]
+                else:
+                    ramp += [*speeds, float(self.planning(any(speeds), qpos, qvel))]  # as the teacher hands over
                 achieved = self.readout(qpos[2:], qvel)
                 ramp += [float(achieved[name][0]) for name in velocities]
             return np.concatenate([inputs, np.array(ramp, frame.dtype)])
@@ -339,6 +366,7 @@ INPUT_SETS: dict[str, type[InputSet]] = {
         commanded_set(PendingInputs),
         ramped_set(PendingInputs),
         ramped_set(PendingInputs, walking=True),
+        ramped_set(PendingInputs, gait=True),
     )
 }
 INPUTS = tuple(INPUT_SETS)
@@ -373,8 +401,8 @@ def input_set_named(inputs: str) -> type[InputSet]:
 def computation_digest() -> str:
     """A digest of the code that computes every input set from recorded frames, every project module this one imports
     at any depth (`common.digest.source_digest`), so that inputs an earlier version computed and cached are not
-    reused."""
-    return source_digest(__name__)
+    reused; and of the gait file the walker's students' clock reads (`task.gait.GAIT_FILE`)."""
+    return hashlib.sha256((source_digest(__name__) + GAIT_FILE.read_text()).encode()).hexdigest()
 
 
 def episode_inputs(

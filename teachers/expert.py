@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import copy
 from collections import deque
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
 from humanoid.env import FRAME_SKIP, QPOS_OBS, QVEL_OBS, nominal_model
 from humanoid.estimator import LegOdometry
+from humanoid.physics import turned
 from humanoid.sensors import Proprioception
 from task.posture import NEUTRAL, Posture
 from task.schedules import command_posture, command_vector
@@ -82,6 +84,8 @@ class LQRExpert(Teacher):
         self._qpos = self.qpos_ref.copy()
         self._ramp: PostureRamp | None = None  # built on the first hold: a never-commanded expert pays nothing
         self._moving = False  # one attribute test per act while the setpoint is still
+        self.heading = 0.0
+        """The yaw (rad) the setpoint faces: 0, as designed, until a walker hands the body back facing elsewhere."""
 
     def set_delay(self, steps: int) -> None:
         """The action latency from the next `reset` on, told for each episode (`rollout.episode.tell_delay`)."""
@@ -114,7 +118,8 @@ class LQRExpert(Teacher):
         return copy.copy(self.model) if self._body is None else self._body[0]
 
     def reset(self, seed: int | None = None) -> None:
-        """Back to the neutral posture at once (setpoint and target); no action pending; otherwise deterministic."""
+        """Back to the neutral posture at once (setpoint and target), facing +x (`heading`); no action pending;
+        otherwise deterministic."""
         gains = self.gains if self._body is None else self._body[1]
         if self._ramp is None:
             self.gain = gains.gain  # only read until a posture is held
@@ -124,6 +129,7 @@ class LQRExpert(Teacher):
         self.qpos_ref[:] = gains.qpos_ref
         self.ctrl_ff[:] = gains.ctrl_ff
         self._moving = False
+        self.heading = 0.0
         self._landing_step = 0
         planned = self.landing is not None and self._body is None and self.delay == 0
         self._landing_end = len(self.landing) if planned else 0
@@ -185,6 +191,25 @@ class LQRExpert(Teacher):
         self._qpos[ROOT_XY:] = obs[QPOS_OBS]
         return self.act_on_state(self._qpos, obs[QVEL_OBS])
 
+    def follow(self) -> None:
+        """One env step of the setpoint while another law acts (a walker's stepper): the planned landing and the
+        command filter move on as `act` moves them, and under latency the step's action joins those in flight, as
+        `ran` then tells it; nothing is computed."""
+        if self._landing_step < self._landing_end:
+            self._landing_step += 1
+        if self._moving:
+            self._moving = self._ramp.step()
+        if self._predictor is not None:
+            self._pending.append(np.zeros(self.model.nu))
+            self._pending.popleft()
+
+    def predicted(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The state (qpos, qvel) the actions in flight lead to from (qpos, qvel): the one this step's action acts on
+        (itself without a delay). Read before `follow`, which moves the actions in flight on."""
+        if self._predictor is None:
+            return qpos, qvel
+        return self._predictor.predict(qpos, qvel, self._pending)
+
     def act_on_state(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """`act` for a state given as (qpos, qvel); root x and y are not read (translation-invariant)."""
         if self._landing_step < self._landing_end:  # no delay then, so nothing is pending
@@ -192,8 +217,9 @@ class LQRExpert(Teacher):
             return self.landing.action(self.model, self._landing_step - 1, qpos, qvel)
         if self._moving:
             self._moving = self._ramp.step()
-        if self._predictor is not None:
-            qpos, qvel = self._predictor.predict(qpos, qvel, self._pending)
+        qpos, qvel = self.predicted(qpos, qvel)
+        if self.heading:  # a walker handed the body back facing elsewhere: the setpoint faces there too
+            qpos, qvel = turned(qpos, qvel, -self.heading)
         action = steady_action(self.model, self.design, (self.qpos_ref, self.ctrl_ff, self.gain), qpos, qvel)
         if self._predictor is not None:
             self._pending.append(action.astype(np.float64))
@@ -271,3 +297,23 @@ class SensedExpert(ExpertAround):
     def act(self, obs: np.ndarray) -> np.ndarray:
         self.estimate = self.estimator(self.sensed(obs))
         return self.expert.act_on_state(*self.estimate)
+
+
+class Balanced(ExpertAround):
+    """A teacher that balances with the LQR expert and hands the body to another law on the way (the stepping
+    teachers, the walker): `balance` is the expert told the simulator's state, or with `on_estimate` the expert on
+    leg odometry (`SensedExpert`), the teacher of students on what a robot senses; `expert` is the LQR expert inside
+    it, whose setpoint, command and delay the teacher shares."""
+
+    on_estimate: ClassVar[bool] = False
+    """Whether its balance acts on the leg odometry's estimate rather than the simulator's state."""
+
+    def __init__(self, delay: int = 0) -> None:
+        self.balance: LQRExpert | SensedExpert = (
+            SensedExpert(delay=delay) if self.on_estimate else LQRExpert(delay=delay)
+        )
+        """Who balances until another law takes over."""
+        self.expert = self.balance.expert if isinstance(self.balance, SensedExpert) else self.balance
+
+    def set_body(self, model: mujoco.MjModel) -> None:
+        self.balance.set_body(model)

@@ -13,6 +13,7 @@ from common.cli import UserError
 from teachers.base import Teacher
 from teachers.expert import LQRExpert, SensedExpert
 from teachers.stepping import SensedSteppingExpert, SteppingExpert
+from teachers.walker import SensedWalker, Walker
 
 TEACHERS: dict[str, type[Teacher]] = {
     teacher.name: teacher
@@ -21,9 +22,17 @@ TEACHERS: dict[str, type[Teacher]] = {
         SensedExpert,  # the same on the leg odometry: the pipeline's teacher
         SteppingExpert,  # the LQR expert until the capture point leaves the feet, then a sampling planner
         SensedSteppingExpert,  # the same around the expert on the leg odometry
+        Walker,  # the LQR expert while standing, foot placement and whole-body control once it walks or is kicked
+        SensedWalker,  # the same on the leg odometry
     )
 }
 """Every teacher, by its `name`."""
+TEACHER = SensedExpert.name
+"""Who demonstrates and labels by default: the expert on leg odometry, whose law a student on what a robot senses can
+read (docs/concepts/controllers.md)."""
+WALKING_TEACHER = SensedWalker.name
+"""Who demonstrates and labels where walking is asked (`make record TASK=walk`, `make dagger` for a walking student):
+the walker on leg odometry, whose gait clock such a student computes too (docs/decisions/walking-teacher.md)."""
 
 
 def register(teacher: type[Teacher]) -> type[Teacher]:

@@ -28,7 +28,7 @@ from humanoid.env import QPOS_OBS, QVEL_OBS, humanoid_xml
 from humanoid.sensors import yaw_rate
 from task.command_fields import VELOCITY_NAMES, field_positions
 from task.handover import STEPPING
-from teachers.expert import ExpertAround, LQRExpert, SensedExpert
+from teachers.expert import Balanced
 from teachers.lqr import CTRL_LIMIT
 
 STEPPING_STREAM = 8  # random stream of the planner's samples: (seed, 8); humanoid.conditions lists the others
@@ -243,7 +243,7 @@ class StepPlanner:
         return self.controls(self.plan)[0]
 
 
-class SteppingExpert(ExpertAround):
+class SteppingExpert(Balanced):
     """The LQR expert until the capture point leaves the feet, then `StepPlanner` to the episode's end; on a velocity
     command, the `WALKING` planner to the episode's end.
 
@@ -259,23 +259,13 @@ class SteppingExpert(ExpertAround):
     def __init__(
         self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
     ) -> None:
-        self.balance: LQRExpert | SensedExpert = self.balancer(delay)
-        """Who balances until a planner takes over (and gives the planners their first plan)."""
-        self.expert = self.balance if isinstance(self.balance, LQRExpert) else self.balance.expert
+        super().__init__(delay)  # the balance gives the planners their first plan
         self.design = design
         self.planner = StepPlanner(design, self.expert.qpos_ref)  # the setpoint, which the expert moves in place
         self.velocity = np.zeros(3)
         self.walker = StepPlanner(walking, self.expert.qpos_ref, self.velocity)
         self.planned = self.steps = 0
         self.walked = False
-
-    @staticmethod
-    def balancer(delay: int) -> LQRExpert | SensedExpert:
-        """The LQR expert told the simulator's state."""
-        return LQRExpert(delay=delay)
-
-    def set_body(self, model: mujoco.MjModel) -> None:
-        self.balance.set_body(model)
 
     def reset(self, seed: int | None = None) -> None:
         self.balance.reset(seed)
@@ -314,17 +304,13 @@ class SensedSteppingExpert(SteppingExpert):
     simulator's state, as a teacher may (docs/decisions/walking-student.md)."""
 
     name = "expert-sensed-stepping"
+    on_estimate = True
 
     def __init__(
         self, design: SteppingDesign = SteppingDesign(), delay: int = 0, walking: SteppingDesign = WALKING
     ) -> None:
         super().__init__(design, delay, walking)
         self.support = Support(self.expert.model)
-
-    @staticmethod
-    def balancer(delay: int) -> LQRExpert | SensedExpert:
-        """The LQR expert on the leg odometry's estimate."""
-        return SensedExpert(delay=delay)
 
     def triggered(self, sensors: np.ndarray) -> bool:
         """Its `handover` rule on the state its balance acts on, the leg odometry's estimate: what its students

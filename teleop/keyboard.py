@@ -44,8 +44,8 @@ if TYPE_CHECKING:
 PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
 PUSH_SECONDS = 0.1
 KICK_SPEED = 0.4
-"""m/s of the whole body, forward (world x, as the push): a kick the expert falls to and `expert-stepping` steps out
-of (`make play POLICY=expert-stepping`; docs/decisions/stepping-teacher.md)."""
+"""m/s of the whole body, forward (world x, as the push): a kick the expert falls to and the teachers that step step
+out of (`make play POLICY=walker-sensed` or `expert-stepping`; docs/decisions/walking-teacher.md)."""
 STATUS_EVERY = 5  # steps between two status lines while recording: 13 a second is what a person reads
 
 

@@ -69,8 +69,7 @@ from policies.folder import chosen_policy
 from rollout.controllers import INTERACTIVE, built, check_controller, make_controller, registered
 from rollout.episode import ControllerFailure, EpisodeBuffer, EpisodeFailure, run_episode
 from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
-from teachers.expert import SensedExpert
-from teachers.registry import TEACHERS
+from teachers.registry import TEACHER, TEACHERS, WALKING_TEACHER, able
 from teleop import recordings
 from teleop.lerobot_io.format import check_destination
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
@@ -82,9 +81,6 @@ if TYPE_CHECKING:
     from teleop.store import CommittedEpisode, EpisodeSink, EpisodeStore
 
 
-TEACHER = SensedExpert.name
-"""Who demonstrates by default: the expert on leg odometry, whose law a student on what a robot senses can read
-(docs/concepts/controllers.md)."""
 DART_NOISE = 0.03
 """The executed actions' noise (DART): clean demonstrations give a student that falls; at 0.05 the teacher on leg
 odometry, half its episodes delayed, falls in most and its students stood under noise far less often
@@ -118,10 +114,10 @@ class RecordConfig:
         "seed of the first new episode (episode i uses SEED+i); "
         "default: one past the largest seed in the dataset, 0 if new",
     )
-    controller: str = setting(
-        TEACHER,
-        "who acts: a registered controller (by default the teacher on what a robot senses; expert: the one told the "
-        "simulator's state) or a policy checkpoint folder",
+    controller: str | None = setting(
+        None,
+        "who acts: a registered controller or a policy checkpoint folder; default: the teacher on what a robot senses, "
+        f"{TEACHER} ({WALKING_TEACHER} with --task walk; expert: the one told the simulator's state)",
         metavar="{" + ",".join([*registered(), *INTERACTIVE]) + "}|PATH",
     )
     noise: float = setting(DART_NOISE, "std of the Gaussian noise added to the executed action (DART); 0 = clean")
@@ -140,8 +136,8 @@ class RecordConfig:
     kick: float = setting(
         0.0,
         "one kick of the root's horizontal velocity per episode, in m/s, in a seeded direction 4 to 8 s in (the "
-        "suite's kick conditions), recorded in the push column; 0 = none. The teacher that steps out of it: "
-        "expert-stepping",
+        "suite's kick conditions), recorded in the push column; 0 = none. The teachers that step out of it: "
+        + ", ".join(able("walks")),
     )
     max_steps: int = setting(EPISODE_STEPS, "time limit of an episode in steps (1000 is Humanoid-v5's)")
     task: str = setting(
@@ -156,7 +152,7 @@ class RecordConfig:
         None,
         "with --controller keyboard: the keys command this policy (a checkpoint folder of a policy that takes a "
         f"command, '{NEWEST}': the newest of {', '.join(map(str, paths.LEARNED))}, or a registered controller that "
-        "takes one, such as expert-stepping) instead of the expert (`make play`)",
+        f"takes one, such as {WALKING_TEACHER}) instead of the expert (`make play`)",
     )
     workers: int | None = setting(
         None,
@@ -220,7 +216,8 @@ class RecordSummary:
 
 
 def validate(cfg: RecordConfig) -> None:
-    """Reject bad settings before anything touches the disk."""
+    """Reject bad settings before anything touches the disk (of `cfg` as it records: `effective`)."""
+    cfg = effective(cfg)
     try:
         check_controller(cfg.controller)
     except ValueError as error:
@@ -285,8 +282,11 @@ def check_task(controller: str, task: str) -> None:
 
 
 def effective(cfg: RecordConfig) -> RecordConfig:
-    """`cfg` as it records: with the keys (`--controller keyboard`) the command is theirs (no scripted task) and no
-    episode is delayed, and `--policy newest` is the newest of the chain's policies (`common.paths.LEARNED`)."""
+    """`cfg` as it records: no --controller is the teacher for its task (`TEACHER`, `WALKING_TEACHER`); with the keys
+    (`--controller keyboard`) the command is theirs (no scripted task) and no episode is delayed, and `--policy newest`
+    is the newest of the chain's policies (`common.paths.LEARNED`)."""
+    if cfg.controller is None:
+        cfg = dataclasses.replace(cfg, controller=WALKING_TEACHER if cfg.task == WALK else TEACHER)
     if cfg.controller not in INTERACTIVE:
         return cfg
     policy = None if cfg.policy is None else chosen_policy(cfg.policy, paths.LEARNED, "make train-bc")
@@ -302,7 +302,7 @@ def check_played(cfg: RecordConfig) -> None:
         check_controller(cfg.policy, interactive=False)
     except ValueError as error:
         raise UserError(str(error)) from None
-    if cfg.policy in registered():  # a registered controller: the teachers follow the keys (`expert-stepping` steps)
+    if cfg.policy in registered():  # a registered controller: the teachers follow the keys (the walkers walk)
         env = make_env()
         try:
             commanded = make_controller(cfg.policy, env)
@@ -321,7 +321,7 @@ def check_played(cfg: RecordConfig) -> None:
     if not commanded.walks:
         print(
             f"{cfg.policy} takes no velocity command: the arrows and z/c change nothing, the posture keys work "
-            f"(one that walks: POLICY=expert-stepping, or train one: docs/how-to/walk.md)",
+            f"(one that walks: POLICY={WALKING_TEACHER}, or train one: docs/how-to/walk.md)",
             file=sys.stderr,
         )
 

@@ -21,7 +21,9 @@ from bc.dagger import (
     DaggerConfig,
     DaggerResult,
     DAggerTrainer,
+    check_settings,
     cli,
+    expert_of,
     main,
     recorded_conditions,
     resolved,
@@ -31,7 +33,7 @@ from bc.data import load_demonstrations
 from bc.train import TrainConfig
 from bc.train import main as train
 from common import columns
-from common.cli import DatasetError, config_dict
+from common.cli import DatasetError, UserError, config_dict
 from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_condition
 from humanoid.env import make_env
 from policies import checkpoint
@@ -40,7 +42,7 @@ from rollout.episode import run_episode
 from students.inputs import INPUT_SETS, INPUTS
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
 from teachers.expert import LQRExpert, SensedExpert
-from teachers.registry import TEACHERS
+from teachers.registry import TEACHER, TEACHERS, WALKING_TEACHER
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
 from teleop.parallel import RolloutSettings, Simulator
@@ -384,7 +386,7 @@ def test_conditions_given_stand_whatever_the_recordings_say(recorded: Path, tmp_
     for index, randomize in enumerate(("mild", "suite")):  # both draw the same parameters
         episode = CommittedEpisode(3 + index, 3 + index, 1, 0.0, False)
         recordings.append(root, "teleop.record", {"randomize": randomize}, [episode], True)
-    given = DaggerConfig(dataset=root, output=tmp_path / "out", randomize="none", latency=0.0)
+    given = DaggerConfig(dataset=root, output=tmp_path / "out", randomize="none", latency=0.0, expert=TEACHER)
     assert resolved(given) == given
     with pytest.raises(DatasetError, match="several conditions"):
         resolved(dataclasses.replace(given, latency=None))
@@ -422,7 +424,7 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
         ("--workers", "0"),
         ("--inputs", "pending"),  # learns to act through latency: the recording has none
         ("--inputs", "full+command"),  # learns to follow a command: the recording's never changes
-        ("--inputs", "pending+walk"),  # learns to walk: the default expert does not
+        ("--inputs", "pending+walk"),  # learns to walk: the recording commands no walk
     ],
 )
 def test_bad_rollout_settings_are_refused(
@@ -433,6 +435,17 @@ def test_bad_rollout_settings_are_refused(
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and option in err[0]
     assert not output.exists()
+
+
+def test_a_walking_student_is_labelled_by_the_walker_unless_told_otherwise() -> None:
+    """No --expert: the teacher on leg odometry labels a posture student and the walker on it a walking student;
+    --expert names who labels, and one that does not walk is refused for a walking student in one line."""
+    assert expert_of(DaggerConfig()) == TEACHER == "expert-sensed"
+    assert expert_of(DaggerConfig(inputs="pending+gait")) == WALKING_TEACHER == "walker-sensed"
+    assert expert_of(DaggerConfig(inputs="pending+walk")) == WALKING_TEACHER
+    assert expert_of(DaggerConfig(inputs="pending+gait", expert="walker")) == "walker"
+    with pytest.raises(UserError, match="--expert expert-sensed does not: give --expert"):
+        check_settings(DaggerConfig(inputs="pending+gait", expert="expert-sensed"))
 
 
 TWO_ROUNDS = {"rounds": 2, "episodes": 3, "min_updates": 0, "eval_episodes": 0, "progress": False, **STANDING_DAGGER}

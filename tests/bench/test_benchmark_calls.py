@@ -12,7 +12,11 @@ from bc.train import main as train_bc
 from bench.ppo_throughput import learn
 from bench.record_throughput import cpu_per_episode
 from bench.stepping import standing
+from bench.walker import walking_cost, walking_episode
 from support import SMALL_BC
+from task.posture import Posture
+from task.schedules import command_vector
+from teachers.walker import SensedWalker, Walker
 
 pytestmark = pytest.mark.slow  # a whole episode, a whole PPO rollout: seconds
 
@@ -32,3 +36,12 @@ def test_ppo_throughput_times_one_rollout_and_its_update(recorded: Path, tmp_pat
 def test_the_stepping_bench_measures_a_still_stance() -> None:
     planned, moved = standing(1000)
     assert planned == 0 and 0 <= moved < 0.02
+
+
+def test_the_walker_bench_measures_a_walk_its_smoothness_and_its_estimate() -> None:
+    """Seed 1001's schedule walks forward at 0.4 m/s, turning, from 3 s: the bench sees the walk's action changes and,
+    on leg odometry, the estimate's 1 s mean errors; an action costs some time."""
+    row = walking_episode(SensedWalker(), 1001)
+    assert len(row["changes"]) > 100 and 0 < sum(row["changes"]) / len(row["changes"]) < 0.1
+    assert row["errors"] and 0 <= max(row["errors"]) < 0.1
+    assert walking_cost(Walker(), 1001, command_vector(Posture(forward_speed=0.3)), steps=10) > 0

@@ -28,17 +28,18 @@ def test_every_registered_teacher_declares_its_capabilities_on_its_class() -> No
     for name, teacher in TEACHERS.items():
         assert teacher.name == name
         assert {type(getattr(teacher, what)) for what in ("takes_command", "walks", "labels")} == {bool}
-    assert able("walks") == ("expert-stepping", "expert-sensed-stepping")
+    assert able("walks") == ("expert-stepping", "expert-sensed-stepping", "walker", "walker-sensed")
     assert set(able("labels")) == set(TEACHERS)
 
 
 def test_a_walking_students_hand_over_flag_is_the_rule_of_every_teacher_that_hands_over() -> None:
-    """The walking input sets compute `HANDOVER`; a teacher that hands over runs that very rule, so a student of it
-    reads the step its teacher switches laws on (tests/students/test_inputs.py: the flip, step for step)."""
+    """The walking input sets compute `HANDOVER` (`pending+walk`'s flag; `pending+gait`'s gait clock starts on it); a
+    teacher that hands over runs that very rule, so a student of it reads the step its teacher switches laws on
+    (tests/students/test_inputs.py, tests/teachers/test_walker.py: step for step)."""
     handing_over = [teacher for teacher in TEACHERS.values() if teacher.handover is not None]
     assert handing_over and all(teacher.handover is HANDOVER for teacher in handing_over)
     assert all(teacher.walks for teacher in handing_over)  # what a walking set learns from
-    assert [name for name, inputs in INPUT_SETS.items() if inputs.walks] == ["pending+walk"]
+    assert [name for name, inputs in INPUT_SETS.items() if inputs.walks] == ["pending+walk", "pending+gait"]
 
 
 def test_a_name_that_is_not_registered_is_refused_listing_the_registered_ones() -> None:

@@ -24,9 +24,10 @@ from support import (
     registered,
     snapshot,
 )
+from teachers.registry import TEACHER, WALKING_TEACHER
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
-from teleop.record import STANDING, RecordConfig, cli
+from teleop.record import STANDING, RecordConfig, cli, effective
 from teleop.seeds import seed_clash
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -119,7 +120,10 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--controller", "keyboard", "--kick", "0.4"], "kicks with its k key: --kick must be 0"),
         (["--walking", "true"], "--walking was removed; give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)"),
         (["--schedules", "false"], "--schedules was removed; give --task (TASK=stand|posture|walk; SCHEDULES=0 is"),
-        (["--task", "walk"], "--task walk: expert-sensed does not walk, so nobody would follow the walks recorded"),
+        (
+            ["--task", "walk", "--controller", "expert-sensed"],
+            "--task walk: expert-sensed does not walk, so nobody would follow the walks recorded",
+        ),
         (["--task", "walk", "--controller", "random"], "--task walk: random does not walk"),
         (["--controller", "keyboard", "--task", "walk"], "--task walk draws the scripted operator's walking schedules"),
         (["--seed", "-1"], "--seed must be >= 0"),
@@ -133,6 +137,14 @@ def test_bad_settings_are_refused_before_touching_the_disk(
     code, err = run_cli(["--dataset", str(tmp_path / "new"), *args], capsys)
     assert code != 0 and len(err) == 1 and message in err[0]
     assert not (tmp_path / "new").exists()
+
+
+def test_the_teacher_recorded_by_default_is_the_one_for_the_task() -> None:
+    """No --controller: the teacher on leg odometry, and for a walking task the walker on it."""
+    assert effective(RecordConfig()).controller == TEACHER == "expert-sensed"
+    assert effective(RecordConfig(task="stand")).controller == TEACHER
+    assert effective(RecordConfig(task="walk")).controller == WALKING_TEACHER == "walker-sensed"
+    assert effective(RecordConfig(task="walk", controller="walker")).controller == "walker"
 
 
 def test_dataset_that_is_a_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -240,12 +252,14 @@ def test_second_recorder_on_the_same_dataset_refuses(
 
 
 def test_each_session_adds_its_config_to_recordings_jsonl(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """`make record` appends one line per session: who ran, every setting, the episodes and seeds it added."""
+    """`make record` appends one line per session: who ran, every setting as it recorded (the teacher it defaulted
+    to named), the episodes and seeds it added."""
     root = tmp_path / "logged"
     args = ["--dataset", str(root), "--episodes", "2", "--max-steps", "30", "--progress", "false"]
     assert cli(args) == 0 and cli([*args[:3], "1", *args[4:]]) == 0
     first, second = recordings.read(root)
-    assert first["config"] == config_dict(parse_config(RecordConfig, args, description=""))
+    assert first["config"] == config_dict(effective(parse_config(RecordConfig, args, description="")))
+    assert first["config"]["controller"] == TEACHER
     assert (first["made_by"], first["complete"]) == ("teleop.record", True)
     assert (first["episodes"], first["seeds"], first["count"]) == ([0, 1], [0, 1], 2)
     assert (second["episodes"], second["seeds"], second["count"]) == ([2, 2], [2, 2], 1)

@@ -14,6 +14,7 @@ from humanoid.env import make_env
 from rollout.controllers import make_controller
 from rollout.episode import run_episode
 from support import drawn_delay, mcap_parameters
+from teachers.registry import TEACHER
 from teleop.dataset_reader import read_episodes, read_frames, read_parameters
 from teleop.inspect_dataset import InspectConfig
 from teleop.inspect_dataset import main as inspect
@@ -94,4 +95,4 @@ def test_the_keyboard_records_no_delayed_episode_and_no_schedule() -> None:
     """With the keys the command is theirs and no episode is delayed, whatever the recording's defaults say."""
     keyed = effective(RecordConfig(controller="keyboard", latency=0.5, task="posture"))
     assert (keyed.latency, keyed.task) == (0.0, "stand")
-    assert effective(RecordConfig(latency=0.5)) == RecordConfig(latency=0.5)
+    assert effective(RecordConfig(latency=0.5)) == RecordConfig(latency=0.5, controller=TEACHER)

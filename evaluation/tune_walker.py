@@ -1,0 +1,219 @@
+"""`make tune-walker`: the walker's free parameters (`teachers.walker.Gait`) tuned by CMA-ES on selection seeds.
+
+Each candidate gait walks the held-out walking schedules' kind of episode on the selection seeds (`--seed`, never an
+evaluation's 1000-1019) and stands through kicks, and is scored by `cost`: a fall costs most, then the tracking error
+of the speeds once settled. CMA-ES (the `cma` library, Hansen's) searches the parameters scaled to their `BOUNDS`,
+seeded, so a run repeats; every generation's state is kept in `--run`, so a killed run resumes where it was. At the end
+the best gait seen goes to `--out` (the walker's `GAIT_FILE`) with the run that chose it. Docs:
+docs/decisions/walking-teacher.md (the table that chose the default), docs/how-to/walk.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pickle
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cma
+import numpy as np
+from tqdm import tqdm
+
+from common.cli import UserError, check_non_negative, check_positive, run_cli, setting
+from evaluation.evaluate import evaluate, evaluation_pool
+from task.command_fields import STAND, WALK
+from task.gait import GAIT_FILE, Gait, load_gait, save_gait
+from teachers.walker import SensedWalker, Walker
+
+BOUNDS: dict[str, tuple[float, float]] = {
+    "period": (0.25, 0.50),
+    "double": (0.0, 0.15),
+    "first": (0.3, 1.0),
+    "height": (0.70, 0.84),
+    "clearance": (0.03, 0.10),
+    "width": (0.10, 0.30),
+    "min_side": (0.10, 0.20),
+    "k_x": (0.5, 1.6),
+    "k_y": (0.5, 1.6),
+    "pitch": (-0.2, 0.2),
+    "waist_roll": (-0.2, 0.2),
+    "w_attitude": (4.0, 30.0),
+    "w_height": (3.0, 25.0),
+    "w_foot": (6.0, 40.0),
+    "w_joint": (5.0, 30.0),
+    "yaw_single": (0.0, 1.0),
+}
+"""The search space, each parameter's (least, most), in its unit (`Gait`): a period under 0.25 s or a lift under 3 cm
+shuffles the feet over the floor, which the cost's few seeds reward and a longer walk punishes."""
+FALL_COST = 10.0
+"""What falling at the start of an episode costs (in proportion to the share of the episode lost), against the
+speeds' errors in m/s (a turn's rad/s counts half): a gait that stands up always beats one that tracks better."""
+
+
+@dataclass
+class TuneConfig:
+    """Settings of one tuning run."""
+
+    generations: int = setting(30, "CMA-ES generations")
+    population: int = setting(12, "candidate gaits per generation")
+    walks: int = setting(8, "walking schedules per candidate, on seeds SEED, SEED+1, ...")
+    kicks: int = setting(4, "kicked standing episodes per candidate, on the same seeds")
+    kick: float = setting(0.4, "the kicks' speed, m/s (the suite's kick conditions: directions and times drawn)")
+    noise: float = setting(
+        0.01, "std of the noise on the walks' executed actions: the DART noise walking demonstrations are recorded with"
+    )
+    seed: int = setting(3000, "the first selection seed: evaluations use 1000-1019, recordings 0 upwards")
+    cma_seed: int = setting(1, "the CMA-ES sampler's seed: the same run repeats")
+    sigma: float = setting(0.15, "CMA-ES's first step size, as a share of each parameter's range")
+    sensed: bool = setting(
+        False, "tune the walker on the leg odometry (walker-sensed) instead of the simulator's state"
+    )
+    workers: int = setting(2, "processes evaluating candidates at once")
+    start: Path | None = setting(
+        None,
+        "the gait file the search starts from (its centre); default: the tuned one (task/gait.json), tuned on",
+    )
+    run: Path = setting(Path("policies/walker_tuning"), "the run's folder: its state after every generation, its log")
+    out: Path | None = setting(
+        None, "where the best gait goes at the end; default: the tuned one's file (task/gait.json)"
+    )
+
+
+def scaled(gait: Gait) -> np.ndarray:
+    """The gait's tuned parameters as shares of their `BOUNDS` (0 at the least, 1 at the most)."""
+    return np.array([(getattr(gait, name) - low) / (high - low) for name, (low, high) in BOUNDS.items()])
+
+
+def unscaled(x: np.ndarray) -> Gait:
+    """The gait at shares `x` of `BOUNDS` (clipped into them)."""
+    shares = np.clip(x, 0.0, 1.0)
+    return Gait(**{name: low + s * (high - low) for (name, (low, high)), s in zip(BOUNDS.items(), shares, strict=True)})
+
+
+def cost(gait: Gait, cfg: TuneConfig) -> tuple[float, dict[str, float]]:
+    """A gait's score on the selection seeds (lower is better) and its parts: `FALL_COST` times the share of the
+    episodes' steps lost to falls, plus the walks' mean settled errors of the forward and sideways speeds and half the
+    turn rate's over the commands that asked for that field (`evaluation.evaluate`'s tracking, "moved_error"). The
+    walks run under `noise`, as `make record` records them (DART), so the gait chosen is one a student can be taught."""
+    walker = (SensedWalker if cfg.sensed else Walker)(gait=gait)
+    walked = evaluate(walker, cfg.walks, cfg.seed, task=WALK, noise=cfg.noise)
+    kicked = evaluate(walker, cfg.kicks, cfg.seed, task=STAND, kick=cfg.kick) if cfg.kicks else None
+    lengths = walked["lengths"] + (kicked["lengths"] if kicked else [])
+    lost = 1.0 - float(np.mean(lengths)) / 1000.0
+    errors = walked["tracking"]["moved_error"]  # over the commands that asked for the field: the walks
+    speed = {name: _number(errors[name]) for name in ("forward_speed", "sideways_speed", "turn_rate")}
+    total = FALL_COST * lost + speed["forward_speed"] + speed["sideways_speed"] + 0.5 * speed["turn_rate"]
+    parts = {"lost": lost, "walks": walked["survived"], "kicks": kicked["survived"] if kicked else 0, **speed}
+    return total, parts
+
+
+def _number(value: float) -> float:
+    """An error the walks never measured (NaN: no walk reached that field) counts as none."""
+    return 0.0 if value is None or math.isnan(value) else float(value)
+
+
+def _cost(x: np.ndarray, cfg: TuneConfig) -> tuple[float, dict[str, float]]:
+    return cost(unscaled(x), cfg)
+
+
+def _settings(cfg: TuneConfig) -> dict[str, Any]:
+    """What a resumed run must share with the run it resumes (all but how long and how many processes)."""
+    return {
+        k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("generations", "workers", "run", "out", "start")
+    }
+
+
+def main(cfg: TuneConfig) -> dict[str, Any]:
+    check_positive(cfg, "generations", "population", "walks", "workers")
+    check_non_negative(cfg, "kicks", "kick", "noise")
+    if not (0 < cfg.sigma <= 0.5):
+        raise UserError(f"--sigma must be in (0, 0.5], a share of each parameter's range, got {cfg.sigma}")
+    state_file = cfg.run / "state.pkl"
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in _settings(cfg).items()}
+    if state_file.exists():
+        with state_file.open("rb") as f:
+            state = pickle.load(f)
+        if state["settings"] != settings:
+            raise UserError(f"{cfg.run} holds a run with other settings ({state['settings']}): give another --run")
+        print(f"tune-walker: resuming {cfg.run} at generation {state['generation']}", file=sys.stderr)
+    else:
+        start_file = GAIT_FILE if cfg.start is None else cfg.start
+        start = load_gait(start_file)
+        options = {"popsize": cfg.population, "seed": cfg.cma_seed, "bounds": [0.0, 1.0], "verbose": -9}
+        state = {
+            "settings": settings,
+            "es": cma.CMAEvolutionStrategy(scaled(start), cfg.sigma, options),
+            "start": dataclasses.asdict(start),
+            "start_tuning": json.loads(start_file.read_text()).get("tuning"),
+            "generation": 0,
+            "best": (math.inf, None, None),
+        }
+    cfg.run.mkdir(parents=True, exist_ok=True)
+    es = state["es"]
+    with evaluation_pool(cfg.workers) as pool, (cfg.run / "log.jsonl").open("a") as log:
+        bar = tqdm(total=cfg.generations, initial=state["generation"], unit="gen", file=sys.stderr, dynamic_ncols=True)
+        while state["generation"] < cfg.generations:
+            xs = es.ask()
+            jobs = [(x, cfg) for x in xs]
+            results = list(pool.map(_cost, *zip(*jobs, strict=True))) if pool else [_cost(*job) for job in jobs]
+            costs = [c for c, _ in results]
+            es.tell(xs, costs)
+            best = int(np.argmin(costs))
+            if costs[best] < state["best"][0]:
+                state["best"] = (costs[best], np.array(xs[best]), results[best][1])
+            state["generation"] += 1
+            log.write(
+                json.dumps(
+                    {
+                        "generation": state["generation"],
+                        "best": costs[best],
+                        "mean": float(np.mean(costs)),
+                        "parts": results[best][1],
+                        "gait": dataclasses.asdict(unscaled(xs[best])),
+                    }
+                )
+                + "\n"
+            )
+            log.flush()
+            _save(state, state_file)
+            bar.update()
+            bar.set_postfix(best=f"{state['best'][0]:.3f}", generation_best=f"{costs[best]:.3f}")
+        bar.close()
+    score, x, parts = state["best"]
+    gait = unscaled(x)
+    tuning = {
+        "command": "make tune-walker",
+        "cost": score,
+        "parts": parts,
+        **settings,
+        "generations": state["generation"],
+        "start": state["start"],
+        "start_tuning": state["start_tuning"],
+    }
+    save_gait(gait, GAIT_FILE if cfg.out is None else cfg.out, tuning)
+    return {"gait": dataclasses.asdict(gait), "tuning": tuning}
+
+
+def _save(state: dict[str, Any], path: Path) -> None:
+    """The run's state, replaced whole (a kill mid-write leaves the previous generation's)."""
+    partial = path.with_suffix(".partial")
+    with partial.open("wb") as f:
+        pickle.dump(state, f)
+    partial.replace(path)
+
+
+def _main_and_print(cfg: TuneConfig) -> None:
+    print(json.dumps(main(cfg)))
+
+
+def cli(argv: Sequence[str] | None = None) -> int:
+    return run_cli(_main_and_print, TuneConfig, argv, description=__doc__)
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
