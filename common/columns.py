@@ -20,6 +20,7 @@ T = TypeVar("T")
 # LeRobot's own names (lerobot.utils.constants; a test checks they agree). Spelled out here because
 # importing lerobot pulls in torch, which the recorder's simulation process does not need.
 OBS_STATE = "observation.state"
+OBS_IMAGES = "observation.images"  # a camera's frames are `observation.images.<camera>` (`image_key`)
 OBS_ENV_STATE = "observation.environment_state"
 ACTION = "action"
 REWARD = "next.reward"
@@ -79,3 +80,8 @@ def drawn_parameters(columns: Mapping[str, T]) -> dict[str, T]:
         for name, value in columns.items()
         if name.startswith(RANDOMIZATION_PREFIX)
     }
+
+
+def image_key(camera: str) -> str:
+    """The dataset key of `camera`'s frames (`humanoid.cameras`), a video feature."""
+    return f"{OBS_IMAGES}.{camera}"

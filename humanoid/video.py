@@ -8,29 +8,28 @@ of a frame's time (docs/decisions/video-rendering.md).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 
 from common.cli import UserError
+from humanoid.cameras import CAMERAS, EXPENSIVE_EFFECTS, backend
 
-# A three-quarter view following the torso with the whole body in frame (gymnasium's default
-# camera for Humanoid looks from the side and cuts the feet off).
-CAMERA = {"trackbodyid": 1, "distance": 3.5, "lookat": np.array([0.0, 0.0, 1.0]), "elevation": -10.0, "azimuth": 135.0}
-_EXPENSIVE_EFFECTS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION)
+_TRACKING = CAMERAS["tracking"]
+CAMERA = {
+    "trackbodyid": 1,
+    "distance": _TRACKING.distance,
+    "lookat": np.array([0.0, 0.0, 1.0]),
+    "elevation": _TRACKING.elevation,
+    "azimuth": _TRACKING.azimuth,
+}
+"""gymnasium's `default_camera_config` for the eval videos: the dataset's tracking camera (`humanoid.cameras`)."""
 
 
 class VideoError(UserError):
     """Offscreen rendering or video encoding is not available, or the file cannot be written."""
-
-
-def default_gl_backend() -> str:
-    """The MUJOCO_GL backend in use, set to EGL if the user set none."""
-    return os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 class VideoRecorder(gym.Wrapper):
@@ -43,7 +42,7 @@ class VideoRecorder(gym.Wrapper):
         super().__init__(env)
         if env.render_mode != "rgb_array":
             raise ValueError(f"VideoRecorder needs render_mode='rgb_array', got {env.render_mode!r}")
-        self.backend = default_gl_backend()
+        self.backend = backend()
         try:
             import imageio.v3 as iio  # noqa: PLC0415 - only runs with a video pay for the encoder
         except ImportError as error:
@@ -70,7 +69,7 @@ class VideoRecorder(gym.Wrapper):
         if not self._scene_configured:
             # The viewer exists only after the first render: from the second frame on, no shadows.
             viewer = self.env.unwrapped.mujoco_renderer.viewer
-            for flag in _EXPENSIVE_EFFECTS:
+            for flag in EXPENSIVE_EFFECTS:
                 viewer.scn.flags[flag] = 0
             self._scene_configured = True
             frame = self.env.render()

@@ -107,6 +107,7 @@ TARGETS: dict[str, Target] = {
             *_BACKEND,
             "front_end",
             *_LIVE,
+            "cameras",
         ),
         removed=("schedules", "walking"),
     ),
@@ -115,7 +116,7 @@ TARGETS: dict[str, Target] = {
     "play": Target(
         "teleop.record",
         RecordConfig,
-        ("policy", "dataset", "episodes", "noise", "front_end", *_LIVE),
+        ("policy", "dataset", "episodes", "noise", "front_end", *_LIVE, "cameras"),
         preset=(("controller", "keyboard"), ("policy", NEWEST), ("dataset", "datasets/play"), ("noise", "0")),
     ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),

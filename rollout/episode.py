@@ -16,8 +16,9 @@ import numpy as np
 
 from common.cli import UserError
 from common.columns import PUSH_NAMES
+from humanoid.cameras import Camera, CameraRecorder, CameraRig, CameraTrack
 from humanoid.conditions import action_delay
-from humanoid.env import body_poses, model_and_data
+from humanoid.env import LEROBOT_FPS, body_poses, model_and_data
 from humanoid.perturbations import perturbation
 from rollout.controllers import Controller
 from task.command_fields import COMMAND_NAMES, STAND
@@ -56,6 +57,8 @@ class Episode:
     # The physical parameters drawn for the episode (humanoid.conditions.DomainRandomization, e.g.
     # {"friction_scale": 1.2}: JSON-ready scale factors); empty when nothing is randomised.
     parameters: dict[str, Any] = field(default_factory=dict)
+    # Each camera's frames, by name (`humanoid.cameras`; `make record CAMERAS=...`); empty when none records.
+    cameras: dict[str, CameraTrack] = field(default_factory=dict)
 
     @property
     def length(self) -> int:
@@ -123,9 +126,10 @@ def injected_noise(seed: int, steps: int, noise_std: float, action_dim: int) -> 
 
 
 class EpisodeBuffer:
-    """Preallocated storage for the longest episode, reused from one episode to the next."""
+    """Preallocated storage for the longest episode, reused from one episode to the next; with `cameras`, each row's
+    frames too (rendered at the row's state, encoded as the episode goes)."""
 
-    def __init__(self, env: gym.Env, max_steps: int) -> None:
+    def __init__(self, env: gym.Env, max_steps: int, cameras: tuple[Camera, ...] = ()) -> None:
         model, _ = model_and_data(env)
         obs_dim = env.observation_space.shape[0]
         act_dim = env.action_space.shape[0]
@@ -142,6 +146,7 @@ class EpisodeBuffer:
         self.setpoint = np.zeros((max_steps, len(COMMAND_NAMES)), np.float32)
         self.push = np.zeros((max_steps, len(PUSH_NAMES)), np.float32)
         self.tasks = np.empty(max_steps, object)
+        self.cameras = CameraRecorder(CameraRig(model, cameras), LEROBOT_FPS) if cameras else None
 
     def record(
         self,
@@ -165,6 +170,10 @@ class EpisodeBuffer:
         self.setpoint[t] = command if setpoint is None else setpoint
         self.push[t] = 0.0 if push is None else push
         self.tasks[t] = task
+        if self.cameras is not None:
+            if t == 0:
+                self.cameras.restart()
+            self.cameras.add(data)
 
     def outcome(self, t: int, reward: float, terminated: bool, truncated: bool) -> None:
         """Row t after the step: its reward and how it ended."""
@@ -176,7 +185,8 @@ class EpisodeBuffer:
         """Copies of the first `steps` rows, so the buffer can be reused while they are written, and of
         the observation the last step returned."""
         arrays = {name: getattr(self, name)[:steps].copy() for name in ARRAY_FIELDS}
-        return Episode(**facts, **arrays, final_observation=np.array(final_observation, np.float64))
+        cameras = {} if self.cameras is None else self.cameras.finish(steps)
+        return Episode(**facts, **arrays, final_observation=np.array(final_observation, np.float64), cameras=cameras)
 
 
 # The array fields of `Episode` besides the per-step ones (what the spool stores as arrays too).

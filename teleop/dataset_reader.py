@@ -25,9 +25,10 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
 from common.cli import DatasetError
+from common.lerobot_stats import QUANTILES, quantile_key
 from humanoid.sensors import observation_index
 from task.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
-from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files
+from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files, unflatten_stats, video_keys
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
@@ -78,6 +79,22 @@ def read_episodes(root: Path, columns: list[str] | None = None) -> pa.Table:
     order = np.argsort(episodes["episode_index"].to_numpy(), kind="stable")
     episodes = episodes.take(pa.array(order))
     return episodes if columns is None else episodes.select(columns)
+
+
+def read_videos(root: Path) -> list[dict[str, tuple[Path, dict[str, np.ndarray]]]]:
+    """Per committed episode, in order: each camera's video file and its statistics (`common.lerobot_stats`), by
+    dataset key; empty dicts for a dataset without cameras."""
+    info = read_info(root)
+    keys = video_keys(info["features"])
+    stats = ["min", "max", "mean", "std", "count", *map(quantile_key, QUANTILES)]
+    located = [f"videos/{key}/{part}" for key in keys for part in ("chunk_index", "file_index")]
+    rows = read_episodes(root, [*located, *(f"stats/{key}/{name}" for key in keys for name in stats)]).to_pylist()
+
+    def path(row: dict[str, Any], key: str) -> Path:
+        chunk, file = row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"]
+        return root / info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+
+    return [{key: (path(row, key), unflatten_stats(row)[key]) for key in keys} for row in rows]
 
 
 def read_parameters(root: Path) -> list[dict[str, Any]]:

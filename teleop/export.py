@@ -45,8 +45,9 @@ from teleop.dataset_reader import (
     read_episodes,
     read_info,
     read_transitions,
+    read_videos,
 )
-from teleop.lerobot_io.format import DEFAULT_FEATURES, INFO_PATH, TASKS_PATH
+from teleop.lerobot_io.format import DEFAULT_FEATURES, INFO_PATH, TASKS_PATH, video_keys
 
 MINARI = "minari"
 LEROBOT_COMMAND = "lerobot-command"
@@ -226,6 +227,8 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
             "lerobot-train reads the dataset as it is"
         )
     features = {key: ft for key, ft in info["features"].items() if key not in {*DEFAULT_FEATURES, columns.OBS_COMMAND}}
+    cameras = video_keys(features)
+    stored = read_videos(dataset)  # each episode's videos and their statistics, by key
     if columns.SETPOINT in features:  # laid out as today's command, as `command_columns` reads it
         setpoint = features[columns.SETPOINT]
         features[columns.SETPOINT] = {**setpoint, "shape": [len(COMMAND_NAMES)], "names": [*COMMAND_NAMES]}
@@ -246,7 +249,7 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
         for episode in read_episodes(dataset).to_pylist():
             rows = frames["episode_index"] == episode["episode_index"]
             command = frames[columns.OBS_COMMAND][rows]
-            arrays = {key: frames[key][rows] for key in features}
+            arrays = {key: frames[key][rows] for key in features if key not in cameras}
             arrays[columns.OBS_STATE] = np.hstack([arrays[columns.OBS_STATE], command])
             extra = {
                 name: value
@@ -256,7 +259,11 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
             if columns.EPISODE_FINAL_STATE in extra:  # (datasets recorded before episodes kept it have none)
                 extra[columns.EPISODE_FINAL_STATE] = [*extra[columns.EPISODE_FINAL_STATE], *command[-1].tolist()]
             tasks = task_names[frames["task_index"][rows].reshape(-1)]
-            writer.commit(writer.stage(arrays, tasks, extra))
+            videos = {
+                key: (path.read_bytes(), stats) for key, (path, stats) in stored[episode["episode_index"]].items()
+            }
+            extra = {name: value for name, value in extra.items() if not name.startswith("videos/")}
+            writer.commit(writer.stage(arrays, tasks, extra, videos))
         staging.rename(out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

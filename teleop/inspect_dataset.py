@@ -13,9 +13,13 @@ the dataset and exits with `error: <the first problem found>` if anything is wro
 - MCAP: each committed episode's file ends properly and has a summary; every per-step topic (all
   but `/scene`) holds one message per frame; its `/step` messages equal the parquet frames exactly
   (both are written from the same arrays).
+- Cameras (`observation.images.*`): each episode's video holds one frame per data frame, 1/fps apart
+  from the episode's `from_timestamp`, at the declared size (read from the packets, not decoded).
 
 With `--plot true` it also draws returns per episode, torso height over time and the action
-histograms to a PNG. Nothing in the dataset is changed; the PNG is the only file written.
+histograms to a PNG, and for a dataset with cameras a contact sheet beside it (`*_cameras.png`: a
+few frames of a few episodes per camera). Nothing in the dataset is changed; the PNGs are the only
+files written.
 """
 
 from __future__ import annotations
@@ -49,9 +53,12 @@ from teleop.lerobot_io.format import (
     INFO_PATH,
     STATS_PATH,
     TASKS_PATH,
+    VIDEO_DIR,
     data_files,
     episode_files,
     read_footer,
+    video_files,
+    video_keys,
 )
 from teleop.mcap_io.writer import FINAL_TOPIC, SCENE_TOPIC, STEP_TOPIC
 from teleop.spool import SPOOLS, Spool
@@ -178,6 +185,7 @@ class Report:
     runs: list[dict] = field(default_factory=list)  # the sessions that added the episodes (`recordings.sessions`)
     verified: list[str] = field(default_factory=list)  # what passed, once everything has
     plot: Path | None = None
+    contact_sheet: Path | None = None
     seconds: float = 0.0
 
     def describe(self) -> str:
@@ -225,7 +233,9 @@ class Report:
             _row(
                 "disk",
                 f"{_mb(sizes['total'])} (parquet: data {_mb(sizes['data'])}, meta "
-                f"{_mb(sizes['meta'])}; MCAP {_mb(sizes['mcap'])}; other {_mb(sizes['other'])})",
+                f"{_mb(sizes['meta'])}; MCAP {_mb(sizes['mcap'])}; "
+                + (f"videos {_mb(sizes['videos'])}; " if sizes.get("videos") else "")
+                + f"other {_mb(sizes['other'])})",
             )
         )
         topics = ", ".join(f"{topic} {count:,}" for topic, count in sorted(self.mcap_counts.items()))
@@ -247,6 +257,8 @@ class Report:
             lines += _listing("verified", self.verified)
         if self.plot:
             lines.append(_row("plot", str(self.plot)))
+        if self.contact_sheet:
+            lines.append(_row("cameras", str(self.contact_sheet)))
         if self.seconds:
             lines.append(_row("time", f"{self.seconds:.1f} s"))
         return "\n".join(lines)
@@ -305,6 +317,9 @@ def main(cfg: InspectConfig, show: Callable[[str], None] = _quiet) -> Report:
     if cfg.plot:
         report.plot = cfg.plot_path or root / PLOT_NAME
         plot(dataset, report.plot)
+        if video_keys(info["features"]):
+            report.contact_sheet = report.plot.with_name(f"{report.plot.stem}_cameras.png")
+            contact_sheet(dataset, report.contact_sheet)
     report.seconds = time.perf_counter() - start
     show(report.outcome())
     return report
@@ -492,11 +507,13 @@ def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Pa
     extra_rows = sum(pq.read_metadata(path).num_rows for path in episode_files(root)) - info["total_episodes"]
     stray_data = [path for path in data_files(root) if path not in data_paths]
     stray_mcap = [path for path in (root / MCAP_DIR).glob("*.mcap") if path not in mcap_paths]
+    stray_videos = len(video_files(root)) - info["total_episodes"] * len(video_keys(info["features"]))
     partial = [path for path in root.rglob("*.partial") if path.parent.name not in SPOOLS]  # a spool's: below
-    if extra_rows > 0 or stray_data or stray_mcap or partial:
+    if extra_rows > 0 or stray_data or stray_mcap or partial or stray_videos > 0:
         notes.append(
             f"uncommitted files of an interrupted recording: {max(extra_rows, 0)} episode rows, "
-            f"{len(stray_data)} data files, {len(stray_mcap)} MCAP files, {len(partial)} partial files "
+            f"{len(stray_data)} data files, {len(stray_mcap)} MCAP files, {max(stray_videos, 0)} video files, "
+            f"{len(partial)} partial files "
             "(the next `make record` removes them)"
         )
     for name, fate in SPOOLS.items():
@@ -578,7 +595,7 @@ def _drawn_range(values: list) -> str:
 
 
 def _disk_sizes(root: Path) -> dict[str, int]:
-    sizes = dict.fromkeys(("data", "meta", "mcap", "other"), 0)
+    sizes = dict.fromkeys(("data", "meta", "mcap", "videos", "other"), 0)
     for path in root.rglob("*"):
         if path.is_file():
             top = path.relative_to(root).parts[0]
@@ -587,6 +604,7 @@ def _disk_sizes(root: Path) -> dict[str, int]:
                 if top in ("data", "meta") and path.suffix == ".parquet"
                 else ("mcap" if top == MCAP_DIR and path.suffix == ".mcap" else "other")
             )
+            kind = "videos" if top == VIDEO_DIR and path.suffix == ".mp4" else kind
             sizes[kind] += path.stat().st_size
     return {**sizes, "total": sum(sizes.values())}
 
@@ -603,6 +621,7 @@ def _verify(dataset: Dataset, lerobot: _LeRobotLoad | None) -> list[str]:
     _verify_finite(dataset)
     _verify_episode_facts(dataset)
     _verify_mcap(dataset)
+    cameras = _verify_videos(dataset)
     problem = lerobot.result() if lerobot else None
     if problem:
         raise DatasetError(f"LeRobot cannot load {dataset.root}: {problem}")
@@ -614,6 +633,11 @@ def _verify(dataset: Dataset, lerobot: _LeRobotLoad | None) -> list[str]:
         + ("LeRobot loads it" if lerobot else "LeRobot's own loader not run"),
         f"frames: every declared feature present with its shape; all {len(dataset.frames['index']):,} finite",
         f"MCAP: one message per frame on each per-step topic; {STEP_TOPIC} equals parquet ({compared}, task)",
+        *(
+            [f"cameras: {cameras}: one video frame per data frame, 1/fps apart, of the declared size"]
+            if cameras
+            else []
+        ),
     ]
 
 
@@ -775,6 +799,55 @@ def _verify_episode_facts(dataset: Dataset) -> None:
                     )
 
 
+def video_path(dataset: Dataset, key: str, episode: int) -> Path:
+    """Where episode `episode`'s frames of the video feature `key` are."""
+    row = {name: values[episode] for name, values in dataset.episodes.items() if name.startswith(f"videos/{key}/")}
+    chunk, file = row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"]
+    return dataset.root / dataset.info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+
+
+def _video_times(path: Path) -> tuple[np.ndarray, tuple[int, int]]:
+    """The presentation times (s, sorted) of every frame of the video file at `path` and its (height, width), from
+    its packets (nothing decoded); DatasetError if it cannot be read."""
+    import av  # noqa: PLC0415 - only for datasets with cameras
+
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            times = [float(p.pts * p.time_base) for p in container.demux(stream) if p.pts is not None]
+            return np.sort(times), (stream.codec_context.height, stream.codec_context.width)
+    except (av.FFmpegError, IndexError) as error:
+        raise DatasetError(f"{path} is not a readable video ({one_line(error)})") from None
+
+
+def _verify_videos(dataset: Dataset) -> str:
+    """Each camera's frames of each episode: in its file, between the row's from and to timestamps, one per data frame,
+    1/fps apart, of the declared size. The cameras checked, named."""
+    info, fps = dataset.info, dataset.info["fps"]
+    keys = video_keys(info["features"])
+    read: dict[Path, tuple[np.ndarray, tuple[int, int]]] = {}
+    for key in keys:
+        size = tuple(info["features"][key]["shape"][:2])
+        for e, length in enumerate(dataset.episodes["length"]):
+            path = video_path(dataset, key, e)
+            where = path.relative_to(dataset.root)
+            if not path.is_file():
+                raise DatasetError(f"episode {e}: {where} is missing (meta/episodes points to it)")
+            if path not in read:
+                read[path] = _video_times(path)
+            times, shape = read[path]
+            if shape != size:
+                raise DatasetError(f"episode {e}: {where} is {shape[0]}x{shape[1]}, info.json declares {key} {size}")
+            start = dataset.episodes[f"videos/{key}/from_timestamp"][e]
+            end = dataset.episodes[f"videos/{key}/to_timestamp"][e]
+            inside = times[(times >= start - TIMESTAMP_TOLERANCE_S) & (times < end - TIMESTAMP_TOLERANCE_S)]
+            if len(inside) != length:
+                raise DatasetError(f"episode {e}: {where} holds {len(inside)} frames of {key} for {length} data frames")
+            if not np.allclose(inside - start, np.arange(length) / fps, atol=TIMESTAMP_TOLERANCE_S, rtol=0):
+                raise DatasetError(f"episode {e}: {where}'s frames of {key} are not 1/{fps} s apart from {start} s")
+    return ", ".join(key.removeprefix(columns.OBS_IMAGES + ".") for key in keys)
+
+
 def _count_problem(mcap: McapFile, length: int) -> str | None:
     if STEP_TOPIC not in mcap.counts:
         return f"has no {STEP_TOPIC} topic"
@@ -929,6 +1002,45 @@ def plot(dataset: Dataset, path: Path) -> None:
             if d == 0:
                 axes.legend(fontsize="x-small")
     figure.suptitle(f"{dataset.root}: {n} episodes, {len(frames['index']):,} frames")
+    figure.tight_layout()
+    save_figure(figure, path, dpi=80)
+
+
+SHEET_FRAMES = 6
+"""Frames per episode on the contact sheet, evenly spread from its first to its last."""
+
+
+def contact_sheet(dataset: Dataset, path: Path) -> None:
+    """A few episodes' frames per camera (`SHEET_FRAMES` each, for the episodes `plot` draws), one row per episode and
+    camera, each frame titled with its time: a recording checked by eye."""
+    import av  # noqa: PLC0415 - only for datasets with cameras
+    from matplotlib.figure import Figure  # noqa: PLC0415 - as in `plot`
+
+    fps, keys = dataset.info["fps"], video_keys(dataset.info["features"])
+    episodes = _plotted_episodes(np.nan_to_num(dataset.returns()))
+    figure = Figure(figsize=(2.2 * SHEET_FRAMES, 1.9 * len(episodes) * len(keys)))
+    grid = figure.add_gridspec(len(episodes) * len(keys), SHEET_FRAMES)
+    for r, (e, key) in enumerate((e, key) for e in episodes for key in keys):
+        length, start = dataset.episodes["length"][e], dataset.episodes[f"videos/{key}/from_timestamp"][e]
+        wanted = np.linspace(0, length - 1, SHEET_FRAMES).round().astype(int)
+        frames: dict[int, np.ndarray] = {}
+        with av.open(str(video_path(dataset, key, e))) as container:
+            for frame in container.decode(video=0):
+                row = round((float(frame.pts * frame.time_base) - start) * fps)
+                if row in wanted:
+                    frames[row] = frame.to_ndarray(format="rgb24")
+                if row >= wanted[-1]:
+                    break
+        for c, row in enumerate(wanted):
+            axes = figure.add_subplot(grid[r, c])
+            if row in frames:
+                axes.imshow(frames[row])
+            axes.set_axis_off()
+            axes.set_title(
+                f"{row / fps:.1f} s" if c else f"ep {e} {key.removeprefix(columns.OBS_IMAGES + '.')}, 0 s",
+                fontsize="small",
+            )
+    figure.suptitle(f"{dataset.root}: cameras, {len(episodes)} of {dataset.num_episodes} episodes")
     figure.tight_layout()
     save_figure(figure, path, dpi=80)
 

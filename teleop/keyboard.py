@@ -29,6 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from common.cli import UserError
+from humanoid.cameras import Camera
 from humanoid.env import model_and_data
 from humanoid.perturbations import kick, kick_force
 from humanoid.physics import TORSO_BODY, torso_height
@@ -115,6 +116,7 @@ class TeleopSession:
         noise_std: float,
         report: Callable[[list[CommittedEpisode]], None],
         observer: StepObserver | None = None,
+        cameras: tuple[Camera, ...] = (),
     ) -> None:
         self.env = env
         self.observer = observer
@@ -131,7 +133,7 @@ class TeleopSession:
         self.torso = self.model.body(TORSO_BODY).id
         self.mass = float(self.model.body_subtreemass[0])
         self.max_steps = env.spec.max_episode_steps
-        self.buffer = EpisodeBuffer(env, self.max_steps)
+        self.buffer = EpisodeBuffer(env, self.max_steps, cameras)
         self.push_steps = max(1, round(PUSH_SECONDS / env.unwrapped.dt))
         self.recording = False
         self.finished = False
@@ -443,14 +445,16 @@ def run_session(
     report: Callable[[list[CommittedEpisode]], None],
     observer: StepObserver | None = None,
     controller: Controller | None = None,
+    cameras: tuple[Camera, ...] = (),
 ) -> None:
     """Teleoperate until the user quits or `episodes` episodes are saved; `observer` (a live view) sees every step.
-    The keys command `controller` (a policy that takes a command: `make play`), by default the expert."""
+    The keys command `controller` (a policy that takes a command: `make play`), by default the expert; each episode
+    records `cameras`."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
     front_end = front_end_here(front_end)
     controller = make_controller(KEYBOARD_EXPERT, env) if controller is None else controller
-    session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer)
+    session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer, cameras)
     if front_end == "viewer":
         run_viewer(session, sys.stderr)
     else:

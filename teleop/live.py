@@ -4,6 +4,7 @@ The Foxglove app opens `ws://127.0.0.1:8765` ("Open connection") and gets the to
 MCAP file holds, the same messages encoded the same way (`teleop.mcap_io`):
 
     rollout step t (rollout.episode.StepObserver) --> /step, /tf, /command  (one message each, same schemas)
+                                                      and each camera's image and calibration (`CAMERAS=...`)
     episode start                                  --> /scene (again every SCENE_EVERY steps, for late joiners)
                                                         \\--> foxglove-sdk server (a Rust thread) --> clients
 
@@ -20,19 +21,34 @@ import time
 
 import foxglove
 import gymnasium as gym
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.message import Message
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from common.cli import UserError
+from humanoid.cameras import Camera, intrinsics
 from humanoid.env import body_names, model_and_data, nominal_model, step_duration_ns
 from humanoid.sensors import Proprioception
 from rollout.episode import EpisodeBuffer
 from task.tracking import Tracking
 from teleop.mcap_io.schema import COMMAND_VALUES, Command, Step, command_values
 from teleop.mcap_io.wire import FrameTransformsEncoder
-from teleop.mcap_io.writer import COMMAND_TOPIC, SCENE_TOPIC, STEP_TOPIC, TF_TOPIC, WORLD_FRAME, scene_update
+from teleop.mcap_io.writer import (
+    CALIBRATION_TOPIC,
+    COMMAND_TOPIC,
+    IMAGE_TOPIC,
+    SCENE_TOPIC,
+    STEP_TOPIC,
+    TF_TOPIC,
+    WORLD_FRAME,
+    calibration,
+    camera_frame,
+    scene_update,
+)
 
 DEFAULT_HOST = "127.0.0.1"  # loopback unless the user asks otherwise: the stream has no authentication
 DEFAULT_PORT = 8765  # Foxglove's default
@@ -48,7 +64,9 @@ def _schema(message: type[Message]) -> foxglove.Schema:
 class LivePublisher:
     """A Foxglove WebSocket server publishing one rollout's steps (a `rollout.episode.StepObserver`)."""
 
-    def __init__(self, env: gym.Env, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> None:
+    def __init__(
+        self, env: gym.Env, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, cameras: tuple[Camera, ...] = ()
+    ) -> None:
         model, _ = model_and_data(env)
         self.context = foxglove.Context()
         try:
@@ -62,14 +80,19 @@ class LivePublisher:
                 (STEP_TOPIC, Step),
                 (TF_TOPIC, FrameTransforms),
                 (COMMAND_TOPIC, Command),
+                *((IMAGE_TOPIC.format(name=camera.name), CompressedImage) for camera in cameras),
+                *((CALIBRATION_TOPIC.format(name=camera.name), CameraCalibration) for camera in cameras),
             )
+        }
+        self._calibrations = {
+            camera.name: calibration(camera.name, intrinsics(model, camera), *camera.size) for camera in cameras
         }
         frames = body_names(model)
         self._scene = scene_update(model, frames).SerializeToString()
         self._proprioception = Proprioception(model)
         self._tracking = Tracking(nominal_model())
         self._step_ns = step_duration_ns(env)
-        self._transforms = FrameTransformsEncoder(WORLD_FRAME, frames)
+        self._transforms = FrameTransformsEncoder(WORLD_FRAME, [*frames, *(camera_frame(c.name) for c in cameras)])
         self.episode = -1
         self._start_ns = time.time_ns()
 
@@ -105,9 +128,23 @@ class LivePublisher:
             )
             step.timestamp.FromNanoseconds(log_time)
             self.channels[STEP_TOPIC].log(step.SerializeToString(), log_time=log_time)
+        shots = buffer.cameras.latest() if buffer.cameras is not None else []
         if self.channels[TF_TOPIC].has_sinks():
-            message = self._transforms.encode_one(log_time, buffer.body_position[t], buffer.body_orientation[t])
+            positions = np.vstack([buffer.body_position[t], *(shot[2] for shot in shots)])
+            orientations = np.vstack([buffer.body_orientation[t], *(shot[3] for shot in shots)])
+            message = self._transforms.encode_one(log_time, positions, orientations)
             self.channels[TF_TOPIC].log(message, log_time=log_time)
+        for name, jpeg, _, _ in shots:
+            if self.channels[IMAGE_TOPIC.format(name=name)].has_sinks():
+                image = CompressedImage(frame_id=camera_frame(name), data=jpeg, format="jpeg")
+                image.timestamp.FromNanoseconds(log_time)
+                self.channels[IMAGE_TOPIC.format(name=name)].log(image.SerializeToString(), log_time=log_time)
+            if self.channels[CALIBRATION_TOPIC.format(name=name)].has_sinks():
+                calibrated = self._calibrations[name]
+                calibrated.timestamp.FromNanoseconds(log_time)
+                self.channels[CALIBRATION_TOPIC.format(name=name)].log(
+                    calibrated.SerializeToString(), log_time=log_time
+                )
         if self.channels[COMMAND_TOPIC].has_sinks():
             achieved = self._tracking.achieved(buffer.observation[t : t + 1])[0]
             values = command_values(buffer.command[t], buffer.push[t], buffer.setpoint[t], achieved)
@@ -125,8 +162,8 @@ def check_port(port: int) -> None:
         raise UserError(f"--live-port must be a TCP port, 0..65535, got {port}")
 
 
-def start_live(env: gym.Env, host: str, port: int) -> LivePublisher:
-    """A `LivePublisher` for `env`, its address said on stderr for the person who will open it."""
-    live = LivePublisher(env, host, port)
+def start_live(env: gym.Env, host: str, port: int, cameras: tuple[Camera, ...] = ()) -> LivePublisher:
+    """A `LivePublisher` for `env` (and `cameras`), its address said on stderr for the person who will open it."""
+    live = LivePublisher(env, host, port, cameras)
     print(f"live view: ws://{host}:{live.port} (Foxglove: Open connection)", file=sys.stderr, flush=True)
     return live

@@ -1,6 +1,7 @@
 """`make merge SHARDS="a b" DATASET=out`: datasets recorded apart (one per node) as one, in seed order.
 
-    each shard's episodes (parquet frames and episode columns, MCAP /step, /tf, /final_observation)
+    each shard's episodes (parquet frames and episode columns, MCAP /step, /tf, /final_observation, the cameras'
+    videos, JPEGs and statistics)
       -> the Episode the recorder had in memory (read_episode)
       -> teleop.store.EpisodeStore.append, in seed order, as the recorder commits them
 
@@ -28,6 +29,7 @@ from tqdm import tqdm
 
 from common import columns, paths
 from common.cli import UserError, config_dict, run_cli, setting
+from humanoid.cameras import CameraTrack, parse_cameras
 from humanoid.env import make_env
 from rollout.episode import Episode
 from teleop import recordings
@@ -37,9 +39,10 @@ from teleop.dataset_reader import (
     read_info,
     read_mcap_final,
     read_steps,
+    read_videos,
 )
-from teleop.lerobot_io.format import INFO_PATH
-from teleop.mcap_io.writer import TF_TOPIC
+from teleop.lerobot_io.format import INFO_PATH, cameras_spec
+from teleop.mcap_io.writer import IMAGE_TOPIC, TF_TOPIC, camera_frame
 from teleop.seeds import seed_clash
 from teleop.spool import SPOOLS
 from teleop.store import DatasetSpec, EpisodeStore
@@ -60,7 +63,8 @@ MADE_BY = "teleop.merge"
 
 
 def read_body_poses(path: Path, body_frames: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Every step's body positions (T, B, 3) and orientations (T, B, 4, w-x-y-z) from an MCAP file's /tf."""
+    """Every step's positions (T, B, 3) and orientations (T, B, 4, w-x-y-z) of `body_frames` (bodies, cameras) from an
+    MCAP file's /tf."""
     positions, orientations = [], []
     with path.open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
@@ -76,9 +80,30 @@ FRAME_COLUMNS = (columns.OBS_COMMAND, columns.SETPOINT, columns.PUSH)
 """The per-frame columns that only the dataset holds (the MCAP files hold the rest of an episode)."""
 
 
-def read_episode(root: Path, row: dict, arrays: dict[str, np.ndarray], body_frames: list[str]) -> Episode:
+def read_cameras(path: Path, videos: dict[str, tuple[Path, dict[str, np.ndarray]]]) -> dict[str, CameraTrack]:
+    """The camera tracks of the episode whose MCAP file is `path` and whose videos are `videos`
+    (`teleop.dataset_reader.read_videos`), as the recorder had them: the videos, the MCAP's JPEGs and /tf poses, the
+    statistics."""
+    tracks = {}
+    for key, (video, stats) in videos.items():
+        name = key.removeprefix(columns.OBS_IMAGES + ".")
+        with path.open("rb") as stream:
+            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+            images = [m.data for _, _, _, m in reader.iter_decoded_messages(topics=[IMAGE_TOPIC.format(name=name)])]
+        position, orientation = read_body_poses(path, [camera_frame(name)])
+        tracks[name] = CameraTrack(video.read_bytes(), images, position[:, 0], orientation[:, 0], stats)
+    return tracks
+
+
+def read_episode(
+    root: Path,
+    row: dict,
+    arrays: dict[str, np.ndarray],
+    body_frames: list[str],
+    videos: dict[str, tuple[Path, dict[str, np.ndarray]]] | None = None,
+) -> Episode:
     """The episode of `row` (its episode columns) as the recorder had it; `arrays` holds its frames' commands,
-    setpoints and pushes (`FRAME_COLUMNS`)."""
+    setpoints and pushes (`FRAME_COLUMNS`), `videos` its cameras' (`read_cameras`)."""
     path = root / row[columns.EPISODE_MCAP]
     steps = read_steps(path)
     body_position, body_orientation = read_body_poses(path, body_frames)
@@ -102,6 +127,7 @@ def read_episode(root: Path, row: dict, arrays: dict[str, np.ndarray], body_fram
         final_observation=read_mcap_final(path)["observation"],
         dagger_round=row[columns.EPISODE_DAGGER_ROUND],
         parameters=columns.drawn_parameters(row),
+        cameras=read_cameras(path, videos or {}),
     )
 
 
@@ -161,22 +187,29 @@ def main(cfg: MergeConfig) -> int:
     shards = shard_list(cfg.shards)
     if any(shard.resolve() == cfg.dataset.resolve() for shard in shards):
         raise UserError(f"--shards names {cfg.dataset}, the DATASET merged into: a shard cannot be merged into itself")
-    episodes, parameters, _ = _plan(shards)
+    episodes, parameters, features = _plan(shards)
     sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
-    store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters))
+    cameras = parse_cameras(cameras_spec(features))
+    store = EpisodeStore(cfg.dataset, DatasetSpec.from_env(make_env(), parameters, cameras))
     try:
         have = read_episodes(cfg.dataset)[columns.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
             raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
         commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's FRAME_COLUMNS, read once
+        videos: dict[Path, list] = {}  # and its cameras' videos
         with recordings.logged(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions) as added:
             for _, shard, row in tqdm(episodes[len(have) :], unit="ep", disable=not cfg.progress, file=sys.stderr):
                 if shard not in commands:
                     commands[shard] = read_commanded_frames(shard, [*FRAME_COLUMNS, "episode_index"])
+                    videos[shard] = read_videos(shard)
                 frames = commands[shard]
                 mine = frames["episode_index"] == row["episode_index"]
                 arrays = {key: frames[key][mine] for key in FRAME_COLUMNS}
-                added.append(store.append(read_episode(shard, row, arrays, store.spec.body_frames)))
+                added.append(
+                    store.append(
+                        read_episode(shard, row, arrays, store.spec.body_frames, videos[shard][row["episode_index"]])
+                    )
+                )
     finally:
         store.close()
     return len(added)

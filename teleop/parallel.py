@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.workers import Channel, Worker, close_all
+from humanoid.cameras import Camera
 from humanoid.conditions import Condition
 from rollout.episode import ControllerFailure, Episode, EpisodeBuffer, EpisodeFailure, run_episode
 from task.command_fields import STAND
@@ -47,6 +48,7 @@ class RolloutSettings:
     labeller: type[Teacher] | None = None  # the teacher that labels every state (DAgger's expert), or none
     policy: MLPPolicy | None = None  # the controller's weights, held in memory (DAgger's round policy, `controller`
     # naming it), instead of a registered controller or checkpoint folder by that name
+    cameras: tuple[Camera, ...] = ()  # the cameras each episode records (`humanoid.cameras`)
 
 
 class Simulator:
@@ -63,7 +65,7 @@ class Simulator:
         else:
             self.act_with(settings.policy, settings.controller)
         self.labeller = None if settings.labeller is None else make_controller(settings.labeller, self.env)
-        self.buffer = EpisodeBuffer(self.env, settings.max_steps)
+        self.buffer = EpisodeBuffer(self.env, settings.max_steps, settings.cameras)
 
     def run(self, seed: int) -> Episode | EpisodeFailure:
         """The episode of `seed`, or, where a controller fails in it, why (`rollout.episode.ControllerFailure`)."""

@@ -54,6 +54,7 @@ from common.paths import NEWEST
 from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import SEED_LIMIT
 from common.workers import default_workers
+from humanoid.cameras import CAMERAS, DEFAULT_SIZE, Camera, CameraRig, parse_cameras
 from humanoid.conditions import (
     LATENCY_PARAMETER,
     NO_RANDOMIZATION,
@@ -64,7 +65,7 @@ from humanoid.conditions import (
     recorded_parameters,
     recording_condition,
 )
-from humanoid.env import EPISODE_STEPS, make_env
+from humanoid.env import EPISODE_STEPS, make_env, model_and_data
 from policies.folder import chosen_policy
 from rollout.controllers import INTERACTIVE, built, check_controller, make_controller, registered
 from rollout.episode import ControllerFailure, EpisodeBuffer, EpisodeFailure, run_episode
@@ -182,6 +183,14 @@ class RecordConfig:
         choices=("auto", "viewer", "terminal"),
     )
     progress: bool = setting(True, "show a progress bar (not with the keyboard: the status line shows progress)")
+    cameras: str = setting(
+        "",
+        "cameras each episode records as video (observation.images.NAME) and in the MCAP, a comma-separated list of "
+        f"{', '.join(f'{c.name} ({c.description})' for c in CAMERAS.values())}, each optionally with its size as "
+        f":HEIGHTxWIDTH (positive even numbers; default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}); a dataset keeps one set; "
+        "'' = none",
+        metavar="NAME[:HxW],...",
+    )
     live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens (one worker)")
     live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
     live_host: str = setting(DEFAULT_HOST, "address the live view's server binds to (0.0.0.0: every interface)")
@@ -248,6 +257,7 @@ def validate(cfg: RecordConfig) -> None:
         # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
         raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
     check_share(cfg, "latency")
+    parse_cameras(cfg.cameras)
     if cfg.policy is not None:
         check_played(cfg)
     if cfg.controller in INTERACTIVE:
@@ -255,6 +265,17 @@ def validate(cfg: RecordConfig) -> None:
 
         front_end_here(cfg.front_end)
     check_destination(cfg.dataset)
+    if cfg.cameras:
+        check_rendering(parse_cameras(cfg.cameras))
+
+
+def check_rendering(cameras: tuple[Camera, ...]) -> None:
+    """`humanoid.cameras.RenderError` in one line (naming MUJOCO_GL's choices) unless `cameras` render here."""
+    env = make_env()
+    try:
+        CameraRig(model_and_data(env)[0], cameras).close()
+    finally:
+        env.close()
 
 
 def check_task(controller: str, task: str) -> None:
@@ -386,7 +407,8 @@ def _record(
     env = condition(cfg).wrap(make_env(cfg.max_steps))
     parameters = recorded_parameters(condition(cfg))
     # Before the dataset opens: a port in use or a bad host is refused with nothing written.
-    live = start_live(env, cfg.live_host, cfg.live_port) if cfg.live else None
+    cameras = parse_cameras(cfg.cameras)
+    live = start_live(env, cfg.live_host, cfg.live_port, cameras) if cfg.live else None
     # The writing stack (pandas, pyarrow, mcap) is imported by whichever process writes.
     sink: EpisodeSink
     try:
@@ -394,11 +416,11 @@ def _record(
             from teleop.writer_process import WriterProcess  # noqa: PLC0415
 
             # Opens the dataset while this process builds the controller.
-            sink = WriterProcess(cfg.dataset, parameters)
+            sink = WriterProcess(cfg.dataset, parameters, cameras)
         else:
             from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415
 
-            sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, parameters))
+            sink = EpisodeStore(cfg.dataset, DatasetSpec.from_env(env, parameters, cameras))
     except BaseException:
         if live is not None:
             live.close()
@@ -437,9 +459,9 @@ def _record(
             from teleop.keyboard import run_session  # noqa: PLC0415
 
             played = None if cfg.policy is None else make_controller(cfg.policy, env)
-            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live, played)
+            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live, played, cameras)
         elif controller is not None:
-            buffer = EpisodeBuffer(env, cfg.max_steps)
+            buffer = EpisodeBuffer(env, cfg.max_steps, cameras)
             for seed in seeds:
                 try:
                     episode = run_episode(env, controller, seed, cfg.noise, buffer, observer=live, task=cfg.task)
@@ -464,7 +486,9 @@ def _record(
 def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
-    settings = RolloutSettings(built(cfg.controller), cfg.noise, cfg.max_steps, condition(cfg), cfg.task)
+    settings = RolloutSettings(
+        built(cfg.controller), cfg.noise, cfg.max_steps, condition(cfg), cfg.task, cameras=parse_cameras(cfg.cameras)
+    )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":
         from teleop.ray_recording import RayRollouts  # noqa: PLC0415 - imports Ray (0.5 s), only for this backend

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from humanoid.cameras import CameraTrack
 from rollout.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
 
 SPOOL_DIR = ".spool"
@@ -36,6 +37,7 @@ SPOOLS = {
 _READY = ".npz"
 _COMMITTING = ".committing"
 _FACTS = "_facts"
+_CAMERA = "camera.{name}.{part}"
 
 
 class Spool:
@@ -51,7 +53,11 @@ class Spool:
         # Object arrays (the task strings) would need pickle: stored as fixed-width strings instead.
         arrays = {name: np.asarray(getattr(episode, name)) for name in (*ARRAY_FIELDS, *FINAL_FIELDS)}
         arrays = {name: values.astype(str) if values.dtype == object else values for name, values in arrays.items()}
-        facts = {f.name: getattr(episode, f.name) for f in dataclasses.fields(Episode) if f.name not in arrays}
+        skipped = {*arrays, "cameras"}
+        facts = {f.name: getattr(episode, f.name) for f in dataclasses.fields(Episode) if f.name not in skipped}
+        facts["cameras"] = list(episode.cameras)
+        for name, track in episode.cameras.items():
+            arrays.update(_camera_arrays(name, track))
         partial = path.with_name(path.name + ".partial")
         with partial.open("wb") as stream:
             np.savez(stream, **arrays, **{_FACTS: np.array(json.dumps(facts))})
@@ -77,7 +83,9 @@ class Spool:
     def load(path: Path) -> Episode:
         with np.load(path, allow_pickle=False) as stored:
             facts = json.loads(str(stored[_FACTS]))
-            return Episode(**facts, **{name: stored[name] for name in (*ARRAY_FIELDS, *FINAL_FIELDS)})
+            cameras = {name: _camera_track(stored, name) for name in facts.pop("cameras", [])}
+            arrays = {name: stored[name] for name in (*ARRAY_FIELDS, *FINAL_FIELDS)}
+            return Episode(**facts, **arrays, cameras=cameras)
 
     def begin_commit(self, path: Path, episode_index: int) -> Path:
         """Mark `path` as being committed as episode `episode_index` (call before info.json counts it)."""
@@ -101,3 +109,33 @@ class Spool:
     def remove_if_empty(self) -> None:
         if self.folder.is_dir() and not any(self.folder.iterdir()):
             self.folder.rmdir()
+
+
+def _camera_arrays(name: str, track: CameraTrack) -> dict[str, np.ndarray]:
+    """`track` as arrays (its bytes as uint8, its JPEGs end to end with their ends)."""
+    parts = {
+        "video": np.frombuffer(track.video, np.uint8),
+        "images": np.frombuffer(b"".join(track.images), np.uint8),
+        "image_ends": np.cumsum([len(image) for image in track.images], dtype=np.int64),
+        "position": track.position,
+        "orientation": track.orientation,
+        **{f"stats.{stat}": value for stat, value in track.stats.items()},
+    }
+    return {_CAMERA.format(name=name, part=part): values for part, values in parts.items()}
+
+
+def _camera_track(stored: np.lib.npyio.NpzFile, name: str) -> CameraTrack:
+    """The inverse of `_camera_arrays`."""
+
+    def part(key: str) -> np.ndarray:
+        return stored[_CAMERA.format(name=name, part=key)]
+
+    images, ends = part("images").tobytes(), part("image_ends").tolist()
+    prefix = _CAMERA.format(name=name, part="stats.")
+    return CameraTrack(
+        video=part("video").tobytes(),
+        images=[images[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)],
+        position=part("position"),
+        orientation=part("orientation"),
+        stats={key.removeprefix(prefix): stored[key] for key in stored.files if key.startswith(prefix)},
+    )

@@ -26,10 +26,12 @@ from pathlib import Path
 from typing import Protocol
 
 import gymnasium as gym
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from common import columns
 from common.cli import DatasetError
+from humanoid.cameras import Camera, intrinsics, spec_of
 from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
     ENV_ID,
@@ -44,9 +46,9 @@ from humanoid.env import (
 from humanoid.sensors import ObservationSplit, privileged_names, proprioception_names
 from rollout.episode import Episode
 from task.command_fields import COMMAND_NAMES
-from teleop.lerobot_io.format import check_destination
+from teleop.lerobot_io.format import check_destination, video_feature
 from teleop.lerobot_io.writer import LeRobotWriter
-from teleop.mcap_io.writer import scene_update, write_episode_mcap
+from teleop.mcap_io.writer import calibration, scene_update, write_episode_mcap
 from teleop.seeds import next_free
 from teleop.spool import Spool
 
@@ -72,10 +74,15 @@ class DatasetSpec:
     split: ObservationSplit
     parameters: tuple[str, ...] = ()
     """The physical parameters every episode's draw holds (`Randomization.parameters`); () for none."""
+    cameras: tuple[Camera, ...] = ()
+    """The cameras every episode records (`humanoid.cameras`); () for none."""
+    calibrations: tuple[CameraCalibration, ...] = ()
+    """Each camera's calibration for the MCAP (`teleop.mcap_io.writer.calibration`)."""
 
     @classmethod
-    def from_env(cls, env: gym.Env, parameters: tuple[str, ...] = ()) -> DatasetSpec:
-        """The spec of datasets recorded in `env`, whose episodes draw `parameters` (domain randomisation)."""
+    def from_env(cls, env: gym.Env, parameters: tuple[str, ...] = (), cameras: tuple[Camera, ...] = ()) -> DatasetSpec:
+        """The spec of datasets recorded in `env`, whose episodes draw `parameters` (domain randomisation) and record
+        `cameras`."""
         model, _ = model_and_data(env)
         sensed, privileged = proprioception_names(model), privileged_names(model)
         actions = actuator_names(model)
@@ -93,11 +100,22 @@ class DatasetSpec:
             columns.DONE: flag,
             columns.TERMINATED: flag,
             columns.TRUNCATED: flag,
+            **{columns.image_key(camera.name): video_feature(*camera.size, LEROBOT_FPS) for camera in cameras},
         }
         frames = body_names(model)
         scene = scene_update(model, frames)
         mjcf = mjcf_path(env).read_bytes()
-        return cls(features, frames, scene, step_duration_ns(env), mjcf, ObservationSplit(model), parameters)
+        return cls(
+            features,
+            frames,
+            scene,
+            step_duration_ns(env),
+            mjcf,
+            ObservationSplit(model),
+            parameters,
+            cameras,
+            tuple(calibration(camera.name, intrinsics(model, camera), *camera.size) for camera in cameras),
+        )
 
 
 @dataclass(frozen=True)
@@ -214,6 +232,12 @@ class EpisodeStore:
         }
         drawn = {columns.RANDOMIZATION_PREFIX + name: value for name, value in episode.parameters.items()}
         self._check_parameters(frozenset(episode.parameters))
+        if list(episode.cameras) != [camera.name for camera in self.spec.cameras]:
+            raise DatasetError(
+                f"{self.root} records cameras {spec_of(self.spec.cameras) or 'none'}, this episode has "
+                f"{', '.join(episode.cameras) or 'none'}"
+            )
+        videos = {columns.image_key(name): (track.video, track.stats) for name, track in episode.cameras.items()}
         index = self.num_episodes
         mcap_path = Path(MCAP_DIR) / mcap_name(index)
         facts = {
@@ -240,7 +264,7 @@ class EpisodeStore:
             **{key: json.dumps(value) for key, value in drawn.items()},
         }
         try:
-            staged = self.lerobot.stage(frame_columns, episode.tasks, {**facts, **final, **drawn})
+            staged = self.lerobot.stage(frame_columns, episode.tasks, {**facts, **final, **drawn}, videos)
             write_episode_mcap(
                 self.root / mcap_path,
                 episode,
@@ -252,6 +276,7 @@ class EpisodeStore:
                 self.spec.step_ns,
                 metadata,
                 self.spec.mjcf,
+                self.spec.calibrations,
             )
             committing = self.spool.begin_commit(spooled, index) if spooled else None
             self.lerobot.commit(staged)

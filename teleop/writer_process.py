@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 from common.workers import Channel, Worker
 
 if TYPE_CHECKING:
+    from humanoid.cameras import Camera
     from rollout.episode import Episode
     from teleop.store import CommittedEpisode
 
@@ -31,11 +32,18 @@ WRITER_MODULES = ("humanoid.env", "teleop.store")  # what `_serve` imports
 class WriterProcess:
     """The `EpisodeSink` that appends episodes to `root` from a child process (a `common.workers.Worker`)."""
 
-    def __init__(self, root: Path, parameters: tuple[str, ...] = ()) -> None:
-        """`parameters`: what every episode's domain randomisation draws (`teleop.store.DatasetSpec.parameters`)."""
+    def __init__(self, root: Path, parameters: tuple[str, ...] = (), cameras: tuple[Camera, ...] = ()) -> None:
+        """`parameters`: what every episode's domain randomisation draws (`teleop.store.DatasetSpec.parameters`);
+        `cameras`: what each records (`DatasetSpec.cameras`)."""
         # outlives_parent: the writer commits what it received even if the recorder is killed.
         self._worker = Worker(
-            _serve, root, parameters, name=f"the writer process of {root}", preload=WRITER_MODULES, outlives_parent=True
+            _serve,
+            root,
+            parameters,
+            cameras,
+            name=f"the writer process of {root}",
+            preload=WRITER_MODULES,
+            outlives_parent=True,
         )
         self.num_episodes = -1
         self._seeds: list[int] = []
@@ -78,12 +86,12 @@ class WriterProcess:
             self._worker.close()
 
 
-def _serve(channel: Channel, root: Path, parameters: tuple[str, ...]) -> None:
+def _serve(channel: Channel, root: Path, parameters: tuple[str, ...], cameras: tuple[Camera, ...]) -> None:
     """The writer (`common.workers`): open the dataset, report it ready, commit each episode received, report it."""
     from humanoid.env import make_env  # noqa: PLC0415 - heavy imports happen in the child only
     from teleop.store import DatasetSpec, EpisodeStore  # noqa: PLC0415 - heavy imports happen in the child only
 
-    store = EpisodeStore(root, DatasetSpec.from_env(make_env(), parameters))
+    store = EpisodeStore(root, DatasetSpec.from_env(make_env(), parameters, cameras))
     try:
         channel.send((store.num_episodes, store.seeds()))
         store.prepare()  # while the recorder simulates the first episode

@@ -77,6 +77,13 @@ def one_core() -> Iterator[None]:
         os.sched_setaffinity(0, cores)
 
 
+# Foxglove's WebSocket protocol (serverInfo, advertise, subscribe, binary message data) under both of its
+# names, as the Foxglove app offers it: foxglove-sdk 0.30.3 accepts only the newer name, foxglove.sdk.v1,
+# and answers a client offering foxglove.websocket.v1 alone with HTTP 400.
+SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+MESSAGE_DATA = 0x01  # binary opcode: subscription id (uint32), log time (uint64), payload
+
+
 def snapshot(root: Path) -> dict[str, bytes]:
     """Every file under `root` with its content: equal snapshots mean nothing on disk changed."""
     if root.is_file():
@@ -189,8 +196,9 @@ class Terminal:
         self.read_for(then_wait)
 
 
-def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: int) -> list[str]:
-    """A CPU run of a small ACT for `steps` steps; nothing from the Hub, no wandb, a checkpoint at the last step."""
+def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: int, *flags: str) -> list[str]:
+    """A CPU run of a small ACT for `steps` steps; nothing from the Hub, no wandb, a checkpoint at the last step;
+    `flags` added."""
     return [
         str(Path(sys.executable).parent / "lerobot-train"),
         f"--dataset.repo_id={repo_id}",
@@ -213,10 +221,11 @@ def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: 
         "--policy.dim_feedforward=128",
         "--policy.n_encoder_layers=1",
         "--policy.n_vae_encoder_layers=1",
+        *flags,
     ]
 
 
-def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int) -> subprocess.CompletedProcess:
+def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int, *flags: str) -> subprocess.CompletedProcess:
     """`lerobot-train` (`lerobot_train_command`) in a subprocess in `work`, every cache under it, the checkpoint in
     `work`/outputs (which must not exist yet: lerobot-train refuses an existing one unless resuming)."""
     env = {
@@ -228,7 +237,7 @@ def run_lerobot_train(dataset: Path, work: Path, repo_id: str, steps: int) -> su
         "HF_LEROBOT_HOME": str(work / "lerobot"),
         "WANDB_MODE": "disabled",
     }
-    command = lerobot_train_command(dataset, work / "outputs", repo_id, steps)
+    command = lerobot_train_command(dataset, work / "outputs", repo_id, steps, *flags)
     return subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=300)
 
 

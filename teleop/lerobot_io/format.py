@@ -14,6 +14,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from common.cli import DatasetError, one_line
+from common.columns import OBS_IMAGES
+from common.lerobot_stats import QUANTILES, quantile_key
+from humanoid.encoding import CODEC, ENCODER
 
 if TYPE_CHECKING:
     import pyarrow.parquet as pq
@@ -28,6 +31,8 @@ EPISODES_DIR = "meta/episodes"
 DATA_DIR = "data"
 _CHUNK_FILE = "chunk-{chunk_index:03d}/file-{file_index:03d}"
 DATA_PATH = f"{DATA_DIR}/{_CHUNK_FILE}.parquet"
+VIDEO_DIR = "videos"
+VIDEO_PATH = f"{VIDEO_DIR}/{{video_key}}/{_CHUNK_FILE}.mp4"
 EPISODES_PATH = f"{EPISODES_DIR}/{_CHUNK_FILE}.parquet"
 CHUNKS_SIZE = 1000  # files per chunk folder
 DATA_FILES_SIZE_IN_MB = 100
@@ -41,7 +46,6 @@ DEFAULT_FEATURES = {
     "index": {"dtype": "int64", "shape": (1,), "names": None},
     "task_index": {"dtype": "int64", "shape": (1,), "names": None},
 }
-QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 
 
 def episode_files(root: Path) -> list[Path]:
@@ -52,6 +56,11 @@ def episode_files(root: Path) -> list[Path]:
 def data_files(root: Path) -> list[Path]:
     """The frames' parquet files on disk (`DATA_DIR`), committed or not, in order."""
     return sorted((root / DATA_DIR).glob("*/*.parquet"))
+
+
+def video_files(root: Path) -> list[Path]:
+    """The cameras' video files on disk (`VIDEO_DIR`), committed or not, in order."""
+    return sorted((root / VIDEO_DIR).glob("*/*/*.mp4"))
 
 
 Stats = dict[str, dict[str, np.ndarray]]
@@ -91,8 +100,47 @@ def read_footer(path: Path) -> pq.FileMetaData:
         ) from None
 
 
+def video_keys(features: dict) -> list[str]:
+    """The keys of `features` stored as video files (the cameras'), not in the frames' parquet."""
+    return [key for key, ft in features.items() if ft["dtype"] == "video"]
+
+
+def cameras_spec(features: dict) -> str:
+    """The cameras `features` hold as `--cameras` names them, with their sizes ("" for none:
+    `humanoid.cameras.parse_cameras` reads it back)."""
+    return ",".join(
+        f"{key.removeprefix(OBS_IMAGES + '.')}:{features[key]['shape'][0]}x{features[key]['shape'][1]}"
+        for key in video_keys(features)
+    )
+
+
+def video_feature(height: int, width: int, fps: int) -> dict[str, Any]:
+    """The feature of a camera's frames, as LeRobot declares a video (its `info` what LeRobot reads off the first
+    episode's file with `get_video_info` and the encoder's settings, `humanoid.encoding.ENCODER`: a test holds them
+    equal)."""
+    encoder = {key: value for key, value in ENCODER.items() if key != "vcodec"}
+    return {
+        "dtype": "video",
+        "shape": (height, width, 3),
+        "names": ["height", "width", "channels"],
+        "info": {
+            "video.height": height,
+            "video.width": width,
+            "video.codec": CODEC,
+            "video.pix_fmt": ENCODER["pix_fmt"],
+            "video.fps": fps,
+            "video.channels": 3,
+            "has_audio": False,
+            **{f"video.{key}": value for key, value in encoder.items()},
+            "video.video_backend": "pyav",
+            "video.extra_options": {},
+            "is_depth_map": False,
+        },
+    }
+
+
 def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:
-    """info.json of an empty dataset without videos (`features` includes DEFAULT_FEATURES)."""
+    """info.json of an empty dataset (`features` includes DEFAULT_FEATURES; videos, if any, in VIDEO_PATH)."""
     return {
         "codebase_version": CODEBASE_VERSION,
         "fps": fps,
@@ -104,7 +152,7 @@ def new_info(fps: int, features: dict, robot_type: str) -> dict[str, Any]:
         "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
         "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
         "data_path": DATA_PATH,
-        "video_path": None,
+        "video_path": VIDEO_PATH if video_keys(features) else None,
         "robot_type": robot_type,
         "splits": {},
     }
@@ -116,6 +164,8 @@ def hf_features(features: dict) -> datasets.Features:
 
     mapped = {}
     for key, ft in features.items():
+        if ft["dtype"] == "video":  # in video files, not in the frames' table
+            continue
         shape = tuple(ft["shape"])
         if len(shape) != 1:
             raise ValueError(f"feature {key!r} has shape {shape}; only scalars and vectors are written here")
@@ -127,10 +177,6 @@ def hf_features(features: dict) -> datasets.Features:
 def next_chunk_file(chunk_index: int, file_index: int) -> tuple[int, int]:
     """The file after (chunk, file): CHUNKS_SIZE files per chunk folder."""
     return (chunk_index + 1, 0) if file_index == CHUNKS_SIZE - 1 else (chunk_index, file_index + 1)
-
-
-def quantile_key(q: float) -> str:
-    return f"q{round(q * 100):02d}"
 
 
 def episode_stats(frames: dict[str, np.ndarray]) -> Stats:
@@ -162,9 +208,10 @@ def aggregate_stats(stats_list: list[Stats]) -> Stats:
     # First-seen order, not a set's hash order: stats.json must come out byte-identical run to run.
     for key in dict.fromkeys(key for stats in stats_list for key in stats):
         parts = [stats[key] for stats in stats_list if key in stats]
-        counts = np.stack([part["count"] for part in parts]).astype(np.float64)  # (episodes, 1)
-        total = counts.sum(axis=0)
         means = np.stack([part["mean"] for part in parts])
+        # (episodes, 1, ...): one count per episode against each entry (a camera's stats are (3, 1, 1)).
+        counts = np.stack([part["count"] for part in parts]).astype(np.float64).reshape(-1, *[1] * (means.ndim - 1))
+        total = counts.sum(axis=0)
         mean = (means * counts).sum(axis=0) / total
         variance = ((np.stack([part["std"] for part in parts]) ** 2 + (means - mean) ** 2) * counts).sum(axis=0) / total
         aggregated[key] = {
@@ -172,7 +219,7 @@ def aggregate_stats(stats_list: list[Stats]) -> Stats:
             "max": np.max([part["max"] for part in parts], axis=0),
             "mean": mean,
             "std": np.sqrt(variance),
-            "count": total.astype(np.int64),
+            "count": total.reshape(-1)[:1].astype(np.int64),
             **{
                 name: (np.stack([part[name] for part in parts]) * counts).sum(axis=0) / total
                 for name in map(quantile_key, QUANTILES)

@@ -38,6 +38,7 @@ from teleop.lerobot_io.format import (
     TASKS_PATH,
     Stats,
     aggregate_stats,
+    cameras_spec,
     check_destination,
     data_files,
     episode_files,
@@ -49,6 +50,8 @@ from teleop.lerobot_io.format import (
     stats_from_json,
     stats_to_json,
     unflatten_stats,
+    video_files,
+    video_keys,
 )
 
 log = logging.getLogger(__name__)
@@ -121,9 +124,14 @@ class LeRobotWriter:
             if existing.get(key) != info[key]
         ]
         if existing.get("features") != info["features"]:
-            theirs, ours = set(existing.get("features", {})), set(info["features"])
-            detail = f"keys {sorted(theirs ^ ours)} differ" if theirs != ours else "shapes, dtypes or names differ"
-            problems.append(f"other features ({detail})")
+            theirs, ours = existing.get("features", {}), info["features"]
+            cameras = [cameras_spec(features) or "none" for features in (theirs, ours)]
+            if cameras[0] != cameras[1]:  # a dataset keeps one set of cameras (LeRobot's features are per dataset)
+                problems.append(f"recorded with cameras {cameras[0]}, this session records {cameras[1]}")
+            elif set(theirs) != set(ours):
+                problems.append(f"other features (keys {sorted(set(theirs) ^ set(ours))} differ)")
+            else:
+                problems.append("other features (shapes, dtypes or names differ)")
         if problems:
             raise DatasetError(f"{root} holds a dataset this recorder cannot append to: {'; '.join(problems)}")
         return cls._recovered(root, existing)
@@ -158,12 +166,23 @@ class LeRobotWriter:
         if self._schema is None:
             self._schema = hf_features(self.info["features"]).arrow_schema
 
-    def stage(self, arrays: dict[str, np.ndarray], tasks: np.ndarray, extra: dict[str, Any]) -> StagedEpisode:
-        """Write the frames and metadata row of the next episode, uncommitted.
+    def stage(
+        self,
+        arrays: dict[str, np.ndarray],
+        tasks: np.ndarray,
+        extra: dict[str, Any],
+        videos: dict[str, tuple[bytes, dict[str, np.ndarray]]] | None = None,
+    ) -> StagedEpisode:
+        """Write the frames, videos and metadata row of the next episode, uncommitted.
 
-        `arrays` holds every non-default feature and `tasks` the task string, one row per frame;
-        `extra` adds episode-level columns (seed, controller, ...) to the metadata row.
+        `arrays` holds every non-default feature but the videos and `tasks` the task string, one row per frame;
+        `extra` adds episode-level columns (seed, controller, ...) to the metadata row; `videos` holds each video
+        feature's MP4 file (one frame per row, frame i at i / fps) and its statistics
+        (`common.lerobot_stats.image_stats`). An episode's video is a file of its own, numbered as its frames' file.
         """
+        videos = videos or {}
+        if set(videos) != set(video_keys(self.info["features"])):
+            raise ValueError(f"videos {sorted(videos)} for a dataset of {video_keys(self.info['features'])}")
         index, start = self.info["total_episodes"], self.info["total_frames"]
         length = len(next(iter(arrays.values())))
         frame_index = np.arange(length, dtype=np.int64)
@@ -192,6 +211,17 @@ class LeRobotWriter:
             ),
         )
         stats = episode_stats(frames)
+        located: dict[str, Any] = {}
+        for key, (video, video_stats) in videos.items():
+            path = self.root / self.info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+            write_atomically(path, lambda p, video=video: p.write_bytes(video))
+            stats[key] = video_stats
+            located |= {
+                f"videos/{key}/chunk_index": chunk,
+                f"videos/{key}/file_index": file,
+                f"videos/{key}/from_timestamp": 0.0,
+                f"videos/{key}/to_timestamp": length / self.info["fps"],
+            }
         row = {
             "episode_index": index,
             "tasks": episode_tasks,
@@ -203,6 +233,7 @@ class LeRobotWriter:
             **flatten_stats(stats),
             "meta/episodes/chunk_index": chunk,
             "meta/episodes/file_index": file,
+            **located,
             **extra,
         }
         table = pa.Table.from_pylist([row])
@@ -293,7 +324,15 @@ def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
         root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
         for row in rows
     }
-    for data_file in data_files(root):
+    for key in video_keys(info["features"]):
+        referenced |= {
+            root
+            / info["video_path"].format(
+                video_key=key, chunk_index=row[f"videos/{key}/chunk_index"], file_index=row[f"videos/{key}/file_index"]
+            )
+            for row in rows
+        }
+    for data_file in [*data_files(root), *video_files(root)]:
         if data_file not in referenced:
             _remove(root, data_file)
     return rows

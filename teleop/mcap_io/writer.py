@@ -11,6 +11,10 @@ Topics (log and publish times are integer nanoseconds of simulated time, frame_i
   setpoint and the posture achieved.
 - `/scene` foxglove.SceneUpdate, once: the geoms (capsules as a cylinder and two spheres), each
   attached to its body's frame, and the floor.
+- `/camera/<name>/image` foxglove.CompressedImage (JPEG) and `/camera/<name>/calibration`
+  foxglove.CameraCalibration, every step, for each camera the dataset records (`make record CAMERAS=...`): the frame
+  of row t, in the optical frame `<name>_camera` that `/tf` also carries (x right, y down, z along the view), so that
+  Foxglove's image panel shows it and its 3D panel places it.
 Plus an `episode` metadata record and the MJCF model as an attachment.
 """
 
@@ -21,7 +25,9 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.CylinderPrimitive_pb2 import CylinderPrimitive
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
@@ -34,6 +40,7 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
+from humanoid.cameras import CameraTrack
 from humanoid.env import nominal_model
 from rollout.episode import Episode
 from task.tracking import Tracking
@@ -47,6 +54,8 @@ TF_TOPIC = "/tf"
 COMMAND_TOPIC = "/command"
 SCENE_TOPIC = "/scene"
 WORLD_FRAME = "world"
+IMAGE_TOPIC = "/camera/{name}/image"
+CALIBRATION_TOPIC = "/camera/{name}/calibration"
 METADATA_NAME = "episode"
 MJCF_ATTACHMENT = "model.xml"
 _DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
@@ -108,6 +117,41 @@ def scene_update(model: mujoco.MjModel, body_frames: list[str]) -> SceneUpdate:
     return SceneUpdate(entities=list(entities.values()))
 
 
+def camera_frame(name: str) -> str:
+    """The `/tf` frame of camera `name`'s optical frame."""
+    return f"{name}_camera"
+
+
+def calibration(name: str, k: np.ndarray, height: int, width: int) -> CameraCalibration:
+    """Camera `name`'s `foxglove.CameraCalibration` (no timestamp): pinhole `k`, no distortion, the image's size."""
+    projection = np.hstack([k, np.zeros((3, 1))])
+    return CameraCalibration(
+        frame_id=camera_frame(name),
+        width=width,
+        height=height,
+        distortion_model="plumb_bob",
+        D=[0.0] * 5,
+        K=k.reshape(-1).tolist(),
+        R=np.eye(3).reshape(-1).tolist(),
+        P=projection.reshape(-1).tolist(),
+    )
+
+
+def camera_messages(
+    name: str, track: CameraTrack, calibrated: CameraCalibration, times_ns: np.ndarray
+) -> tuple[list[bytes], list[bytes]]:
+    """Camera `name`'s image and calibration (`calibrated`) messages, one each per frame of `track`, at `times_ns`."""
+    images, calibrations = [], []
+    calibrated = CameraCalibration.FromString(calibrated.SerializeToString())
+    for time_ns, jpeg in zip(times_ns.tolist(), track.images, strict=True):
+        image = CompressedImage(frame_id=camera_frame(name), data=jpeg, format="jpeg")
+        image.timestamp.FromNanoseconds(time_ns)
+        calibrated.timestamp.FromNanoseconds(time_ns)
+        images.append(image.SerializeToString())
+        calibrations.append(calibrated.SerializeToString())
+    return images, calibrations
+
+
 def write_episode_mcap(
     path: Path,
     episode: Episode,
@@ -119,12 +163,18 @@ def write_episode_mcap(
     step_ns: int,
     metadata: dict[str, str],
     mjcf: bytes,
+    calibrations: tuple[CameraCalibration, ...] = (),
 ) -> None:
-    """Write `episode` to `path` atomically: a finished file appears under its name, or nothing does."""
+    """Write `episode` to `path` atomically: a finished file appears under its name, or nothing does.
+    `calibrations`: each of `episode.cameras`' (`calibration`), in order."""
     times_ns = np.arange(episode.length, dtype=np.int64) * step_ns
-    transforms = FrameTransformsEncoder(WORLD_FRAME, body_frames).encode(
-        times_ns, episode.body_position, episode.body_orientation
+    cameras = list(episode.cameras.items())
+    frames = [*body_frames, *(camera_frame(name) for name, _ in cameras)]
+    positions = np.concatenate([episode.body_position, *(track.position[:, None] for _, track in cameras)], axis=1)
+    orientations = np.concatenate(
+        [episode.body_orientation, *(track.orientation[:, None] for _, track in cameras)], axis=1
     )
+    transforms = FrameTransformsEncoder(WORLD_FRAME, frames).encode(times_ns, positions, orientations)
     achieved = Tracking(nominal_model()).achieved(episode.observation)
     values = command_values(episode.command, episode.push, episode.setpoint, achieved)
     commands = CommandEncoder().encode(times_ns, values, episode.tasks)
@@ -154,24 +204,41 @@ def write_episode_mcap(
     with partial.open("wb") as stream:
         writer = BulkMcapWriter(stream)
         writer.start(profile="", library="humanoid-bc")
-        schemas = {kind: register_schema(writer, kind) for kind in (SceneUpdate, Step, FrameTransforms, Command)}
+        kinds = (
+            SceneUpdate,
+            Step,
+            FrameTransforms,
+            Command,
+            *((CompressedImage, CameraCalibration) if cameras else ()),
+        )
+        schemas = {kind: register_schema(writer, kind) for kind in kinds}
+        topics = [
+            (SCENE_TOPIC, SceneUpdate),
+            (STEP_TOPIC, Step),
+            (TF_TOPIC, FrameTransforms),
+            (COMMAND_TOPIC, Command),
+            (FINAL_TOPIC, Step),
+        ]
+        for name, _ in cameras:
+            topics += [
+                (IMAGE_TOPIC.format(name=name), CompressedImage),
+                (CALIBRATION_TOPIC.format(name=name), CameraCalibration),
+            ]
         channels = {
             topic: writer.register_channel(topic, MessageEncoding.Protobuf, schemas[message_type])
-            for topic, message_type in (
-                (SCENE_TOPIC, SceneUpdate),
-                (STEP_TOPIC, Step),
-                (TF_TOPIC, FrameTransforms),
-                (COMMAND_TOPIC, Command),
-                (FINAL_TOPIC, Step),
-            )
+            for topic, message_type in topics
         }
         writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
         writer.add_metadata(METADATA_NAME, metadata)
         no_time = np.zeros(1, np.int64)
         writer.add_messages(np.array([channels[SCENE_TOPIC]]), no_time, no_time, no_time, [scene.SerializeToString()])
         per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
+        streams = [steps, transforms, commands]
+        for (name, track), calibrated in zip(cameras, calibrations, strict=True):
+            per_step += [IMAGE_TOPIC.format(name=name), CALIBRATION_TOPIC.format(name=name)]
+            streams += camera_messages(name, track, calibrated, times_ns)
         data: list[bytes] = [b""] * (len(per_step) * episode.length)
-        for offset, messages in enumerate((steps, transforms, commands)):
+        for offset, messages in enumerate(streams):
             data[offset :: len(per_step)] = messages
         step_times = np.repeat(times_ns, len(per_step))
         writer.add_messages(

@@ -9,6 +9,7 @@ import pytest
 
 from bc.train import TrainConfig
 from bc.train import main as train_bc
+from bench.camera_cost import cameras_flag, frames_per_second, rendered, video_cost
 from bench.ppo_throughput import learn
 from bench.record_throughput import cpu_per_episode
 from bench.stepping import standing
@@ -45,3 +46,13 @@ def test_the_walker_bench_measures_a_walk_its_smoothness_and_its_estimate() -> N
     assert len(row["changes"]) > 100 and 0 < sum(row["changes"]) / len(row["changes"]) < 0.1
     assert row["errors"] and 0 <= max(row["errors"]) < 0.1
     assert walking_cost(Walker(), 1001, command_vector(Posture(forward_speed=0.3)), steps=10) > 0
+
+
+def test_the_camera_bench_records_with_the_cameras_it_names() -> None:
+    assert cameras_flag(2, (480, 640)) == "head:480x640,tracking:480x640" and cameras_flag(0, (96, 128)) == ""
+    assert frames_per_second(cameras_flag(1, (32, 48)), 1, 1, 20) > 0
+    frames, seconds = rendered((32, 48), 4)
+    assert len(frames) == 4 and frames[0].shape == (32, 48, 3) and seconds > 0
+    for codec in ("av1", "h264"):
+        encode, decode, size, error = video_cost(frames, codec)
+        assert encode > 0 and decode > 0 and size > 0 and 0 <= error < 20

@@ -21,7 +21,7 @@ from common import columns
 from evaluation.evaluate import cli as evaluate_cli
 from humanoid.env import make_env
 from rollout.episode import EpisodeBuffer
-from support import read_mcap_episode
+from support import MESSAGE_DATA, SUBPROTOCOLS, read_mcap_episode
 from teachers.expert import LQRExpert
 from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
@@ -30,12 +30,6 @@ from teleop.record import cli as record_cli
 from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # a recorder process and a client: seconds
-
-# Foxglove's WebSocket protocol (serverInfo, advertise, subscribe, binary message data) under both of its
-# names, as the Foxglove app offers it: foxglove-sdk 0.30.3 accepts only the newer name, foxglove.sdk.v1,
-# and answers a client offering foxglove.websocket.v1 alone with HTTP 400.
-SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
-MESSAGE_DATA = 0x01  # binary opcode: subscription id (uint32), log time (uint64), payload
 
 
 @pytest.fixture(scope="module")
