@@ -356,3 +356,15 @@ def test_the_head_camera_sits_at_the_head_and_looks_ahead_and_down() -> None:
     mujoco.mju_quat2Mat(axes, tracking)
     toward = torso.xpos - tracked
     assert np.dot(axes.reshape(3, 3)[:, 2], toward / np.linalg.norm(toward)) > 0.95
+
+
+def test_two_workers_record_the_cameras_one_process_records(filmed: Path, tmp_path: Path) -> None:
+    """Rendered and encoded in the simulation workers, the cameras of a parallel recording are the one process's,
+    file for file."""
+    root = tmp_path / "dataset"
+    record_short(root, episodes=2, max_steps=STEPS, task="posture", cameras=CAMERAS_FLAG, workers=2, writer="process")
+    ours, theirs = snapshot(root), snapshot(filmed)
+    assert [name for name in ours if name.startswith("videos/")]
+    assert {k: v for k, v in ours.items() if "recordings" not in k} == {
+        k: v for k, v in theirs.items() if "recordings" not in k
+    }
