@@ -43,8 +43,17 @@ def pinnable() -> bool:
         return False
 
 
+BLAS_THREADS = {"OPENBLAS_NUM_THREADS": "1"}
+"""What an OpenBLAS loaded later reads when it starts: threadpoolctl limits only the libraries already loaded, and
+scipy's own OpenBLAS loads with the first `scipy.linalg` import, in a worker after its limit (it then ran a thread per
+core and, with two workers and the renderer on two cores, spun for minutes)."""
+
+
 def one_blas_thread() -> None:
-    """Limit this process's BLAS libraries (numpy's, scipy's OpenBLAS) to one thread each, for its lifetime."""
+    """Limit this process's BLAS libraries (numpy's, scipy's OpenBLAS) to one thread each, for its lifetime: those
+    loaded now, and those loaded later (`BLAS_THREADS`, a value already in the environment winning)."""
+    for name, value in BLAS_THREADS.items():
+        os.environ.setdefault(name, value)
     threadpool_limits(1, user_api="blas")
 
 

@@ -76,3 +76,17 @@ def test_the_pinned_libraries_compute_the_same_bits_on_any_x86_cpu() -> None:
     )
     computed = dict(line.rsplit(" ", 1) for line in result.stdout.strip().splitlines())
     assert computed == PINNED_FINGERPRINTS
+
+
+def test_one_blas_thread_holds_for_a_blas_loaded_after_it() -> None:
+    """A worker limits its BLAS first and imports scipy.linalg later (the expert's gains): scipy's own OpenBLAS runs
+    one thread too."""
+    code = (
+        "from common.threads import one_blas_thread; one_blas_thread()\n"
+        "import scipy.linalg\n"
+        "from threadpoolctl import threadpool_info\n"
+        "print(sorted({info['num_threads'] for info in threadpool_info() if info['user_api'] == 'blas'}))"
+    )
+    environment = {name: value for name, value in os.environ.items() if name != "OPENBLAS_NUM_THREADS"}
+    result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[1]"
