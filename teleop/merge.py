@@ -80,19 +80,27 @@ FRAME_COLUMNS = (columns.OBS_COMMAND, columns.SETPOINT, columns.PUSH)
 """The per-frame columns that only the dataset holds (the MCAP files hold the rest of an episode)."""
 
 
-def read_cameras(path: Path, videos: dict[str, tuple[Path, dict[str, np.ndarray]]]) -> dict[str, CameraTrack]:
-    """The camera tracks of the episode whose MCAP file is `path` and whose videos are `videos`
-    (`teleop.dataset_reader.read_videos`), as the recorder had them: the videos, the MCAP's JPEGs and /tf poses, the
-    statistics."""
-    tracks = {}
-    for key, (video, stats) in videos.items():
-        name = key.removeprefix(columns.OBS_IMAGES + ".")
+def read_cameras(
+    path: Path,
+    videos: dict[str, tuple[Path, dict[str, np.ndarray]]],
+    positions: np.ndarray,
+    orientations: np.ndarray,
+) -> dict[str, CameraTrack]:
+    """The camera tracks of the episode whose MCAP file is `path`, as the recorder had them: `videos` (the video files
+    and statistics, `teleop.dataset_reader.read_videos`), the MCAP's JPEGs (read in one pass), and each camera's /tf
+    poses, (T, cameras, 3) `positions` and (T, cameras, 4) `orientations` in `videos`' order."""
+    names = [key.removeprefix(columns.OBS_IMAGES + ".") for key in videos]
+    topics = {IMAGE_TOPIC.format(name=name): name for name in names}
+    images: dict[str, list[bytes]] = {name: [] for name in names}
+    if topics:
         with path.open("rb") as stream:
             reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-            images = [m.data for _, _, _, m in reader.iter_decoded_messages(topics=[IMAGE_TOPIC.format(name=name)])]
-        position, orientation = read_body_poses(path, [camera_frame(name)])
-        tracks[name] = CameraTrack(video.read_bytes(), images, position[:, 0], orientation[:, 0], stats)
-    return tracks
+            for _, channel, _, message in reader.iter_decoded_messages(topics=list(topics)):
+                images[topics[channel.topic]].append(message.data)
+    return {
+        name: CameraTrack(video.read_bytes(), images[name], positions[:, i], orientations[:, i], stats)
+        for i, (name, (video, stats)) in enumerate(zip(names, videos.values(), strict=True))
+    }
 
 
 def read_episode(
@@ -106,7 +114,11 @@ def read_episode(
     setpoints and pushes (`FRAME_COLUMNS`), `videos` its cameras' (`read_cameras`)."""
     path = root / row[columns.EPISODE_MCAP]
     steps = read_steps(path)
-    body_position, body_orientation = read_body_poses(path, body_frames)
+    videos = videos or {}
+    cameras = [camera_frame(key.removeprefix(columns.OBS_IMAGES + ".")) for key in videos]
+    positions, orientations = read_body_poses(path, [*body_frames, *cameras])  # one pass over /tf
+    bodies = len(body_frames)
+    body_position, body_orientation = positions[:, :bodies], orientations[:, :bodies]
     return Episode(
         seed=row[columns.EPISODE_SEED],
         controller=row[columns.EPISODE_CONTROLLER],
@@ -127,7 +139,7 @@ def read_episode(
         final_observation=read_mcap_final(path)["observation"],
         dagger_round=row[columns.EPISODE_DAGGER_ROUND],
         parameters=columns.drawn_parameters(row),
-        cameras=read_cameras(path, videos or {}),
+        cameras=read_cameras(path, videos, positions[:, bodies:], orientations[:, bodies:]),
     )
 
 
