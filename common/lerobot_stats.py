@@ -1,7 +1,8 @@
 """The statistics LeRobot keeps of a feature: their names, and those of a camera's frames.
 
 Here, below the cameras that compute them while recording (`humanoid.cameras`) and the dataset writer that stores
-them (`teleop.lerobot_io.format`); the tests hold both to LeRobot's own (`tests/teleop/test_lerobot_format.py`).
+them (`teleop.lerobot_io.format`); the tests hold both to LeRobot's own (`tests/teleop/test_lerobot_format.py`,
+`tests/teleop/test_cameras.py`).
 """
 
 from __future__ import annotations
