@@ -130,8 +130,10 @@ class LivePublisher:
             self.channels[STEP_TOPIC].log(step.SerializeToString(), log_time=log_time)
         shots = buffer.cameras.latest() if buffer.cameras is not None else []
         if self.channels[TF_TOPIC].has_sinks():
-            positions = np.vstack([buffer.body_position[t], *(shot[2] for shot in shots)])
-            orientations = np.vstack([buffer.body_orientation[t], *(shot[3] for shot in shots)])
+            positions, orientations = buffer.body_position[t], buffer.body_orientation[t]
+            if shots:  # the cameras' optical frames after the bodies'
+                positions = np.vstack([positions, *(shot[2] for shot in shots)])
+                orientations = np.vstack([orientations, *(shot[3] for shot in shots)])
             message = self._transforms.encode_one(log_time, positions, orientations)
             self.channels[TF_TOPIC].log(message, log_time=log_time)
         for name, jpeg, _, _ in shots:

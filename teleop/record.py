@@ -257,7 +257,7 @@ def validate(cfg: RecordConfig) -> None:
         # Its postures are solved on the live model at each key: under randomisation, on whichever draw is current.
         raise UserError(f"--controller {cfg.controller} records the nominal body: --randomize must be none")
     check_share(cfg, "latency")
-    parse_cameras(cfg.cameras)
+    cameras = parse_cameras(cfg.cameras)
     if cfg.policy is not None:
         check_played(cfg)
     if cfg.controller in INTERACTIVE:
@@ -265,8 +265,8 @@ def validate(cfg: RecordConfig) -> None:
 
         front_end_here(cfg.front_end)
     check_destination(cfg.dataset)
-    if cfg.cameras:
-        check_rendering(parse_cameras(cfg.cameras))
+    if cameras:
+        check_rendering(cameras)
 
 
 def check_rendering(cameras: tuple[Camera, ...]) -> None:
