@@ -517,7 +517,7 @@ def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Pa
             "(the next `make record` removes them)"
         )
     for name, fate in SPOOLS.items():
-        finished, cut_short = Spool(root, name).contents()
+        finished, cut_short = Spool(root, name).contents(info["total_episodes"])
         if finished or cut_short:
             notes.append(f"{name} holds {finished} finished episodes and {cut_short} partial files ({fate})")
     return notes

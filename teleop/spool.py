@@ -68,13 +68,21 @@ class Spool:
         """The spooled episodes, in seed order."""
         return sorted(self.folder.glob(f"*{_READY}")) if self.folder.is_dir() else []
 
-    def contents(self) -> tuple[int, int]:
-        """(finished episodes, partial files) in the folder: those waiting or being committed, and those a kill cut
-        short (what `recover` drops)."""
+    def contents(self, committed_episodes: int) -> tuple[int, int]:
+        """(finished episodes, partial files) in the folder, with the dataset's info.json counting
+        `committed_episodes`: those waiting or taken out for a commit info.json does not count yet (what `recover`
+        returns to the spool), and those a kill cut short (what it drops). A commit a kill stopped after info.json
+        leaves its `.committing` file, a leftover: not counted."""
         if not self.folder.is_dir():
             return 0, 0
-        finished = len(self.ready()) + len(list(self.folder.glob(f"*{_COMMITTING}")))
+        taken = [self._committing_index(path) for path in self.folder.glob(f"*{_COMMITTING}")]
+        finished = len(self.ready()) + sum(index >= committed_episodes for index in taken)
         return finished, len(list(self.folder.glob("*.partial")))
+
+    @staticmethod
+    def _committing_index(path: Path) -> int:
+        """The episode index a `.committing` file was being committed as (`begin_commit`)."""
+        return int(path.name.removesuffix(_COMMITTING).split(".index-")[1])
 
     def path_of(self, seed: int) -> Path:
         return self.folder / f"{seed:012d}{_READY}"
@@ -100,10 +108,10 @@ class Spool:
         for partial in self.folder.glob("*.partial"):
             partial.unlink()
         for committing in self.folder.glob(f"*{_COMMITTING}"):
-            seed, index = committing.name.removesuffix(_COMMITTING).split(".index-")
-            if int(index) < committed_episodes:
+            if self._committing_index(committing) < committed_episodes:
                 committing.unlink()
             else:
+                seed = committing.name.split(".index-")[0]
                 os.replace(committing, self.folder / f"{seed}{_READY}")
 
     def remove_if_empty(self) -> None:

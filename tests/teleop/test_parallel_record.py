@@ -113,8 +113,8 @@ def test_kill_9_of_a_parallel_recording_loses_no_finished_episode(tmp_path: Path
     recorder.wait()
     committed = committed_episodes(root)
     assert_consistent(root, committed)
-    # Finished: those waiting and the one a stopped commit had taken from the spool (`.committing`, not yet counted).
-    finished = committed + Spool(root).contents()[0]
+    # Finished: those waiting, and one a stopped commit had taken from the spool before info.json counted it.
+    finished = committed + Spool(root).contents(committed)[0]
     assert finished >= committed + 2
 
     record(root, workers=2, episodes=2, max_steps=150)
@@ -131,3 +131,15 @@ def test_zero_workers_is_refused_before_touching_the_disk(tmp_path: Path, capsys
     assert code != 0
     assert capsys.readouterr().err.strip() == "error: --workers must be positive, got 0"
     assert not (tmp_path / "new").exists()
+
+
+def test_the_spool_counts_what_a_recovery_commits(tmp_path: Path) -> None:
+    """Waiting episodes, and one taken out for a commit info.json does not count yet, are finished; a `.committing`
+    file whose episode info.json counts (a kill after the commit) and a partial file are not."""
+    spool = Spool(tmp_path)
+    spool.folder.mkdir()
+    for name in ("000000000003.npz", "000000000004.index-3.committing", "000000000005.index-4.committing", "x.partial"):
+        (spool.folder / name).write_bytes(b"")
+    assert spool.contents(4) == (2, 1)
+    spool.recover(4)
+    assert [path.name for path in spool.ready()] == ["000000000003.npz", "000000000005.npz"]
