@@ -53,22 +53,32 @@ def standing(seed: int) -> tuple[int, float]:
 
 
 def seconds_per_action(
-    controller: object, env: object, seed: int, steps: int, skip: int, command: np.ndarray | None = None
+    controller: object,
+    env: object,
+    seed: int,
+    steps: int,
+    skip: int,
+    command: np.ndarray | None = None,
+    command_at: int = 0,
+    must_stand: bool = False,
 ) -> float:
     """Mean wall time of `controller.act` over `steps` env steps after the first `skip` of an episode (told `command`
-    from its start, if given)."""
+    at step `command_at`, if given). A fall ends the episode early, or with `must_stand` is a RuntimeError (a cost
+    measured on fewer steps would read low)."""
     obs, _ = env.reset(seed=seed)
     controller.reset(seed)
-    if command is not None:
-        controller.set_command(command)
     spent = 0.0
     for t in range(skip + steps):
+        if command is not None and t == command_at:
+            controller.set_command(command)
         begin = time.perf_counter()
         action = controller.act(obs)
         if t >= skip:
             spent += time.perf_counter() - begin
         obs, _, terminated, _, _ = env.step(action)
         if terminated:
+            if must_stand:
+                raise RuntimeError(f"{controller.name} fell on seed {seed} while its cost was measured")
             break
     return spent / steps
 

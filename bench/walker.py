@@ -15,7 +15,6 @@ tables. Survival and tracking per field under the suite's conditions:
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
@@ -82,23 +81,12 @@ def walking_episode(walker: Walker, seed: int) -> dict[str, object]:
 def walking_cost(controller: object, seed: int, command: np.ndarray, steps: int = 300) -> float:
     """Mean wall time of `controller.act` over `steps` env steps of a walk commanded after the 3 s landing and under
     way for 1.5 s."""
-    env = make_env(EPISODE_STEPS)
-    obs, _ = env.reset(seed=seed)
-    controller.reset(seed)
-    spent = 0.0
     landed, walking = 200, 300
-    for t in range(landed + walking + steps):
-        if t == landed:
-            controller.set_command(command)
-        begin = time.perf_counter()
-        action = controller.act(obs)
-        if t >= landed + walking:
-            spent += time.perf_counter() - begin
-        obs, _, terminated, _, _ = env.step(action)
-        if terminated:
-            raise RuntimeError(f"{controller.name} fell on seed {seed} while its cost was measured")
-    env.close()
-    return spent / steps
+    env = make_env(EPISODE_STEPS)
+    try:
+        return seconds_per_action(controller, env, seed, steps, landed + walking, command, landed, must_stand=True)
+    finally:
+        env.close()
 
 
 def main() -> None:

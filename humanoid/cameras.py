@@ -106,11 +106,6 @@ def parse_cameras(spec: str) -> tuple[Camera, ...]:
     return tuple(cameras)
 
 
-def spec_of(cameras: tuple[Camera, ...]) -> str:
-    """The `--cameras` value naming `cameras` with their sizes (what a dataset records and `parse_cameras` reads)."""
-    return ",".join(f"{camera.name}:{camera.size[0]}x{camera.size[1]}" for camera in cameras)
-
-
 def intrinsics(model: mujoco.MjModel, camera: Camera) -> np.ndarray:
     """The 3x3 pinhole matrix K of `camera`'s images: MuJoCo's viewer cameras have the model's vertical field of
     view (`vis.global_.fovy`) and square pixels, the principal point at the image's centre."""

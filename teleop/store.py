@@ -31,7 +31,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from common import columns
 from common.cli import DatasetError
-from humanoid.cameras import Camera, intrinsics, spec_of
+from humanoid.cameras import Camera, intrinsics
 from humanoid.conditions import SCALE_SUFFIX, Randomization
 from humanoid.env import (
     ENV_ID,
@@ -46,7 +46,7 @@ from humanoid.env import (
 from humanoid.sensors import ObservationSplit, privileged_names, proprioception_names
 from rollout.episode import Episode
 from task.command_fields import COMMAND_NAMES
-from teleop.lerobot_io.format import check_destination, video_feature
+from teleop.lerobot_io.format import cameras_spec, check_destination, video_feature
 from teleop.lerobot_io.writer import LeRobotWriter
 from teleop.mcap_io.writer import calibration, scene_update, write_episode_mcap
 from teleop.seeds import next_free
@@ -234,7 +234,7 @@ class EpisodeStore:
         self._check_parameters(frozenset(episode.parameters))
         if list(episode.cameras) != [camera.name for camera in self.spec.cameras]:
             raise DatasetError(
-                f"{self.root} records cameras {spec_of(self.spec.cameras) or 'none'}, this episode has "
+                f"{self.root} records cameras {cameras_spec(self.spec.features) or 'none'}, this episode has "
                 f"{', '.join(episode.cameras) or 'none'}"
             )
         videos = {columns.image_key(name): (track.video, track.stats) for name, track in episode.cameras.items()}
