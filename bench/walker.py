@@ -3,12 +3,12 @@
     python -m bench.walker [--episodes 20] [--seed 1000]
 
 For `walker` and `walker-sensed` on held-out walking schedules (`TASK=walk`, seeds 1000..): survivors; how smooth the
-action is while walking (the mean change per entry from one env step to the next: what a student regresses); how
-long after the command filter reaches the zero walk the walk is over (the clock done, the body at rest over its
-feet); and, for the sensed walker, how far its leg odometry's velocity is from the simulator's over 1 s means while
-walking. Then the cost of one action side by side in this run: the LQR expert's, the walker's standing (its trigger
-armed, quiet), walking (0.3 m/s forward) and on leg odometry, and the walking sampling planner's. Prints markdown
-tables. Survival and tracking per field under the suite's conditions:
+action is while walking (the mean change per entry from one env step to the next: what a student regresses); how long
+after the command filter reaches the zero walk the walk is over (the clock done, the body at rest over its feet, and
+no step again while the zero walk holds); and, for the sensed walker, how far its leg odometry's velocity is from the
+simulator's over 1 s means while walking. Then the cost of one action side by side in this run: the LQR expert's, the
+walker's standing (its trigger armed, quiet), walking (0.3 m/s forward) and on leg odometry, and the walking sampling
+planner's. Prints markdown tables. Survival and tracking per field under the suite's conditions:
 `make robustness POLICY=walker TASK=walk CONDITIONS=clean,kick0.4,kick0.6` (and `TASK=stand`).
 """
 
@@ -31,9 +31,40 @@ _SPEEDS = [COMMAND_NAMES.index(name) for name in VELOCITY_NAMES]
 WINDOW_SECONDS = 1.0
 
 
+class Stops:
+    """The seconds from each zero walk's arrival on the command filter to the walk's end (`rests`): a walk that steps
+    again while the zero walk holds was not over, and its stop runs on (issue 71: at rest within 2 s, and standing
+    after)."""
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.rests: list[float] = []
+        self._since: int | None = None  # the step the zero walk arrived while the walk went on
+        self._rested: int | None = None  # that step of the last stop, while the body stands after it
+
+    @property
+    def stopping(self) -> bool:
+        """Whether a zero walk is still waiting for the walk to end."""
+        return self._since is not None
+
+    def step(self, t: int, walking: bool, zero_walk: bool, done: bool) -> None:
+        """Env step `t`: whether the clock walks, the command filter is at the zero walk, the walk has just ended."""
+        if not zero_walk:
+            self._rested = None
+        if self._rested is not None and walking:  # it steps again under the zero walk: that was no stop
+            self.rests.pop()
+            self._since, self._rested = self._rested, None
+        if self._since is None and walking and zero_walk:
+            self._since = t
+        if self._since is not None and done:
+            self.rests.append((t - self._since) * self.dt)
+            self._since, self._rested = None, self._since
+
+
 def walking_episode(walker: Walker, seed: int) -> dict[str, object]:
     """One held-out walking schedule: survived, the action changes while walking, the seconds from each zero walk's
-    arrival on the command filter to the walk's end, and (on leg odometry) the 1 s mean velocity errors."""
+    arrival on the command filter to the walk's end (a walk that steps again while the zero walk holds was not over:
+    its stop runs on), and (on leg odometry) the 1 s mean velocity errors."""
     env = make_env(EPISODE_STEPS)
     _, data = model_and_data(env)
     dt = env.unwrapped.dt
@@ -41,8 +72,9 @@ def walking_episode(walker: Walker, seed: int) -> dict[str, object]:
     obs, _ = env.reset(seed=seed)
     walker.reset(seed)
     window = round(WINDOW_SECONDS / dt)
-    changes, rests, errors, estimated, true = [], [], [], [], []
-    previous, stopped_at, fell = None, None, False
+    changes, errors, estimated, true = [], [], [], []
+    previous, fell = None, False
+    stops = Stops(dt)
     for t in range(EPISODE_STEPS):
         if t == 0 or (commands[t] != commands[t - 1]).any():
             walker.set_command(commands[t])
@@ -51,12 +83,7 @@ def walking_episode(walker: Walker, seed: int) -> dict[str, object]:
         if walking and previous is not None:
             changes.append(float(np.abs(action - previous).mean()))
         previous = action
-        speeds = walker.expert.setpoint()[_SPEEDS]
-        if stopped_at is None and walking and not speeds.any():
-            stopped_at = t  # the filter is at the zero walk, the walk goes on
-        if stopped_at is not None and walker.clock.done:
-            rests.append((t - stopped_at) * dt)
-            stopped_at = None
+        stops.step(t, walking, not walker.expert.setpoint()[_SPEEDS].any(), walker.clock.done)
         if walking and isinstance(walker, SensedWalker):
             estimated.append(walker.state(obs)[1][:2].copy())
             true.append(data.qvel[:2].copy())
@@ -72,8 +99,8 @@ def walking_episode(walker: Walker, seed: int) -> dict[str, object]:
     return {
         "survived": not fell,
         "changes": changes,
-        "rests": rests,
-        "still_walking": stopped_at is not None,
+        "rests": stops.rests,
+        "still_walking": stops.stopping,
         "errors": errors,
     }
 

@@ -187,6 +187,8 @@ class GaitClock:
         self.ticks = 0
         self.heading = 0.0
         """rad: the yaw the walk faces, which turns with the command; kept when a walk ends."""
+        self.turn_rate = 0.0
+        """rad/s: how fast the heading turns, the command filter's turn rate (the whole-body control's yaw rate)."""
         self.phase, self.stance, self.steps = self.SINGLE, SIDES[0], 0
         self._single()
 
@@ -231,7 +233,8 @@ class GaitClock:
             if not (velocity.any() or kicked):
                 return False
             self.start(self.first_swing(now, velocity))
-        lag = math.remainder(self.heading + velocity[2] * self.dt - now.yaw, math.tau)
+        self.turn_rate = float(velocity[2])
+        lag = math.remainder(self.heading + self.turn_rate * self.dt - now.yaw, math.tau)
         self.heading = now.yaw + min(max(lag, -MAX_LAG), MAX_LAG)  # turns no faster than the feet turn the body
         self.t += self.dt
         if self.phase == self.SINGLE:
@@ -282,9 +285,10 @@ class GaitClock:
         The divergent-component step law: the capture point ξ = c + ċ/ω, predicted to the landing (`remaining` s of
         single support on a point foot: ξ - p grows as e^{ωt}), scaled by the gains (`Gait.k_x`, `Gait.k_y`), less
         the offset a steady gait at the commanded `velocity` keeps between ξ and the next foot, in the heading's frame
-        (`turn`), within the legs' reach. With gains other than 1 the steady walk is not exactly the commanded one;
-        H-LIP's form, gains on ξ's distance from the steady gait's, walked 2 of 6 selection walks after 26 tuned
-        generations against this form's 6 (docs/decisions/walking-teacher.md). Under the zero command, once ξ lands
+        (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1), so with the tuned gains the steady
+        walk is 1/(1 + G·(k - 1)) of the commanded one (G = e^{ω·(period + double)}; fore and aft 60 %): the exact
+        offset for the gains (H-LIP's form) tracks the command but falls, tuned or not, and that margin keeps the gait
+        up (docs/decisions/walking-teacher.md, "Speeds"). Under the zero command, once ξ lands
         within `STOP_REACH` of the stance foot's line and at least `STOP_MARGIN` short of the widest last step, the
         foot lands twice as far (within `LAST_WIDTH`): the last step, ξ between the feet."""
         g = self.gait

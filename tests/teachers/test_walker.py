@@ -23,10 +23,10 @@ from humanoid.env import EPISODE_STEPS, make_env, model_and_data, nominal_model
 from humanoid.physics import turned
 from students.inputs import input_set_named
 from task.command_fields import COMMAND_NAMES
-from task.gait import GAIT_VERSION, LAST_WIDTH, MAX_SIDE, SIDES, GaitClock, Points, load_gait, save_gait
+from task.gait import GAIT_VERSION, LAST_WIDTH, MAX_SIDE, SIDES, GaitClock, Points, load_gait, rotation, save_gait
 from task.schedules import task_commands
 from teachers.expert import LQRExpert, SensedExpert
-from teachers.walker import SensedWalker, Walker, WholeBody
+from teachers.walker import SensedWalker, Walker, WholeBody, attitude_task
 
 LANDED = 200  # env steps after reset: the body has landed, the walker's rule is armed
 
@@ -69,6 +69,21 @@ def test_the_whole_body_solve_carries_the_weight_on_both_feet() -> None:
     weight = float(model.body_mass.sum()) * -model.opt.gravity[2]
     assert force[2] + force[5] == pytest.approx(weight, rel=1e-3)
     assert np.all(np.abs(torque) <= body.limit + 1e-9)
+
+
+def test_the_pelvis_turning_with_its_heading_is_asked_for_no_acceleration() -> None:
+    """The attitude task feeds the heading's turn rate forward: a pelvis on its heading, turning as fast as the heading
+    does, is left alone; standing still under that turn it is spun up, and turning under none it is slowed, by 2ω times
+    the difference (a critically damped spring of natural frequency ω)."""
+    frequency, rate = 6.0, 0.4
+    facing = rotation(2, 0.3) @ rotation(1, 0.05)
+    turning = np.array([0.0, 0.0, rate])
+    np.testing.assert_allclose(attitude_task(frequency, facing, facing, turning, rate), 0.0, atol=1e-12)
+    np.testing.assert_allclose(attitude_task(frequency, facing, facing, np.zeros(3), rate), 2 * frequency * turning)
+    np.testing.assert_allclose(attitude_task(frequency, facing, facing, turning, 0.0), -2 * frequency * turning)
+    # Behind its heading by a small yaw, it is pulled toward it by ω² times the angle.
+    behind = rotation(2, -0.01) @ facing
+    assert attitude_task(frequency, facing, behind, turning, rate)[2] == pytest.approx(frequency**2 * 0.01, rel=1e-3)
 
 
 @pytest.mark.parametrize(("walker", "expert"), [(Walker, LQRExpert), (SensedWalker, SensedExpert)])
