@@ -288,9 +288,9 @@ class GaitClock:
         (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1), so with the tuned gains the steady
         walk is 1/(1 + G·(k - 1)) of the commanded one (G = e^{ω·(period + double)}; fore and aft 60 %): the exact
         offset for the gains (H-LIP's form) tracks the command but falls, tuned or not, and that margin keeps the gait
-        up (docs/decisions/walking-teacher.md, "Speeds"). Under the zero command, once ξ lands
-        within `STOP_REACH` of the stance foot's line and at least `STOP_MARGIN` short of the widest last step, the
-        foot lands twice as far (within `LAST_WIDTH`): the last step, ξ between the feet."""
+        up (docs/decisions/walking-teacher.md). Under the zero command, once ξ lands within `STOP_REACH` of the
+        stance foot's line and at least `STOP_MARGIN` short of the widest last step, the foot lands twice as far
+        (within `LAST_WIDTH`): the last step, ξ between the feet."""
         g = self.gait
         sign = self.sign
         stance = now.feet[self.stance]

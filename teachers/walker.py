@@ -65,7 +65,7 @@ def attitude_task(
     body whose attitude is `actual` (3×3) spinning at `spin` (rad/s, world) toward `desired`, which turns about the
     vertical at `turn_rate` (rad/s): the heading's rate is fed forward, not damped away. With the yaw rate damped to
     zero the body stopped turning 1.5 s into a turn, and turned left when asked right; fed forward, the turn rate's
-    error on selection walks fell from 0.30 to 0.26 rad/s (docs/decisions/walking-teacher.md, "It turns slowly")."""
+    error on selection walks fell from 0.30 to 0.26 rad/s (docs/decisions/walking-teacher.md)."""
     return _pd(frequency, attitude_error(desired, actual), spin - np.array([0.0, 0.0, turn_rate]))
 
 
