@@ -9,6 +9,7 @@ import contextlib
 import json
 import os
 import pty
+import re
 import select
 import subprocess
 import sys
@@ -167,6 +168,10 @@ def mcap_parameters(path: Path) -> dict[str, object]:
     return {name: json.loads(text) for name, text in columns.drawn_parameters(read_mcap_episode(path).metadata).items()}
 
 
+STATUS_TIME = re.compile(rb"REC seed \d+ t +([0-9.]+) s")
+"""The simulated time in the recorder's status line."""
+
+
 class Terminal:
     """A command behind a pseudo-terminal, as a person at a TTY would run it (the recorder in keyboard mode)."""
 
@@ -194,6 +199,16 @@ class Terminal:
     def press(self, keys_: str, then_wait: float) -> None:
         os.write(self.master, keys_.encode())
         self.read_for(then_wait)
+
+    def wait_until_simulated(self, seconds: float) -> None:
+        """Until the recorder's status line shows the episode `seconds` in (simulated time: on a busy machine the
+        session runs slower than the clock, never faster, so keys pressed after it land where the test means them)."""
+        deadline = time.monotonic() + 120.0 + 10.0 * seconds  # a session that stalls fails, it does not hang
+        while not (times := STATUS_TIME.findall(self.output)) or float(times[-1]) < seconds:
+            assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
+            assert len(times) < 2 or float(times[-1]) >= float(times[-2]), "the episode ended (a fall): time went back"
+            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
+            self.read_for(0.05)
 
 
 def lerobot_train_command(dataset: Path, output_dir: Path, repo_id: str, steps: int, *flags: str) -> list[str]:

@@ -23,8 +23,8 @@ from teleop.store import DatasetSpec, EpisodeStore
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
 
-SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
-HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
+SETTLE = 2.0  # simulated s after Enter before the first command: the body drops 12 cm from the reset pose
+HOLD = 2.5  # simulated s each command is held, so that the body has moved when the next one comes
 KEYBOARD_RECORDER = [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "terminal"]
 
 
@@ -35,13 +35,20 @@ def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     root = tmp_path_factory.mktemp("keyboard") / "dataset"
     terminal = Terminal([*KEYBOARD_RECORDER, "--dataset", str(root), "--noise", "0", "--max-steps", "5000"])
     terminal.wait_for(b"keys:")
-    terminal.press("\r", SETTLE)  # start
-    terminal.press("ff", HOLD)  # crouch 4 cm
-    terminal.press("ww", HOLD)  # lean forward 0.1 rad
-    terminal.press("2", HOLD)  # arms up
-    terminal.press("\x1b[A\x1b[A", 1.0)  # walk forward at 0.2 m/s (the expert stands: it does not walk)
-    terminal.press(" ", HOLD)  # back to neutral
-    terminal.press("p", 1.5)  # push
+    terminal.press("\r", 0)  # start
+    at = SETTLE
+    for keys, hold in (
+        ("ff", HOLD),  # crouch 4 cm
+        ("ww", HOLD),  # lean forward 0.1 rad
+        ("2", HOLD),  # arms up
+        ("\x1b[A\x1b[A", 1.0),  # walk forward at 0.2 m/s (the expert stands: it does not walk)
+        (" ", HOLD),  # back to neutral
+        ("p", 1.5),  # push
+    ):
+        terminal.wait_until_simulated(at)  # on a busy machine the session runs slower than the clock
+        terminal.press(keys, 0)
+        at += hold
+    terminal.wait_until_simulated(at)
     terminal.press("\r", 0.5)  # end and save
     terminal.press("\r", 0.5)  # start another...
     terminal.press("\x7f", 0.5)  # ...and discard it
