@@ -46,7 +46,9 @@ from teleop.mcap_io.writer import (
     TF_TOPIC,
     WORLD_FRAME,
     calibration,
+    calibration_message,
     camera_frame,
+    image_message,
     scene_update,
 )
 
@@ -138,15 +140,10 @@ class LivePublisher:
             self.channels[TF_TOPIC].log(message, log_time=log_time)
         for name, jpeg, _, _ in shots:
             if self.channels[IMAGE_TOPIC.format(name=name)].has_sinks():
-                image = CompressedImage(frame_id=camera_frame(name), data=jpeg, format="jpeg")
-                image.timestamp.FromNanoseconds(log_time)
-                self.channels[IMAGE_TOPIC.format(name=name)].log(image.SerializeToString(), log_time=log_time)
+                self.channels[IMAGE_TOPIC.format(name=name)].log(image_message(name, jpeg, log_time), log_time=log_time)
             if self.channels[CALIBRATION_TOPIC.format(name=name)].has_sinks():
-                calibrated = self._calibrations[name]
-                calibrated.timestamp.FromNanoseconds(log_time)
-                self.channels[CALIBRATION_TOPIC.format(name=name)].log(
-                    calibrated.SerializeToString(), log_time=log_time
-                )
+                message = calibration_message(self._calibrations[name], log_time)
+                self.channels[CALIBRATION_TOPIC.format(name=name)].log(message, log_time=log_time)
         if self.channels[COMMAND_TOPIC].has_sinks():
             achieved = self._tracking.achieved(buffer.observation[t : t + 1])[0]
             values = command_values(buffer.command[t], buffer.push[t], buffer.setpoint[t], achieved)

@@ -137,19 +137,28 @@ def calibration(name: str, k: np.ndarray, height: int, width: int) -> CameraCali
     )
 
 
+def image_message(name: str, jpeg: bytes, time_ns: int) -> bytes:
+    """Camera `name`'s `foxglove.CompressedImage` of one JPEG frame at `time_ns`, serialised (the file's and the live
+    view's)."""
+    image = CompressedImage(frame_id=camera_frame(name), data=jpeg, format="jpeg")
+    image.timestamp.FromNanoseconds(time_ns)
+    return image.SerializeToString()
+
+
+def calibration_message(calibrated: CameraCalibration, time_ns: int) -> bytes:
+    """`calibrated` (`calibration`) stamped `time_ns`, serialised; the stamp is written into it."""
+    calibrated.timestamp.FromNanoseconds(time_ns)
+    return calibrated.SerializeToString()
+
+
 def camera_messages(
     name: str, track: CameraTrack, calibrated: CameraCalibration, times_ns: np.ndarray
 ) -> tuple[list[bytes], list[bytes]]:
     """Camera `name`'s image and calibration (`calibrated`) messages, one each per frame of `track`, at `times_ns`."""
-    images, calibrations = [], []
-    calibrated = CameraCalibration.FromString(calibrated.SerializeToString())
-    for time_ns, jpeg in zip(times_ns.tolist(), track.images, strict=True):
-        image = CompressedImage(frame_id=camera_frame(name), data=jpeg, format="jpeg")
-        image.timestamp.FromNanoseconds(time_ns)
-        calibrated.timestamp.FromNanoseconds(time_ns)
-        images.append(image.SerializeToString())
-        calibrations.append(calibrated.SerializeToString())
-    return images, calibrations
+    calibrated = CameraCalibration.FromString(calibrated.SerializeToString())  # stamped here, not the caller's
+    times = times_ns.tolist()
+    images = [image_message(name, jpeg, time_ns) for time_ns, jpeg in zip(times, track.images, strict=True)]
+    return images, [calibration_message(calibrated, time_ns) for time_ns in times]
 
 
 def write_episode_mcap(
