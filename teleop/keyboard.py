@@ -382,9 +382,55 @@ def glfw_key_name(keycode: int) -> str | None:
     return None
 
 
+_X_ERROR_HANDLER: list[object] = []  # the installed handler, kept alive for as long as Xlib may call it
+
+
+def tolerate_x_errors(err: TextIO = sys.stderr) -> bool:
+    """Make an X protocol error one line on `err` instead of Xlib's default, which prints it and calls exit(): when
+    the passive viewer closes, its render thread can still swap the buffers of the destroyed window (GLXBadDrawable),
+    and that exit() from the render thread hung the recorder after the dataset was saved (tests/teleop/test_viewer.py
+    timed out so in two fresh clones' `make test`). GLFW sets its own handler only around its calls, and puts back the
+    one it found. False where there is no libX11 (Wayland, macOS): nothing to do."""
+    import ctypes  # noqa: PLC0415 - only the viewer front end needs it
+    import ctypes.util  # noqa: PLC0415
+
+    name = ctypes.util.find_library("X11")
+    if name is None:
+        return False
+    xlib = ctypes.CDLL(name)
+
+    class XErrorEvent(ctypes.Structure):
+        _fields_ = [  # Xlib.h's XErrorEvent
+            ("type", ctypes.c_int),
+            ("display", ctypes.c_void_p),
+            ("resourceid", ctypes.c_ulong),
+            ("serial", ctypes.c_ulong),
+            ("error_code", ctypes.c_ubyte),
+            ("request_code", ctypes.c_ubyte),
+            ("minor_code", ctypes.c_ubyte),
+        ]
+
+    @ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(XErrorEvent))
+    def handler(_display: int, event: ctypes._Pointer) -> int:
+        error = event.contents
+        print(
+            f"viewer: X error {error.error_code} (request {error.request_code}.{error.minor_code}) ignored",
+            file=err,
+            flush=True,
+        )
+        return 0
+
+    xlib.XSetErrorHandler.restype = ctypes.c_void_p
+    xlib.XSetErrorHandler(handler)
+    _X_ERROR_HANDLER[:] = [handler]
+    return True
+
+
 def run_viewer(session: TeleopSession, out: TextIO) -> None:
     """Real-time loop in MuJoCo's passive viewer; keys arrive through its callback."""
     import mujoco.viewer  # noqa: PLC0415 - needs a display
+
+    tolerate_x_errors()
 
     pressed: list[str] = []
 

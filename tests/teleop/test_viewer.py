@@ -133,3 +133,31 @@ def test_the_screenshot_shows_the_humanoid(teleoperated: tuple[Path, Path]) -> N
     r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
     orange = (r > g + 15) & (g > b + 15) & (r > 60)
     assert orange.mean() > 0.01, f"{orange.mean():.4f} of the window's pixels are the body's colour"
+
+
+X_ERROR = """
+import ctypes, ctypes.util, sys
+from teleop.keyboard import tolerate_x_errors
+if sys.argv[1] == "tolerant":
+    assert tolerate_x_errors(sys.stdout)
+xlib = ctypes.CDLL(ctypes.util.find_library("X11"))
+xlib.XOpenDisplay.restype = ctypes.c_void_p
+display = ctypes.c_void_p(xlib.XOpenDisplay(None))
+xlib.XFreePixmap(display, ctypes.c_ulong(0x1234567))  # no such pixmap: BadPixmap
+xlib.XSync(display, 0)
+print("went on")
+"""
+
+
+@pytest.mark.parametrize("mode", ["default", "tolerant"])
+def test_an_x_error_is_one_line_not_an_exit(display: str, mode: str) -> None:
+    """Xlib's default handler ends the process on an X error (the viewer's render thread met one after its window
+    closed, and the recorder hung); the viewer's own handler says it in one line and goes on."""
+    run = subprocess.run(
+        [sys.executable, "-c", X_ERROR, mode], env={**os.environ, "DISPLAY": display}, capture_output=True, text=True
+    )
+    if mode == "default":
+        assert run.returncode == 1 and "BadPixmap" in run.stderr and "went on" not in run.stdout
+    else:
+        assert run.returncode == 0, run.stderr
+        assert run.stdout.splitlines() == ["viewer: X error 4 (request 54.0) ignored", "went on"]
