@@ -24,12 +24,6 @@ from task.schedules import command_vector
 from teachers.expert import LQRExpert, SensedExpert
 
 
-@pytest.fixture(autouse=True)
-def cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
-    """LQR gains cached in a temporary directory, not in the user's home."""
-    monkeypatch.setenv("HUMANOID_BC_CACHE", str(tmp_path_factory.getbasetemp() / "lqr-cache"))
-
-
 def test_level_quaternion_sees_the_same_gravity_with_the_heading_removed() -> None:
     """A tilted, turned body: the level orientation has its gravity direction and the unturned body's orientation."""
     tilt = multiply_quaternions(

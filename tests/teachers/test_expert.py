@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
-from collections.abc import Iterator
 from pathlib import Path
 
 import gymnasium as gym
@@ -31,11 +30,10 @@ def model() -> mujoco.MjModel:
 
 
 @pytest.fixture(scope="module")
-def expert(model: mujoco.MjModel, tmp_path_factory: pytest.TempPathFactory) -> Iterator[LQRExpert]:
-    """An expert whose cache lives in a temporary directory, not in the user's home."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("HUMANOID_BC_CACHE", str(tmp_path_factory.mktemp("cache")))
-        yield LQRExpert(model)
+def expert(model: mujoco.MjModel) -> LQRExpert:
+    """The nominal expert, its gains and landing from the session's cache (`conftest.isolated_caches`): designed
+    once per test process, not once more here (the landing plan takes seconds)."""
+    return LQRExpert(model)
 
 
 @pytest.fixture()
@@ -250,7 +248,7 @@ def test_stance_for_a_told_body_needs_no_help_from_the_root(model: mujoco.MjMode
 
 
 @pytest.mark.slow  # an LQR design for a drawn body: seconds
-def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert, cache: Path) -> None:
+def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert) -> None:
     """On seed 1007's drawn masses the design's gains fall within 100 steps; told the body, the expert stands."""
     env = drawn_masses(1007, max_episode_steps=300)
     untold = run_episode(env, Untold(expert), 1007)
@@ -260,7 +258,7 @@ def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert, c
 
 
 @pytest.mark.slow  # an LQR design for a drawn body: seconds
-def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.MjModel, cache: Path) -> None:
+def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.MjModel) -> None:
     """After a drawn body, the design's own body brings back the design's gains bit for bit."""
     env = drawn_masses(1001)
     obs, _ = env.reset(seed=1001)
@@ -277,7 +275,7 @@ def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.
 
 
 @pytest.mark.slow  # an LQR design for a drawn body: seconds
-def test_told_a_body_and_a_delay_the_expert_predicts_on_that_body(cache: Path) -> None:
+def test_told_a_body_and_a_delay_the_expert_predicts_on_that_body() -> None:
     """Seed 1007's drawn masses under a step of latency: predicting on the nominal body falls at step 90, on the
     told body it stands."""
     env = ActionLatency(drawn_masses(1007, max_episode_steps=300), steps=1)

@@ -47,6 +47,7 @@ def test_a_name_that_is_not_registered_is_refused_listing_the_registered_ones() 
         teacher_named("toy-walker", "--expert")
 
 
+@pytest.mark.slow  # a recording, a BC training and an evaluation
 def test_a_toy_teacher_registered_in_one_place_records_labels_and_is_evaluated(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
