@@ -247,7 +247,6 @@ def test_stance_for_a_told_body_needs_no_help_from_the_root(model: mujoco.MjMode
     np.testing.assert_allclose(physics.static_root_residual(drawn, data), 0.0, atol=1e-9 * weight)
 
 
-@pytest.mark.slow  # an LQR design for a drawn body: seconds
 def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert) -> None:
     """On seed 1007's drawn masses the design's gains fall within 100 steps; told the body, the expert stands."""
     env = drawn_masses(1007, max_episode_steps=300)
@@ -257,7 +256,6 @@ def test_expert_told_its_body_stands_where_the_design_falls(expert: LQRExpert) -
     assert not told.fell and told.length == 300 and told.episode_return > 4.9 * 300
 
 
-@pytest.mark.slow  # an LQR design for a drawn body: seconds
 def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.MjModel) -> None:
     """After a drawn body, the design's own body brings back the design's gains bit for bit."""
     env = drawn_masses(1001)
@@ -274,7 +272,6 @@ def test_told_the_design_body_again_the_expert_acts_as_never_told(model: mujoco.
     assert not np.array_equal(on_drawn, fresh.act(obs))
 
 
-@pytest.mark.slow  # an LQR design for a drawn body: seconds
 def test_told_a_body_and_a_delay_the_expert_predicts_on_that_body() -> None:
     """Seed 1007's drawn masses under a step of latency: predicting on the nominal body falls at step 90, on the
     told body it stands."""
