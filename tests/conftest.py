@@ -46,15 +46,6 @@ workers.declare_preload(
 )
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The files with a slow test first, each file's tests in their order: `make test`'s processes take whole files
-    from this order (`--no-loadscope-reorder`), so the long files start early and the quick ones even out the end.
-    pytest-xdist's default, the files with the most tests first, leaves the long ones for last
-    (docs/decisions/test-workers.md)."""
-    slow = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.path not in slow)
-
-
 @pytest.fixture(scope="session", autouse=True)
 def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
     """LQR gains and HuggingFace caches go to a temporary folder for the whole session."""
