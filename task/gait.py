@@ -108,7 +108,7 @@ class Gait:
     w_foot: float
     """1/s: the swing foot's path's."""
     w_joint: float
-    """1/s: the waist's, the arms' and the swing hip's yaw's."""
+    """1/s: the waist's, the arms' and the hips' yaw's."""
     yaw_single: float
     """The pelvis's yaw's weight in single support, a share of the attitude's: one point contact holds no yaw."""
 
@@ -285,12 +285,11 @@ class GaitClock:
         The divergent-component step law: the capture point ξ = c + ċ/ω, predicted to the landing (`remaining` s of
         single support on a point foot: ξ - p grows as e^{ωt}), scaled by the gains (`Gait.k_x`, `Gait.k_y`), less
         the offset a steady gait at the commanded `velocity` keeps between ξ and the next foot, in the heading's frame
-        (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1), so with the tuned gains the steady
-        walk is 1/(1 + G·(k - 1)) of the commanded one (G = e^{ω·(period + double)}; fore and aft 60 %): the exact
-        offset for the gains (H-LIP's form) tracks the command but falls, tuned or not, and that margin keeps the gait
-        up (docs/decisions/walking-teacher.md). Under the zero command, once ξ lands within `STOP_REACH` of the
-        stance foot's line and at least `STOP_MARGIN` short of the widest last step, the foot lands twice as far
-        (within `LAST_WIDTH`): the last step, ξ between the feet."""
+        (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1) whatever the gains: the tuned gait
+        walks at about 75 % of the command, and the exact offset for the gains (H-LIP's form) tracked the command but
+        fell, tuned or not; that margin keeps the gait up (docs/decisions/walking-teacher.md). Under the zero command,
+        once ξ lands within `STOP_REACH` of the stance foot's line and at least `STOP_MARGIN` short of the widest last
+        step, the foot lands twice as far (within `LAST_WIDTH`): the last step, ξ between the feet."""
         g = self.gait
         sign = self.sign
         stance = now.feet[self.stance]

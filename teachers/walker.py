@@ -9,9 +9,9 @@ are the gait clock's (`task.gait.GaitClock`), which its students compute too; ho
     the clock's phase ──> single support, double support, or settling after the last step
     whole-body control ─> the torques whose accelerations best meet, by weight, the pelvis's attitude (its yaw only
                           where two feet hold it), the centre of mass's height, the swing foot's smooth path to the
-                          clock's landing point, and the setpoint's waist and arms, under the body's dynamics with the
-                          stance foot (both feet in double support) held still, the motors' limits and a floor that
-                          only pushes (`WholeBody.solve`)
+                          clock's landing point, and the setpoint's waist, arms and hips' yaw, under the body's
+                          dynamics with the stance foot (both feet in double support) held still, the motors' limits
+                          and a floor that only pushes (`WholeBody.solve`)
 
 Once a walk is over (the command zero and the body at rest over its feet), the LQR takes over again, facing the way
 the walk left it (`LQRExpert.heading`). The whole-body control's gains are the gait's (`task.gait.Gait`), tuned with
@@ -45,7 +45,7 @@ HEIGHT_WEIGHT = 10.0
 FOOT_WEIGHT = 5.0
 """The swing foot's path."""
 JOINT_WEIGHT = 1.0
-"""The waist, the arms and the swing hip's yaw (every joint while settling)."""
+"""The waist, the arms and, while stepping, both hips' yaw."""
 REGULARISATION = 1e-4
 """On the torques and the contact forces (N·m, N): among the solutions that meet the tasks, the gentlest."""
 LAND_DEPTH = 0.01
@@ -109,7 +109,7 @@ class WholeBody:
         self.mass = np.zeros((m.nv, m.nv))
         upper = WAIST + ARMS
         self._upper = self._addresses(upper)
-        self._with_hip = {side: self._addresses((*upper, f"{side}_hip_z")) for side in SIDES}
+        self._with_hips = self._addresses((*upper, *(f"{side}_hip_z" for side in SIDES)))
         self._lean = upper.index("abdomen_x")
         self.forces = np.zeros(0)
         """The contact forces of the last solve (N, world axes, 3 per foot that carries)."""
@@ -155,9 +155,11 @@ class WholeBody:
         if single:
             tasks.append(self._swing_task(clock, feet))
 
-        # The joints: the waist and arms at the setpoint (the waist leant by `waist_roll`), the swing hip's yaw at the
-        # setpoint's (the body turns in double support).
-        held = self._with_hip[other(clock.stance)] if single else self._upper
+        # The joints: the waist and arms at the setpoint (the waist leant by `waist_roll`), and while stepping both
+        # hips' yaw at the setpoint's, so that the legs turn with the pelvis. A point foot has no torsional friction:
+        # with only the swing hip's yaw held, the stance leg spun about its foot while the waist turned the pelvis, its
+        # hip's yaw ran to its limit and the walk ran away off its heading (docs/decisions/walking-teacher.md).
+        held = self._upper if settling else self._with_hips
         goal = reference[held[0]].copy()
         if not settling:
             goal[self._lean] += clock.sign * g.waist_roll

@@ -141,6 +141,28 @@ def test_held_up_arrow_walks_the_body_forward() -> None:
     env.close()
 
 
+def yaw_of(env) -> float:
+    """The pelvis's yaw (rad)."""
+    _, data = model_and_data(env)
+    w, x, y, z = data.qpos[3:7]
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+@pytest.mark.parametrize("rate", [0.5, -0.5])
+def test_asked_to_turn_in_place_the_body_turns_that_way(rate: float) -> None:
+    """Asked to turn in place at 0.5 rad/s (either way) for 4 s, the pelvis turns at least 1 rad that way, the first
+    second being the command filter's ramp; it turned 1.6 rad. With only the swing hip's yaw held, the stance leg spun
+    about its point foot and the body turned 1.1 rad left but 0.2 right; with the yaw rate damped to zero, under 0.5
+    either way (docs/decisions/walking-teacher.md)."""
+    env = make_env(EPISODE_STEPS)
+    command = np.zeros(len(COMMAND_NAMES), np.float32)
+    command[COMMAND_NAMES.index("turn_rate")] = rate
+    _, fell = walk(Walker(), env, 4.0, command, seed=3000)
+    assert not fell
+    assert np.sign(rate) * yaw_of(env) >= 1.0
+    env.close()
+
+
 def test_a_kick_is_stepped_out_of() -> None:
     """Standing under the zero command, a 0.4 m/s kick: the walker steps and does not fall. (With the tuned gait the
     walk then steps on in place: its stop is the rule `test_the_last_step_lands_the_feet_side_by_side` holds,
