@@ -65,7 +65,7 @@ class TuneConfig:
     kicks: int = setting(4, "kicked standing episodes per candidate, on the same seeds")
     kick: float = setting(0.4, "the kicks' speed, m/s (the suite's kick conditions: directions and times drawn)")
     noise: float = setting(
-        0.01, "std of the noise on the walks' executed actions: the DART noise walking demonstrations are recorded with"
+        0.03, "std of the noise on the walks' executed actions: the DART noise walking demonstrations are recorded with"
     )
     seed: int = setting(3000, "the first selection seed: evaluations use 1000-1019, recordings 0 upwards")
     cma_seed: int = setting(1, "the CMA-ES sampler's seed: the same run repeats")

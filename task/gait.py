@@ -286,7 +286,7 @@ class GaitClock:
         single support on a point foot: ξ - p grows as e^{ωt}), scaled by the gains (`Gait.k_x`, `Gait.k_y`), less
         the offset a steady gait at the commanded `velocity` keeps between ξ and the next foot, in the heading's frame
         (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1) whatever the gains: the tuned gait
-        walks at about 75 % of the command, and the exact offset for the gains (H-LIP's form) tracked the command but
+        walks at about 57 % of the command, and the exact offset for the gains (H-LIP's form) tracked the command but
         fell, tuned or not; that margin keeps the gait up (docs/decisions/walking-teacher.md). Under the zero command,
         once ξ lands within `STOP_REACH` of the stance foot's line and at least `STOP_MARGIN` short of the widest last
         step, the foot lands twice as far (within `LAST_WIDTH`): the last step, ξ between the feet."""
