@@ -106,6 +106,7 @@ TARGETS: dict[str, Target] = {
             "max_steps",
             *_BACKEND,
             "front_end",
+            "pace",
             *_LIVE,
             "cameras",
         ),
@@ -116,7 +117,7 @@ TARGETS: dict[str, Target] = {
     "play": Target(
         "teleop.record",
         RecordConfig,
-        ("policy", "dataset", "episodes", "noise", "front_end", *_LIVE, "cameras"),
+        ("policy", "dataset", "episodes", "noise", "front_end", "pace", *_LIVE, "cameras"),
         preset=(("controller", "keyboard"), ("policy", NEWEST), ("dataset", "datasets/play"), ("noise", "0")),
     ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),

@@ -329,12 +329,13 @@ def parse_keys(text: str) -> list[str]:
     return keys
 
 
-def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO) -> None:
-    """Real-time loop reading keys from the TTY `stdin_fd` (cbreak: Ctrl-C still interrupts)."""
+def run_terminal(session: TeleopSession, stdin_fd: int, out: TextIO, pace: float) -> None:
+    """Real-time loop (`pace` simulated seconds a second) reading keys from the TTY `stdin_fd` (cbreak: Ctrl-C still
+    interrupts)."""
     front_end_here("terminal", stdin_fd)
     saved_mode = termios.tcgetattr(stdin_fd)
     tty.setcbreak(stdin_fd)
-    dt = session.env.unwrapped.dt
+    dt = session.env.unwrapped.dt / pace  # s of wall clock a step
     status_line = StatusLine(out)
     try:
         print("keys:\n" + key_help(), file=out)
@@ -426,8 +427,9 @@ def tolerate_x_errors(err: TextIO = sys.stderr) -> bool:
     return True
 
 
-def run_viewer(session: TeleopSession, out: TextIO) -> None:
-    """Real-time loop in MuJoCo's passive viewer; keys arrive through its callback."""
+def run_viewer(session: TeleopSession, out: TextIO, pace: float) -> None:
+    """Real-time loop (`pace` simulated seconds a second) in MuJoCo's passive viewer; keys arrive through its
+    callback."""
     import mujoco.viewer  # noqa: PLC0415 - needs a display
 
     tolerate_x_errors()
@@ -439,7 +441,7 @@ def run_viewer(session: TeleopSession, out: TextIO) -> None:
         if name:
             pressed.append(name)
 
-    dt = session.env.unwrapped.dt
+    dt = session.env.unwrapped.dt / pace  # s of wall clock a step
     print("keys (in the viewer window):\n" + key_help(), file=out)
     status_line = StatusLine(out)
     try:
@@ -492,16 +494,17 @@ def run_session(
     observer: StepObserver | None = None,
     controller: Controller | None = None,
     cameras: tuple[Camera, ...] = (),
+    pace: float = 1.0,
 ) -> None:
     """Teleoperate until the user quits or `episodes` episodes are saved; `observer` (a live view) sees every step.
     The keys command `controller` (a policy that takes a command: `make play`), by default the expert; each episode
-    records `cameras`."""
+    records `cameras`; the simulation runs `pace` simulated seconds per wall-clock second."""
     import scipy.optimize  # noqa: F401, PLC0415 - now, not as a 0.3 s hitch at the first posture key
 
     front_end = front_end_here(front_end)
     controller = make_controller(KEYBOARD_EXPERT, env) if controller is None else controller
     session = TeleopSession(env, controller, sink, first_seed, episodes, noise_std, report, observer, cameras)
     if front_end == "viewer":
-        run_viewer(session, sys.stderr)
+        run_viewer(session, sys.stderr, pace)
     else:
-        run_terminal(session, sys.stdin.fileno(), sys.stderr)
+        run_terminal(session, sys.stdin.fileno(), sys.stderr, pace)

@@ -182,6 +182,11 @@ class RecordConfig:
         "(raw keys and a status line; works over SSH), or auto (viewer if a display exists)",
         choices=("auto", "viewer", "terminal"),
     )
+    pace: float = setting(
+        1.0,
+        "keyboard teleoperation's simulated seconds per second of the wall clock: 1 real time, 0.5 slow motion (to "
+        "watch a kick recovery), 2 twice as fast (a machine too slow for it runs as fast as it can)",
+    )
     progress: bool = setting(True, "show a progress bar (not with the keyboard: the status line shows progress)")
     cameras: str = setting(
         "",
@@ -231,7 +236,7 @@ def validate(cfg: RecordConfig) -> None:
         check_controller(cfg.controller)
     except ValueError as error:
         raise UserError(str(error)) from None
-    check_positive(cfg, "episodes", "max_steps", "workers")
+    check_positive(cfg, "episodes", "max_steps", "workers", "pace")
     check_non_negative(cfg, "noise", "kick")
     if cfg.controller in INTERACTIVE and cfg.kick:
         raise UserError(f"--controller {cfg.controller} kicks with its k key: --kick must be 0")
@@ -459,7 +464,9 @@ def _record(
             from teleop.keyboard import run_session  # noqa: PLC0415
 
             played = None if cfg.policy is None else make_controller(cfg.policy, env)
-            run_session(env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live, played, cameras)
+            run_session(
+                env, sink, first_seed, cfg.episodes, cfg.noise, cfg.front_end, report, live, played, cameras, cfg.pace
+            )
         elif controller is not None:
             buffer = EpisodeBuffer(env, cfg.max_steps, cameras)
             for seed in seeds:

@@ -170,6 +170,9 @@ def mcap_parameters(path: Path) -> dict[str, object]:
 
 STATUS_TIME = re.compile(rb"REC seed \d+ t +([0-9.]+) s")
 """The simulated time in the recorder's status line."""
+SESSION_PACE = 3.0
+"""The tests' keyboard sessions run at 3 simulated seconds a second (`--pace`): their keys land at simulated times
+(`Terminal.wait_until_simulated`), so the pace changes only how long a session takes."""
 
 
 class Terminal:
@@ -199,6 +202,11 @@ class Terminal:
     def press(self, keys_: str, then_wait: float) -> None:
         os.write(self.master, keys_.encode())
         self.read_for(then_wait)
+
+    def simulated(self) -> float:
+        """The simulated time the status line shows last (s; 0 before it shows one)."""
+        times = STATUS_TIME.findall(self.output)
+        return float(times[-1]) if times else 0.0
 
     def wait_until_simulated(self, seconds: float) -> None:
         """Until the recorder's status line shows the episode `seconds` in (simulated time: on a busy machine the

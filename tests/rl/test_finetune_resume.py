@@ -100,7 +100,7 @@ def test_update_threads_change_nothing_but_float_rounding(bc_policy: Path, tmp_p
 # an earlier stage's force and shares.
 RESUMABLE = {
     **TINY_PPO,
-    "timesteps": 256 * 8,
+    "timesteps": 256 * 6,
     "envs": 8,
     "eval_freq": 1024,
     "curriculum": "0,10,20",
@@ -161,7 +161,7 @@ def test_a_run_killed_twice_and_resumed_ends_with_the_uninterrupted_weights(
     code, err = ppo_cli(resumable_command(bc_policy, broken, learning_rate=1e-3)[3:], capsys)
     assert code == 1 and len(err) == 1 and "interrupted run with other settings" in err[0] and "learning_rate" in err[0]
     assert snapshot(checkpoint.running_folder(broken)) == saved and not broken.exists()
-    assert "resuming" in kill_after_snapshots(command, broken, snapshots=3, delay=0.15)
+    assert "resuming" in kill_after_snapshots(command, broken, snapshots=2, delay=0.15)
     # The last resume in this process: the command's own code path, without paying for its imports once more.
     resumed = main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
     assert "resuming" in capsys.readouterr().err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 from common import columns
 from humanoid.env import make_env, model_and_data
 from rollout.controllers import make_controller
-from support import Terminal, join_observation, read_mcap_episode
+from support import SESSION_PACE, Terminal, join_observation, read_mcap_episode
 from task.posture import Posture
 from task.schedules import DEFAULT_TASK, task_for
 from teachers.expert import LQRExpert
@@ -31,12 +32,16 @@ KEYBOARD_RECORDER = [sys.executable, "-m", "teleop.record", "--controller", "key
 @pytest.fixture(scope="module")
 def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """One episode driven by keys (crouch, lean forward, arms up, walk forward, neutral, push), one discarded, then
-    quit."""
+    quit; at `SESSION_PACE` simulated seconds a second, never faster."""
     root = tmp_path_factory.mktemp("keyboard") / "dataset"
-    terminal = Terminal([*KEYBOARD_RECORDER, "--dataset", str(root), "--noise", "0", "--max-steps", "5000"])
+    terminal = Terminal(
+        [*KEYBOARD_RECORDER, "--dataset", str(root), "--noise", "0", "--max-steps", "5000", f"--pace={SESSION_PACE}"]
+    )
     terminal.wait_for(b"keys:")
     terminal.press("\r", 0)  # start
     at = SETTLE
+    terminal.wait_until_simulated(at)
+    began, simulated = time.monotonic(), terminal.simulated()
     for keys, hold in (
         ("ff", HOLD),  # crouch 4 cm
         ("ww", HOLD),  # lean forward 0.1 rad
@@ -49,6 +54,8 @@ def teleoperated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
         terminal.press(keys, 0)
         at += hold
     terminal.wait_until_simulated(at)
+    pace = (terminal.simulated() - simulated) / (time.monotonic() - began)
+    assert pace <= 1.1 * SESSION_PACE, f"{pace:.2f} simulated seconds a second: the session ran ahead of --pace"
     terminal.press("\r", 0.5)  # end and save
     terminal.press("\r", 0.5)  # start another...
     terminal.press("\x7f", 0.5)  # ...and discard it

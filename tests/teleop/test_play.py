@@ -23,7 +23,7 @@ from pipeline.targets import TARGETS
 from policies.folder import WEIGHTS_FILE
 from rl.finetune import FinetuneConfig
 from rl.finetune import main as finetune
-from support import Terminal, join_observation, one_core, snapshot
+from support import SESSION_PACE, Terminal, join_observation, one_core, snapshot
 from task.command_fields import COMMAND_NAMES
 from task.tracking import Tracking
 from teachers.expert import LQRExpert
@@ -31,10 +31,12 @@ from teleop.dataset_reader import read_episodes, read_frames
 from teleop.keyboard import TeleopSession
 from teleop.store import DatasetSpec, EpisodeStore
 
-pytestmark = pytest.mark.slow  # a policy trained, then a session in real time: about a minute
+pytestmark = pytest.mark.slow  # a policy trained, then sessions at 3× real time: about a minute
 
 PLAY = [sys.executable, "-m", TARGETS["play"].module, *TARGETS["play"].preset_flags]
 """`make play`'s command (the recorder with the keyboard, datasets/play and no noise, unless set)."""
+SESSION = [*PLAY, "--front-end", "terminal", f"--pace={SESSION_PACE}"]
+"""That command in the terminal, run faster than real time."""
 
 DEMONSTRATIONS = 16
 DEMONSTRATION_SEED = 100  # the played episode's seed is 0: a landing no demonstration shows
@@ -146,7 +148,7 @@ def played(policies: Policies, tmp_path_factory: pytest.TempPathFactory, request
     (www), back to neutral, quit."""
     policy = policies.commanded if request.param == "student" else policies.fine_tuned
     root = tmp_path_factory.mktemp("played") / "play"
-    terminal = Terminal([*PLAY, "--dataset", str(root), "--policy", str(policy), "--front-end", "terminal"])
+    terminal = Terminal([*SESSION, "--dataset", str(root), "--policy", str(policy)])
     terminal.wait_for(b"keys:")
     terminal.press("\r", 0)  # start; the policy lands the body
     lean = SETTLE_STEPS * DT
@@ -264,7 +266,7 @@ def test_the_arrows_walk_the_walker_and_k_kicks_it(tmp_path: Path) -> None:
     stays up after a kick is the suite's to measure (docs/decisions/walking-teacher.md): here the session ends 0.3 s
     after it."""
     root = tmp_path / "play"
-    terminal = Terminal([*PLAY, "--dataset", str(root), "--policy", "walker", "--front-end", "terminal"])
+    terminal = Terminal([*SESSION, "--dataset", str(root), "--policy", "walker"])
     terminal.wait_for(b"keys:")
     terminal.press("\r", 0)
     start = SETTLE_STEPS * DT

@@ -118,6 +118,7 @@ def test_cli_records_with_the_writer_process_and_prints_a_summary(
         (["--kick", "-0.4"], "--kick must be >= 0"),
         (["--kick", "nan"], "--kick must be >= 0"),
         (["--controller", "keyboard", "--kick", "0.4"], "kicks with its k key: --kick must be 0"),
+        (["--controller", "keyboard", "--pace", "0"], "--pace must be positive"),
         (["--walking", "true"], "--walking was removed; give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)"),
         (["--schedules", "false"], "--schedules was removed; give --task (TASK=stand|posture|walk; SCHEDULES=0 is"),
         (
