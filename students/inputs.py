@@ -332,7 +332,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
             posture = self.path.posture
             ramp = [*(getattr(posture, name) for name in _RAMP_FIELDS), *self.path.arms()]
             if gait:  # the walker's odometry trusts only the feet its gait holds still
-                self.odometry.still = self.clock.still() if self.clock.active else None
+                self.odometry.still = self.clock.schedule()
             inputs = base.__call__(self, frame[:-size])  # runs the leg odometry on this frame
             if walking:
                 speeds = [getattr(posture, name) for name in velocities]

@@ -348,6 +348,13 @@ class GaitClock:
             return np.array([side == self.stance for side in SIDES])
         return np.ones(len(SIDES), bool)
 
+    def schedule(self) -> np.ndarray | None:
+        """The feet the leg odometry may take as held still now (`humanoid.estimator.LegOdometry`'s `still`): while
+        walking `still`'s; standing, both once the hand-over rule is armed, so that a kick is taken in at once; before,
+        none: the landing after a reset is the LQR's, and closing its gaps at once fell more
+        (docs/decisions/leg-odometry.md)."""
+        return self.still() if self.active or STEPPING.armed(self.ticks) else None
+
     FEATURES = (
         "walking",
         "single",

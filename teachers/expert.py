@@ -286,6 +286,9 @@ class SensedExpert(ExpertAround):
         self.estimator = LegOdometry(self.expert.model)
         self.estimate: tuple[np.ndarray, np.ndarray] = (np.zeros(self.expert.model.nq), np.zeros(self.expert.model.nv))
         """The (qpos, qvel) the last `act` acted on."""
+        self.still: np.ndarray | None = None
+        """The feet a contact schedule holds still (`LegOdometry`'s `still`); None, the expert's own: every foot down.
+        A walker standing on it holds both."""
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""
@@ -295,7 +298,7 @@ class SensedExpert(ExpertAround):
         self.estimator.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        self.estimate = self.estimator(self.sensed(obs))
+        self.estimate = self.estimator(self.sensed(obs), self.still)
         return self.expert.act_on_state(*self.estimate)
 
 

@@ -356,6 +356,12 @@ class SensedWalker(Walker):
     name = "walker-sensed"
     on_estimate = True
 
+    def _balance(self, obs: np.ndarray) -> np.ndarray:
+        """Standing, once a kick would start a walk (`task.handover.STEPPING` armed), its odometry runs on the gait's
+        schedule, both feet held: a kick is taken in at once (docs/decisions/leg-odometry.md)."""
+        self.balance.still = self.clock.schedule()
+        return self.balance.act(obs)
+
     def state(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The leg odometry's estimate of this step."""
         return self.balance.estimate
@@ -363,4 +369,4 @@ class SensedWalker(Walker):
     def _estimate(self, obs: np.ndarray) -> None:
         """The estimate moves on, its velocity corrected by the feet the gait holds still."""
         balance = self.balance
-        balance.estimate = balance.estimator(balance.sensed(obs), self.clock.still())
+        balance.estimate = balance.estimator(balance.sensed(obs), self.clock.schedule())

@@ -221,7 +221,8 @@ def test_a_turned_state_is_the_same_state_seen_from_another_heading() -> None:
 
 def test_the_walkers_student_computes_the_walkers_gait_clock() -> None:
     """`pending+gait` runs the gait clock on its own leg odometry, which trusts the feet the clock holds still: live,
-    its clock's features are `walker-sensed`'s step for step, through a start, steps and the zero walk after."""
+    its clock's features are `walker-sensed`'s step for step, through a kick standing, a start, steps and the zero
+    walk after."""
     env = make_env(EPISODE_STEPS)
     walker = SensedWalker()
     inputs = input_set_named("pending+gait")(nominal_model())
@@ -233,6 +234,8 @@ def test_the_walkers_student_computes_the_walkers_gait_clock() -> None:
     inputs.reset()
     walked = 0
     for t in range(LANDED + 400):
+        if t == LANDED - 60:
+            env.unwrapped.data.qvel[1] += 0.3  # a kick to the left: the clock steps out of it
         command = forward(0.3 if LANDED <= t < LANDED + 150 else 0.0)
         walker.set_command(command)
         action = walker.act(obs)
