@@ -288,7 +288,7 @@ class SensedExpert(ExpertAround):
         """The (qpos, qvel) the last `act` acted on."""
         self.still: np.ndarray | None = None
         """The feet a contact schedule holds still (`LegOdometry`'s `still`); None, the expert's own: every foot down.
-        A walker standing on it holds both."""
+        A walker standing on it sets its gait's (`task.gait.GaitClock.schedule`)."""
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""

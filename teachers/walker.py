@@ -360,7 +360,7 @@ class SensedWalker(Walker):
         """Standing, once a kick would start a walk (`task.handover.STEPPING` armed), its odometry runs on the gait's
         schedule, both feet held: a kick is taken in at once (docs/decisions/leg-odometry.md)."""
         self.balance.still = self.clock.schedule()
-        return self.balance.act(obs)
+        return super()._balance(obs)
 
     def state(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The leg odometry's estimate of this step."""

@@ -235,7 +235,7 @@ def test_the_walkers_student_computes_the_walkers_gait_clock() -> None:
     walked = 0
     for t in range(LANDED + 400):
         if t == LANDED - 60:
-            env.unwrapped.data.qvel[1] += 0.3  # a kick to the left: the clock steps out of it
+            env.unwrapped.data.qvel[1] += 0.3  # a kick to the left while standing, the hand-over rule armed
         command = forward(0.3 if LANDED <= t < LANDED + 150 else 0.0)
         walker.set_command(command)
         action = walker.act(obs)
