@@ -170,6 +170,8 @@ def mcap_parameters(path: Path) -> dict[str, object]:
 
 STATUS_TIME = re.compile(rb"REC seed \d+ t +([0-9.]+) s")
 """The simulated time in the recorder's status line."""
+STATUS_LINE = re.compile(rb"REC seed \d+ t +([0-9.]+) s([^\r\n]*)")
+"""A whole status line: its simulated time and the rest (the command in force)."""
 SESSION_PACE = 3.0
 """The tests' keyboard sessions run at 3 simulated seconds a second (`--pace`): their keys land at simulated times
 (`Terminal.wait_until_simulated`), so the pace changes only how long a session takes."""
@@ -207,6 +209,16 @@ class Terminal:
         """The simulated time the status line shows last (s; 0 before it shows one)."""
         times = STATUS_TIME.findall(self.output)
         return float(times[-1]) if times else 0.0
+
+    def shown_at(self, text: bytes, timeout: float = 60) -> float:
+        """The simulated time of the first status line that shows `text` (a key's command landed by then), waiting
+        for one."""
+        deadline = time.monotonic() + timeout
+        while not (times := [float(at) for at, rest in STATUS_LINE.findall(self.output) if text in rest]):
+            assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
+            assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
+            self.read_for(0.05)
+        return times[0]
 
     def wait_until_simulated(self, seconds: float) -> None:
         """Until the recorder's status line shows the episode `seconds` in (simulated time: on a busy machine the

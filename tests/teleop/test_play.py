@@ -272,11 +272,14 @@ def test_the_arrows_walk_the_walker_and_k_kicks_it(tmp_path: Path) -> None:
     start = SETTLE_STEPS * DT
     terminal.wait_until_simulated(start)
     terminal.press("\x1b[A" * 5, 0)  # ↑ five times: forward at 0.5 m/s
-    terminal.wait_until_simulated(start + 5.0)
+    # Held 5 s from where the status line first shows them landed: at 3x pace the status line the test reads lags
+    # the session by up to a few tenths of a simulated second, which the keys' own landing does not.
+    walked_from = terminal.shown_at(b"forward speed +0.50")
+    terminal.wait_until_simulated(walked_from + 5.0)
     terminal.press(" ", 0)  # stop
-    terminal.wait_until_simulated(start + 6.0)
+    terminal.wait_until_simulated(walked_from + 6.0)
     terminal.press("k", 0)
-    terminal.wait_until_simulated(start + 6.3)
+    terminal.wait_until_simulated(walked_from + 6.3)
     terminal.press("\x1b", 0)
     assert terminal.process.wait(timeout=60) == 0, terminal.output.decode(errors="replace")[-2000:]
     frames = read_frames(
