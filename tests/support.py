@@ -168,10 +168,8 @@ def mcap_parameters(path: Path) -> dict[str, object]:
     return {name: json.loads(text) for name, text in columns.drawn_parameters(read_mcap_episode(path).metadata).items()}
 
 
-STATUS_TIME = re.compile(rb"REC seed \d+ t +([0-9.]+) s")
-"""The simulated time in the recorder's status line."""
 STATUS_LINE = re.compile(rb"REC seed \d+ t +([0-9.]+) s([^\r\n]*)")
-"""A whole status line: its simulated time and the rest (the command in force)."""
+"""The recorder's status line: its simulated time, and the rest (the command in force)."""
 SESSION_PACE = 3.0
 """The tests' keyboard sessions run at 3 simulated seconds a second (`--pace`): their keys land at simulated times
 (`Terminal.wait_until_simulated`), so the pace changes only how long a session takes."""
@@ -207,14 +205,14 @@ class Terminal:
 
     def simulated(self) -> float:
         """The simulated time the status line shows last (s; 0 before it shows one)."""
-        times = STATUS_TIME.findall(self.output)
-        return float(times[-1]) if times else 0.0
+        lines = STATUS_LINE.findall(self.output)
+        return float(lines[-1][0]) if lines else 0.0
 
     def shown_at(self, text: bytes, timeout: float = 60) -> float:
         """The simulated time of the first status line that shows `text` (a key's command landed by then), waiting
         for one."""
         deadline = time.monotonic() + timeout
-        while not (times := [float(at) for at, rest in STATUS_LINE.findall(self.output) if text in rest]):
+        while not (times := [float(at) for at, shown in STATUS_LINE.findall(self.output) if text in shown]):
             assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
             assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
             self.read_for(0.05)
@@ -222,11 +220,13 @@ class Terminal:
 
     def wait_until_simulated(self, seconds: float) -> None:
         """Until the recorder's status line shows the episode `seconds` in (simulated time: on a busy machine the
-        session runs slower than the clock, never faster, so keys pressed after it land where the test means them)."""
+        session runs slower than the clock, never faster, so keys pressed after it land no earlier than that; the line
+        read lags the session, by a few tenths of a simulated second at 3x pace, so they may land that much later:
+        `shown_at` says where they did)."""
         deadline = time.monotonic() + 120.0 + 10.0 * seconds  # a session that stalls fails, it does not hang
-        while not (times := STATUS_TIME.findall(self.output)) or float(times[-1]) < seconds:
+        while not (times := [float(at) for at, _ in STATUS_LINE.findall(self.output)]) or times[-1] < seconds:
             assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
-            assert len(times) < 2 or float(times[-1]) >= float(times[-2]), "the episode ended (a fall): time went back"
+            assert len(times) < 2 or times[-1] >= times[-2], "the episode ended (a fall): time went back"
             assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
             self.read_for(0.05)
 

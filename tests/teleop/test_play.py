@@ -272,8 +272,8 @@ def test_the_arrows_walk_the_walker_and_k_kicks_it(tmp_path: Path) -> None:
     start = SETTLE_STEPS * DT
     terminal.wait_until_simulated(start)
     terminal.press("\x1b[A" * 5, 0)  # ↑ five times: forward at 0.5 m/s
-    # Held 5 s from where the status line first shows them landed: at 3x pace the status line the test reads lags
-    # the session by up to a few tenths of a simulated second, which the keys' own landing does not.
+    # Held 5 s from the first status line that shows them landed, not from `start`: the line read before pressing
+    # lags the session, so the keys may land a few tenths of a simulated second after `start`.
     walked_from = terminal.shown_at(b"forward speed +0.50")
     terminal.wait_until_simulated(walked_from + 5.0)
     terminal.press(" ", 0)  # stop
