@@ -288,7 +288,7 @@ class SensedExpert(ExpertAround):
         """The (qpos, qvel) the last `act` acted on."""
         self.still: np.ndarray | None = None
         """The feet a contact schedule holds still (`LegOdometry`'s `still`); None, the expert's own: every foot down.
-        A walker standing on it sets its gait's (`task.gait.GaitClock.schedule`)."""
+        A walker on it sets its gait's every step (`task.gait.GaitClock.schedule`)."""
 
     def set_body(self, model: mujoco.MjModel) -> None:
         """Never told the body: it acts on what a robot senses (its estimator included), on the nominal model."""
@@ -297,9 +297,13 @@ class SensedExpert(ExpertAround):
         self.expert.reset(seed)
         self.estimator.reset()
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def observe(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The leg odometry moved on by this step's sensed features, under the `still` schedule: the estimate."""
         self.estimate = self.estimator(self.sensed(obs), self.still)
-        return self.expert.act_on_state(*self.estimate)
+        return self.estimate
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.expert.act_on_state(*self.observe(obs))
 
 
 class Balanced(ExpertAround):

@@ -368,5 +368,5 @@ class SensedWalker(Walker):
 
     def _estimate(self, obs: np.ndarray) -> None:
         """The estimate moves on, its velocity corrected by the feet the gait holds still."""
-        balance = self.balance
-        balance.estimate = balance.estimator(balance.sensed(obs), self.clock.schedule())
+        self.balance.still = self.clock.schedule()
+        self.balance.observe(obs)
