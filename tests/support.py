@@ -170,6 +170,13 @@ def mcap_parameters(path: Path) -> dict[str, object]:
 
 STATUS_LINE = re.compile(rb"REC seed \d+ t +([0-9.]+) s([^\r\n]*)")
 """The recorder's status line: its simulated time, and the rest (the command in force)."""
+
+
+def status_lines(output: bytes) -> list[tuple[float, bytes]]:
+    """Every recorder status line in a session's `output`: (its simulated time, the rest of it)."""
+    return [(float(at), shown) for at, shown in STATUS_LINE.findall(output)]
+
+
 SESSION_PACE = 3.0
 """The tests' keyboard sessions run at 3 simulated seconds a second (`--pace`): their keys land at simulated times
 (`Terminal.wait_until_simulated`), so the pace changes only how long a session takes."""
@@ -203,20 +210,16 @@ class Terminal:
         os.write(self.master, keys_.encode())
         self.read_for(then_wait)
 
-    def _lines(self) -> list[tuple[float, bytes]]:
-        """Every status line shown so far: (its simulated time, the rest of it)."""
-        return [(float(at), shown) for at, shown in STATUS_LINE.findall(self.output)]
-
     def simulated(self) -> float:
         """The simulated time the status line shows last (s; 0 before it shows one)."""
-        lines = self._lines()
+        lines = status_lines(self.output)
         return lines[-1][0] if lines else 0.0
 
     def shown_at(self, text: bytes, timeout: float = 60) -> float:
         """The simulated time of the first status line that shows `text` (a key's command landed by then), waiting
         for one."""
         deadline = time.monotonic() + timeout
-        while not (times := [at for at, shown in self._lines() if text in shown]):
+        while not (times := [at for at, shown in status_lines(self.output) if text in shown]):
             assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
             assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]
             self.read_for(0.05)
@@ -228,7 +231,7 @@ class Terminal:
         read lags the session, by a few tenths of a simulated second at 3x pace, so they may land that much later:
         `shown_at` says where they did)."""
         deadline = time.monotonic() + 120.0 + 10.0 * seconds  # a session that stalls fails, it does not hang
-        while not (times := [at for at, _ in self._lines()]) or times[-1] < seconds:
+        while not (times := [at for at, _ in status_lines(self.output)]) or times[-1] < seconds:
             assert self.process.poll() is None, self.output.decode(errors="replace")[-2000:]
             assert len(times) < 2 or times[-1] >= times[-2], "the episode ended (a fall): time went back"
             assert time.monotonic() < deadline, self.output.decode(errors="replace")[-2000:]

@@ -20,7 +20,7 @@ import pytest
 from PIL import Image, ImageGrab
 
 from common import columns
-from support import join_observation
+from support import join_observation, status_lines
 from task.command_fields import COMMAND_NAMES
 from teleop.dataset_reader import read_frames
 
@@ -32,8 +32,8 @@ pytestmark = [
     ),
 ]
 
-SETTLE = 2.0  # s after Enter before the first command: the body drops 12 cm from the reset pose
-HOLD = 2.5  # s each command is held, so that the body has moved when the next one comes
+SETTLE = 2.0  # simulated s after Enter before the first command: the body drops 12 cm from the reset pose
+HOLD = 2.5  # simulated s each command is held, so that the body has moved when the next one comes
 POSTURE = slice(0, 5)  # the posture fields of the command (the push has its own column): the keys walk nothing
 
 
@@ -77,22 +77,29 @@ def teleoperated(display: str, tmp_path_factory: pytest.TempPathFactory) -> tupl
             window = xdotool(display, "search", "--sync", "--onlyvisible", "--name", "MuJoCo").splitlines()[0]
             xdotool(display, "windowfocus", "--sync", window)
 
-            def press(key: str, then_wait: float) -> None:
+            def press(key: str, until: float = 0.0) -> None:
+                """Type `key`, then wait until the status line in the log shows the episode `until` s in: simulated
+                time, as the terminal tests wait (Mesa renders on the CPU, so beside other work the viewer runs
+                slower than the clock: waited on the clock, a crouch once landed 0.45 s into the episode)."""
                 xdotool(display, "key", "--window", window, "--clearmodifiers", key)
-                time.sleep(then_wait)
+                deadline = time.monotonic() + 120.0 + 10.0 * until
+                while not (lines := status_lines(log.read_bytes())) or lines[-1][0] < until:
+                    assert recorder.poll() is None and time.monotonic() < deadline, log.read_text()[-2000:]
+                    time.sleep(0.05)
 
             press("Return", SETTLE)  # start
-            press("f", 0.2)
-            press("f", HOLD)  # crouch 4 cm
-            press("w", 0.2)
-            press("w", HOLD)  # lean forward 0.1 rad
+            press("f", SETTLE + 0.2)
+            press("f", SETTLE + 0.2 + HOLD)  # crouch 4 cm
+            press("w", SETTLE + 0.4 + HOLD)
+            press("w", SETTLE + 0.4 + 2 * HOLD)  # lean forward 0.1 rad
             shell = xdotool(display, "getwindowgeometry", "--shell", window)  # X=.. Y=.. WIDTH=.. HEIGHT=..
             geometry = dict(line.split("=") for line in shell.split())
             left, top = int(geometry["X"]), int(geometry["Y"])
             box = (left, top, left + int(geometry["WIDTH"]), top + int(geometry["HEIGHT"]))
             ImageGrab.grab(bbox=box, xdisplay=display).save(shot)  # the viewer window, as the X server shows it
-            press("Return", 0.5)  # end and save
-            press("Escape", 0)  # quit
+            press("Return")  # end and save
+            time.sleep(0.5)
+            press("Escape")  # quit
             assert recorder.wait(timeout=60) == 0, log.read_text()[-2000:]
         finally:
             if recorder.poll() is None:
