@@ -1,7 +1,7 @@
 """PPO fine-tuning throughput: the same environments in 1 worker (the learner's process) and in 2, side by side.
 
     .venv/bin/python -m bench.ppo_throughput [--bc-policy bench/results/policies/bc_dart_0.05] [--timesteps 32768]
-        [--workers 1 2] [--envs 64] [--repeats 3]
+        [--workers 1 2] [--envs 64] [--rollout-steps 16384] [--repeats 3]
 
 Environment steps per second of `model.learn` (rollouts and updates, no evaluations), the
 settings of `make finetune-rl` otherwise (so the same number of environments, `--envs`, for
@@ -51,8 +51,12 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
     return wrapper
 
 
-def learn(bc_policy: Path, workers: int, envs: int, timesteps: int) -> Run:
-    config = FinetuneConfig(bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps)
+def learn(
+    bc_policy: Path, workers: int, envs: int, timesteps: int, rollout_steps: int = FinetuneConfig.rollout_steps
+) -> Run:
+    config = FinetuneConfig(
+        bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps, rollout_steps=rollout_steps
+    )
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     env = vec_env(config)
     try:
@@ -76,15 +80,17 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=32_768)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--envs", type=int, default=FinetuneConfig.envs)
+    parser.add_argument("--rollout-steps", type=int, default=FinetuneConfig.rollout_steps)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     runs: dict[int, list[Run]] = {w: [] for w in args.workers}
     for _ in range(args.repeats):
         for workers in args.workers:
-            runs[workers].append(learn(args.bc_policy, workers, args.envs, args.timesteps))
+            runs[workers].append(learn(args.bc_policy, workers, args.envs, args.timesteps, args.rollout_steps))
     base = args.workers[0]
     print(
-        f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run, "
+        f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run "
+        f"in rollouts of {args.rollout_steps}, "
         f"{args.repeats} repeats:\n"
     )
     print("| workers | steps/s (each repeat) | median | vs " + f"{base} worker | sampling | updates | rest |")

@@ -38,26 +38,27 @@ def training(folder: Path) -> dict:
 
 @pytest.mark.slow
 def test_the_five_commands_chain_in_an_empty_folder(tmp_path: Path) -> None:
-    """Budgets only (episodes, steps, epochs, rounds, updates): the recording is the operator's demonstrations by the
-    teacher on what a robot senses; the student trains on them; DAgger starts from them; PPO refines the newest
-    student, the DAgger one, and says so; `make eval` takes the newest policy, PPO's, on held-out schedules."""
+    """Budgets only (episodes, steps, epochs, rounds, updates, environments; no evaluation before `make eval`'s): the
+    recording is the operator's demonstrations by the teacher on what a robot senses; the student trains on them;
+    DAgger starts from them; PPO refines the newest student, the DAgger one, and says so; `make eval` takes the newest
+    policy, PPO's, on held-out schedules."""
     make(tmp_path, "record", "EPISODES=3", "MAX_STEPS=250")
     dataset = tmp_path / paths.DATASET
     episodes = read_episodes(dataset, [columns.EPISODE_CONTROLLER]).to_pydict()[columns.EPISODE_CONTROLLER]
     assert episodes == ["expert-sensed"] * 3
     assert len(np.unique(read_frames(dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND], axis=0)) > 1
 
-    make(tmp_path, "train-bc", "EPOCHS=1", "MIN_UPDATES=20", "EVAL_EPISODES=1")
+    make(tmp_path, "train-bc", "EPOCHS=1", "MIN_UPDATES=20", "EVAL_EPISODES=0")
     student = tmp_path / paths.BC_POLICY
     identity = json.loads((student / DATASET_FILE).read_text())
     assert (Path(identity["path"]), identity["fingerprint"]) == (dataset.resolve(), fingerprint(dataset))
 
-    make(tmp_path, "dagger", "ROUNDS=1", "EPISODES=1", "EPOCHS=1", "MIN_UPDATES=20", "EVAL_EPISODES=1")
+    make(tmp_path, "dagger", "ROUNDS=1", "EPISODES=1", "EPOCHS=1", "MIN_UPDATES=20", "EVAL_EPISODES=0")
     dagger = tmp_path / paths.DAGGER_POLICY
     assert training(dagger)["dagger"]["dataset"] == str(paths.DATASET)
     assert training(dagger)["demonstrations"] == fingerprint(dataset)
 
-    tuned = make(tmp_path, "finetune-rl", "TIMESTEPS=256", "ENVS=2", f"ARGS={PPO_BUDGET}")
+    tuned = make(tmp_path, "finetune-rl", "TIMESTEPS=256", "ENVS=1", f"ARGS={PPO_BUDGET}")
     assert f"policy: {paths.DAGGER_POLICY}, the newest of " in tuned.stderr
     ppo = tmp_path / paths.PPO_POLICY
     assert training(ppo)["bc_policy"] == str(paths.DAGGER_POLICY)
