@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,7 +27,8 @@ from typing import Any
 import torch
 
 from bench.bc_benchmark import dart_policy
-from rl.finetune import FinetuneConfig, learner, vec_env
+from common.cli import UserError
+from rl.finetune import FinetuneConfig, learner, validate, vec_env
 from teleop.record import STANDING_NOISE
 
 
@@ -51,12 +53,21 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
     return wrapper
 
 
-def learn(
+def settings(
     bc_policy: Path, workers: int, envs: int, timesteps: int, rollout_steps: int = FinetuneConfig.rollout_steps
-) -> Run:
+) -> FinetuneConfig:
+    """`make finetune-rl`'s settings but these; UserError in one line where the stage would refuse them."""
     config = FinetuneConfig(
         bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps, rollout_steps=rollout_steps
     )
+    validate(config)
+    return config
+
+
+def learn(
+    bc_policy: Path, workers: int, envs: int, timesteps: int, rollout_steps: int = FinetuneConfig.rollout_steps
+) -> Run:
+    config = settings(bc_policy, workers, envs, timesteps, rollout_steps)
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     env = vec_env(config)
     try:
@@ -83,6 +94,11 @@ def main() -> None:
     parser.add_argument("--rollout-steps", type=int, default=FinetuneConfig.rollout_steps)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
+    try:  # every run's settings refused before the first runs
+        for workers in args.workers:
+            settings(args.bc_policy, workers, args.envs, args.timesteps, args.rollout_steps)
+    except UserError as error:
+        sys.exit(f"error: {error}")
     runs: dict[int, list[Run]] = {w: [] for w in args.workers}
     for _ in range(args.repeats):
         for workers in args.workers:

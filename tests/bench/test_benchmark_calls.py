@@ -11,6 +11,7 @@ from bc.train import TrainConfig
 from bc.train import main as train_bc
 from bench.camera_cost import cameras_flag, frames_per_second, rendered, video_cost
 from bench.ppo_throughput import learn
+from bench.ppo_throughput import main as ppo_throughput
 from bench.record_throughput import cpu_per_episode
 from bench.stepping import standing
 from bench.walker import walking_cost, walking_episode
@@ -32,6 +33,22 @@ def test_ppo_throughput_times_one_rollout_and_its_update(recorded: Path, tmp_pat
     train_bc(TrainConfig(dataset=recorded, policy=tmp_path / "bc", **SMALL_BC))
     run = learn(tmp_path / "bc", workers=1, envs=4, timesteps=1, rollout_steps=2048)  # one minibatch
     assert run.steps_per_s > 0 and run.simulation_s > 0 and run.update_s > 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--envs", "64", "--rollout-steps", "100"], "--rollout-steps (100) must be a multiple of --envs (64)"),
+        (["--workers", "1", "3", "--envs", "2", "--rollout-steps", "64"], "--workers (3) must not exceed --envs (2)"),
+    ],
+)
+def test_ppo_throughput_refuses_what_the_stage_refuses_before_any_run(
+    args: list[str], message: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("sys.argv", ["bench.ppo_throughput", "--bc-policy", "missing", *args])
+    with pytest.raises(SystemExit) as exit_:
+        ppo_throughput()
+    assert exit_.value.code == f"error: {message}"
 
 
 def test_the_stepping_bench_measures_a_still_stance() -> None:
