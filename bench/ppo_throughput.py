@@ -94,7 +94,7 @@ def main() -> None:
     parser.add_argument("--rollout-steps", type=int, default=FinetuneConfig.rollout_steps)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    try:  # every run's settings refused before the first runs
+    try:  # any run's settings refused before the first run starts
         for workers in args.workers:
             settings(args.bc_policy, workers, args.envs, args.timesteps, args.rollout_steps)
     except UserError as error:
