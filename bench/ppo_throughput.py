@@ -64,10 +64,8 @@ def settings(
     return config
 
 
-def learn(
-    bc_policy: Path, workers: int, envs: int, timesteps: int, rollout_steps: int = FinetuneConfig.rollout_steps
-) -> Run:
-    config = settings(bc_policy, workers, envs, timesteps, rollout_steps)
+def learn(config: FinetuneConfig) -> Run:
+    """One `model.learn` of `config.timesteps` steps (`settings`), timed."""
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     env = vec_env(config)
     try:
@@ -77,9 +75,9 @@ def learn(
         env.sample = timed(env.sample, simulation)
         model.train = timed(model.train, updates)
         start = time.perf_counter()
-        model.learn(total_timesteps=timesteps)
+        model.learn(total_timesteps=config.timesteps)
         seconds = time.perf_counter() - start
-        return Run(timesteps / seconds, sum(simulation), sum(updates), seconds - sum(simulation) - sum(updates))
+        return Run(config.timesteps / seconds, sum(simulation), sum(updates), seconds - sum(simulation) - sum(updates))
     finally:
         env.close()
 
@@ -95,14 +93,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     try:  # any run's settings refused before the first run starts
-        for workers in args.workers:
-            settings(args.bc_policy, workers, args.envs, args.timesteps, args.rollout_steps)
+        configs = {w: settings(args.bc_policy, w, args.envs, args.timesteps, args.rollout_steps) for w in args.workers}
     except UserError as error:
         sys.exit(f"error: {error}")
     runs: dict[int, list[Run]] = {w: [] for w in args.workers}
     for _ in range(args.repeats):
         for workers in args.workers:
-            runs[workers].append(learn(args.bc_policy, workers, args.envs, args.timesteps, args.rollout_steps))
+            runs[workers].append(learn(configs[workers]))
     base = args.workers[0]
     print(
         f"PPO fine-tuning, {args.envs} environments, {args.timesteps} environment steps per run "

@@ -10,7 +10,7 @@ import pytest
 from bc.train import TrainConfig
 from bc.train import main as train_bc
 from bench.camera_cost import cameras_flag, frames_per_second, rendered, video_cost
-from bench.ppo_throughput import learn
+from bench.ppo_throughput import learn, settings
 from bench.ppo_throughput import main as ppo_throughput
 from bench.record_throughput import cpu_per_episode
 from bench.stepping import standing
@@ -31,7 +31,7 @@ def test_record_throughput_times_each_stage_of_an_append(tmp_path: Path) -> None
 
 def test_ppo_throughput_times_one_rollout_and_its_update(recorded: Path, tmp_path: Path) -> None:
     train_bc(TrainConfig(dataset=recorded, policy=tmp_path / "bc", **SMALL_BC))
-    run = learn(tmp_path / "bc", workers=1, envs=4, timesteps=1, rollout_steps=2048)  # one minibatch
+    run = learn(settings(tmp_path / "bc", workers=1, envs=4, timesteps=1, rollout_steps=2048))  # one minibatch
     assert run.steps_per_s > 0 and run.simulation_s > 0 and run.update_s > 0
 
 
