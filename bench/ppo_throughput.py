@@ -65,7 +65,8 @@ def settings(
 
 
 def learn(config: FinetuneConfig) -> Run:
-    """One `model.learn` of `config.timesteps` steps (`settings`), timed."""
+    """One `model.learn` of `config.timesteps` steps (`settings`), timed; the rate counts the steps PPO ran, whole
+    rollouts, which pass `config.timesteps` when it is not a multiple of the rollout's size."""
     torch.set_num_threads(1)  # as rl.finetune.main: WorkerRolloutPPO raises it for its updates
     env = vec_env(config)
     try:
@@ -77,7 +78,8 @@ def learn(config: FinetuneConfig) -> Run:
         start = time.perf_counter()
         model.learn(total_timesteps=config.timesteps)
         seconds = time.perf_counter() - start
-        return Run(config.timesteps / seconds, sum(simulation), sum(updates), seconds - sum(simulation) - sum(updates))
+        simulated, updated = sum(simulation), sum(updates)
+        return Run(model.num_timesteps / seconds, simulated, updated, seconds - simulated - updated)
     finally:
         env.close()
 
