@@ -209,6 +209,34 @@ def check_share(config: Any, name: str) -> None:
         raise UserError(f"{flag(name)} must be a share in [0, 1], got {value}")
 
 
+def parse_ranges(
+    text: str, names: Sequence[str], where: str, example: str, check: Callable[[str, tuple[float, float]], None]
+) -> dict[str, tuple[float, float]]:
+    """`text`, a list NAME=LOW:HIGH,... of some of `names`, as {NAME: (LOW, HIGH)}, each range passed by `check`
+    (which raises ValueError saying which rule it breaks). ValueError, one line starting with `where` (the flag and
+    its text), for a malformed item, an unknown or repeated NAME, or a broken rule; `example` shows the form."""
+    ranges: dict[str, tuple[float, float]] = {}
+    for item in (part.strip() for part in text.strip().split(",")):
+        name, _, bounds = (part.strip() for part in item.partition("="))
+        low_text, colon, high_text = bounds.partition(":")
+        if not name or not colon:
+            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH (e.g. {example})")
+        if name not in names:
+            raise ValueError(f"{where}: unknown parameter {name!r}; parameters: {', '.join(names)}")
+        if name in ranges:
+            raise ValueError(f"{where}: {name} is given twice")
+        try:
+            low, high = float(low_text), float(high_text)
+        except ValueError:
+            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH with numbers LOW and HIGH") from None
+        try:
+            check(name, (low, high))
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
+        ranges[name] = (low, high)
+    return ranges
+
+
 def config_dict(config: Any) -> dict[str, Any]:
     """Every field of a config dataclass as a JSON value (paths as strings, a nested stage's config as its own dict):
     what a run saves as its config."""

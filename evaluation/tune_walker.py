@@ -2,9 +2,9 @@
 
 Each candidate gait walks the held-out walking schedules' kind of episode on the selection seeds (`--seed`, never an
 evaluation's 1000-1019) and stands through kicks, and is scored by `cost`: a fall costs most, then the tracking error
-of the speeds once settled. CMA-ES (the `cma` library, Hansen's) searches the parameters scaled to their `BOUNDS`,
-seeded, so a run repeats; every generation's state is kept in `--run`, so a killed run resumes where it was. At the end
-the best gait seen goes to `--out` (the walker's `GAIT_FILE`) with the run that chose it. Docs:
+of the speeds once settled. CMA-ES (the `cma` library, Hansen's) searches the parameters scaled to their `BOUNDS` (or
+`--bounds`), seeded, so a run repeats; every generation's state is kept in `--run`, so a killed run resumes where it
+was. At the end the best gait seen goes to `--out` (the walker's `GAIT_FILE`) with the run that chose it. Docs:
 docs/decisions/walking-teacher.md (the table that chose the default), docs/how-to/walk.md.
 """
 
@@ -24,7 +24,7 @@ import cma
 import numpy as np
 from tqdm import tqdm
 
-from common.cli import UserError, check_non_negative, check_positive, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, parse_ranges, run_cli, setting
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
 from task.gait import GAIT_FILE, Gait, load_gait, save_gait
@@ -49,10 +49,14 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "yaw_single": (0.0, 1.0),
 }
 """The search space, each parameter's (least, most), in its unit (`Gait`): a period under 0.25 s or a lift under 3 cm
-shuffles the feet over the floor, which the cost's few seeds reward and a longer walk punishes."""
+shuffles the feet over the floor, which the cost's few seeds reward and a longer walk punishes. `--bounds` replaces
+some of them for a run (the records' `k_y` within the linear pendulum's stable range:
+docs/decisions/walking-teacher.md)."""
+BOUNDS_EXAMPLE = "k_y=0.8:1.25"
 FALL_COST = 10.0
 """What falling at the start of an episode costs (in proportion to the share of the episode lost), against the
-speeds' errors in m/s (a turn's rad/s counts half): a gait that stands up always beats one that tracks better."""
+speeds' errors in m/s (a turn's rad/s counts `TuneConfig.turn_weight`): a gait that stands up always beats one that
+tracks better."""
 
 
 @dataclass
@@ -70,6 +74,12 @@ class TuneConfig:
     seed: int = setting(3000, "the first selection seed: evaluations use 1000-1019, recordings 0 upwards")
     cma_seed: int = setting(1, "the CMA-ES sampler's seed: the same run repeats")
     sigma: float = setting(0.15, "CMA-ES's first step size, as a share of each parameter's range")
+    bounds: str = setting(
+        "",
+        f"search ranges that replace those of BOUNDS for this run, NAME=LOW:HIGH,... (e.g. {BOUNDS_EXAMPLE}); a start "
+        "outside them starts at the nearest edge",
+    )
+    turn_weight: float = setting(0.5, "the turn rate's error's weight in the cost (rad/s), the speeds' being 1 (m/s)")
     sensed: bool = setting(
         False, "tune the walker on the leg odometry (walker-sensed) instead of the simulator's state"
     )
@@ -84,22 +94,43 @@ class TuneConfig:
     )
 
 
-def scaled(gait: Gait) -> np.ndarray:
-    """The gait's tuned parameters as shares of their `BOUNDS` (0 at the least, 1 at the most)."""
-    return np.array([(getattr(gait, name) - low) / (high - low) for name, (low, high) in BOUNDS.items()])
+Bounds = dict[str, tuple[float, float]]
 
 
-def unscaled(x: np.ndarray) -> Gait:
-    """The gait at shares `x` of `BOUNDS` (clipped into them)."""
+def search_bounds(text: str) -> Bounds:
+    """`BOUNDS` with the ranges `text` gives instead (`--bounds`: NAME=LOW:HIGH,...; empty, none); UserError, one line,
+    for a malformed list, an unknown or repeated parameter, or a range that is not finite with LOW < HIGH."""
+    if not text.strip():
+        return dict(BOUNDS)
+    try:
+        return {**BOUNDS, **parse_ranges(text, list(BOUNDS), f"--bounds {text!r}", BOUNDS_EXAMPLE, _check_bound)}
+    except ValueError as error:
+        raise UserError(str(error)) from None
+
+
+def _check_bound(name: str, bounds: tuple[float, float]) -> None:
+    low, high = bounds
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise ValueError(f"{name}'s range must be finite with low < high, got {low:g}:{high:g}")
+
+
+def scaled(gait: Gait, bounds: Bounds = BOUNDS) -> np.ndarray:
+    """The gait's tuned parameters as shares of their `bounds` (0 at the least, 1 at the most)."""
+    return np.array([(getattr(gait, name) - low) / (high - low) for name, (low, high) in bounds.items()])
+
+
+def unscaled(x: np.ndarray, bounds: Bounds = BOUNDS) -> Gait:
+    """The gait at shares `x` of `bounds` (clipped into them)."""
     shares = np.clip(x, 0.0, 1.0)
-    return Gait(**{name: low + s * (high - low) for (name, (low, high)), s in zip(BOUNDS.items(), shares, strict=True)})
+    return Gait(**{name: low + s * (high - low) for (name, (low, high)), s in zip(bounds.items(), shares, strict=True)})
 
 
 def cost(gait: Gait, cfg: TuneConfig) -> tuple[float, dict[str, float]]:
     """A gait's score on the selection seeds (lower is better) and its parts: `FALL_COST` times the share of the
-    episodes' steps lost to falls, plus the walks' mean settled errors of the forward and sideways speeds and half the
-    turn rate's over the commands that asked for that field (`evaluation.evaluate`'s tracking, "moved_error"). The
-    walks run under `noise`, as `make record` records them (DART), so the gait chosen is one a student can be taught."""
+    episodes' steps lost to falls, plus the walks' mean settled errors of the forward and sideways speeds and
+    `turn_weight` times the turn rate's over the commands that asked for that field (`evaluation.evaluate`'s
+    tracking, "moved_error"). The walks run under `noise`, as `make record` records them (DART), so the gait
+    chosen is one a student can be taught."""
     walker = (SensedWalker if cfg.sensed else Walker)(gait=gait)
     walked = evaluate(walker, cfg.walks, cfg.seed, task=WALK, noise=cfg.noise)
     kicked = evaluate(walker, cfg.kicks, cfg.seed, task=STAND, kick=cfg.kick) if cfg.kicks else None
@@ -107,7 +138,7 @@ def cost(gait: Gait, cfg: TuneConfig) -> tuple[float, dict[str, float]]:
     lost = 1.0 - float(np.mean(lengths)) / 1000.0
     errors = walked["tracking"]["moved_error"]  # over the commands that asked for the field: the walks
     speed = {name: _number(errors[name]) for name in ("forward_speed", "sideways_speed", "turn_rate")}
-    total = FALL_COST * lost + speed["forward_speed"] + speed["sideways_speed"] + 0.5 * speed["turn_rate"]
+    total = FALL_COST * lost + speed["forward_speed"] + speed["sideways_speed"] + cfg.turn_weight * speed["turn_rate"]
     parts = {"lost": lost, "walks": walked["survived"], "kicks": kicked["survived"] if kicked else 0, **speed}
     return total, parts
 
@@ -117,8 +148,8 @@ def _number(value: float) -> float:
     return 0.0 if value is None or math.isnan(value) else float(value)
 
 
-def _cost(x: np.ndarray, cfg: TuneConfig) -> tuple[float, dict[str, float]]:
-    return cost(unscaled(x), cfg)
+def _cost(x: np.ndarray, cfg: TuneConfig, bounds: Bounds) -> tuple[float, dict[str, float]]:
+    return cost(unscaled(x, bounds), cfg)
 
 
 def _settings(cfg: TuneConfig) -> dict[str, Any]:
@@ -130,9 +161,10 @@ def _settings(cfg: TuneConfig) -> dict[str, Any]:
 
 def main(cfg: TuneConfig) -> dict[str, Any]:
     check_positive(cfg, "generations", "population", "walks", "workers")
-    check_non_negative(cfg, "kicks", "kick", "noise")
+    check_non_negative(cfg, "kicks", "kick", "noise", "turn_weight")
     if not (0 < cfg.sigma <= 0.5):
         raise UserError(f"--sigma must be in (0, 0.5], a share of each parameter's range, got {cfg.sigma}")
+    bounds = search_bounds(cfg.bounds)
     state_file = cfg.run / "state.pkl"
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in _settings(cfg).items()}
     if state_file.exists():
@@ -147,7 +179,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         options = {"popsize": cfg.population, "seed": cfg.cma_seed, "bounds": [0.0, 1.0], "verbose": -9}
         state = {
             "settings": settings,
-            "es": cma.CMAEvolutionStrategy(scaled(start), cfg.sigma, options),
+            "es": cma.CMAEvolutionStrategy(np.clip(scaled(start, bounds), 0.0, 1.0), cfg.sigma, options),
             "start": dataclasses.asdict(start),
             "start_tuning": json.loads(start_file.read_text()).get("tuning"),
             "generation": 0,
@@ -159,7 +191,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         bar = tqdm(total=cfg.generations, initial=state["generation"], unit="gen", file=sys.stderr, dynamic_ncols=True)
         while state["generation"] < cfg.generations:
             xs = es.ask()
-            jobs = [(x, cfg) for x in xs]
+            jobs = [(x, cfg, bounds) for x in xs]
             results = list(pool.map(_cost, *zip(*jobs, strict=True))) if pool else [_cost(*job) for job in jobs]
             costs = [c for c, _ in results]
             es.tell(xs, costs)
@@ -174,7 +206,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
                         "best": costs[best],
                         "mean": float(np.mean(costs)),
                         "parts": results[best][1],
-                        "gait": dataclasses.asdict(unscaled(xs[best])),
+                        "gait": dataclasses.asdict(unscaled(xs[best], bounds)),
                     }
                 )
                 + "\n"
@@ -185,7 +217,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
             bar.set_postfix(best=f"{state['best'][0]:.3f}", generation_best=f"{costs[best]:.3f}")
         bar.close()
     score, x, parts = state["best"]
-    gait = unscaled(x)
+    gait = unscaled(x, bounds)
     tuning = {
         "command": "make tune-walker",
         "cost": score,

@@ -26,6 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from common.cli import parse_ranges
 from humanoid.env import QPOS_OBS, QVEL_OBS, model_and_data
 from humanoid.perturbations import TorsoPushes, VelocityKick
 
@@ -442,23 +443,5 @@ def parse_randomization(text: str) -> Randomization:
             return PRESETS[spec]
         raise ValueError(f"{where}: unknown preset; presets: {', '.join(PRESETS)}, or a list like {RANDOMIZE_EXAMPLE}")
     names = [f.name for f in fields(Randomization)]
-    ranges: dict[str, Range] = {}
-    for item in (part.strip() for part in spec.split(",")):
-        name, _, bounds = (part.strip() for part in item.partition("="))
-        low_text, colon, high_text = bounds.partition(":")
-        if not name or not colon:
-            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH (e.g. {RANDOMIZE_EXAMPLE})")
-        if name not in names:
-            raise ValueError(f"{where}: unknown parameter {name!r}; parameters: {', '.join(names)}")
-        if name in ranges:
-            raise ValueError(f"{where}: {name} is given twice")
-        try:
-            low, high = float(low_text), float(high_text)
-        except ValueError:
-            raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH with numbers LOW and HIGH") from None
-        try:
-            check_range(name, (low, high))
-        except ValueError as error:
-            raise ValueError(f"{where}: {error}") from None
-        ranges[name] = (low, high)
+    ranges = parse_ranges(spec, names, where, RANDOMIZE_EXAMPLE, check_range)
     return Randomization(**ranges)

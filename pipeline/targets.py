@@ -163,6 +163,8 @@ TARGETS: dict[str, Target] = {
             "seed",
             "cma_seed",
             "sigma",
+            "bounds",
+            "turn_weight",
             "sensed",
             "workers",
             "start",

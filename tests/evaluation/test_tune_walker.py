@@ -11,7 +11,7 @@ import pytest
 
 from common.cli import UserError
 from evaluation import tune_walker
-from evaluation.tune_walker import BOUNDS, TuneConfig, scaled, unscaled
+from evaluation.tune_walker import BOUNDS, TuneConfig, cli, scaled, search_bounds, unscaled
 from task.gait import Gait, load_gait
 
 
@@ -23,12 +23,42 @@ def test_a_gait_scales_into_its_bounds_and_back() -> None:
     assert set(BOUNDS) == {field for field in Gait.__dataclass_fields__}
 
 
+def test_bounds_given_replace_those_ranges_only() -> None:
+    """Known answers: `k_y` searched over 0.8-1.25 (the linear pendulum's stable range), the rest as BOUNDS has them;
+    the tuned gait's `k_y` 1.48 lies past it, and its share is clipped back to the edge."""
+    bounds = search_bounds(" k_y = 0.8:1.25 ")
+    assert bounds == {**BOUNDS, "k_y": (0.8, 1.25)} and list(bounds) == list(BOUNDS)
+    gait = load_gait()
+    shares = scaled(gait, bounds)
+    assert shares[list(BOUNDS).index("k_y")] == pytest.approx((gait.k_y - 0.8) / 0.45)
+    assert unscaled(shares, bounds).k_y == 1.25 and unscaled(shares, bounds).period == pytest.approx(gait.period)
+    assert search_bounds("") == BOUNDS
+
+
+@pytest.mark.parametrize(
+    "text, problem",
+    [
+        ("k_z=0.8:1.2", "unknown parameter 'k_z'"),
+        ("k_y=1.25:0.8", "k_y's range must be finite with low < high, got 1.25:0.8"),
+        ("k_y=1:1", "low < high"),
+        ("k_y=0.8", "is not NAME=LOW:HIGH (e.g. k_y=0.8:1.25)"),
+        ("k_y=0.8:1.2,k_y=0.9:1", "k_y is given twice"),
+    ],
+)
+def test_bad_bounds_are_one_line_and_leave_no_run(text: str, problem: str, tmp_path, capsys) -> None:
+    code = cli(["--bounds", text, "--run", str(tmp_path / "run"), "--out", str(tmp_path / "gait.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and err[0].startswith(f"error: --bounds {text!r}: ") and problem in err[0], err
+    assert not (tmp_path / "run").exists() and not (tmp_path / "gait.json").exists()
+
+
 @pytest.mark.slow
 def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     """One generation, then the run asked for two more resumes at the second (its log grows by one line per
-    generation); the gait file holds the best candidate and the run's settings; other settings are refused."""
+    generation); the gait file holds the best candidate, within the run's `--bounds` (the tuned gait's `k_y` 1.48
+    starts at their edge), and the run's settings; other settings are refused."""
     run, out = tmp_path / "run", tmp_path / "gait.json"
-    settings = {"population": 2, "walks": 1, "kicks": 0, "workers": 1, "run": run, "out": out}
+    settings = {"population": 2, "walks": 1, "kicks": 0, "workers": 1, "run": run, "out": out, "bounds": "k_y=0.8:1.25"}
     tune_walker.main(TuneConfig(generations=1, **settings))
     first = json.loads(out.read_text())
     tune_walker.main(TuneConfig(generations=2, **settings))
@@ -36,6 +66,7 @@ def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     assert [line["generation"] for line in lines] == [1, 2]
     saved = json.loads(out.read_text())
     assert saved["tuning"]["generations"] == 2 and saved["tuning"]["population"] == 2
+    assert saved["tuning"]["bounds"] == "k_y=0.8:1.25" and 0.8 <= saved["gait"]["k_y"] <= 1.25
     assert saved["tuning"]["cost"] <= first["tuning"]["cost"]
     assert saved["tuning"]["cost"] == pytest.approx(min(line["best"] for line in lines))
     assert saved["tuning"]["start"] == asdict(load_gait())  # where it started: the tuned gait, by default
