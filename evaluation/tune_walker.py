@@ -24,13 +24,15 @@ import cma
 import numpy as np
 from tqdm import tqdm
 
-from common.cli import UserError, check_non_negative, check_positive, parse_ranges, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, field_default, parse_ranges, run_cli, setting
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
 from task.gait import GAIT_FILE, Gait, load_gait, save_gait
 from teachers.walker import SensedWalker, Walker
 
-BOUNDS: dict[str, tuple[float, float]] = {
+Bounds = dict[str, tuple[float, float]]
+"""Each tuned parameter's search range (least, most), in `Gait`'s order."""
+BOUNDS: Bounds = {
     "period": (0.25, 0.50),
     "double": (0.0, 0.15),
     "first": (0.3, 1.0),
@@ -94,9 +96,6 @@ class TuneConfig:
     )
 
 
-Bounds = dict[str, tuple[float, float]]
-
-
 def search_bounds(text: str) -> Bounds:
     """`BOUNDS` with the ranges `text` gives instead (`--bounds`: NAME=LOW:HIGH,...; empty, none); UserError, one line,
     for a malformed list, an unknown or repeated parameter, or a range that is not finite with LOW < HIGH."""
@@ -152,6 +151,10 @@ def _cost(x: np.ndarray, cfg: TuneConfig, bounds: Bounds) -> tuple[float, dict[s
     return cost(unscaled(x, bounds), cfg)
 
 
+ADDED_SETTINGS = {name: field_default(TuneConfig, name) for name in ("bounds", "turn_weight")}
+"""Settings added since runs were first saved, at their defaults: what an older run ran with, so that it resumes."""
+
+
 def _settings(cfg: TuneConfig) -> dict[str, Any]:
     """What a resumed run must share with the run it resumes (all but how long and how many processes)."""
     return {
@@ -170,7 +173,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
     if state_file.exists():
         with state_file.open("rb") as f:
             state = pickle.load(f)
-        if state["settings"] != settings:
+        if {**ADDED_SETTINGS, **state["settings"]} != settings:
             raise UserError(f"{cfg.run} holds a run with other settings ({state['settings']}): give another --run")
         print(f"tune-walker: resuming {cfg.run} at generation {state['generation']}", file=sys.stderr)
     else:

@@ -4,6 +4,7 @@ that chose it (its start too); a resumed run with other settings is refused in o
 from __future__ import annotations
 
 import json
+import pickle
 from dataclasses import asdict
 
 import numpy as np
@@ -73,3 +74,9 @@ def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     load_gait(out)  # a gait file the walker reads
     with pytest.raises(UserError, match="other settings"):
         tune_walker.main(TuneConfig(generations=3, **{**settings, "population": 3}))
+    # A run saved before `--turn-weight` existed ran with its default: it resumes.
+    state = pickle.loads((run / "state.pkl").read_bytes())
+    del state["settings"]["turn_weight"]
+    (run / "state.pkl").write_bytes(pickle.dumps(state))
+    tune_walker.main(TuneConfig(generations=3, **settings))
+    assert json.loads(out.read_text())["tuning"]["generations"] == 3
