@@ -209,13 +209,17 @@ def check_share(config: Any, name: str) -> None:
         raise UserError(f"{flag(name)} must be a share in [0, 1], got {value}")
 
 
+Range = tuple[float, float]
+"""A parameter's (low, high)."""
+
+
 def parse_ranges(
-    text: str, names: Sequence[str], where: str, example: str, check: Callable[[str, tuple[float, float]], None]
-) -> dict[str, tuple[float, float]]:
+    text: str, names: Sequence[str], where: str, example: str, check: Callable[[str, Range], None]
+) -> dict[str, Range]:
     """`text`, a list NAME=LOW:HIGH,... of some of `names`, as {NAME: (LOW, HIGH)}, each range passed by `check`
     (which raises ValueError saying which rule it breaks). ValueError, one line starting with `where` (the flag and
     its text), for a malformed item, an unknown or repeated NAME, or a broken rule; `example` shows the form."""
-    ranges: dict[str, tuple[float, float]] = {}
+    ranges: dict[str, Range] = {}
     for item in (part.strip() for part in text.strip().split(",")):
         name, _, bounds = (part.strip() for part in item.partition("="))
         low_text, colon, high_text = bounds.partition(":")

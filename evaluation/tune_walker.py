@@ -24,13 +24,22 @@ import cma
 import numpy as np
 from tqdm import tqdm
 
-from common.cli import UserError, check_non_negative, check_positive, field_default, parse_ranges, run_cli, setting
+from common.cli import (
+    Range,
+    UserError,
+    check_non_negative,
+    check_positive,
+    field_default,
+    parse_ranges,
+    run_cli,
+    setting,
+)
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
 from task.gait import GAIT_FILE, Gait, load_gait, save_gait
 from teachers.walker import SensedWalker, Walker
 
-Bounds = dict[str, tuple[float, float]]
+Bounds = dict[str, Range]
 """Each tuned parameter's search range (least, most), in `Gait`'s order."""
 BOUNDS: Bounds = {
     "period": (0.25, 0.50),
@@ -107,7 +116,7 @@ def search_bounds(text: str) -> Bounds:
         raise UserError(str(error)) from None
 
 
-def _check_bound(name: str, bounds: tuple[float, float]) -> None:
+def _check_bound(name: str, bounds: Range) -> None:
     low, high = bounds
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
         raise ValueError(f"{name}'s range must be finite with low < high, got {low:g}:{high:g}")

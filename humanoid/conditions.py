@@ -26,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from common.cli import parse_ranges
+from common.cli import Range, parse_ranges
 from humanoid.env import QPOS_OBS, QVEL_OBS, model_and_data
 from humanoid.perturbations import TorsoPushes, VelocityKick
 
@@ -43,7 +43,6 @@ OBS_NOISE_STD = {"qpos": 0.002, "qvel": 0.02}
 """Sensor noise std: joint angles and root orientation (rad; root height m), joint and root rates (rad/s; m/s)."""
 
 
-Range = tuple[float, float]
 SCALE_SUFFIX = "_scale"  # a drawn value is named after its parameter: mass -> mass_scale
 
 
