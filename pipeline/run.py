@@ -96,7 +96,7 @@ from teachers.registry import TEACHER
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_info
 from teleop.lerobot_io.format import INFO_PATH
-from teleop.record import RecordConfig, record
+from teleop.record import RecordConfig, effective, record
 from teleop.record import validate as validate_record
 
 MADE_BY = "pipeline.run"
@@ -361,7 +361,9 @@ def _layout_problem(root: Path) -> str | None:
 
 
 def dataset_decision(cfg: RecordConfig) -> Decision:
-    """Whether the recording stage reuses, records, records again or completes `cfg.dataset`."""
+    """Whether the recording stage reuses, records, records again or completes `cfg.dataset`: `cfg` as it records
+    (`teleop.record.effective`: an unset teacher is its task's, as recordings.jsonl saves it)."""
+    cfg = effective(cfg)
     root = cfg.dataset
     total = _committed_episodes(root)
     if not total:

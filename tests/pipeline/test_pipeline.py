@@ -475,6 +475,14 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
     assert dataset_decision(tiny_stages(record={"episodes": 3}).record).action == REUSE
 
 
+def test_an_unset_teacher_is_compared_as_it_records(outputs: Path) -> None:
+    """Unset, the recording's teacher is its task's (`teleop.record.effective`), which recordings.jsonl saves: what
+    `make record` recorded on its defaults is what the pipeline asks for on its own, and the pipeline's own recording
+    is reused by its next run rather than made again."""
+    made_by_someone_else(outputs / "data")
+    assert dataset_decision(tiny_stages(record={"controller": None}).record).action == REUSE
+
+
 def test_pipeline_defaults_are_the_stages() -> None:
     """Unset, every stage is its target's defaults (`make record`, `make train-bc`, ...), tied as they chain, without
     the evaluations the stages make of their own after training (the table's); the blind student is the student
