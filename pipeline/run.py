@@ -361,8 +361,8 @@ def _layout_problem(root: Path) -> str | None:
 
 
 def dataset_decision(cfg: RecordConfig) -> Decision:
-    """Whether the recording stage reuses, records, records again or completes `cfg.dataset`: `cfg` as it records
-    (`teleop.record.effective`: an unset teacher is its task's, as recordings.jsonl saves it)."""
+    """Whether the recording stage reuses, records, records again or completes `cfg.dataset`, `cfg` as it records
+    (`teleop.record.effective`: an unset teacher or latency share is its task's, as recordings.jsonl saves it)."""
     cfg = effective(cfg)
     root = cfg.dataset
     total = _committed_episodes(root)

@@ -124,7 +124,9 @@ TARGETS: dict[str, Target] = {
     "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
     "export": Target("teleop.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target(
-        "bc.train", TrainConfig, ("dataset", "policy", "inputs", "epochs", "min_updates", "eval_episodes", "overwrite")
+        "bc.train",
+        TrainConfig,
+        ("dataset", "policy", "inputs", "epochs", "min_updates", "seed", "eval_episodes", "overwrite"),
     ),
     "eval": Target(
         "evaluation.evaluate",

@@ -97,6 +97,10 @@ LATENCY_SHARE = 0.5
 """The share of episodes recorded with one step of action latency, told to the teacher: a student on the "pending"
 inputs learns to act through the delay from them, and the undelayed half keeps it standing without
 (docs/decisions/latency-share.md)."""
+WALKING_LATENCY_SHARE = 0.2
+"""The share for walking demonstrations (`--task walk`): delayed, the walker falls in most of them, and no student of
+its walks took the delay in (0 of 20 delayed walks at 0.5 or 0.2); plain BC's students walked 97 of 320 selection
+walks at 0.2, 67 at 0.5 and 74 at 0.1 (docs/decisions/latency-share.md, "Walking")."""
 
 
 # Past about 6.6 simulation workers the one writer is the limit (docs/concepts/ray.md, "Throughput against the number
@@ -129,10 +133,11 @@ class RecordConfig:
         "docs/decisions/randomisation-presets.md) or ranges of the scale factors of mass, friction, strength "
         f"like {RANDOMIZE_EXAMPLE}",
     )
-    latency: float = setting(
-        LATENCY_SHARE,
+    latency: float | None = setting(
+        None,
         "share of the episodes whose actions execute one env step late, drawn per episode from its seed; the delay "
-        f"is stored with the episode ({columns.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller",
+        f"is stored with the episode ({columns.RANDOMIZATION_PREFIX}{LATENCY_PARAMETER}) and told to the controller; "
+        f"default: {LATENCY_SHARE} ({WALKING_LATENCY_SHARE} with --task walk)",
     )
     kick: float = setting(
         0.0,
@@ -308,11 +313,15 @@ def check_task(controller: str, task: str) -> None:
 
 
 def effective(cfg: RecordConfig) -> RecordConfig:
-    """`cfg` as it records: no --controller is the teacher for its task (`TEACHER`, `WALKING_TEACHER`); with the keys
-    (`--controller keyboard`) the command is theirs (no scripted task) and no episode is delayed, and `--policy newest`
-    is the newest of the chain's policies (`common.paths.LEARNED`)."""
+    """`cfg` as it records: no --controller is the teacher for its task (`TEACHER`, `WALKING_TEACHER`), no --latency
+    its share (`LATENCY_SHARE`, `WALKING_LATENCY_SHARE`); with the keys (`--controller keyboard`) the command is theirs
+    (no scripted task) and no episode is delayed, and `--policy newest` is the newest of the chain's policies
+    (`common.paths.LEARNED`)."""
+    walks = cfg.task == WALK
     if cfg.controller is None:
-        cfg = dataclasses.replace(cfg, controller=WALKING_TEACHER if cfg.task == WALK else TEACHER)
+        cfg = dataclasses.replace(cfg, controller=WALKING_TEACHER if walks else TEACHER)
+    if cfg.latency is None:
+        cfg = dataclasses.replace(cfg, latency=WALKING_LATENCY_SHARE if walks else LATENCY_SHARE)
     if cfg.controller not in INTERACTIVE:
         return cfg
     policy = None if cfg.policy is None else chosen_policy(cfg.policy, paths.LEARNED, "make train-bc")

@@ -475,12 +475,12 @@ def test_a_recording_killed_with_9_is_completed_too(outputs: Path) -> None:
     assert dataset_decision(tiny_stages(record={"episodes": 3}).record).action == REUSE
 
 
-def test_an_unset_teacher_is_compared_as_it_records(outputs: Path) -> None:
-    """Unset, the recording's teacher is its task's (`teleop.record.effective`), which recordings.jsonl saves: what
-    `make record` recorded on its defaults is what the pipeline asks for on its own, and the pipeline's own recording
-    is reused by its next run rather than made again."""
+def test_an_unset_teacher_or_latency_is_compared_as_it_records(outputs: Path) -> None:
+    """Unset, the recording's teacher and share of delayed episodes are its task's (`teleop.record.effective`), which
+    recordings.jsonl saves: what `make record` recorded on its defaults is what the pipeline asks for on its own, and
+    the pipeline's own recording is reused by its next run rather than made again."""
     made_by_someone_else(outputs / "data")
-    assert dataset_decision(tiny_stages(record={"controller": None}).record).action == REUSE
+    assert dataset_decision(tiny_stages(record={"controller": None, "latency": None}).record).action == REUSE
 
 
 def test_pipeline_defaults_are_the_stages() -> None:

@@ -27,7 +27,7 @@ from support import (
 from teachers.registry import TEACHER, WALKING_TEACHER
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info
-from teleop.record import STANDING, RecordConfig, cli, effective
+from teleop.record import LATENCY_SHARE, STANDING, WALKING_LATENCY_SHARE, RecordConfig, cli, effective
 from teleop.seeds import seed_clash
 from teleop.store import DatasetSpec, EpisodeStore
 
@@ -140,12 +140,16 @@ def test_bad_settings_are_refused_before_touching_the_disk(
     assert not (tmp_path / "new").exists()
 
 
-def test_the_teacher_recorded_by_default_is_the_one_for_the_task() -> None:
-    """No --controller: the teacher on leg odometry, and for a walking task the walker on it."""
+def test_the_teacher_and_the_delayed_share_recorded_by_default_are_the_tasks() -> None:
+    """No --controller: the teacher on leg odometry, and for a walking task the walker on it; no --latency: half the
+    episodes delayed, a fifth of the walking ones; given, either stands."""
     assert effective(RecordConfig()).controller == TEACHER == "expert-sensed"
     assert effective(RecordConfig(task="stand")).controller == TEACHER
     assert effective(RecordConfig(task="walk")).controller == WALKING_TEACHER == "walker-sensed"
     assert effective(RecordConfig(task="walk", controller="walker")).controller == "walker"
+    assert effective(RecordConfig()).latency == effective(RecordConfig(task="stand")).latency == LATENCY_SHARE == 0.5
+    assert effective(RecordConfig(task="walk")).latency == WALKING_LATENCY_SHARE == 0.2
+    assert effective(RecordConfig(task="walk", latency=0.5)).latency == 0.5
 
 
 def test_dataset_that_is_a_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
