@@ -83,8 +83,8 @@ def test_a_run_still_writing_its_line_is_waited_for_not_logged_as_killed(tmp_pat
     finishing = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     try:
         mark_of(tmp_path, finishing, episodes=0)
+        start = time.monotonic()  # before the timer starts: its 0.3 s count from there
         threading.Timer(0.3, recordings.unmark, [tmp_path]).start()  # its line written, its mark gone
-        start = time.monotonic()
         recordings.take_over(tmp_path, "teleop.record", {"n": 2}, 1, lambda: [0])
         assert 0.3 <= time.monotonic() - start < recordings.MARK_WAIT
         assert recordings.read(tmp_path) == [] and recordings.marked(tmp_path)["config"] == {"n": 2}
