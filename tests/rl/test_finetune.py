@@ -1,7 +1,7 @@
 """`make finetune-rl`: PPO starts from the BC policy exactly, the warm-up spares the actor, bad input is refused.
 
 That a run ends with the same weights however it runs (workers, Ray, threads, kills, a lost worker):
-`test_finetune_resume.py`. The small BC checkpoints PPO starts from: `conftest.py`.
+`test_finetune_workers.py` and `test_finetune_resume.py`. The small BC checkpoints PPO starts from: `conftest.py`.
 """
 
 from __future__ import annotations
