@@ -21,6 +21,10 @@ them) to callers such as `bc.train`.
                schedules mix walks in (forward, sideways and turning speeds: `task.schedules.WALKING_SHARE`), and
                tracking measures the velocity fields too (docs/how-to/walk.md); TASK=stand: the zero command
     PLOT=f.png commanded against achieved posture over the first episode, a panel per field
+    HOLD=FIELD=VALUE,...  one command held instead of a schedule, as `make play`'s keys hold it (`forward_speed=0.5`:
+               ↑ pressed five times): the zero command for 3 s, this one for 5 s, then the zero command; the JSON adds
+               "held": how far the body walked and turned while it was held, and how far it moved from 2 s after
+               (docs/how-to/walk.md)
 """
 
 from __future__ import annotations
@@ -53,13 +57,16 @@ from common.workers import forkserver_context
 from humanoid.conditions import SUITE, Condition
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
 from humanoid.perturbations import VelocityKick, perturbation, toppling
+from humanoid.physics import PELVIS_BODY, TORSO_BODY
 from humanoid.video import CAMERA, VideoRecorder
 from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
 from rollout.controllers import Controller, make_controller, registered
 from rollout.episode import Episode, EpisodeBuffer, run_episode
 from students.learned import PolicyController
-from task.command_fields import COMMAND_NAMES, POSTURE_TASK, STAND, TASKS, task_fields
+from task.command_fields import COMMAND_FIELDS, COMMAND_NAMES, POSTURE_TASK, STAND, TASKS, task_fields
+from task.posture import Posture
+from task.schedules import FIRST_NEUTRAL_SECONDS, HELD_SECONDS, held_commands, parse_held
 from task.tracking import PLOTTED, Tracking, combine_tracking, trailing_mean
 from teachers.base import Teacher
 from teleop.live import DEFAULT_HOST, DEFAULT_PORT, check_port, start_live
@@ -97,6 +104,12 @@ class EvalConfig:
         choices=TASKS,
     )
     plot: Path | None = setting(None, "a PNG of commanded against achieved posture over the first episode")
+    hold: str = setting(
+        "",
+        "one command held instead of the task's schedule, FIELD=VALUE,... (forward_speed=0.5: the up arrow pressed "
+        f"five times): the zero command for {FIRST_NEUTRAL_SECONDS:g} s, this one for {HELD_SECONDS:g} s, then the "
+        "zero command; the JSON adds how far the body walked while it was held (docs/how-to/walk.md)",
+    )
     progress: bool = setting(True, "show a progress bar")
     live: bool = setting(False, "publish every step to a Foxglove WebSocket server as it happens")
     live_port: int = setting(DEFAULT_PORT, "port of the live view's server (0: any free port)")
@@ -123,6 +136,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
     if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
         raise UserError(f"--plot must be a .png path, got {cfg.plot}")
+    if cfg.hold:
+        parse_held(cfg.hold)
 
 
 def evaluate(
@@ -138,13 +153,15 @@ def evaluate(
     plot: Path | None = None,
     kick: float = 0.0,
     task: str = STAND,
+    hold: Posture | None = None,
 ) -> dict[str, Any]:
     """Roll `controller` (or the controller named so) out on seeds seed..seed+episodes-1; a JSON-ready summary.
 
     `push`, `kick` and `noise` add to what the robustness `condition` (by name) brings (`evaluated_condition`);
     `live` = (host, port) publishes every step to a Foxglove WebSocket server there (`teleop.live`). The operator
     commands `task` (`task.schedules.task_commands`): under a schedule the summary adds "tracking" (`tracking`, of the
-    fields the task commands); `plot` draws the first episode's commanded and achieved posture.
+    fields the task commands), or holds the command `hold` instead (`task.schedules.held_commands`: the summary adds
+    "held", `held_motion`, and tracks every field); `plot` draws the first episode's commanded and achieved posture.
     """
     env = make_env() if video is None else make_env(render_mode="rgb_array", default_camera_config=CAMERA)
     evaluated = evaluated_condition(condition, push, kick, noise)
@@ -162,10 +179,11 @@ def evaluate(
                 raise UserError(str(error)) from None
         seeds = list(range(seed, seed + episodes))
         buffer = EpisodeBuffer(env, EPISODE_STEPS)
+        held = None if hold is None else held_commands(hold, EPISODE_STEPS, env.unwrapped.dt)
         pusher = perturbation(env)  # the toppling breakdown of pushes, or of a kick
         results, directions, toppled = [], [], []
         for s in tqdm(seeds, unit="ep", disable=not progress, file=sys.stderr, dynamic_ncols=True):
-            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, task=task))
+            results.append(run_episode(env, controller, s, noise, buffer, observer=publisher, task=task, commands=held))
             if pusher is not None:
                 directions += [direction for _, direction in pusher.pushes]
                 toppled += toppling([start for start, _ in pusher.pushes], results[-1].fell)
@@ -173,7 +191,8 @@ def evaluate(
         if publisher is not None:
             publisher.close()
         env.close()
-    measure = Tracking(nominal_model(), task_fields(task))  # the nominal body's targets, solved once per process
+    # The nominal body's targets, solved once per process.
+    measure = Tracking(nominal_model(), COMMAND_FIELDS if hold is not None else task_fields(task))
     if plot is not None:
         plot_tracking(results[0], measure, env.unwrapped.dt, plot)
     returns = np.array([episode.episode_return for episode in results])
@@ -205,8 +224,57 @@ def evaluate(
         "takes_command": controller.takes_command,
         "walks": controller.walks,
         "task": task,
-        "tracking": tracking(results, measure, env.unwrapped.dt) if task != STAND else None,
+        "tracking": tracking(results, measure, env.unwrapped.dt) if task != STAND or hold is not None else None,
+        "held": None if hold is None else held_motion(results, hold, env.unwrapped.dt),
     }
+
+
+AFTER_SECONDS = 2.0
+"""`held_motion` measures the drift from this long after the held command's release: issue 71 asks a walk to be at
+rest within 2 s of the zero command."""
+
+
+def held_motion(episodes: list[Episode], hold: Posture, dt: float) -> dict[str, Any]:
+    """How the body moved under `held_commands(hold)`, per episode (None where it fell before the window's end): the
+    torso's way forward and to the left (m) in the pelvis's heading at the press, and the pelvis's turn (rad), from the
+    press to the release; the torso's way from `AFTER_SECONDS` after the release to the episode's end (m: a stop is
+    near 0). Means over the episodes that reached each window's end; `walked_1m`, those that walked a metre forward."""
+    model = nominal_model()
+    torso, pelvis = model.body(TORSO_BODY).id - 1, model.body(PELVIS_BODY).id - 1  # `body_poses` leaves the world out
+    press, release = round(FIRST_NEUTRAL_SECONDS / dt), round((FIRST_NEUTRAL_SECONDS + HELD_SECONDS) / dt)
+    settled = release + round(AFTER_SECONDS / dt)
+    moved, turned, after = [], [], []
+    for episode in episodes:
+        w, x, y, z = episode.body_orientation[:, pelvis].T
+        yaw = np.unwrap(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+        if episode.length > release:
+            way = episode.body_position[release, torso, :2] - episode.body_position[press, torso, :2]
+            c, s = np.cos(yaw[press]), np.sin(yaw[press])
+            moved.append([round(float(c * way[0] + s * way[1]), 3), round(float(c * way[1] - s * way[0]), 3)])
+            turned.append(round(float(yaw[release] - yaw[press]), 3))
+        else:
+            moved.append(None)
+            turned.append(None)
+        if episode.length > settled and not episode.fell:
+            way_after = episode.body_position[-1, torso, :2] - episode.body_position[settled, torso, :2]
+            after.append(round(float(np.linalg.norm(way_after)), 3))
+        else:
+            after.append(None)
+    walked = [m for m in moved if m is not None]
+    return {
+        "command": {name: value for name, value in dataclasses.asdict(hold).items() if value},
+        "seconds": HELD_SECONDS,
+        "forward": _mean([m[0] for m in walked]),
+        "sideways": _mean([m[1] for m in walked]),
+        "turned": _mean([t for t in turned if t is not None]),
+        "walked_1m": sum(m[0] >= 1.0 for m in walked),
+        "after": _mean([a for a in after if a is not None]),
+        "episodes": {"moved": moved, "turned": turned, "after": after},
+    }
+
+
+def _mean(values: list[float]) -> float | None:
+    return round(float(np.mean(values)), 3) if values else None
 
 
 def evaluated_condition(name: str, push: float = 0.0, kick: float = 0.0, noise: float = 0.0) -> Condition:
@@ -277,6 +345,7 @@ def main(cfg: EvalConfig) -> dict[str, Any]:
         plot=cfg.plot,
         kick=cfg.kick,
         task=cfg.task,
+        hold=parse_held(cfg.hold) if cfg.hold else None,
     )
     return {**result, "config": config_dict(cfg)}
 

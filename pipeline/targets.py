@@ -142,6 +142,7 @@ TARGETS: dict[str, Target] = {
             "condition",
             "video",
             "plot",
+            "hold",
             *_LIVE,
         ),
         removed=("schedules", "walking"),

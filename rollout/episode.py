@@ -223,6 +223,7 @@ def run_episode(
     labeller: Controller | None = None,
     observer: StepObserver | None = None,
     task: str = STAND,
+    commands: np.ndarray | None = None,
 ) -> Episode:
     """Roll `controller` out from `env.reset(seed=seed)` until termination or the time limit.
 
@@ -231,15 +232,16 @@ def run_episode(
     rendering come with `env` as wrappers (`humanoid.perturbations`, `humanoid.conditions`,
     `humanoid.video`); the randomisation's draw (the reset info's "parameters") goes into the episode.
     An `observer` sees every step as it completes. The operator's command is `task`'s (`task.schedules.task_commands`:
-    zero to stand, else the schedule drawn from `seed`), told to the controller and the labeller at each change; the
-    task string names the command in force (`task.schedules.task_for`). A controller that raises ends the episode with
-    a `ControllerFailure`.
+    zero to stand, else the schedule drawn from `seed`), or `commands`, a row a step, where given (`make eval HOLD=`);
+    told to the controller and the labeller at each change; the task string names the command in force
+    (`task.schedules.task_for`). A controller that raises ends the episode with a `ControllerFailure`.
     """
     max_steps = env.spec.max_episode_steps
     buffer = buffer or EpisodeBuffer(env, max_steps)
     _, data = model_and_data(env)
     noise = injected_noise(seed, max_steps, noise_std, env.action_space.shape[0]) if noise_std > 0 else None
-    commands = task_commands(task, seed, max_steps, env.unwrapped.dt)
+    if commands is None:
+        commands = task_commands(task, seed, max_steps, env.unwrapped.dt)
     acting = [controller] if labeller is None else [controller, labeller]
     perturbed = perturbation(env)
 

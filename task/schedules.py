@@ -11,10 +11,14 @@ Standing still is the zero command.
   schedules of `make eval`): after a neutral start, targets on the keyboard's grid (each field's
   `step`), one to three fields at a time inside `SCALE` of each limit, some neutral, each held
   `HOLD_SECONDS` once the setpoint has got there; drawn from the seed alone, so reproducible.
+- `held_commands(posture, steps, dt)`: one command held as `make play`'s keys hold it (`make eval HOLD=`), and
+  `parse_held(text)` the command from its fields' values.
 - `task_for(posture)`: the task string naming a command (the dataset's `task`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -54,6 +58,8 @@ WALKING_SHARE = 0.5
 posture); of the others, `NEUTRAL_SHARE` stand still and the rest are postures, as in a posture schedule."""
 WALK_FIELDS_AT_ONCE = (0.6, 0.4)
 """Probabilities that a walk sets 1 or 2 velocity fields."""
+HELD_SECONDS = 5.0
+"""How long `held_commands` holds its command: `make play`'s test holds ↑ this long and asks for a metre."""
 
 
 def command_vector(posture: Posture) -> np.ndarray:
@@ -130,6 +136,35 @@ def command_schedule(seed: int, steps: int, dt: float, walking: bool = False) ->
             command_vector(target)
         )
     return commands
+
+
+def held_commands(posture: Posture, steps: int, dt: float) -> np.ndarray:
+    """The commands (steps, COMMAND_SIZE) float32 of an operator who holds `posture` as `make play`'s keys would: the
+    zero command for the first `FIRST_NEUTRAL_SECONDS` (the body lands), `posture` for `HELD_SECONDS`, then the zero
+    command to the end."""
+    commands = np.zeros((steps, COMMAND_SIZE), np.float32)
+    commands[int(round(FIRST_NEUTRAL_SECONDS / dt)) : int(round((FIRST_NEUTRAL_SECONDS + HELD_SECONDS) / dt))] = (
+        command_vector(posture)
+    )
+    return commands
+
+
+def parse_held(text: str) -> Posture:
+    """The command `text` names, FIELD=VALUE,... in each field's unit (`forward_speed=0.5`: ↑ pressed five times),
+    clipped to the fields' limits as the keys clip it; UserError, one line, for an unknown field or a value that is no
+    number."""
+    values: dict[str, float] = {}
+    for item in (part.strip() for part in text.split(",")):
+        name, equals, value = (part.strip() for part in item.partition("="))
+        if name not in FIELDS or not equals:
+            raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a field of {', '.join(COMMAND_NAMES)}")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            values[name] = math.nan
+        if not math.isfinite(values[name]):
+            raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a number VALUE")
+    return Posture(**values).clipped()
 
 
 def task_for(posture: Posture) -> str:

@@ -21,6 +21,7 @@ from policies import checkpoint
 from policies.checkpoint import load
 from policies.folder import WEIGHTS_FILE
 from policies.mlp import MLPPolicy, MLPSpec
+from task.schedules import parse_held
 
 FIELDS = {"mean_return", "std_return", "mean_length", "survival_rate", "episodes", "seeds"}
 
@@ -80,6 +81,21 @@ def test_expert_stands_every_episode() -> None:
     """The expert reaches the 1000-step limit on every seed with a standing return."""
     result = evaluate("expert", episodes=2)
     assert result["survival_rate"] == 1.0 and result["lengths"] == [1000, 1000] and result["mean_return"] > 4900
+
+
+def test_a_held_arrow_walks_the_walker_a_metre_and_the_expert_stands(capsys: pytest.CaptureFixture[str]) -> None:
+    """`make eval HOLD=forward_speed=0.5` (`make play`'s up arrow pressed five times and held 5 s): the walker walks a
+    metre forward along its heading and steps on after; the LQR expert stands whatever speed is asked (known answer:
+    it does not move). A speed past its field's limit is clipped as the keys clip it."""
+    code, out, _ = eval_cli(["--policy", "walker", "--episodes", "1", "--hold", "forward_speed=0.5"], capsys)
+    result = json.loads(out[-1])
+    held = result["held"]
+    assert code == 0 and result["survived"] == 1 and held["command"] == {"forward_speed": 0.5}
+    assert held["walked_1m"] == 1 and held["forward"] >= 1.0 and abs(held["sideways"]) < 0.2 and held["after"] > 0
+    assert result["tracking"]["moved_error"]["forward_speed"] > 0 and result["config"]["hold"] == "forward_speed=0.5"
+    expert = evaluate("expert", episodes=1, hold=parse_held("forward_speed=9"))["held"]
+    assert expert["command"] == {"forward_speed": 0.6} and expert["walked_1m"] == 0  # the field's limit
+    assert abs(expert["forward"]) < 0.01 and abs(expert["turned"]) < 0.01
 
 
 def test_saved_policy_runs_by_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -273,6 +289,8 @@ def test_bad_policy_is_refused_in_one_line(
         (["--video", "x.avi"], "--video must be an .mp4 path"),
         (["--condition", "gravity"], "unknown --condition 'gravity'"),
         (["--condition", "mass", "--push", "10"], "--condition brings its own perturbation"),
+        (["--hold", "forward=0.5"], "--hold: 'forward=0.5' is not FIELD=VALUE"),
+        (["--hold", "turn_rate=fast"], "with a number VALUE"),
     ],
 )
 def test_bad_settings_are_refused(args: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:

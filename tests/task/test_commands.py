@@ -30,6 +30,8 @@ from task.schedules import (
     command_posture,
     command_schedule,
     command_vector,
+    held_commands,
+    parse_held,
     schedule_targets,
     task_for,
 )
@@ -135,6 +137,20 @@ def test_a_walks_task_string_names_its_speeds() -> None:
     assert task_for(Posture(forward_speed=0.4, turn_rate=-0.2)) == "Walk forward at 0.4 m/s, turn right at 0.2 rad/s."
     assert task_for(Posture(sideways_speed=-0.1, arms=2.0)) == "Walk right at 0.1 m/s, arms up."
     assert task_for(Posture(forward_speed=-0.3)) == "Walk backward at 0.3 m/s."
+
+
+def test_a_held_command_is_zero_for_3_s_then_held_5_s_then_zero() -> None:
+    """Known answers at Humanoid-v5's 0.015 s steps: rows 0-199 zero, 200-532 the command, from 533 zero; the text's
+    fields clipped to their limits as the keys clip them (forward speed 0.6 m/s, turn −0.5 rad/s)."""
+    held = parse_held("forward_speed=9, turn_rate=-2")
+    assert held == Posture(forward_speed=0.6, turn_rate=-0.5)
+    commands = held_commands(held, 1000, 0.015)
+    assert commands.shape == (1000, len(COMMAND_NAMES)) and commands.dtype == np.float32
+    walking = np.flatnonzero(commands.any(axis=1))
+    assert walking[0] == 200 and walking[-1] == 532 and len(walking) == 333
+    assert (commands[walking] == command_vector(held)).all()
+    with pytest.raises(UserError, match="not FIELD=VALUE"):
+        parse_held("forward_speed")
 
 
 def test_the_expert_ramps_a_velocity_setpoint_and_clips_it_without_moving_its_pose() -> None:
