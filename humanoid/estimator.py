@@ -213,7 +213,10 @@ class OdometryFeatures:
     """A policy's input computed from what a robot senses alone: the sensed features but the forces
     (`read_sensed`), then `LegOdometry`'s torso height and linear velocity, and the body inertias about the
     centre of mass (MuJoCo's `cinert`) of the nominal model in the estimated pose. That pose is turned by the
-    estimate's heading (the gyro's integral since reset), so the velocity and the inertias carry the heading too.
+    estimate's heading (the gyro's integral since reset), so the velocity and the inertias carry the heading too;
+    with `heading_frame` they are turned into the heading's frame instead, so that a turned body reads as the same
+    body: the walker's students, whose walks turn them to headings their demonstrations never faced
+    (docs/decisions/walking-teacher.md#turned-headings).
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/decisions/deployable-inputs.md). Stateful like
@@ -221,9 +224,10 @@ class OdometryFeatures:
     (`students.inputs.PendingInputs`) begin with these.
     """
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(self, model: mujoco.MjModel, heading_frame: bool = False) -> None:
         self.read = read_sensed(Proprioception(model).names)
         self.odometry = LegOdometry(model)
+        self.heading_frame = heading_frame
         self.estimate: tuple[np.ndarray, np.ndarray] = (np.zeros(model.nq), np.zeros(model.nv))
         """The last (qpos, qvel) `from_sensed` estimated."""
         self.still: np.ndarray | None = None
@@ -237,4 +241,22 @@ class OdometryFeatures:
         """This step's input from this step's sensed features (float64); the estimated state stays in `estimate`. The
         feet `still` says are held still (a walker's gait: `LegOdometry`), None: every foot down."""
         self.estimate = qpos, qvel = self.odometry(sensed, self.still)
-        return np.concatenate([sensed[self.read], [qpos[2]], qvel[:3], self.odometry.data.cinert[1:].ravel()])
+        velocity, inertias = qvel[:3], self.odometry.data.cinert[1:]
+        if self.heading_frame:
+            velocity, inertias = unturned(self.odometry.heading, velocity, inertias)
+        return np.concatenate([sensed[self.read], [qpos[2]], velocity, inertias.ravel()])
+
+
+def unturned(heading: float, velocity: np.ndarray, inertias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A linear velocity (3) and MuJoCo's `cinert` rows (n, 10: the inertia's xx, yy, zz, xy, xz, yz about the centre
+    of mass, then mass times the body's offset from it, then the mass) in the frame turned by `heading` about z: R v,
+    R I Rᵀ and R m·c, R the turn by −heading."""
+    c, s = np.cos(heading), np.sin(heading)
+    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    xx, yy, zz, xy, xz, yz = inertias[:, :6].T
+    inertia = turn @ np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
+    inertia = inertia @ turn.T
+    turned = inertias.copy()
+    turned[:, :6] = inertia[:, [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
+    turned[:, 6:9] = inertias[:, 6:9] @ turn.T
+    return turn @ velocity, turned

@@ -19,8 +19,8 @@
               estimates them (3): a policy that walks on velocity commands (docs/decisions/walking-student.md)
     pending+gait  pending+walk with the walker's gait clock in place of `planning`: whether a walk is on, its phase,
               which foot swings, how far the step has gone, where the foot lands (`task.gait.GaitClock.features`,
-              9), run on the same leg odometry as the walker on what a robot senses (`walker-sensed`): its student
-              (docs/decisions/walking-teacher.md)
+              9), run on the same leg odometry as the walker on what a robot senses (`walker-sensed`), the odometry's
+              velocity and inertias in the heading's frame: its student (docs/decisions/walking-teacher.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -311,6 +311,9 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
             self.readout = Readout(model) if walking else None
             self.planning = HandOverFlag(model, HANDOVER) if walking and not gait else None
             self.clock = GaitClock(model, load_gait()) if gait else None
+            # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them
+            # to headings their demonstrations never faced, and they fell (docs/decisions/walking-teacher.md).
+            self.odometry.heading_frame = gait
 
         def reset(self) -> None:
             base.reset(self)

@@ -15,10 +15,12 @@ from humanoid.estimator import (
     LegOdometry,
     level_quaternion,
     odometry_names,
+    unturned,
 )
 from humanoid.sensors import Proprioception, body_axes, gravity_direction
 from rollout.controllers import make_controller
 from rollout.episode import injected_noise, run_episode
+from students.inputs import input_set_named
 from task.posture import Posture, axis_quaternion, multiply_quaternions
 from task.schedules import command_vector
 from teachers.expert import LQRExpert, SensedExpert
@@ -190,3 +192,27 @@ def test_an_odometry_policy_reads_the_sensed_features_but_the_forces() -> None:
     sensed = Proprioception(model).names
     assert names[:42] == [name for name in sensed if not name.startswith("force.")]
     assert not any(name.startswith("force.") for name in names) and names[42] == "odometry.height"
+
+
+def test_a_turned_body_unturned_has_the_unturned_bodys_velocity_and_inertias() -> None:
+    """Known answer: the same pose and velocity with the whole body turned 1.1 rad about z, turned back by `unturned`,
+    give the unturned body's `cinert` rows and velocity (to float rounding); in the world's frame they differ by up
+    to 0.9. The walker's students read them so (`pending+gait`), the other sets in the world's frame."""
+    model = humanoid_model()
+    data = mujoco.MjData(model)
+    data.qpos[7:] = np.random.default_rng(0).uniform(-0.3, 0.3, model.nq - 7)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    inertias, velocity = data.cinert[1:].copy(), np.array([0.3, 0.1, 0.05])
+    heading = 1.1
+    data.qpos[3:7] = axis_quaternion(2, heading)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    c, s = np.cos(heading), np.sin(heading)
+    turned_velocity = np.array([c * 0.3 - s * 0.1, s * 0.3 + c * 0.1, 0.05])
+    assert np.abs(data.cinert[1:] - inertias).max() > 0.5
+    back_velocity, back_inertias = unturned(heading, turned_velocity, data.cinert[1:])
+    np.testing.assert_allclose(back_inertias, inertias, atol=1e-12)
+    np.testing.assert_allclose(back_velocity, velocity, atol=1e-15)
+    assert input_set_named("pending+gait")(model).odometry.heading_frame
+    assert not input_set_named("pending+ramp")(model).odometry.heading_frame
