@@ -58,6 +58,7 @@ from humanoid.conditions import SUITE, Condition
 from humanoid.env import EPISODE_STEPS, make_env, nominal_model
 from humanoid.perturbations import VelocityKick, perturbation, toppling
 from humanoid.physics import PELVIS_BODY, TORSO_BODY
+from humanoid.sensors import body_axes
 from humanoid.video import CAMERA, VideoRecorder
 from policies.folder import chosen_policy
 from policies.mlp import MLPPolicy
@@ -245,8 +246,8 @@ def held_motion(episodes: list[Episode], hold: Posture, dt: float) -> dict[str, 
     settled = release + round(AFTER_SECONDS / dt)
     moved, turned, after = [], [], []
     for episode in episodes:
-        w, x, y, z = episode.body_orientation[:, pelvis].T
-        yaw = np.unwrap(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+        x_axis = body_axes(episode.body_orientation[:, pelvis])[:, 0]  # where the pelvis faces, as `physics.heading`
+        yaw = np.unwrap(np.arctan2(x_axis[:, 1], x_axis[:, 0]))
         if episode.length > release:
             way = episode.body_position[release, torso, :2] - episode.body_position[press, torso, :2]
             c, s = np.cos(yaw[press]), np.sin(yaw[press])

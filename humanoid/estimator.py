@@ -253,9 +253,8 @@ def unturned(heading: float, velocity: np.ndarray, inertias: np.ndarray) -> tupl
     R I Rᵀ and R m·c, R the turn by −heading."""
     c, s = np.cos(heading), np.sin(heading)
     turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    xx, yy, zz, xy, xz, yz = inertias[:, :6].T
-    inertia = turn @ np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
-    inertia = inertia @ turn.T
+    inertia = np.ascontiguousarray(inertias[:, [0, 3, 4, 3, 1, 5, 4, 5, 2]]).reshape(-1, 3, 3)  # the symmetric 3 x 3
+    inertia = turn @ inertia @ turn.T
     turned = inertias.copy()
     turned[:, :6] = inertia[:, [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
     turned[:, 6:9] = inertias[:, 6:9] @ turn.T

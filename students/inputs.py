@@ -173,6 +173,8 @@ class PendingInputs(InputSet):
     observed_names = staticmethod(proprioception_names)
     reads_latency = True
     MAX_DELAY = 1  # the action in flight is one: one step of latency
+    heading_frame: ClassVar[bool] = False
+    """Whether the odometry's velocity and inertias are read in the heading's frame (`OdometryFeatures`)."""
 
     @staticmethod
     def input_names(model: mujoco.MjModel) -> list[str]:
@@ -181,7 +183,7 @@ class PendingInputs(InputSet):
     def __init__(self, model: mujoco.MjModel) -> None:
         super().__init__(model)
         self.sensed = Proprioception(model)
-        self.odometry = OdometryFeatures(model)
+        self.odometry = OdometryFeatures(model, self.heading_frame)
         self.delay = 0
         self.pending = np.zeros(model.nu)
 
@@ -298,6 +300,9 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
 
     class RampedInputs(commanded):
         name = f"{base.name}+gait" if gait else f"{base.name}+walk" if walking else f"{base.name}+ramp"
+        # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them to
+        # headings their demonstrations never faced, and they fell (docs/decisions/walking-teacher.md).
+        heading_frame = gait
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
 
         @staticmethod
@@ -311,9 +316,6 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
             self.readout = Readout(model) if walking else None
             self.planning = HandOverFlag(model, HANDOVER) if walking and not gait else None
             self.clock = GaitClock(model, load_gait()) if gait else None
-            # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them
-            # to headings their demonstrations never faced, and they fell (docs/decisions/walking-teacher.md).
-            self.odometry.heading_frame = gait
 
         def reset(self) -> None:
             base.reset(self)
