@@ -304,9 +304,11 @@ def fit_demonstrations(
     torch.manual_seed(cfg.seed)
     train_episodes, val_episodes = split_by_episode(demos.episodes, VAL_FRACTION, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)
+    input_set = input_set_named(cfg.inputs)
     spec = MLPSpec(
-        input_keys=input_set_named(cfg.inputs).columns,
+        input_keys=input_set.columns,
         inputs=cfg.inputs,
+        inputs_version=input_set.version,
         input_dim=demos.inputs.shape[1],
         action_dim=demos.actions.shape[1],
         hidden=(cfg.hidden,) * cfg.layers,

@@ -41,6 +41,9 @@ class MLPSpec:
     inputs: str = "full"
     """What the policy reads: the name of an input set (`students.inputs.INPUT_SETS`: docs/concepts/inputs.md).
     Checkpoints written before this field read "full"."""
+    inputs_version: int = 1
+    """Which computation of that set it was trained on (`students.inputs.InputSet.version`). Checkpoints written
+    before this field read 1."""
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:

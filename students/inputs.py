@@ -92,6 +92,9 @@ class InputSet(ABC):
     """Whether the velocity command is among the inputs (a walking set): a policy that can be told to walk."""
     task: ClassVar[str] = STAND
     """The task (`task.command_fields.TASKS`) its policy is trained and evaluated on: what its command asks."""
+    version: ClassVar[int] = 1
+    """Which computation of these inputs, recorded in a checkpoint (`MLPSpec.inputs_version`): raised where a change
+    computes the same names otherwise, so that `students.learned.check_fits` refuses a policy trained on the old one."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         """For `model`'s environment (its observation layout; a stateful set computes on this nominal body)."""
@@ -303,6 +306,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
         # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them to
         # headings their demonstrations never faced, and they fell (docs/decisions/walking-teacher.md).
         heading_frame = gait
+        version = 2 if gait else base.version  # 2: the heading's frame (1 read the world's)
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
 
         @staticmethod

@@ -83,7 +83,8 @@ class PolicyController:
 
 
 def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
-    """CheckpointError in one line unless `env` can give `policy` its inputs and take its actions."""
+    """CheckpointError in one line unless `env` can give `policy` its inputs, as the code that trained it computed
+    them (`InputSet.version`), and take its actions."""
     spec = policy.spec
     removed = removed_inputs(spec.inputs)
     if removed is not None:
@@ -93,6 +94,12 @@ def check_fits(policy: MLPPolicy, env: gym.Env, name: str) -> None:
         raise CheckpointError(
             f"{name} reads {spec.inputs!r} from {list(spec.input_keys)}; a controller computes only "
             + ", ".join(f"{name!r} from {list(input_set.columns)}" for name, input_set in INPUT_SETS.items())
+        )
+    version = INPUT_SETS[spec.inputs].version
+    if spec.inputs_version != version:
+        raise CheckpointError(
+            f"{name} must be retrained: it was trained on version {spec.inputs_version} of the {spec.inputs!r} inputs, "
+            f"and this code computes version {version} (make train-bc INPUTS={spec.inputs} makes a student of them)"
         )
     inputs, action_dim = len(INPUT_SETS[spec.inputs].input_names(env.unwrapped.model)), env.action_space.shape[0]
     if (spec.input_dim, spec.action_dim) != (inputs, action_dim):

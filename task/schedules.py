@@ -151,13 +151,15 @@ def held_commands(posture: Posture, steps: int, dt: float) -> np.ndarray:
 
 def parse_held(text: str) -> Posture:
     """The command `text` names, FIELD=VALUE,... in each field's unit (`forward_speed=0.5`: ↑ pressed five times),
-    clipped to the fields' limits as the keys clip it; UserError, one line, for an unknown field or a value that is no
-    number."""
+    clipped to the fields' limits as the keys clip it; UserError, one line, for an unknown field, a field given twice or
+    a value that is no number."""
     values: dict[str, float] = {}
     for item in (part.strip() for part in text.split(",")):
         name, equals, value = (part.strip() for part in item.partition("="))
         if name not in FIELDS or not equals:
             raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a field of {', '.join(COMMAND_NAMES)}")
+        if name in values:
+            raise UserError(f"--hold: {name} is given twice")
         try:
             values[name] = float(value)
         except ValueError:

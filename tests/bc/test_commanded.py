@@ -149,6 +149,28 @@ def test_walking_inputs_train_on_walks_into_a_policy_that_walks_under_walking_sc
     assert set(evaluation["tracking"]["settled_error"]) == {field.name for field in task_fields("walk")}
 
 
+def test_a_student_records_which_computation_of_its_inputs_it_was_trained_on(walked: Path, tmp_path: Path) -> None:
+    """The walker's students' inputs are in their second computation (the odometry in the heading's frame): a student
+    trained on them says so in its checkpoint, and runs; the same checkpoint saying the first is refused in one line
+    that names the command retraining it, as a checkpoint written before the field is."""
+    folder = tmp_path / "policy"
+    config = train_stage.TrainConfig(
+        dataset=walked, policy=folder, inputs="pending+gait", hidden=8, epochs=1, min_updates=0, eval_episodes=0
+    )
+    train_stage.main(dataclasses.replace(config, progress=False))
+    assert checkpoint.load(folder).spec.inputs_version == INPUT_SETS["pending+gait"].version == 2
+    env = make_env()
+    PolicyController.load(folder, env)
+    saved = json.loads((folder / checkpoint.CONFIG_FILE).read_text())
+    del saved["policy"]["inputs_version"]
+    (folder / checkpoint.CONFIG_FILE).write_text(json.dumps(saved))
+    with pytest.raises(checkpoint.CheckpointError) as refused:
+        PolicyController.load(folder, env)
+    message = str(refused.value)
+    assert "\n" not in message and "trained on version 1 of the 'pending+gait' inputs" in message
+    assert "make train-bc INPUTS=pending+gait" in message
+
+
 def test_pending_command_inputs_without_latency_are_refused_for_the_latency(
     recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -218,7 +240,8 @@ def untrained(folder: Path, inputs: str) -> Path:
     """An untrained policy on `inputs`."""
     kind = INPUT_SETS[inputs]
     size = len(kind.input_names(humanoid_model()))
-    checkpoint.save(MLPPolicy(MLPSpec(kind.columns, size, 17, hidden=(8,), inputs=inputs)), folder, {}, {})
+    spec = MLPSpec(kind.columns, size, 17, hidden=(8,), inputs=inputs, inputs_version=kind.version)
+    checkpoint.save(MLPPolicy(spec), folder, {}, {})
     return folder
 
 

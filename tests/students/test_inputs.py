@@ -40,7 +40,9 @@ OBSERVATION = 348
 def tiny_policy(inputs: str, env: gym.Env) -> PolicyController:
     """A live controller of an untrained policy on `inputs`: what it reads is all that matters here."""
     kind = INPUT_SETS[inputs]
-    spec = MLPSpec(kind.columns, len(kind.input_names(humanoid_model())), 17, (8,), inputs=inputs)
+    spec = MLPSpec(
+        kind.columns, len(kind.input_names(humanoid_model())), 17, (8,), inputs=inputs, inputs_version=kind.version
+    )
     return PolicyController(MLPPolicy(spec, env.action_space.low, env.action_space.high), inputs, env)
 
 

@@ -151,6 +151,8 @@ def test_a_held_command_is_zero_for_3_s_then_held_5_s_then_zero() -> None:
     assert (commands[walking] == command_vector(held)).all()
     with pytest.raises(UserError, match="not FIELD=VALUE"):
         parse_held("forward_speed")
+    with pytest.raises(UserError, match="forward_speed is given twice"):
+        parse_held("forward_speed=0.5,forward_speed=0.2")
 
 
 def test_the_expert_ramps_a_velocity_setpoint_and_clips_it_without_moving_its_pose() -> None:
