@@ -160,12 +160,15 @@ def test_a_student_records_which_computation_of_its_inputs_it_was_trained_on(wal
     train_stage.main(dataclasses.replace(config, progress=False))
     assert checkpoint.load(folder).spec.inputs_version == INPUT_SETS["pending+gait"].version == 2
     env = make_env()
-    PolicyController.load(folder, env)
-    saved = json.loads((folder / checkpoint.CONFIG_FILE).read_text())
-    del saved["policy"]["inputs_version"]
-    (folder / checkpoint.CONFIG_FILE).write_text(json.dumps(saved))
-    with pytest.raises(checkpoint.CheckpointError) as refused:
+    try:
         PolicyController.load(folder, env)
+        saved = json.loads((folder / checkpoint.CONFIG_FILE).read_text())
+        del saved["policy"]["inputs_version"]
+        (folder / checkpoint.CONFIG_FILE).write_text(json.dumps(saved))
+        with pytest.raises(checkpoint.CheckpointError) as refused:
+            PolicyController.load(folder, env)
+    finally:
+        env.close()
     message = str(refused.value)
     assert "\n" not in message and "trained on version 1 of the 'pending+gait' inputs" in message
     assert "make train-bc INPUTS=pending+gait" in message
