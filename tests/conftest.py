@@ -6,6 +6,7 @@ import os
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from common.threads import PINNED, pinnable
 
@@ -17,13 +18,12 @@ if pinnable():
 
 import pytest
 
-from bc.train import TrainConfig
-from bc.train import main as train_bc
 from common import workers
-from support import SHORT_EPISODE, SMALL_BC, RayCluster
 from teleop.parallel import WORKER_MODULES
-from teleop.record import STANDING, RecordConfig, main, record
 from teleop.writer_process import WRITER_MODULES
+
+if TYPE_CHECKING:
+    from support import RayCluster
 
 # Nothing may wait on a network, and the tests must not write caches into the user's home.
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -55,9 +55,17 @@ def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
     os.environ["HF_LEROBOT_HOME"] = str(cache / "lerobot")
 
 
+# The fixtures below import what they run where they run it: `make test`'s controlling process imports this file
+# too and runs no test, and the recorder, BC and the tests' helpers (torch, LeRobot) cost it 5–9 s before it starts
+# the processes that do (docs/benchmarks.md, The test suite).
+
+
 @pytest.fixture(scope="session")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset of 3 short noisy expert episodes (seeds 0..2), written in-process."""
+    from support import SHORT_EPISODE  # noqa: PLC0415 - see above
+    from teleop.record import STANDING, RecordConfig, main  # noqa: PLC0415
+
     root = tmp_path_factory.mktemp("recorded") / "dataset"
     main(
         RecordConfig(
@@ -71,6 +79,8 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A dataset of 2 episodes of the expert under the scripted operator's schedules (seeds 0..1) of 300 steps:
     neutral for 3 s, then a command."""
+    from teleop.record import RecordConfig, main  # noqa: PLC0415 - see above
+
     root = tmp_path_factory.mktemp("operated") / "dataset"
     main(
         RecordConfig(
@@ -83,6 +93,8 @@ def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def ray_cluster() -> Iterator[RayCluster]:
     """A Ray cluster of two 1-CPU nodes on loopback: a head and one worker node (Ray's own cluster utility)."""
+    from support import RayCluster  # noqa: PLC0415 - see above
+
     cluster = RayCluster()
     try:
         yield cluster
@@ -93,22 +105,33 @@ def ray_cluster() -> Iterator[RayCluster]:
 @pytest.fixture(scope="session")
 def bc_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint trained on the 3-episode recording."""
+    from bc.train import TrainConfig, main  # noqa: PLC0415 - see above
+    from support import SMALL_BC  # noqa: PLC0415
+
     folder = tmp_path_factory.mktemp("bc") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, **SMALL_BC))
+    main(TrainConfig(dataset=recorded, policy=folder, **SMALL_BC))
     return folder
 
 
 @pytest.fixture(scope="session")
 def proprio_policy(recorded: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint on the sensed features (INPUTS=proprio) of the 3-episode recording."""
+    from bc.train import TrainConfig, main  # noqa: PLC0415 - see above
+    from support import SMALL_BC  # noqa: PLC0415
+
     folder = tmp_path_factory.mktemp("bc_proprio") / "policy"
-    train_bc(TrainConfig(dataset=recorded, policy=folder, **{**SMALL_BC, "inputs": "proprio"}))
+    main(TrainConfig(dataset=recorded, policy=folder, **{**SMALL_BC, "inputs": "proprio"}))
     return folder
 
 
 @pytest.fixture(scope="session")
 def pending_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small BC checkpoint on the "pending" inputs of 3 short noisy expert episodes, each delayed by one step."""
+    from bc.train import TrainConfig  # noqa: PLC0415 - see above
+    from bc.train import main as train_bc  # noqa: PLC0415
+    from support import SMALL_BC  # noqa: PLC0415
+    from teleop.record import STANDING, RecordConfig, record  # noqa: PLC0415
+
     root = tmp_path_factory.mktemp("delayed") / "dataset"
     record(
         RecordConfig(
