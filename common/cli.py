@@ -15,7 +15,7 @@ import math
 import sys
 import types
 import typing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -213,6 +213,19 @@ Range = tuple[float, float]
 """A parameter's (low, high)."""
 
 
+def assignments(text: str, where: str) -> Iterator[tuple[str, str, str, str]]:
+    """The items of `text`, a list NAME=VALUE,...: (the item, NAME, "=" or "" where it has none, VALUE), each stripped;
+    what each NAME and VALUE may be is the caller's to check. ValueError, one line starting with `where` (the flag and
+    its text), for a NAME given twice."""
+    seen: set[str] = set()
+    for item in (part.strip() for part in text.strip().split(",")):
+        name, equals, value = (part.strip() for part in item.partition("="))
+        if name in seen:
+            raise ValueError(f"{where}: {name} is given twice")
+        seen.add(name)
+        yield item, name, equals, value
+
+
 def parse_ranges(
     text: str, names: Sequence[str], where: str, example: str, check: Callable[[str, Range], None]
 ) -> dict[str, Range]:
@@ -220,15 +233,12 @@ def parse_ranges(
     (which raises ValueError saying which rule it breaks). ValueError, one line starting with `where` (the flag and
     its text), for a malformed item, an unknown or repeated NAME, or a broken rule; `example` shows the form."""
     ranges: dict[str, Range] = {}
-    for item in (part.strip() for part in text.strip().split(",")):
-        name, _, bounds = (part.strip() for part in item.partition("="))
+    for item, name, _, bounds in assignments(text, where):
         low_text, colon, high_text = bounds.partition(":")
         if not name or not colon:
             raise ValueError(f"{where}: {item!r} is not NAME=LOW:HIGH (e.g. {example})")
         if name not in names:
             raise ValueError(f"{where}: unknown parameter {name!r}; parameters: {', '.join(names)}")
-        if name in ranges:
-            raise ValueError(f"{where}: {name} is given twice")
         try:
             low, high = float(low_text), float(high_text)
         except ValueError:

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from common.cli import UserError
+from common.cli import UserError, assignments
 from task.command_fields import (
     COMMAND_FIELDS,
     COMMAND_NAMES,
@@ -154,18 +154,18 @@ def parse_held(text: str) -> Posture:
     clipped to the fields' limits as the keys clip it; UserError, one line, for an unknown field, a field given twice or
     a value that is no number."""
     values: dict[str, float] = {}
-    for item in (part.strip() for part in text.split(",")):
-        name, equals, value = (part.strip() for part in item.partition("="))
-        if name not in FIELDS or not equals:
-            raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a field of {', '.join(COMMAND_NAMES)}")
-        if name in values:
-            raise UserError(f"--hold: {name} is given twice")
-        try:
-            values[name] = float(value)
-        except ValueError:
-            values[name] = math.nan
-        if not math.isfinite(values[name]):
-            raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a number VALUE")
+    try:
+        for item, name, equals, value in assignments(text, "--hold"):
+            if name not in FIELDS or not equals:
+                raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a field of {', '.join(COMMAND_NAMES)}")
+            try:
+                values[name] = float(value)
+            except ValueError:
+                values[name] = math.nan
+            if not math.isfinite(values[name]):
+                raise UserError(f"--hold: {item!r} is not FIELD=VALUE with a number VALUE")
+    except ValueError as error:  # a field given twice
+        raise UserError(str(error)) from None
     return Posture(**values).clipped()
 
 
