@@ -263,6 +263,23 @@ def _json_value(value: Any) -> Any:
     return str(value) if isinstance(value, Path) else value
 
 
+def json_text(content: Any, indent: int | None = None) -> str:
+    """`content` as strict JSON, what a run prints and saves: a number that is not finite (NaN: the error of a field no
+    settled command asked for, `task.tracking.tracking_summary`) written as null, since the JSON standard has no NaN
+    and strict readers (JavaScript's `JSON.parse`, for one) refuse Python's `NaN`; what JSON cannot hold, by its str."""
+    return json.dumps(_finite(content), indent=indent, default=str, allow_nan=False)
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(item) for item in value]
+    return value
+
+
 def config_text(settings: dict[str, Any]) -> str:
     """`settings` as TensorBoard text (Markdown): a code block of indented JSON, which `json.loads` reads back."""
     return "\n".join("    " + line for line in json.dumps(settings, indent=2, default=str).splitlines())

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import multiprocessing as mp
 import os
@@ -48,7 +47,7 @@ import torch
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, json_text, run_cli, setting
 from common.figures import save_figure
 from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
@@ -423,7 +422,7 @@ def evaluate_each(runs: Sequence[tuple[Evaluated, dict[str, Any]]], pool: Execut
 
 
 def _main_and_print(cfg: EvalConfig) -> None:
-    print(json.dumps(main(cfg)))
+    print(json_text(main(cfg)))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

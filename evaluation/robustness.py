@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import sys
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -23,7 +22,7 @@ from matplotlib.figure import Figure
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, json_text, run_cli, setting
 from common.figures import save_figure
 from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
@@ -292,7 +291,7 @@ def _main_and_print(cfg: RobustnessConfig) -> None:
         k: {m: v[m] for m in ("survival_rate", "mean_return", "episodes", "tracking") if m in v}
         for k, v in result["conditions"].items()
     }
-    print(json.dumps({"policy": result["policy"], "seeds": result["seeds"], "conditions": brief}))
+    print(json_text({"policy": result["policy"], "seeds": result["seeds"], "conditions": brief}))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

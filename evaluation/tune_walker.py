@@ -30,6 +30,7 @@ from common.cli import (
     check_non_negative,
     check_positive,
     field_default,
+    json_text,
     parse_ranges,
     run_cli,
     setting,
@@ -212,7 +213,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
                 state["best"] = (costs[best], np.array(xs[best]), results[best][1])
             state["generation"] += 1
             log.write(
-                json.dumps(
+                json_text(
                     {
                         "generation": state["generation"],
                         "best": costs[best],
@@ -252,7 +253,7 @@ def _save(state: dict[str, Any], path: Path) -> None:
 
 
 def _main_and_print(cfg: TuneConfig) -> None:
-    print(json.dumps(main(cfg)))
+    print(json_text(main(cfg)))
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

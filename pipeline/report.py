@@ -23,8 +23,9 @@ def _survivors(row: dict[str, Any]) -> str:
     return f"{survivors(row)}/{row['episodes']}"
 
 
-def _number(value: float, digits: int) -> str:
-    return "n/a" if math.isnan(value) else f"{value:.{digits}f}"
+def _number(value: float | None, digits: int) -> str:
+    """`value` to `digits` places; "n/a" for an error over no settled command (NaN; null in the JSON a run saved)."""
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[str, Any]]) -> str:

@@ -27,7 +27,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
-from common.cli import UserError, first_line
+from common.cli import UserError, first_line, json_text
 from common.workers import owner_gone, process_owner
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
@@ -46,7 +46,7 @@ def write_json(path: Path, content: Any, indent: int = 2) -> None:
     """Write `content` as JSON to `path` through a file beside it, renamed: a kill leaves the old file or the new one,
     never half of it (eval.json is what a later run trusts)."""
     partial = path.with_name(path.name + ".partial")
-    partial.write_text(json.dumps(content, indent=indent, default=str) + "\n")
+    partial.write_text(json_text(content, indent) + "\n")
     os.replace(partial, path)
 
 

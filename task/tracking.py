@@ -223,9 +223,10 @@ def tracking_reward(errors: np.ndarray, tolerances: np.ndarray) -> np.ndarray:
 
 def tracking_score(summary: dict[str, dict[str, float] | float]) -> float:
     """`tracking_reward` of the settled errors of a `tracking_summary` (or `combine_tracking`), over the fields it
-    measured: 1 for exact tracking, 0 where nothing was held long enough to measure."""
+    measured: 1 for exact tracking, 0 where nothing was held long enough to measure (NaN, or null as a saved run's JSON
+    holds it: `common.cli.json_text`)."""
     names = tracked_names(summary)
-    errors = np.array([summary["settled_error"][name] for name in names])
+    errors = np.array([summary["settled_error"][name] for name in names], dtype=float)  # None -> NaN
     return 0.0 if np.isnan(errors).any() else float(tracking_reward(errors, tolerances(FIELDS[name] for name in names)))
 
 

@@ -7,9 +7,10 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from common.cli import REMOVED_FLAGS, REMOVED_VALUES, parse_config
+from common.cli import REMOVED_FLAGS, REMOVED_VALUES, json_text, parse_config
 from evaluation import evaluate
 from pipeline import run as pipeline
 from pipeline.targets import TARGETS
@@ -93,3 +94,10 @@ def test_no_stage_has_a_flag_or_value_the_registry_calls_removed() -> None:
     fields = {field.name for target in TARGETS.values() for field in dataclasses.fields(target.config)}
     assert not fields & set(REMOVED_FLAGS)
     assert {name for name, _ in REMOVED_VALUES} <= fields
+
+
+def test_a_number_that_is_not_finite_is_written_null_in_strict_json() -> None:
+    """Python's `json` writes NaN, which the JSON standard lacks and strict readers refuse: what a run prints and saves
+    holds null there (known answer), numpy's floats and tuples included, everything else as `json.dumps` writes it."""
+    content = {"error": float("nan"), "errors": (0.5, np.float64("inf")), "inner": {"x": -np.inf}, "n": 3, "s": "nan"}
+    assert json_text(content) == '{"error": null, "errors": [0.5, null], "inner": {"x": null}, "n": 3, "s": "nan"}'

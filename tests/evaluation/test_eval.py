@@ -86,9 +86,11 @@ def test_expert_stands_every_episode() -> None:
 def test_a_held_arrow_walks_the_walker_a_metre_and_the_expert_stands(capsys: pytest.CaptureFixture[str]) -> None:
     """`make eval HOLD=forward_speed=0.5` (`make play`'s up arrow pressed five times and held 5 s): the walker walks a
     metre forward along its heading and steps on after; the LQR expert stands whatever speed is asked (known answer:
-    it does not move). A speed past its field's limit is clipped as the keys clip it."""
+    it does not move). A speed past its field's limit is clipped as the keys clip it. The line is strict JSON: a field
+    no command moved has no error, null (not Python's NaN)."""
     code, out, _ = eval_cli(["--policy", "walker", "--episodes", "1", "--hold", "forward_speed=0.5"], capsys)
-    result = json.loads(out[-1])
+    result = json.loads(out[-1], parse_constant=lambda name: pytest.fail(f"{name} is no JSON"))
+    assert result["tracking"]["moved_error"]["turn_rate"] is None
     held = result["held"]
     assert code == 0 and result["survived"] == 1 and held["command"] == {"forward_speed": 0.5}
     assert held["walked_1m"] == 1 and held["forward"] >= 1.0 and abs(held["sideways"]) < 0.2 and held["after"] > 0
