@@ -457,9 +457,21 @@ def bc_decision(
     return checkpoint_decision(cfg, "training", option, "dataset", saved, current, overwrite, dataset_remade)
 
 
+def as_run(cfg: DaggerConfig) -> DaggerConfig:
+    """`cfg` as `make dagger` runs it (`bc.dagger.resolved`: the expert and the rounds its student's inputs default to,
+    the recording's conditions where none is given), which is what its checkpoint and its aggregate record: a run made
+    on the defaults then compares equal to them. As given where no dataset holds the conditions yet, or they cannot be
+    read (DAgger itself then says why in one line)."""
+    try:
+        return bc_dagger.resolved(cfg) if cfg.output.exists() or cfg.dataset.exists() else cfg
+    except UserError:
+        return cfg
+
+
 def dagger_decision(cfg: DaggerConfig, overwrite: bool, dataset_remade: bool = False) -> Decision:
     """The DAgger stage's decision: its input is the dataset, identified by the fingerprint the checkpoint records
-    (`demonstrations`: of the copy its aggregate began as)."""
+    (`demonstrations`: of the copy its aggregate began as), and its settings as it runs them (`as_run`)."""
+    cfg = cfg if dataset_remade else as_run(cfg)
     saved = training_settings(cfg.policy).get("demonstrations")
     current = partial(dataset_fingerprint, cfg.dataset)
     return checkpoint_decision(
@@ -472,6 +484,7 @@ def aggregate_problem(cfg: DaggerConfig) -> str | None:
     DATASET now, or rounds rolled out with other settings (a run killed too); None if it can, or is not there."""
     if not cfg.output.exists():
         return None
+    cfg = as_run(cfg)
     source = bc_dagger.copied_from(cfg.output)
     if not source:
         return f"has no {bc_dagger.SOURCE_FILE} saying which demonstrations it copied"
@@ -522,9 +535,10 @@ def foresee(run: Stages, overwrite: bool) -> None:
     }
     remade[run.dagger.policy.resolve()] = dagger_decision(run.dagger, overwrite, dataset_remade).action != REUSE
     if remade[run.dagger.policy.resolve()]:
-        problem = aggregate_problem(run.dagger)
         if dataset_remade and run.dagger.output.exists():
             problem = "is a copy of the dataset the pipeline records again"
+        else:
+            problem = aggregate_problem(run.dagger)
         check_aggregate(run.dagger, problem)
     for config, option in ((run.scratch, "--scratch-policy"), (run.finetune, "--ppo.policy")):
         # A PPO stage is downstream of whichever BC checkpoint it starts from.

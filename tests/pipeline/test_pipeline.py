@@ -66,7 +66,9 @@ def tiny_stages(
     record: dict | None = None, train: dict | None = None, ppo: dict | None = None, dagger: dict | None = None
 ) -> Stages:
     """The pipeline's stages at a tiny size, in the current folder (relative paths). Episodes of 250 steps: the
-    schedules' first command comes after a neutral start of 3 s (200 steps); one DAgger round of one rollout."""
+    schedules' first command comes after a neutral start of 3 s (200 steps); one DAgger round of one rollout, its expert
+    and conditions left to their defaults as `make pipeline` leaves them (DAgger resolves them: a second run compares
+    them as resolved)."""
     ppo = {
         "bc_policy": Path("dagger"),
         "scratch_policy": Path("scratch"),
@@ -113,9 +115,6 @@ def tiny_stages(
         "output": Path("aggregate"),
         "policy": Path("dagger"),
         "inputs": STUDENT_INPUTS,
-        "expert": "expert-sensed",
-        "randomize": "none",
-        "latency": LATENCY_SHARE,
         "noise": DART_NOISE,
         "rounds": 1,
         "episodes": 1,
