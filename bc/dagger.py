@@ -82,6 +82,12 @@ MADE_BY = "bc.dagger"
 SOURCE_FILE = "demonstrations.json"
 """In OUTPUT: which demonstrations it is a copy of (DATASET's path and fingerprint when copied) and who copied them:
 what the checkpoint records as its demonstrations, and what `make pipeline` compares before reusing OUTPUT."""
+ROUNDS = 6
+"""DAgger's rounds by default: 6 of 20 episodes follow every held-out posture schedule
+(docs/decisions/pipeline-student.md)."""
+WALKING_ROUNDS = 12
+"""A walking student's: its rollouts fall more often, and 12 rounds walked more selection schedules than 6 at each of
+three training seeds (docs/decisions/walking-teacher.md#learnable)."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "kick", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -124,10 +130,11 @@ class DaggerConfig:
         "std of Gaussian noise on the actions the rollouts execute (DART within DAgger: the expert labels the states "
         "the noise leads to as well), the recording's by default; 0 = none",
     )
-    rounds: int = setting(
-        6,
+    rounds: int | None = setting(
+        None,
         "rounds of roll out, label, aggregate, retrain that OUTPUT holds when the run ends (rounds already there, "
-        "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first)",
+        "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first); "
+        f"default: {ROUNDS}, or {WALKING_ROUNDS} for a walking student (docs/decisions/walking-teacher.md#learnable)",
     )
     episodes: int = setting(
         20,
@@ -183,6 +190,13 @@ class DaggerResult:
         return "\n".join([*lines, self.final.describe()])
 
 
+def rounds_of(cfg: DaggerConfig) -> int:
+    """How many rounds: --rounds, else `ROUNDS`, or `WALKING_ROUNDS` for a walking student."""
+    if cfg.rounds is not None:
+        return cfg.rounds
+    return WALKING_ROUNDS if input_set_named(cfg.inputs).walks else ROUNDS
+
+
 def expert_of(cfg: DaggerConfig) -> str:
     """Who labels: --expert, else the default teacher for the student's inputs (`WALKING_TEACHER` for a walking one)."""
     if cfg.expert is not None:
@@ -192,7 +206,7 @@ def expert_of(cfg: DaggerConfig) -> str:
 
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
-    cfg = dataclasses.replace(cfg, expert=expert_of(cfg))
+    cfg = dataclasses.replace(cfg, expert=expert_of(cfg), rounds=rounds_of(cfg))
     expert = teacher_named(cfg.expert, "--expert")
     if not expert.labels:
         raise UserError(
@@ -243,7 +257,7 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
     """`cfg` with EXPERT (`expert_of`), RANDOMIZE and LATENCY filled in from the aggregate's recordings where not
     given; DatasetError if its episodes draw other parameters than rollouts under them would (the store could not append
     them)."""
-    cfg = dataclasses.replace(cfg, expert=expert_of(cfg))
+    cfg = dataclasses.replace(cfg, expert=expert_of(cfg), rounds=rounds_of(cfg))
     root = cfg.output if cfg.output.exists() else cfg.dataset
     if cfg.randomize is None or cfg.latency is None:  # given, they stand: the drawn parameters are checked below
         randomize, latency = recorded_conditions(root)

@@ -17,6 +17,7 @@ import pytest
 import torch
 
 from bc.dagger import (
+    ROUNDS,
     SOURCE_FILE,
     DaggerConfig,
     DaggerResult,
@@ -27,6 +28,7 @@ from bc.dagger import (
     main,
     recorded_conditions,
     resolved,
+    rounds_of,
     settle_spool,
 )
 from bc.data import load_demonstrations
@@ -386,7 +388,9 @@ def test_conditions_given_stand_whatever_the_recordings_say(recorded: Path, tmp_
     for index, randomize in enumerate(("mild", "suite")):  # both draw the same parameters
         episode = CommittedEpisode(3 + index, 3 + index, 1, 0.0, False)
         recordings.append(root, "teleop.record", {"randomize": randomize}, [episode], True)
-    given = DaggerConfig(dataset=root, output=tmp_path / "out", randomize="none", latency=0.0, expert=TEACHER)
+    given = DaggerConfig(
+        dataset=root, output=tmp_path / "out", randomize="none", latency=0.0, expert=TEACHER, rounds=ROUNDS
+    )
     assert resolved(given) == given
     with pytest.raises(DatasetError, match="several conditions"):
         resolved(dataclasses.replace(given, latency=None))
@@ -437,9 +441,12 @@ def test_bad_rollout_settings_are_refused(
     assert not output.exists()
 
 
-def test_a_walking_student_is_labelled_by_the_walker_unless_told_otherwise() -> None:
+def test_a_walking_student_is_labelled_by_the_walker_in_more_rounds_unless_told_otherwise() -> None:
     """No --expert: the teacher on leg odometry labels a posture student and the walker on it a walking student;
-    --expert names who labels, and one that does not walk is refused for a walking student in one line."""
+    --expert names who labels, and one that does not walk is refused for a walking student in one line. No --rounds:
+    6 for a posture student, 12 for a walking one; --rounds stands."""
+    assert rounds_of(DaggerConfig()) == ROUNDS == 6 and rounds_of(DaggerConfig(inputs="pending+gait")) == 12
+    assert rounds_of(DaggerConfig(inputs="pending+gait", rounds=2)) == 2
     assert expert_of(DaggerConfig()) == TEACHER == "expert-sensed"
     assert expert_of(DaggerConfig(inputs="pending+gait")) == WALKING_TEACHER == "walker-sensed"
     assert expert_of(DaggerConfig(inputs="pending+walk")) == WALKING_TEACHER
