@@ -204,9 +204,14 @@ def expert_of(cfg: DaggerConfig) -> str:
     return WALKING_TEACHER if input_set_named(cfg.inputs).walks else TEACHER
 
 
+def for_student(cfg: DaggerConfig) -> DaggerConfig:
+    """`cfg` with EXPERT and ROUNDS its student's defaults where not given (`expert_of`, `rounds_of`)."""
+    return dataclasses.replace(cfg, expert=expert_of(cfg), rounds=rounds_of(cfg))
+
+
 def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
-    cfg = dataclasses.replace(cfg, expert=expert_of(cfg), rounds=rounds_of(cfg))
+    cfg = for_student(cfg)
     expert = teacher_named(cfg.expert, "--expert")
     if not expert.labels:
         raise UserError(
@@ -254,10 +259,10 @@ def recorded_conditions(root: Path) -> tuple[str, float]:
 
 
 def resolved(cfg: DaggerConfig) -> DaggerConfig:
-    """`cfg` with EXPERT (`expert_of`) and ROUNDS (`rounds_of`) filled in for its student, RANDOMIZE and LATENCY from
-    the aggregate's recordings, where not given; DatasetError if its episodes draw other parameters than rollouts under
+    """`cfg` with EXPERT and ROUNDS filled in for its student (`for_student`), RANDOMIZE and LATENCY from the
+    aggregate's recordings, where not given; DatasetError if its episodes draw other parameters than rollouts under
     them would (the store could not append them)."""
-    cfg = dataclasses.replace(cfg, expert=expert_of(cfg), rounds=rounds_of(cfg))
+    cfg = for_student(cfg)
     root = cfg.output if cfg.output.exists() else cfg.dataset
     if cfg.randomize is None or cfg.latency is None:  # given, they stand: the drawn parameters are checked below
         randomize, latency = recorded_conditions(root)
