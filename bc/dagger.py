@@ -87,7 +87,7 @@ ROUNDS = 6
 (docs/decisions/pipeline-student.md)."""
 WALKING_ROUNDS = 12
 """A walking student's: 12 rounds walked more selection schedules than 6 at each of three training seeds (89 against 69
-of 120; docs/decisions/walking-teacher.md#learnable)."""
+of 120; docs/decisions/walker-students.md)."""
 SHAPING = ("inputs", "expert", "randomize", "latency", "kick", "noise", "episodes", "epochs", "min_updates", "seed")
 """The settings that decide a round's policy and episodes: a resumed run keeps the killed run's."""
 
@@ -134,7 +134,7 @@ class DaggerConfig:
         None,
         "rounds of roll out, label, aggregate, retrain that OUTPUT holds when the run ends (rounds already there, "
         "from an earlier or a killed run, count; a round with fewer than EPISODES episodes is finished first); "
-        f"default: {ROUNDS}, or {WALKING_ROUNDS} for a walking student (docs/decisions/walking-teacher.md#learnable)",
+        f"default: {ROUNDS}, or {WALKING_ROUNDS} for a walking student (docs/decisions/walker-students.md)",
     )
     episodes: int = setting(
         20,

@@ -5,7 +5,7 @@ evaluation's 1000-1019) and stands through kicks, and is scored by `cost`: a fal
 of the speeds once settled. CMA-ES (the `cma` library, Hansen's) searches the parameters scaled to their `BOUNDS` (or
 `--bounds`), seeded, so a run repeats; every generation's state is kept in `--run`, so a killed run resumes where it
 was. At the end the best gait seen goes to `--out` (the walker's `GAIT_FILE`) with the run that chose it. Docs:
-docs/decisions/walking-teacher.md (the table that chose the default), docs/how-to/walk.md.
+docs/decisions/walker-speed.md#the-tuning (the table that chose the default), docs/how-to/walk.md.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ BOUNDS: Bounds = {
 """The search space, each parameter's (least, most), in its unit (`Gait`): a period under 0.25 s or a lift under 3 cm
 shuffles the feet over the floor, which the cost's few seeds reward and a longer walk punishes. `--bounds` replaces
 some of them for a run (the records' `k_y` within the linear pendulum's stable range:
-docs/decisions/walking-teacher.md)."""
+docs/decisions/walker-sideways.md)."""
 BOUNDS_EXAMPLE = "k_y=0.8:1.25"
 FALL_COST = 10.0
 """What falling at the start of an episode costs (in proportion to the share of the episode lost), against the

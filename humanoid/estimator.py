@@ -216,7 +216,7 @@ class OdometryFeatures:
     estimate's heading (the gyro's integral since reset), so the velocity and the inertias carry the heading too;
     with `heading_frame` they are turned into the heading's frame instead, so that a turned body reads as the same
     body: the walker's students, whose walks turn them to headings their demonstrations never faced
-    (docs/decisions/walking-teacher.md#turned-headings).
+    (docs/decisions/turned-headings.md).
 
     Why these: a student on the sensed features alone does not stand, one that also reads the
     torso's velocity and the nominal-model inertias does (docs/decisions/deployable-inputs.md). Stateful like

@@ -20,7 +20,7 @@
     pending+gait  pending+walk with the walker's gait clock in place of `planning`: whether a walk is on, its phase,
               which foot swings, how far the step has gone, where the foot lands (`task.gait.GaitClock.features`,
               9), run on the same leg odometry as the walker on what a robot senses (`walker-sensed`), the odometry's
-              velocity and inertias in the heading's frame: its student (docs/decisions/walking-teacher.md)
+              velocity and inertias in the heading's frame: its student (docs/decisions/walker-students.md)
 
 Each is one `InputSet` subclass, registered by name in `INPUT_SETS` (`input_set_named` looks one up): its names,
 the dataset columns it is computed from, and the one stateful per-frame computation that every user runs
@@ -304,7 +304,7 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
     class RampedInputs(commanded):
         name = f"{base.name}+gait" if gait else f"{base.name}+walk" if walking else f"{base.name}+ramp"
         # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them to
-        # headings their demonstrations never faced, and they fell (docs/decisions/walking-teacher.md).
+        # headings their demonstrations never faced, and they fell (docs/decisions/turned-headings.md).
         heading_frame = gait
         version = 2 if gait else base.version  # 2: the heading's frame (1 read the world's)
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."

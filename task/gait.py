@@ -53,12 +53,12 @@ SHORTEST_STEP = 0.15
 STOP_REACH = 0.035
 """m: the farthest ahead of or behind the stance foot the capture point may be at the landing for the walk's last
 step: it lands twice as far, so that the capture point is between the feet, where the LQR takes over. The LQR stands
-from rest in stances up to 0.074 m out of line (docs/decisions/walking-teacher.md); farther, the walker steps on in
+from rest in stances up to 0.074 m out of line (docs/decisions/walker-stopping.md); farther, the walker steps on in
 place, which slows it."""
 STOP_MARGIN = 0.15
 """m: how far inside the widest last step the capture point must be at the landing for the last step: at 0.15 (the
 capture point at most halfway) a tuned gait walked 12 of 12 selection schedules, at 0.05 6 of 12, its settles
-stepping on. The gait tuned since sways 0.20 m, past it, and steps on in place (docs/decisions/walking-teacher.md)."""
+stepping on. The gait tuned since sways 0.20 m, past it, and steps on in place (docs/decisions/walker-stopping.md)."""
 LAST_WIDTH = (0.18, 0.30)
 """m: the least and the most the feet are apart sideways after the last step: the LQR stands from rest in these
 (its design's 0.18 to 0.33), and in narrower ones less often."""
@@ -287,7 +287,7 @@ class GaitClock:
         the offset a steady gait at the commanded `velocity` keeps between ξ and the next foot, in the heading's frame
         (`turn`), within the legs' reach. The offset is a deadbeat gait's (gain 1) whatever the gains: the tuned gait
         walks at about 57 % of the command, and the exact offset for the gains (H-LIP's form) tracked the command but
-        fell, tuned or not; that margin keeps the gait up (docs/decisions/walking-teacher.md). Under the zero command,
+        fell, tuned or not; that margin keeps the gait up (docs/decisions/walker-speed.md). Under the zero command,
         once ξ lands within `STOP_REACH` of the stance foot's line and at least `STOP_MARGIN` short of the widest last
         step, the foot lands twice as far (within `LAST_WIDTH`): the last step, ξ between the feet."""
         g = self.gait

@@ -65,7 +65,7 @@ def attitude_task(
     body whose attitude is `actual` (3×3) spinning at `spin` (rad/s, world) toward `desired`, which turns about the
     vertical at `turn_rate` (rad/s): the heading's rate is fed forward, not damped away. With the yaw rate damped to
     zero the body stopped turning 1.5 s into a turn, and turned left when asked right; fed forward, the turn rate's
-    error on selection walks fell from 0.30 to 0.26 rad/s (docs/decisions/walking-teacher.md)."""
+    error on selection walks fell from 0.30 to 0.26 rad/s (docs/decisions/walker-turning.md)."""
     return _pd(frequency, attitude_error(desired, actual), spin - np.array([0.0, 0.0, turn_rate]))
 
 
@@ -158,7 +158,7 @@ class WholeBody:
         # The joints: the waist and arms at the setpoint (the waist leant by `waist_roll`), and while stepping both
         # hips' yaw at the setpoint's, so that the legs turn with the pelvis. A point foot has no torsional friction:
         # with only the swing hip's yaw held, the stance leg spun about its foot while the waist turned the pelvis, its
-        # hip's yaw ran to its limit and the walk ran away off its heading (docs/decisions/walking-teacher.md).
+        # hip's yaw ran to its limit and the walk ran away off its heading (docs/decisions/walker-turning.md).
         held = self._upper if settling else self._with_hips
         goal = reference[held[0]].copy()
         if not settling:

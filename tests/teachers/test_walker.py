@@ -147,7 +147,7 @@ def test_asked_to_turn_in_place_the_body_turns_that_way(rate: float) -> None:
     """Asked to turn in place at 0.5 rad/s (either way) for 4 s, the pelvis turns at least 1 rad that way, the first
     second being the command filter's ramp; it turned 1.7 rad. With only the swing hip's yaw held, the stance leg spun
     about its point foot and the body turned 1.1 rad left but 0.2 right; with the yaw rate damped to zero, under 0.5
-    either way (docs/decisions/walking-teacher.md)."""
+    either way (docs/decisions/walker-turning.md)."""
     env = make_env(EPISODE_STEPS)
     walker = Walker()
     _, fell = walk(walker, env, 4.0, command_vector(Posture(turn_rate=rate)), seed=3000)
@@ -161,7 +161,7 @@ def test_asked_to_turn_in_place_the_body_turns_that_way(rate: float) -> None:
 def test_a_kick_is_stepped_out_of() -> None:
     """Standing under the zero command, a 0.4 m/s kick: the walker steps and does not fall. (With the tuned gait the
     walk then steps on in place: its stop is the rule `test_the_last_step_lands_the_feet_side_by_side` holds,
-    which the tuned gait's sway seldom meets: docs/decisions/walking-teacher.md.)"""
+    which the tuned gait's sway seldom meets: docs/decisions/walker-stopping.md.)"""
     env = Condition(kick=0.4).wrap(make_env(EPISODE_STEPS))
     walker = Walker()
     seed = 3  # the kick's direction and time are drawn from the seed (the walker stands 5 of seeds 0-7's 8 kicks)

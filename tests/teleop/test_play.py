@@ -263,7 +263,7 @@ def test_a_registered_controller_that_takes_no_command_is_refused_in_one_line(tm
 def test_the_arrows_walk_the_walker_and_k_kicks_it(tmp_path: Path) -> None:
     """`make play POLICY=walker`: ↑ pressed five times (0.5 m/s) and held 5 s walks the body at least a metre
     forward without a fall; Space asks it to stop, and `k` kicks it (the push column records the kick). Whether it
-    stays up after a kick is the suite's to measure (docs/decisions/walking-teacher.md): here the session ends 0.3 s
+    stays up after a kick is the suite's to measure (docs/decisions/walker-kicks.md): here the session ends 0.3 s
     after it."""
     root = tmp_path / "play"
     terminal = Terminal([*SESSION, "--dataset", str(root), "--policy", "walker"])
