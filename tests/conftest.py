@@ -48,9 +48,14 @@ workers.declare_preload(
 
 @pytest.fixture(scope="session", autouse=True)
 def isolated_caches(tmp_path_factory: pytest.TempPathFactory) -> None:
-    """LQR gains and HuggingFace caches go to a temporary folder for the whole session."""
+    """LQR gains and HuggingFace caches go to a temporary folder for the whole session.
+
+    Under pytest-xdist the LQR gains, stance and landing plan (`common.cache`, written by rename, safe to share) go to
+    one folder beside the workers' own, so that a design one worker made (the landing plan takes 10 s) is loaded by
+    the other instead of made again."""
     cache = tmp_path_factory.mktemp("caches")
-    os.environ["HUMANOID_BC_CACHE"] = str(cache / "humanoid-bc")
+    shared = tmp_path_factory.getbasetemp().parent if os.environ.get("PYTEST_XDIST_WORKER") else cache
+    os.environ["HUMANOID_BC_CACHE"] = str(shared / "humanoid-bc")
     os.environ["HF_DATASETS_CACHE"] = str(cache / "hf-datasets")
     os.environ["HF_LEROBOT_HOME"] = str(cache / "lerobot")
 

@@ -32,7 +32,8 @@ def model() -> mujoco.MjModel:
 @pytest.fixture(scope="module")
 def expert(model: mujoco.MjModel) -> LQRExpert:
     """The nominal expert, its gains and landing from the session's cache (`conftest.isolated_caches`): designed
-    once per test process, not once more here (the landing plan takes seconds)."""
+    by the first test process that needs them (the processes share the cache), not once more here (the landing plan
+    takes seconds)."""
     return LQRExpert(model)
 
 
