@@ -36,11 +36,11 @@ pytestmark = pytest.mark.slow  # a recorder process and a client: seconds
 def watched(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list[dict], dict[int, list]]:
     """A recording with LIVE on (any free port, loopback) and what a client got: serverInfo, channels, messages.
 
-    3 episodes of at most 200 steps, 464 in all (seed 1 falls at step 64): the client subscribes while the recorder
+    3 episodes of at most 400 steps, 864 in all (seed 1 falls at step 64): the client subscribes while the recorder
     still builds its controller, and the episodes after the first (one after a fall) check the live episode index."""
     root = tmp_path_factory.mktemp("live") / "dataset"
     command = [sys.executable, "-m", "teleop.record", "--dataset", str(root), "--episodes", "3", "--noise", "0"]
-    command += ["--max-steps", "200"]
+    command += ["--max-steps", "400"]
     command += ["--live", "true", "--live-port", "0", "--writer", "inline", "--progress", "false"]
     recorder = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
     try:
