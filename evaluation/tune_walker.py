@@ -35,6 +35,7 @@ from common.cli import (
     run_cli,
     setting,
 )
+from common.seed_ranges import SELECTION_SEED
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
 from task.gait import GAIT_FILE, Gait, load_gait, save_gait
@@ -83,7 +84,7 @@ class TuneConfig:
     noise: float = setting(
         0.03, "std of the noise on the walks' executed actions: the DART noise walking demonstrations are recorded with"
     )
-    seed: int = setting(3000, "the first selection seed: evaluations use 1000-1019, recordings 0 upwards")
+    seed: int = setting(SELECTION_SEED, "the first selection seed: evaluations use 1000-1019, recordings 0 upwards")
     cma_seed: int = setting(1, "the CMA-ES sampler's seed: the same run repeats")
     sigma: float = setting(0.15, "CMA-ES's first step size, as a share of each parameter's range")
     bounds: str = setting(

@@ -75,7 +75,6 @@ CAMERAS = {
     )
 }
 """The cameras a session may name, by name."""
-MODES = ("head", "tracking")
 EXPENSIVE_EFFECTS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION)
 """What a software renderer spends most of a frame on: switched off (docs/decisions/video-rendering.md)."""
 

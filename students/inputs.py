@@ -384,9 +384,6 @@ STUDENT_INPUTS = "pending+ramp"
 the leg odometry computed from it, its command in flight and the delay, and the command through the teacher's ramp:
 with it DAgger follows every held-out schedule, with the bare command it does not
 (docs/decisions/pipeline-student.md)."""
-WALKING_INPUTS = "pending+walk"
-"""What the walking student reads: the deployable student's inputs, with the velocity fields of the command on their
-ramp and as the leg odometry estimates them (docs/decisions/walking-student.md)."""
 BLIND_INPUTS = "pending"
 """The same without the operator's command: the pipeline's blind student, which shows what the command buys."""
 

@@ -3,8 +3,7 @@
 A teacher is a class deriving from `teachers.base.Teacher`, which declares what it can do (`takes_command`, `walks`,
 `handover`, `labels`). `make record CONTROLLER=`, `make dagger EXPERT=`, `make eval POLICY=` and `make robustness
 POLICY=` accept every name here and check each capability they need against the class; `rollout.controllers` builds
-one as ``cls(delay=steps)``. A new teacher is its own module and one line in `TEACHERS` (or `register`, as a test
-does with a toy one).
+one as ``cls(delay=steps)``. A new teacher is its own module and one line in `TEACHERS`.
 """
 
 from __future__ import annotations
@@ -33,12 +32,6 @@ read (docs/concepts/controllers.md)."""
 WALKING_TEACHER = SensedWalker.name
 """Who demonstrates and labels where walking is asked (`make record TASK=walk`, `make dagger` for a walking student):
 the walker on leg odometry, whose gait clock such a student computes too (docs/decisions/walking-teacher.md)."""
-
-
-def register(teacher: type[Teacher]) -> type[Teacher]:
-    """Add `teacher` under its `name` (replacing one of that name); returns it, so it can decorate its class."""
-    TEACHERS[teacher.name] = teacher
-    return teacher
 
 
 def teacher_named(name: str, role: str = "teacher") -> type[Teacher]:

@@ -188,9 +188,6 @@ class Report:
     contact_sheet: Path | None = None
     seconds: float = 0.0
 
-    def describe(self) -> str:
-        return "\n".join(filter(None, [self.summary(), self.outcome()]))
-
     def summary(self) -> str:
         """What the dataset holds: known before any verification."""
         info = self.info

@@ -425,7 +425,7 @@ class StandingWalker(LQRExpert):
 
 @contextlib.contextmanager
 def registered(teacher: type[Teacher]) -> Iterator[type[Teacher]]:
-    """`teacher` registered (`teachers.registry.register`) for the block, as one line of the registry would."""
+    """`teacher` in `teachers.registry.TEACHERS` for the block, as one line of the registry would put it."""
     assert teacher.name not in TEACHERS
     TEACHERS[teacher.name] = teacher
     try:

@@ -26,7 +26,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 from rl import finetune
 from rl.learner import training_env
 from rollout.episode import run_episode
-from students.inputs import INPUT_SETS, WALKING_INPUTS
+from students.inputs import INPUT_SETS
 from students.learned import PolicyController, input_set_of
 from support import SHORT_EPISODE, TINY_PPO, StandingWalker, record_short, registered, snapshot
 from task.command_fields import POSTURE_NAMES, task_fields
@@ -42,6 +42,7 @@ TRACKING_FIELDS = {"settled_error", "moved_error", "settle_seconds"}
 OPERATOR_STEPS = 360
 OPERATOR_SEED = 1007
 WALK_SEED = 0  # the first command of seeds 0 and 1's walking schedules (at 3 s) is a walk forward
+PLANNER_STUDENT = "pending+walk"  # the stepping teacher's walking student (docs/decisions/walking-student.md)
 DATASET_V1 = Path(__file__).parents[1] / "data" / "dataset_v1"
 TINY = ["--hidden", "8", "--epochs", "1", "--min-updates", "0", "--eval-episodes", "0", "--progress", "false"]
 
@@ -124,10 +125,10 @@ def test_walking_inputs_on_a_dataset_without_walks_are_refused_naming_what_to_re
     the zero walk): one line naming the recording that teaches it, no checkpoint, the dataset untouched."""
     root = request.getfixturevalue("operated") if dataset == "operated" else DATASET_V1
     before = snapshot(root)
-    args = [*TINY, "--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", WALKING_INPUTS]
+    args = [*TINY, "--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", PLANNER_STUDENT]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1, err
-    assert f"--inputs {WALKING_INPUTS} learns to walk on velocity commands" in err[0]
+    assert f"--inputs {PLANNER_STUDENT} learns to walk on velocity commands" in err[0]
     assert "make record CONTROLLER=expert-sensed-stepping TASK=walk" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(root) == before
 
@@ -140,7 +141,7 @@ def test_walking_inputs_train_on_walks_into_a_policy_that_walks_under_walking_sc
     assert read_frames(walked, [columns.OBS_COMMAND])[columns.OBS_COMMAND][:, 5:].any()
     folder = tmp_path / "policy"
     config = train_stage.TrainConfig(
-        dataset=walked, policy=folder, inputs=WALKING_INPUTS, hidden=8, epochs=1, min_updates=0, eval_episodes=1
+        dataset=walked, policy=folder, inputs=PLANNER_STUDENT, hidden=8, epochs=1, min_updates=0, eval_episodes=1
     )
     train_stage.main(dataclasses.replace(config, progress=False))
     assert input_set_of(folder).walks and not input_set_of(full_checkpoint(tmp_path / "full")).walks
@@ -248,7 +249,7 @@ def untrained(folder: Path, inputs: str) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("inputs", ["pending+ramp", WALKING_INPUTS])
+@pytest.mark.parametrize("inputs", ["pending+ramp", PLANNER_STUDENT])
 def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_path: Path, inputs: str) -> None:
     """`make play POLICY=...` on a policy that follows postures only: one line says the walking keys change nothing,
     before anything else (here the refusal of a stdin that is no terminal, which the suite has); on a walking policy,
@@ -261,7 +262,7 @@ def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_pat
     code, err = played.returncode, played.stderr.strip().splitlines()
     notice = f"{folder} takes no velocity command: the arrows and z/c change nothing"
     assert code == 1 and err[-1].startswith("error: ") and not (tmp_path / "new").exists()
-    if inputs == WALKING_INPUTS:
+    if inputs == PLANNER_STUDENT:
         assert len(err) == 1
     else:
         assert len(err) == 2 and err[0].startswith(notice)
@@ -398,13 +399,13 @@ def test_ppo_from_a_commanded_student_scores_tracking_on_held_out_schedules(
 def test_ppo_from_a_walking_student_trains_and_is_judged_on_walking_schedules(walked: Path, tmp_path: Path) -> None:
     """A student on `pending+walk`: PPO's environments draw walking schedules and reward the velocities' tracking too;
     its validation and final evaluation run held-out walking schedules and score every field."""
-    env = training_env(None, inputs=WALKING_INPUTS, tracking=1.0)
+    env = training_env(None, inputs=PLANNER_STUDENT, tracking=1.0)
     env.reset(seed=5)
     assert env.get_wrapper_attr("task") == "walk" and env.get_wrapper_attr("commands")[:, 5:].any()
     student = tmp_path / "student"
     train_stage.main(
         train_stage.TrainConfig(
-            dataset=walked, policy=student, inputs=WALKING_INPUTS, hidden=8, epochs=1, min_updates=0, eval_episodes=0
+            dataset=walked, policy=student, inputs=PLANNER_STUDENT, hidden=8, epochs=1, min_updates=0, eval_episodes=0
         )
     )
     config = finetune.FinetuneConfig(bc_policy=student, policy=tmp_path / "ppo", timesteps=256, **TINY_PPO)

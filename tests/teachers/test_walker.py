@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from common.cli import UserError
+from common.seed_ranges import SELECTION_SEED
 from humanoid.balance import standing_pose
 from humanoid.conditions import Condition
 from humanoid.env import EPISODE_STEPS, make_env, model_and_data, nominal_model
@@ -150,7 +151,7 @@ def test_asked_to_turn_in_place_the_body_turns_that_way(rate: float) -> None:
     either way (docs/decisions/walker-turning.md)."""
     env = make_env(EPISODE_STEPS)
     walker = Walker()
-    _, fell = walk(walker, env, 4.0, command_vector(Posture(turn_rate=rate)), seed=3000)
+    _, fell = walk(walker, env, 4.0, command_vector(Posture(turn_rate=rate)), seed=SELECTION_SEED)
     assert not fell
     _, data = model_and_data(env)
     yaw = walker.clock.points(data.qpos, data.qvel).yaw  # the pelvis's, as the clock reads it
