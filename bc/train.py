@@ -46,7 +46,7 @@ from common.cli import (
 )
 from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
-from common.workers import available_cores, default_workers
+from common.workers import default_workers, torch_threads
 from evaluation.evaluate import evaluate_each, evaluation_pool
 from humanoid.env import make_env
 from policies import checkpoint
@@ -300,7 +300,7 @@ def fit_demonstrations(
 ) -> TrainResult:
     """A policy for `action_space` fitted to `demos` in memory as `cfg` says (its split, input normalisation and
     training); nothing is written but `writer`'s logs. The same `demos` and `cfg` give the same weights."""
-    torch.set_num_threads(available_cores())
+    torch.set_num_threads(torch_threads())
     torch.manual_seed(cfg.seed)
     train_episodes, val_episodes = split_by_episode(demos.episodes, VAL_FRACTION, cfg.seed)
     train, val = rows_of(demos, train_episodes), rows_of(demos, val_episodes)

@@ -237,6 +237,15 @@ def available_cores() -> int:
     return len(os.sched_getaffinity(0))
 
 
+def torch_threads() -> int:
+    """The threads torch's own operations get (BC's fit, PPO's updates): one per core this process may run on, or
+    fewer where `OMP_NUM_THREADS` says so, as torch itself reads it. Two fits of two threads each on two cores took 90
+    s each, one alone 12 s: torch's threads wait for cores by spinning (docs/decisions/test-workers.md)."""
+    cores = available_cores()
+    told = os.environ.get("OMP_NUM_THREADS", "")
+    return max(1, min(cores, int(told))) if told.isdigit() else cores
+
+
 def default_workers(most: int) -> int:
     """The worker count of recording, PPO and the robustness suite unless told: one per core this process may run on
     (`available_cores`), at most `most`, past which more do not help (each command says why its `most`:

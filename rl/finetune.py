@@ -199,7 +199,7 @@ class FinetuneConfig:
     seed: int = setting(0, "seed of PPO and the environments")
     update_threads: int = setting(
         0,
-        "torch threads of PPO's updates (0: one per core; the workers are idle then). "
+        "torch threads of PPO's updates (0: one per core, or OMP_NUM_THREADS; the workers are idle then). "
         "The rollouts use one: idle torch threads spin and slow the simulation "
         "(docs/decisions/ppo-sampling.md)",
     )

@@ -15,7 +15,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
-from common.workers import available_cores
+from common.workers import torch_threads
 from humanoid.conditions import SUITE, Condition, Randomization
 from humanoid.env import make_env
 from policies.actor_critic import BCActorCriticPolicy
@@ -139,9 +139,9 @@ def build_model(
 ) -> WorkerRolloutPPO:
     """The PPO learner around `actor` (its weights are copied); nothing is trained yet.
 
-    `update_threads` 0 means one per core: the workers are idle during updates. `env`'s observation is
-    Humanoid-v5's, then the actor's inputs (`training_env`): the actor reads those, the critic all
-    of it, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
+    `update_threads` 0 means one per core (or `OMP_NUM_THREADS`: `torch_threads`): the workers are idle during
+    updates. `env`'s observation is Humanoid-v5's, then the actor's inputs (`training_env`): the actor reads those,
+    the critic all of it, normalised with `critic_normalisation` (the demonstrations' mean and std of it).
     """
     policy_kwargs = {
         "actor_spec": actor.spec,
@@ -156,7 +156,7 @@ def build_model(
     model = WorkerRolloutPPO(
         BCActorCriticPolicy,
         env,
-        update_threads=update_threads or available_cores(),
+        update_threads=update_threads or torch_threads(),
         reward_scale=reward_scale,
         learning_rate=learning_rate,
         n_steps=n_steps,

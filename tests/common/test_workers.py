@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from common.cli import DatasetError
-from common.workers import Channel, Worker, WorkerError
+from common.workers import Channel, Worker, WorkerError, torch_threads
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (processes)
 
@@ -232,6 +232,19 @@ def test_worker_counts_default_to_the_cores_this_process_may_use(cores: int, def
     if len(os.sched_getaffinity(0)) < cores:
         pytest.skip(f"needs {cores} cores")
     assert defaults_by_cores[cores] == [str(cores), "1", str(cores), str(cores), str(cores), str(cores), "1", "1", "3"]
+
+
+@pytest.mark.parametrize(("told", "most"), [(None, 99), ("1", 1), ("64", 99), ("", 99), ("two", 99)])
+def test_torch_threads_are_the_cores_or_fewer_where_omp_num_threads_says(
+    told: str | None, most: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One per core this process may use; `OMP_NUM_THREADS` lowers it (a share of the cores) but never raises it, and
+    a value that is no count is ignored."""
+    if told is None:
+        monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("OMP_NUM_THREADS", told)
+    assert torch_threads() == min(most, len(os.sched_getaffinity(0)))
 
 
 def test_a_send_to_a_child_that_failed_keeps_its_last_answers() -> None:
