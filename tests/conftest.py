@@ -15,8 +15,9 @@ from common.threads import PINNED, pinnable
 if pinnable():
     for name, value in PINNED.items():
         os.environ.setdefault(name, value)
-# Under pytest-xdist each test process's torch gets its share of the cores (`common.workers.torch_threads`): two BC
-# fits of a thread per core each, side by side, took 7 times as long as one alone (docs/decisions/test-workers.md).
+# Under pytest-xdist each test process's torch (`common.workers.torch_threads`) and OpenBLAS get its share of the cores,
+# as a command's own process limits OpenBLAS (`common.threads.one_blas_thread`): two BC fits of a thread per core each,
+# side by side, took 7 times as long as one alone (docs/decisions/test-workers.md).
 if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
     os.environ.setdefault(
         "OMP_NUM_THREADS", str(max(1, len(os.sched_getaffinity(0)) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"])))
