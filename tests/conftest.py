@@ -8,6 +8,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from common import workers
 from common.threads import PINNED, pinnable
 
 # The BLAS kernels `make test` runs with, also under a bare `pytest`: they act only if set before numpy loads, which
@@ -18,14 +19,11 @@ if pinnable():
 # Under pytest-xdist each test process's torch (`common.workers.torch_threads`) and OpenBLAS get its share of the cores,
 # as a command's own process limits OpenBLAS (`common.threads.one_blas_thread`): two BC fits of a thread per core each,
 # side by side, took 7 times as long as one alone (docs/decisions/test-workers.md).
-if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
-    os.environ.setdefault(
-        "OMP_NUM_THREADS", str(max(1, len(os.sched_getaffinity(0)) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"])))
-    )
+if (processes := int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))) > 1:
+    os.environ.setdefault("OMP_NUM_THREADS", str(max(1, workers.available_cores() // processes)))
 
 import pytest
 
-from common import workers
 from teleop.parallel import WORKER_MODULES
 from teleop.writer_process import WRITER_MODULES
 
