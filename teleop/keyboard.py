@@ -14,18 +14,21 @@ Two front ends drive the same `TeleopSession`, in real time (one env step per 15
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import select
 import sys
 import termios
+import threading
 import time
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TextIO
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from common.cli import UserError
@@ -40,6 +43,8 @@ from task.posture import NEUTRAL, Posture
 from task.schedules import command_vector, task_for
 
 if TYPE_CHECKING:
+    import mujoco.viewer
+
     from teleop.store import CommittedEpisode, EpisodeSink
 
 PUSH_FORCE = 8.0  # N, horizontal, forward: the expert recovers from it (10 N topples it on many seeds)
@@ -390,8 +395,9 @@ def tolerate_x_errors(err: TextIO = sys.stderr) -> bool:
     """Make an X protocol error one line on `err` instead of Xlib's default, which prints it and calls exit(): when
     the passive viewer closes, its render thread can still swap the buffers of the destroyed window (GLXBadDrawable),
     and that exit() from the render thread hung the recorder after the dataset was saved (tests/teleop/test_viewer.py
-    timed out so in two fresh clones' `make test`). GLFW sets its own handler only around its calls, and puts back the
-    one it found. False where there is no libX11 (Wayland, macOS): nothing to do."""
+    timed out so in two fresh clones' `make test`; passive_viewer now waits for that thread, and this handler stays
+    for any other). GLFW sets its own handler only around its calls, and puts back the one it found. False where
+    there is no libX11 (Wayland, macOS): nothing to do."""
     import ctypes  # noqa: PLC0415 - only the viewer front end needs it
     import ctypes.util  # noqa: PLC0415
 
@@ -427,11 +433,30 @@ def tolerate_x_errors(err: TextIO = sys.stderr) -> bool:
     return True
 
 
+@contextlib.contextmanager
+def passive_viewer(
+    model: mujoco.MjModel, data: mujoco.MjData, key_callback: Callable[[int], None] | None = None
+) -> Iterator[mujoco.viewer.Handle]:
+    """MuJoCo's passive viewer, closed on leaving and its thread waited for. The viewer's daemon thread destroys its
+    window after close() returns; a process that exits first runs GLFW's terminate (an atexit hook) under that thread
+    and segfaults (mujoco issue 790) or hangs: 12 of 20 such exits did here (0 of 20 with the wait), and the
+    recorder once exited -11 after saving (docs/log.md, 2026-12-06)."""
+    import mujoco.viewer  # noqa: PLC0415 - needs a display
+
+    before = set(threading.enumerate())
+    started: list[threading.Thread] = []
+    try:
+        with mujoco.viewer.launch_passive(model, data, key_callback=key_callback) as viewer:
+            started = [thread for thread in threading.enumerate() if thread not in before]
+            yield viewer
+    finally:
+        for thread in started:
+            thread.join(timeout=10.0)
+
+
 def run_viewer(session: TeleopSession, out: TextIO, pace: float) -> None:
     """Real-time loop (`pace` simulated seconds a second) in MuJoCo's passive viewer; keys arrive through its
     callback."""
-    import mujoco.viewer  # noqa: PLC0415 - needs a display
-
     tolerate_x_errors()
 
     pressed: list[str] = []
@@ -445,7 +470,7 @@ def run_viewer(session: TeleopSession, out: TextIO, pace: float) -> None:
     print("keys (in the viewer window):\n" + key_help(), file=out)
     status_line = StatusLine(out)
     try:
-        with mujoco.viewer.launch_passive(session.model, session.data, key_callback=on_key) as viewer:
+        with passive_viewer(session.model, session.data, key_callback=on_key) as viewer:
             with viewer.lock():  # follow the torso from 4 m, slightly above: the whole body in view
                 viewer.cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
                 viewer.cam.trackbodyid = session.torso
