@@ -39,25 +39,29 @@ POSTURE = slice(0, 5)  # the posture fields of the command (the push has its own
 
 @pytest.fixture(scope="module")
 def display() -> Iterator[str]:
-    """A private X display (Xvfb) for the module, stopped after."""
-    number = next(n for n in range(90, 200) if not Path(f"/tmp/.X{n}-lock").exists())
+    """A private X display (Xvfb) for the module, stopped after. Xvfb picks a free display number itself and writes
+    it when it is ready (-displayfd): two test processes, or a lock file a dead server left, cannot hand a module
+    another's display."""
+    ready, told = os.pipe()
     server = subprocess.Popen(
-        ["Xvfb", f":{number}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+        ["Xvfb", "-displayfd", str(told), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+        pass_fds=(told,),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    socket = Path(f"/tmp/.X11-unix/X{number}")
-    deadline = time.monotonic() + 20
-    while not socket.exists():
-        assert server.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
-        time.sleep(0.05)
+    os.close(told)
+    with os.fdopen(ready) as pipe:
+        number = pipe.readline().strip()  # empty if Xvfb exited before it was ready
+    assert number, f"Xvfb did not start (exit {server.poll()})"
     yield f":{number}"
     server.terminate()
     server.wait(timeout=10)
 
 
 def xdotool(display: str, *args: str) -> str:
-    run = subprocess.run(["xdotool", *args], env={**os.environ, "DISPLAY": display}, capture_output=True, text=True)
+    run = subprocess.run(  # bounded: `search --sync` waits for ever for the window of a recorder that crashed
+        ["xdotool", *args], env={**os.environ, "DISPLAY": display}, capture_output=True, text=True, timeout=120
+    )
     assert run.returncode == 0, run.stderr
     return run.stdout.strip()
 
