@@ -143,7 +143,7 @@ pipeline: $(STAMP)  ## follow the operator: record schedules -> train-bc (with a
 # pytest-xdist: TEST_WORKERS processes, each taking whole test files (their module fixtures are built once);
 # on these 2-core machines 2 finish first (docs/decisions/test-workers.md).
 TEST_WORKERS ?= 2
-test: $(STAMP)  ## run the whole test suite (about 7 minutes on 2 cores; TEST_WORKERS processes)
+test: $(STAMP)  ## run the whole test suite (about 6½ minutes on 2 cores; TEST_WORKERS processes)
 	cd $(ROOT) && $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: $(STAMP)  ## the tests not marked slow, in one process (about 2 minutes)

@@ -20,7 +20,7 @@ import pytest
 from PIL import Image, ImageGrab
 
 from common import columns
-from support import join_observation, status_lines
+from support import SESSION_PACE, join_observation, status_lines
 from task.command_fields import COMMAND_NAMES
 from teleop.dataset_reader import read_frames
 
@@ -72,7 +72,7 @@ def teleoperated(display: str, tmp_path_factory: pytest.TempPathFactory) -> tupl
     folder = tmp_path_factory.mktemp("viewer")
     root, shot, log = folder / "dataset", folder / "viewer.png", folder / "recorder.log"
     command = [sys.executable, "-m", "teleop.record", "--controller", "keyboard", "--front-end", "viewer"]
-    command += ["--dataset", str(root), "--noise", "0", "--max-steps", "5000"]
+    command += ["--dataset", str(root), "--noise", "0", "--max-steps", "5000", f"--pace={SESSION_PACE}"]
     with log.open("w") as out:
         recorder = subprocess.Popen(
             command, env={**os.environ, "DISPLAY": display, "MUJOCO_GL": "glfw"}, stdout=out, stderr=out
