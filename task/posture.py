@@ -168,8 +168,9 @@ def nearest_pose(
     nearest to it, on the straight way from ``start`` (arms at ``start_arms``, a posture that balances), that does:
     the way halved `FALLBACK_HALVINGS` times. One warning line names the posture and how far it got.
 
-    Why: the solver's convergence near a singular Jacobian differs from one CPU to another (docs/decisions/
-    posture-fallback.md); a pose a little short of the one asked for is held, where an error would end the episode.
+    Why: the solver's convergence near a singular Jacobian differs from one CPU to another
+    (docs/decisions/posture-fallback.md); a pose a little short of the one asked for is held, where an error would end
+    the episode.
     """
     try:
         return posture_pose(model, target, neutral, target_arms)

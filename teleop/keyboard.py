@@ -440,7 +440,8 @@ def passive_viewer(
     """MuJoCo's passive viewer, closed on leaving and its thread waited for. The viewer's daemon thread destroys its
     window after close() returns; a process that exits first runs GLFW's terminate (an atexit hook) under that thread
     and segfaults (mujoco issue 790) or hangs: 12 of 20 such exits did here (0 of 20 with the wait), and the
-    recorder once exited -11 after saving (docs/log.md, 2026-12-06)."""
+    recorder once exited -11 after saving (docs/log.md, "2026-12-06: the viewer's thread waited for at exit; the viewer
+    tests' display (fortieth session, issue 71)")."""
     import mujoco.viewer  # noqa: PLC0415 - needs a display
 
     before = set(threading.enumerate())
