@@ -67,22 +67,23 @@ def pointer_problems(text: str) -> list[str]:
     return problems
 
 
-def link_problems(page: Path) -> list[str]:
-    """Each relative link of a Markdown page whose file or anchor does not exist."""
-    problems, fenced = [], False
-    for line in page.read_text(encoding="utf-8").splitlines():
+def link_problems(page: Path, text: str | None = None) -> list[str]:
+    """Each relative link of a Markdown page (its `text`, or the file's) whose file or anchor does not exist; a link's
+    text may wrap over lines."""
+    problems, fenced, prose = [], False, []
+    for line in (page.read_text(encoding="utf-8") if text is None else text).splitlines():
         if line.startswith("```"):
             fenced = not fenced
+        prose.append("" if fenced or line.startswith("```") else line)
+    for target in LINK.findall("\n".join(prose)):
+        if re.match(r"[a-z]+:", target):  # https:, mailto:
             continue
-        for target in [] if fenced else LINK.findall(line):
-            if re.match(r"[a-z]+:", target):  # https:, mailto:
-                continue
-            path, _, anchor = target.partition("#")
-            linked = (page.parent / path).resolve() if path else page
-            if not linked.exists():
-                problems.append(f"{page.relative_to(ROOT)}: {target}: no such file")
-            elif anchor and (linked.suffix != ".md" or anchor not in anchors(linked)):
-                problems.append(f"{page.relative_to(ROOT)}: {target}: no such anchor")
+        path, _, anchor = target.partition("#")
+        linked = (page.parent / path).resolve() if path else page
+        if not linked.exists():
+            problems.append(f"{page.relative_to(ROOT)}: {target}: no such file")
+        elif anchor and (linked.suffix != ".md" or anchor not in anchors(linked)):
+            problems.append(f"{page.relative_to(ROOT)}: {target}: no such anchor")
     return problems
 
 
@@ -112,8 +113,8 @@ def test_every_pointer_in_the_code_resolves() -> None:
 
 
 def test_every_link_in_the_docs_resolves() -> None:
-    """Relative links in README.md and docs/**/*.md name files that exist, and anchors those pages have."""
-    pages = [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]
+    """Relative links in the READMEs and docs/**/*.md name files that exist, and anchors those pages have."""
+    pages = [ROOT / "README.md", ROOT / "datasets" / "README.md", *sorted(DOCS.rglob("*.md"))]
     problems = [problem for page in pages for problem in link_problems(page)]
     assert not problems, "\n".join(problems)
 
@@ -133,6 +134,23 @@ def test_every_link_in_the_docs_resolves() -> None:
 def test_a_pointer_is_checked_against_the_page(text: str, problem: str | None) -> None:
     """The checker finds each form, also wrapped over comment lines, and names what is missing."""
     found = pointer_problems(text)
+    assert [p.split(": ")[-1] for p in found] == ([problem] if problem else [])
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("[the expert](benchmarks.md#the-expert)", None),
+        ("see [the\nexpert](benchmarks.md#the-expert) there", None),
+        ("see [the\nexpert](benchmarks.md#no-such-anchor) there", "no such anchor"),
+        ("[a page](no_such_page.md)", "no such file"),
+        ("```\n[in a code block](no_such_page.md)\n```", None),
+    ],
+)
+def test_a_link_is_checked_also_where_its_text_wraps(text: str, problem: str | None) -> None:
+    """Known answers: a link whose text runs over a line break is checked as any other; code blocks are not."""
+    page = DOCS / "page.md"  # where it would live: the targets are relative to docs/
+    found = link_problems(page, text)
     assert [p.split(": ")[-1] for p in found] == ([problem] if problem else [])
 
 
