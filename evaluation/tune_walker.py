@@ -4,14 +4,14 @@ Each candidate gait walks the held-out walking schedules' kind of episode on the
 evaluation's 1000-1019) and stands through kicks, and is scored by `cost`: a fall costs most, then the tracking error
 of the speeds once settled. CMA-ES (the `cma` library, Hansen's) searches the parameters scaled to their `BOUNDS` (or
 `--bounds`), seeded, so a run repeats; every generation's state is kept in `--run`, so a killed run resumes where it
-was. At the end the best gait seen goes to `--out` (the walker's `GAIT_FILE`) with the run that chose it. Docs:
+was. At the end the best gait seen goes to `--out` (by default the resumed run's, else the walker's `GAIT_FILE`) with
+the run that chose it. Docs:
 docs/decisions/walker-speed.md#the-tuning (the table that chose the default), docs/how-to/walk.md.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import pickle
 import sys
@@ -38,7 +38,7 @@ from common.cli import (
 from common.seed_ranges import SELECTION_SEED
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
-from task.gait import GAIT_FILE, Gait, load_gait, save_gait
+from task.gait import GAIT_FILE, Gait, read_gait, save_gait
 from teachers.walker import SensedWalker, Walker
 
 Bounds = dict[str, Range]
@@ -99,11 +99,14 @@ class TuneConfig:
     workers: int = setting(2, "processes evaluating candidates at once")
     start: Path | None = setting(
         None,
-        "the gait file the search starts from (its centre); default: the tuned one (task/gait.json), tuned on",
+        "the gait file the search starts from (its centre); default: the tuned one (task/gait.json), or the middle of "
+        "the search ranges where that file is missing or of another version",
     )
     run: Path = setting(Path("policies/walker_tuning"), "the run's folder: its state after every generation, its log")
     out: Path | None = setting(
-        None, "where the best gait goes at the end; default: the tuned one's file (task/gait.json)"
+        None,
+        "where the best gait goes at the end; default: where the run resumed goes, else the tuned one's file "
+        "(task/gait.json)",
     )
 
 
@@ -166,6 +169,19 @@ ADDED_SETTINGS = {name: field_default(TuneConfig, name) for name in ("bounds", "
 """Settings added since runs were first saved, at their defaults: what an older run ran with, so that it resumes."""
 
 
+def start_gait(start: Path | None, bounds: Bounds, tuned: Path = GAIT_FILE) -> tuple[Gait, dict | None]:
+    """The gait a run starts from, and the run that tuned it: `start`'s (UserError in one line if it holds none), or
+    the `tuned` one's; where that is missing or of another version (a changed `Gait`), the middle of `bounds`, said
+    in one line on stderr."""
+    try:
+        return read_gait(tuned if start is None else start)
+    except ValueError as error:
+        if start is not None:
+            raise UserError(f"--start: {error}") from None
+        print(f"tune-walker: {error}: the search starts at the middle of its ranges", file=sys.stderr)
+        return unscaled(np.full(len(bounds), 0.5), bounds), None
+
+
 def _settings(cfg: TuneConfig) -> dict[str, Any]:
     """What a resumed run must share with the run it resumes (all but how long and how many processes)."""
     return {
@@ -188,16 +204,16 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
             raise UserError(f"{cfg.run} holds a run with other settings ({state['settings']}): give another --run")
         print(f"tune-walker: resuming {cfg.run} at generation {state['generation']}", file=sys.stderr)
     else:
-        start_file = GAIT_FILE if cfg.start is None else cfg.start
-        start = load_gait(start_file)
+        start, start_tuning = start_gait(cfg.start, bounds)
         options = {"popsize": cfg.population, "seed": cfg.cma_seed, "bounds": [0.0, 1.0], "verbose": -9}
         state = {
             "settings": settings,
             "es": cma.CMAEvolutionStrategy(np.clip(scaled(start, bounds), 0.0, 1.0), cfg.sigma, options),
             "start": dataclasses.asdict(start),
-            "start_tuning": json.loads(start_file.read_text()).get("tuning"),
+            "start_tuning": start_tuning,
             "generation": 0,
             "best": (math.inf, None, None),
+            "out": None if cfg.out is None else str(cfg.out),
         }
     cfg.run.mkdir(parents=True, exist_ok=True)
     es = state["es"]
@@ -241,7 +257,8 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         "start": state["start"],
         "start_tuning": state["start_tuning"],
     }
-    save_gait(gait, GAIT_FILE if cfg.out is None else cfg.out, tuning)
+    out = cfg.out or state.get("out")  # a resumed run's, as it began (runs saved before it was kept: none)
+    save_gait(gait, GAIT_FILE if out is None else Path(out), tuning)
     return {"gait": dataclasses.asdict(gait), "tuning": tuning}
 
 

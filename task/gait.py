@@ -118,23 +118,34 @@ class Gait:
         return math.sqrt(G / self.height)
 
 
-def load_gait(path: Path = GAIT_FILE) -> Gait:
-    """The tuned gait at `path`; UserError in one line naming `make tune-walker` if it is missing, unreadable or of
-    another version."""
+def read_gait(path: Path) -> tuple[Gait, dict | None]:
+    """The gait at `path` and the run that tuned it; ValueError saying why not (missing, unreadable, another
+    version)."""
     try:
         saved = json.loads(path.read_text())
         if saved.get("version") != GAIT_VERSION:
             raise ValueError(f"version {saved.get('version')}, not {GAIT_VERSION}")
-        return Gait(**{f.name: float(saved["gait"][f.name]) for f in fields(Gait)})
-    except (OSError, ValueError, KeyError, TypeError) as error:
-        raise UserError(
-            f"{path} holds no walker gait of version {GAIT_VERSION} ({error}): run `make tune-walker`"
-        ) from None
+        return Gait(**{f.name: float(saved["gait"][f.name]) for f in fields(Gait)}), saved.get("tuning")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path} holds no walker gait of version {GAIT_VERSION} ({error})") from None
+
+
+def load_gait(path: Path = GAIT_FILE) -> Gait:
+    """The tuned gait at `path`; UserError in one line naming `make tune-walker` if it is missing, unreadable or of
+    another version (and, for the committed file, how to restore it)."""
+    try:
+        return read_gait(path)[0]
+    except ValueError as error:
+        restore = f", or `git checkout task/{path.name}` for the committed one" if path == GAIT_FILE else ""
+        raise UserError(f"{error}: run `make tune-walker`{restore}") from None
 
 
 def save_gait(gait: Gait, path: Path, tuning: dict) -> None:
-    """Write `gait` to `path` with its version and how it was tuned."""
-    path.write_text(json.dumps({"version": GAIT_VERSION, "gait": asdict(gait), "tuning": tuning}, indent=2) + "\n")
+    """Write `gait` to `path` with its version and how it was tuned, whole or not at all (a kill mid-write leaves the
+    file that was there)."""
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(json.dumps({"version": GAIT_VERSION, "gait": asdict(gait), "tuning": tuning}, indent=2) + "\n")
+    partial.replace(path)
 
 
 def rotation(axis: int, angle: float) -> np.ndarray:

@@ -12,8 +12,8 @@ import pytest
 
 from common.cli import UserError
 from evaluation import tune_walker
-from evaluation.tune_walker import BOUNDS, TuneConfig, cli, scaled, search_bounds, unscaled
-from task.gait import Gait, load_gait
+from evaluation.tune_walker import BOUNDS, TuneConfig, cli, scaled, search_bounds, start_gait, unscaled
+from task.gait import GAIT_FILE, Gait, load_gait
 
 
 def test_a_gait_scales_into_its_bounds_and_back() -> None:
@@ -56,13 +56,16 @@ def test_bad_bounds_are_one_line_and_leave_no_run(text: str, problem: str, tmp_p
 @pytest.mark.slow
 def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     """One generation, then the run asked for two more resumes at the second (its log grows by one line per
-    generation); the gait file holds the best candidate, within the run's `--bounds` (the tuned gait's `k_y` 1.48
-    starts at their edge), and the run's settings; other settings are refused."""
+    generation) and, given no `--out`, writes where the run began writing, not over the tuned gait; the gait file
+    holds the best candidate, within the run's `--bounds` (the tuned gait's `k_y` 1.48 starts at their edge), and
+    the run's settings; other settings are refused."""
     run, out = tmp_path / "run", tmp_path / "gait.json"
     settings = {"population": 2, "walks": 1, "kicks": 0, "workers": 1, "run": run, "out": out, "bounds": "k_y=0.8:1.25"}
+    tuned = GAIT_FILE.read_bytes()
     tune_walker.main(TuneConfig(generations=1, **settings))
     first = json.loads(out.read_text())
-    tune_walker.main(TuneConfig(generations=2, **settings))
+    tune_walker.main(TuneConfig(generations=2, **{**settings, "out": None}))
+    assert GAIT_FILE.read_bytes() == tuned
     lines = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [line["generation"] for line in lines] == [1, 2]
     saved = json.loads(out.read_text())
@@ -80,3 +83,17 @@ def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     (run / "state.pkl").write_bytes(pickle.dumps(state))
     tune_walker.main(TuneConfig(generations=3, **settings))
     assert json.loads(out.read_text())["tuning"]["generations"] == 3
+
+
+def test_a_run_starts_from_start_or_the_tuned_gait_or_the_middle_of_the_ranges(tmp_path, capsys) -> None:
+    """`--start` naming no gait is one line; without it the tuned gait, and where that file is missing (or of another
+    version) the middle of the ranges, said in one line: `make tune-walker` makes a gait file from none."""
+    assert start_gait(None, BOUNDS) == (load_gait(), json.loads(GAIT_FILE.read_text())["tuning"])
+    with pytest.raises(UserError, match=r"^--start: .*none\.json holds no walker gait of version") as missing:
+        start_gait(tmp_path / "none.json", BOUNDS)
+    assert "\n" not in str(missing.value)
+    capsys.readouterr()
+    gait, tuning = start_gait(None, BOUNDS, tuned=tmp_path / "none.json")
+    assert tuning is None and gait.period == pytest.approx(0.375) and gait.k_y == pytest.approx(1.05)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("the search starts at the middle of its ranges"), err
