@@ -117,10 +117,11 @@ class Demonstrations:
 
 
 def no_walks(inputs: str, root: Path) -> UserError:
-    """The refusal of a walking input set on the dataset at `root`, which commands no walk."""
+    """The refusal of a walking input set on the dataset at `root`, which commands no walk: it names the recording
+    that teaches the set."""
     return UserError(
         f"--inputs {inputs} learns to walk on velocity commands, and {root} commands no walk: record walks "
-        "(make record CONTROLLER=expert-sensed-stepping TASK=walk; docs/how-to/walk.md)"
+        f"({input_set_named(inputs).recording}; docs/how-to/walk.md)"
     )
 
 

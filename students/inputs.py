@@ -90,6 +90,8 @@ class InputSet(ABC):
     """Whether the inputs carry the action latency, which only delayed episodes teach."""
     walks: ClassVar[bool] = False
     """Whether the velocity command is among the inputs (a walking set): a policy that can be told to walk."""
+    recording: ClassVar[str] = "make record"
+    """The recording whose demonstrations teach it, which a refusal names."""
     task: ClassVar[str] = STAND
     """The task (`task.command_fields.TASKS`) its policy is trained and evaluated on: what its command asks."""
     version: ClassVar[int] = 1
@@ -306,6 +308,13 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
         # The walker's students read the odometry in the heading's frame: in the world's, a held turn took them to
         # headings their demonstrations never faced, and they fell (docs/decisions/turned-headings.md).
         heading_frame = gait
+        # The walker's clock is in a gait set: its demonstrations are the walker's (a walking task's default teacher);
+        # the walking set's `planning` flag is the stepping teacher's hand-over.
+        recording = (
+            ("make record TASK=walk" if gait else "make record CONTROLLER=expert-sensed-stepping TASK=walk")
+            if walking
+            else "make record"
+        )
         version = 2 if gait else base.version  # 2: the heading's frame (1 read the world's)
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."
 

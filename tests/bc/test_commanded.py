@@ -117,19 +117,31 @@ def walked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         yield root
 
 
-@pytest.mark.parametrize("dataset", ["operated", "old"])
+@pytest.mark.parametrize(
+    ("dataset", "inputs", "recording"),
+    [
+        ("operated", PLANNER_STUDENT, "make record CONTROLLER=expert-sensed-stepping TASK=walk;"),
+        ("old", PLANNER_STUDENT, "make record CONTROLLER=expert-sensed-stepping TASK=walk;"),
+        ("operated", "pending+gait", "(make record TASK=walk;"),  # the walker's student: the walking task's teacher
+    ],
+)
 def test_walking_inputs_on_a_dataset_without_walks_are_refused_naming_what_to_record(
-    request: pytest.FixtureRequest, tmp_path: Path, capsys: pytest.CaptureFixture[str], dataset: str
+    request: pytest.FixtureRequest,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    dataset: str,
+    inputs: str,
+    recording: str,
 ) -> None:
-    """INPUTS=pending+walk on posture schedules, or on a dataset recorded before the velocity fields existed (read as
+    """A walking input set on posture schedules, or on a dataset recorded before the velocity fields existed (read as
     the zero walk): one line naming the recording that teaches it, no checkpoint, the dataset untouched."""
     root = request.getfixturevalue("operated") if dataset == "operated" else DATASET_V1
     before = snapshot(root)
-    args = [*TINY, "--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", PLANNER_STUDENT]
+    args = [*TINY, "--dataset", str(root), "--policy", str(tmp_path / "policy"), "--inputs", inputs]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1, err
-    assert f"--inputs {PLANNER_STUDENT} learns to walk on velocity commands" in err[0]
-    assert "make record CONTROLLER=expert-sensed-stepping TASK=walk" in err[0]
+    assert f"--inputs {inputs} learns to walk on velocity commands" in err[0]
+    assert recording in err[0], err[0]
     assert not (tmp_path / "policy").exists() and snapshot(root) == before
 
 
