@@ -55,6 +55,7 @@ from policies.mlp import MLPPolicy, MLPSpec
 from rollout.controllers import KEYBOARD, KEYBOARD_EXPERT, built
 from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from task.command_fields import VELOCITY_NAMES, field_positions
+from task.tracking import error_text
 from teachers.registry import TEACHER, TEACHERS
 from teleop.dataset_reader import read_commanded_frames, read_episodes
 
@@ -148,7 +149,7 @@ class TrainResult:
             )
             if ev["tracking"] is not None:
                 line += "; settled error " + ", ".join(
-                    f"{name} {error:.3f} (expert {ev['expert_tracking']['settled_error'][name]:.3f})"
+                    f"{name} {error_text(error)} (expert {error_text(ev['expert_tracking']['settled_error'][name])})"
                     for name, error in ev["tracking"]["settled_error"].items()
                 )
         return line

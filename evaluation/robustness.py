@@ -33,7 +33,7 @@ from policies import checkpoint
 from policies.folder import chosen_policy
 from rollout.controllers import check_controller, registered
 from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
-from task.tracking import combine_tracking, tracked_names
+from task.tracking import combine_tracking, error_text, tracked_names
 
 SECTOR_DEGREES = 45
 """Width of the push-direction sectors, centred on forward (0), left (90), back (180), right (-90) and between."""
@@ -250,7 +250,7 @@ def table(result: dict[str, Any]) -> str:
     tracked = tracked_names(rows[0]["tracking"]) if all(row.get("tracking") for row in rows) else ()
     lines = [f"{'condition':<10} {'survival':>9} {'mean return':>12}" + "".join(f" {name:>12}" for name in tracked)]
     for name, row in result["conditions"].items():
-        errors = "".join(f" {row['tracking']['settled_error'][field]:>12.3f}" for field in tracked)
+        errors = "".join(f" {error_text(row['tracking']['settled_error'][field]):>12}" for field in tracked)
         lines.append(f"{name:<10} {row['survival_rate']:>8.0%} {row['mean_return']:>12.1f}{errors}")
     for name, row in result["conditions"].items():
         if "push_sectors" in row:

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-from task.tracking import tracked_names, tracking_score
+from task.tracking import error_text, tracked_names, tracking_score
 
 
 def survivors(row: dict[str, Any]) -> int:
@@ -21,11 +20,6 @@ def mean_return(result: dict[str, Any]) -> float:
 
 def _survivors(row: dict[str, Any]) -> str:
     return f"{survivors(row)}/{row['episodes']}"
-
-
-def _number(value: float | None, digits: int) -> str:
-    """`value` to `digits` places; "n/a" for an error over no settled command (NaN; null in the JSON a run saved)."""
-    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[str, Any]]) -> str:
@@ -58,8 +52,8 @@ def command_table(standing: dict[str, dict[str, Any]], tracked: dict[str, dict[s
         for controller, result in tracked.items():
             row = result["conditions"][name]
             held, moved = row["tracking"]["settled_error"], row["tracking"]["moved_error"]
-            errors = " | ".join(f"{_number(held[field], 3)} / {_number(moved[field], 3)}" for field in fields)
-            settle = _number(row["tracking"]["settle_seconds"], 2)
+            errors = " | ".join(f"{error_text(held[field])} / {error_text(moved[field])}" for field in fields)
+            settle = error_text(row["tracking"]["settle_seconds"], 2)
             rows.append(f"| {name} | {controller} | {_survivors(row)} | {errors} | {settle} |")
     rows.append(
         "\n(settled tracking error per command field, over every command held / over those that move the field away"

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -212,6 +213,12 @@ def combine_tracking(summaries: list[dict]) -> dict[str, dict[str, float] | floa
 def tracked_names(summary: dict[str, Any]) -> tuple[str, ...]:
     """The fields a `tracking_summary` (or `combine_tracking`) measured, in the table's order."""
     return tuple(name for name in COMMAND_NAMES if name in summary["settled_error"])
+
+
+def error_text(value: float | None, digits: int = 3) -> str:
+    """An error of a `tracking_summary` to `digits` places as the tables print it; "n/a" where no command was held
+    long enough to measure it (NaN, or null as a saved run's JSON holds it)."""
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def tracking_reward(errors: np.ndarray, tolerances: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ from evaluation.robustness import (
     push_sectors,
     run_suite,
     suite_runs,
+    table,
 )
 from humanoid.conditions import SUITE
 
@@ -93,3 +94,13 @@ def test_pushes_are_counted_in_the_sector_of_their_nearest_centre() -> None:
     assert sectors["centres"] == [-135, -90, -45, 0, 45, 90, 135, 180]
     assert sectors["pushes"] == [1, 0, 0, 2, 1, 1, 0, 2]
     assert sectors["toppled"] == [0, 0, 0, 1, 1, 0, 0, 2]
+
+
+def test_the_table_prints_an_error_no_command_settled_long_enough_to_measure_as_n_a() -> None:
+    """Known answer: survivors, return and each tracked field's settled error; NaN (a run whose commands never held
+    long enough, or all fell) prints as n/a, as the pipeline's table does."""
+    tracking = {"settled_error": {"lean_forward": 0.0123, "height": float("nan")}, "settle_seconds": 1.0}
+    result = {"conditions": {"clean": {"survival_rate": 0.5, "mean_return": 1234.56, "tracking": tracking}}}
+    lines = table(result).splitlines()
+    assert lines[0].split() == ["condition", "survival", "mean", "return", "lean_forward", "height"]
+    assert lines[1].split() == ["clean", "50%", "1234.6", "0.012", "n/a"]
