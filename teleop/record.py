@@ -69,6 +69,7 @@ from humanoid.env import EPISODE_STEPS, make_env, model_and_data
 from policies.folder import chosen_policy
 from rollout.controllers import INTERACTIVE, built, check_controller, make_controller, registered
 from rollout.episode import ControllerFailure, EpisodeBuffer, EpisodeFailure, run_episode
+from students.inputs import STUDENT_INPUTS
 from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
 from teachers.registry import TEACHER, TEACHERS, WALKING_TEACHER, able
 from teleop import recordings
@@ -351,7 +352,8 @@ def check_played(cfg: RecordConfig) -> None:
         commanded = input_set_of(Path(cfg.policy))
         if commanded is None or not commanded.takes_command:
             raise UserError(
-                f"{cfg.policy} takes no command: the keys would change nothing (train one with INPUTS=...+command)"
+                f"{cfg.policy} takes no command: the keys would change nothing (train one on inputs that read it, "
+                f"such as the default INPUTS={STUDENT_INPUTS})"
             )
     if not commanded.walks:
         print(

@@ -23,6 +23,7 @@ from pipeline.targets import TARGETS
 from policies.folder import WEIGHTS_FILE
 from rl.finetune import FinetuneConfig
 from rl.finetune import main as finetune
+from students.inputs import STUDENT_INPUTS
 from support import SESSION_PACE, Terminal, join_observation, one_core, snapshot
 from task.command_fields import COMMAND_NAMES
 from task.tracking import Tracking
@@ -235,7 +236,7 @@ def test_a_policy_that_takes_no_command_is_refused_in_one_line(policies: Policie
     assert result.returncode == 1
     assert result.stderr.splitlines() == [
         f"error: {policies.uncommanded} takes no command: the keys would change nothing "
-        "(train one with INPUTS=...+command)"
+        f"(train one on inputs that read it, such as the default INPUTS={STUDENT_INPUTS})"
     ]
     assert not (tmp_path / "play").exists()
     assert snapshot(policies.uncommanded) == before
