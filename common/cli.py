@@ -280,6 +280,11 @@ def _finite(value: Any) -> Any:
     return value
 
 
+def counted(count: int, noun: str) -> str:
+    """`count` and `noun`, plural unless it is one: "1 episode", "3 episodes"."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def config_text(settings: dict[str, Any]) -> str:
     """`settings` as TensorBoard text (Markdown): a code block of indented JSON, which `json.loads` reads back."""
     return "\n".join("    " + line for line in json.dumps(settings, indent=2, default=str).splitlines())

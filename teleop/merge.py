@@ -28,7 +28,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from tqdm import tqdm
 
 from common import columns, paths
-from common.cli import UserError, config_dict, run_cli, setting
+from common.cli import UserError, config_dict, counted, run_cli, setting
 from humanoid.cameras import CameraTrack, parse_cameras
 from humanoid.env import make_env
 from rollout.episode import Episode
@@ -229,7 +229,7 @@ def main(cfg: MergeConfig) -> int:
 
 def _main_and_print(cfg: MergeConfig) -> None:
     added = main(cfg)
-    print(f"{cfg.dataset}: added {added} episodes from {len(shard_list(cfg.shards))} shards")
+    print(f"{cfg.dataset}: added {counted(added, 'episode')} from {counted(len(shard_list(cfg.shards)), 'shard')}")
 
 
 def cli(argv: Sequence[str] | None = None) -> int:

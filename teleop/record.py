@@ -47,6 +47,7 @@ from common.cli import (
     check_positive,
     check_share,
     config_dict,
+    counted,
     run_cli,
     setting,
 )
@@ -226,12 +227,13 @@ class RecordSummary:
             return f"{self.dataset}: no episode added ({self.total_episodes} in total)"
         returns = np.array([e.episode_return for e in self.episodes])
         falls = sum(e.fell for e in self.episodes)
+        first, last = self.episodes[0].seed, self.episodes[-1].seed
         return (
-            f"{self.dataset}: added {len(self.episodes)} episodes (seeds {self.episodes[0].seed}.."
-            f"{self.episodes[-1].seed}), {self.frames} frames in {self.seconds:.1f} s "
-            f"({self.frames / max(self.seconds, 1e-9):.0f} frames/s); return mean {returns.mean():.1f}, "
-            f"min {returns.min():.1f}, max {returns.max():.1f}; {falls} fell; "
-            f"{self.total_episodes} episodes in the dataset"
+            f"{self.dataset}: added {counted(len(self.episodes), 'episode')} "
+            f"({f'seed {first}' if len(self.episodes) == 1 else f'seeds {first}..{last}'}), {self.frames} frames in "
+            f"{self.seconds:.1f} s ({self.frames / max(self.seconds, 1e-9):.0f} frames/s); return mean "
+            f"{returns.mean():.1f}, min {returns.min():.1f}, max {returns.max():.1f}; {falls} fell; "
+            f"{counted(self.total_episodes, 'episode')} in the dataset"
         )
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.cli import REMOVED_FLAGS, REMOVED_VALUES, json_text, parse_config
+from common.cli import REMOVED_FLAGS, REMOVED_VALUES, counted, json_text, parse_config
 from evaluation import evaluate
 from pipeline import run as pipeline
 from pipeline.targets import TARGETS
@@ -101,3 +101,7 @@ def test_a_number_that_is_not_finite_is_written_null_in_strict_json() -> None:
     holds null there (known answer), numpy's floats and tuples included, everything else as `json.dumps` writes it."""
     content = {"error": float("nan"), "errors": (0.5, np.float64("inf")), "inner": {"x": -np.inf}, "n": 3, "s": "nan"}
     assert json_text(content) == '{"error": null, "errors": [0.5, null], "inner": {"x": null}, "n": 3, "s": "nan"}'
+
+
+def test_a_count_names_its_noun_in_the_singular_only_for_one() -> None:
+    assert [counted(n, "episode") for n in (0, 1, 2)] == ["0 episodes", "1 episode", "2 episodes"]

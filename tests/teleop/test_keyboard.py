@@ -144,7 +144,7 @@ def test_the_terminal_shows_the_key_map_and_a_status_line(teleoperated: tuple[Pa
     _, output = teleoperated
     assert key_help().splitlines()[0].strip() in output
     assert "REC seed 0" in output and "height 1.2" in output and "return" in output and "arms up" in output
-    assert "added 1 episodes" in output
+    assert "added 1 episode (seed " in output
 
 
 def test_parse_keys_reads_arrows_and_special_keys() -> None:

@@ -215,7 +215,7 @@ def test_the_play_dataset_names_the_keyboard_and_the_policy(played: Played) -> N
     assert episode["tasks"] == ["Stand still on both feet.", "Lean forward while standing."]
     frames = read_frames(played.root, [columns.OBS_COMMAND, columns.SETPOINT])
     np.testing.assert_array_equal(frames[columns.SETPOINT], frames[columns.OBS_COMMAND])
-    assert "added 1 episodes" in played.output
+    assert "added 1 episode (seed " in played.output
 
 
 def refused(tmp_path: Path, *flags: str) -> subprocess.CompletedProcess:
