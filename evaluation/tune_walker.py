@@ -202,6 +202,10 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
             state = pickle.load(f)
         if {**ADDED_SETTINGS, **state["settings"]} != settings:
             raise UserError(f"{cfg.run} holds a run with other settings ({state['settings']}): give another --run")
+        if "out" not in state and cfg.out is None:  # saved before runs kept theirs: it may have begun elsewhere
+            raise UserError(
+                f"{cfg.run} does not say where its gait goes: give --out ({GAIT_FILE} replaces the tuned one)"
+            )
         print(f"tune-walker: resuming {cfg.run} at generation {state['generation']}", file=sys.stderr)
     else:
         start, start_tuning = start_gait(cfg.start, bounds)
@@ -257,7 +261,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         "start": state["start"],
         "start_tuning": state["start_tuning"],
     }
-    out = cfg.out or state.get("out")  # a resumed run's, as it began (runs saved before it was kept: none)
+    out = cfg.out or state["out"]  # a resumed run's, as it began
     save_gait(gait, GAIT_FILE if out is None else Path(out), tuning)
     return {"gait": dataclasses.asdict(gait), "tuning": tuning}
 

@@ -54,18 +54,19 @@ def test_bad_bounds_are_one_line_and_leave_no_run(text: str, problem: str, tmp_p
 
 
 @pytest.mark.slow
-def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
+def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path, monkeypatch) -> None:
     """One generation, then the run asked for two more resumes at the second (its log grows by one line per
-    generation) and, given no `--out`, writes where the run began writing, not over the tuned gait; the gait file
-    holds the best candidate, within the run's `--bounds` (the tuned gait's `k_y` 1.48 starts at their edge), and
-    the run's settings; other settings are refused."""
+    generation) and, given no `--out`, writes where the run began writing, not over the tuned gait (a run saved
+    before runs kept theirs is refused); the gait file holds the best candidate, within the run's `--bounds` (the
+    tuned gait's `k_y` 1.48 starts at their edge), and the run's settings; other settings are refused."""
     run, out = tmp_path / "run", tmp_path / "gait.json"
     settings = {"population": 2, "walks": 1, "kicks": 0, "workers": 1, "run": run, "out": out, "bounds": "k_y=0.8:1.25"}
-    tuned = GAIT_FILE.read_bytes()
+    tuned = tmp_path / "tuned.json"  # where a run without --out writes: not the checkout's gait, should this fail
+    monkeypatch.setattr(tune_walker, "GAIT_FILE", tuned)
     tune_walker.main(TuneConfig(generations=1, **settings))
     first = json.loads(out.read_text())
     tune_walker.main(TuneConfig(generations=2, **{**settings, "out": None}))
-    assert GAIT_FILE.read_bytes() == tuned
+    assert not tuned.exists()
     lines = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [line["generation"] for line in lines] == [1, 2]
     saved = json.loads(out.read_text())
@@ -77,10 +78,13 @@ def test_a_killed_tuning_run_resumes_and_writes_its_best_gait(tmp_path) -> None:
     load_gait(out)  # a gait file the walker reads
     with pytest.raises(UserError, match="other settings"):
         tune_walker.main(TuneConfig(generations=3, **{**settings, "population": 3}))
-    # A run saved before `--turn-weight` existed ran with its default: it resumes.
+    # A run saved before `--turn-weight` existed ran with its default: it resumes; one saved before runs kept their
+    # `--out` is told to give it.
     state = pickle.loads((run / "state.pkl").read_bytes())
-    del state["settings"]["turn_weight"]
+    del state["settings"]["turn_weight"], state["out"]
     (run / "state.pkl").write_bytes(pickle.dumps(state))
+    with pytest.raises(UserError, match=r"does not say where its gait goes: give --out"):
+        tune_walker.main(TuneConfig(generations=3, **{**settings, "out": None}))
     tune_walker.main(TuneConfig(generations=3, **settings))
     assert json.loads(out.read_text())["tuning"]["generations"] == 3
 
