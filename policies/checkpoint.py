@@ -13,6 +13,7 @@ folder a killed run leaves is removed by the next run for the same checkpoint.
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import glob
 import json
 import os
@@ -117,16 +118,34 @@ def running_folder(path: Path) -> Path:
 @contextmanager
 def running(path: Path, overwrite: bool) -> Iterator[Path]:
     """Like `staged`, but the folder is always the same one and survives a failure or a kill, so that the run
-    can resume from what it holds (`rl.resume`); it becomes `path` when the block succeeds."""
-    _recover(path)
-    check_replaceable(path, overwrite)
+    can resume from what it holds (`rl.resume`); it becomes `path` when the block succeeds. One run at a time holds
+    it (a lock the kernel drops with the process, kill -9 too): another, started while it runs, is refused in one
+    line rather than resuming from files being written."""
     folder = running_folder(path)
+    created = not folder.exists()
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        lock = os.open(folder, os.O_RDONLY)
     except OSError as error:
         raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None
-    yield folder
-    _publish(folder, path, overwrite)
+    try:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise CheckpointError(
+                f"another run is writing {path} now (in {folder}): wait for it to end, or give another folder"
+            ) from None
+        try:
+            _recover(path)
+            check_replaceable(path, overwrite)
+        except CheckpointError:
+            if created:
+                folder.rmdir()  # this refusal made it: it leaves nothing behind
+            raise
+        yield folder
+        _publish(folder, path, overwrite)
+    finally:
+        os.close(lock)
 
 
 def _replaced(path: Path) -> Path:

@@ -139,3 +139,33 @@ def test_a_worker_lost_stops_the_run_in_one_line_and_it_resumes(
     main(FinetuneConfig(bc_policy=bc_policy, policy=broken, **RESUMABLE))
     assert "resuming" in capsys.readouterr().err
     assert (broken / policy_files.WEIGHTS_FILE).read_bytes() == (reference / policy_files.WEIGHTS_FILE).read_bytes()
+
+
+def test_a_second_run_into_a_running_folder_is_refused_until_the_first_is_gone(tmp_path: Path) -> None:
+    """While one process runs into POLICY (`checkpoint.running`) another is refused in one line, and leaves the folder
+    as it was; killed with -9, the first holds nothing and the run resumes there."""
+    policy = tmp_path / "ppo"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom pathlib import Path\nfrom policies import checkpoint\n"
+            f"with checkpoint.running(Path({str(policy)!r}), False) as folder:\n"
+            "    (folder / 'resume.pt').write_text('1')\n    print('in', flush=True)\n    time.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "in"
+        before = snapshot(checkpoint.running_folder(policy))
+        with pytest.raises(checkpoint.CheckpointError, match="another run is writing") as refused:
+            with checkpoint.running(policy, False):
+                pass
+        assert "\n" not in str(refused.value) and snapshot(checkpoint.running_folder(policy)) == before
+    finally:
+        holder.kill()
+        holder.wait(timeout=60)
+    with checkpoint.running(policy, False) as folder:
+        assert (folder / "resume.pt").read_text() == "1"  # what the killed run left, to resume from
+    assert (policy / "resume.pt").exists() and not checkpoint.running_folder(policy).exists()
