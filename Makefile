@@ -39,7 +39,7 @@ export PYTHONUNBUFFERED := 1
 # REMOVED.<target>: variables an earlier version had, still passed so that the stage refuses them in one
 # line saying what to use instead (common/cli.py's REMOVED_FLAGS) rather than make ignoring them.
 VARS.record := DATASET EPISODES SEED CONTROLLER TASK KICK NOISE RANDOMIZE LATENCY MAX_STEPS WORKERS BACKEND RAY_ADDRESS FRONT_END PACE LIVE LIVE_PORT LIVE_HOST CAMERAS
-VARS.inspect := DATASET PLOT
+VARS.inspect := DATASET PLOT PLOT_PATH
 VARS.merge := SHARDS DATASET
 VARS.export := FORMAT DATASET OUT REFERENCE_EPISODES
 VARS.train-bc := DATASET POLICY INPUTS EPOCHS MIN_UPDATES SEED EVAL_EPISODES OVERWRITE

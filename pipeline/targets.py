@@ -121,7 +121,7 @@ TARGETS: dict[str, Target] = {
         preset=(("controller", "keyboard"), ("policy", NEWEST), ("dataset", "datasets/play"), ("noise", "0")),
     ),
     "merge": Target("teleop.merge", MergeConfig, ("shards", "dataset")),
-    "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot")),
+    "inspect": Target("teleop.inspect_dataset", InspectConfig, ("dataset", "plot", "plot_path")),
     "export": Target("teleop.export", ExportConfig, ("format", "dataset", "out", "reference_episodes")),
     "train-bc": Target(
         "bc.train",

@@ -102,7 +102,9 @@ class FinetuneConfig:
     )
     policy: Path = setting(paths.PPO_POLICY, "checkpoint folder to write")
     timesteps: int = setting(
-        2**19, "environment steps of training: 32 rollouts (the budget: docs/decisions/ppo-budget.md)"
+        2**19,
+        "environment steps of training: 32 rollouts (the budget: docs/decisions/ppo-budget.md), rounded up to whole "
+        "rollouts of --rollout-steps",
     )
     envs: int = setting(64, "environments, spread over the workers (each samples its share of every rollout)")
     workers: int | None = setting(
