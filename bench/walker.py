@@ -135,10 +135,10 @@ def main() -> None:
         stops = len(rests) + sum(row["still_walking"] for row in rows)
         errors = np.concatenate([row["errors"] for row in rows if row["errors"]] or [np.zeros(0)])
         error = f"{errors.mean():.3f} (95th percentile {np.percentile(errors, 95):.3f})" if len(errors) else "n/a"
+        rest = f"{rests.mean():.2f}, {rests.max():.2f}" if len(rests) else "n/a (none ended)"
         print(
             f"| {teacher.name} | {sum(row['survived'] for row in rows)}/{len(rows)} | {changes.mean():.4f} | "
-            f"{int((rests <= 2.0).sum())}/{stops} | {rests.mean() if len(rests) else float('nan'):.2f}, "
-            f"{rests.max() if len(rests) else float('nan'):.2f} | {error} |"
+            f"{int((rests <= 2.0).sum())}/{stops} | {rest} | {error} |"
         )
 
     forward = command_vector(Posture(forward_speed=0.3))
