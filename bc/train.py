@@ -43,6 +43,7 @@ from common.cli import (
     config_text,
     run_cli,
     setting,
+    write_json,
 )
 from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
@@ -372,7 +373,7 @@ def train_and_save(
         plot_learning_curve(result, folder / LEARNING_CURVE_FILE)
         if cfg.eval_episodes:  # before publishing: a kill in the evaluation leaves the old checkpoint, or none
             result.evaluation = evaluation_of(result.policy, cfg)
-            checkpoint.write_json(folder / EVAL_FILE, result.evaluation)
+            write_json(folder / EVAL_FILE, result.evaluation)
     return result
 
 

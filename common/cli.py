@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 import types
 import typing
@@ -278,6 +279,14 @@ def _finite(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_finite(item) for item in value]
     return value
+
+
+def write_json(path: Path, content: Any, indent: int = 2) -> None:
+    """Write `content` as strict JSON (`json_text`) to `path` through a file beside it, renamed: a kill leaves the old
+    file or the new one, never half of it (a checkpoint's eval.json, the walker's gait: what a later run trusts)."""
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(json_text(content, indent) + "\n")
+    os.replace(partial, path)
 
 
 def counted(count: int, noun: str) -> str:

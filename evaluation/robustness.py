@@ -22,14 +22,23 @@ from matplotlib.figure import Figure
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, json_text, run_cli, setting
+from common.cli import (
+    UserError,
+    check_non_negative,
+    check_positive,
+    config_dict,
+    flag,
+    json_text,
+    run_cli,
+    setting,
+    write_json,
+)
 from common.figures import save_figure
 from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers
 from evaluation.evaluate import POLICY_HELP, evaluate_each, evaluation_pool, init_worker
 from humanoid.conditions import SUITE, condition
-from policies import checkpoint
 from policies.folder import chosen_policy
 from rollout.controllers import check_controller, registered
 from task.command_fields import POSTURE_TASK, STAND, TASKS, WALK
@@ -277,7 +286,7 @@ def save(cfg: RobustnessConfig, conditions: dict[str, dict[str, Any]]) -> dict[s
     result = {"policy": cfg.policy, "seeds": list(seeds), "conditions": conditions, "config": config_dict(cfg)}
     try:
         result_path.parent.mkdir(parents=True, exist_ok=True)
-        checkpoint.write_json(result_path, result, indent=1)  # `make pipeline` reuses it
+        write_json(result_path, result, indent=1)  # `make pipeline` reuses it
         plot(result, figure_path)
     except OSError as error:
         raise UserError(f"cannot write the results to {result_path.parent}: {error.strerror or error}") from None

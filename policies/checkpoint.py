@@ -28,7 +28,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
-from common.cli import UserError, first_line, json_text
+from common.cli import UserError, first_line, write_json
 from common.workers import owner_gone, process_owner
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
@@ -41,14 +41,6 @@ POLICY_CLASSES = {"MLPPolicy": (MLPPolicy, MLPSpec)}
 
 class CheckpointError(UserError):
     """A folder that is not a usable checkpoint, or a checkpoint that may not be replaced."""
-
-
-def write_json(path: Path, content: Any, indent: int = 2) -> None:
-    """Write `content` as JSON to `path` through a file beside it, renamed: a kill leaves the old file or the new one,
-    never half of it (eval.json is what a later run trusts)."""
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(json_text(content, indent) + "\n")
-    os.replace(partial, path)
 
 
 def save(policy: MLPPolicy, folder: Path, training: dict[str, Any], dataset: dict[str, Any]) -> None:

@@ -44,7 +44,7 @@ from tqdm import tqdm
 
 from bc.data import load_demonstrations
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting
+from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting, write_json
 from common.paths import NEWEST
 from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import EVAL_SEED, VALIDATION_SEED
@@ -432,7 +432,7 @@ def final_evaluation(
     if pushed:
         result["pushed"] = pushed[0]
     result.update(figures)
-    checkpoint.write_json(cfg.policy / EVAL_FILE, result)
+    write_json(cfg.policy / EVAL_FILE, result)
     return result
 
 
@@ -539,7 +539,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
             }
             plot_training(cfg, validator.curve, folder / LEARNING_CURVE_FILE)
             # Published with the weights: a kill during the final evaluation leaves a finished run (`finished_result`).
-            checkpoint.write_json(folder / EVAL_FILE, figures)
+            write_json(folder / EVAL_FILE, figures)
             (folder / resume.RESUME_FILE).unlink()  # the run is whole: nothing to resume
         return final_evaluation(cfg, on, figures, pool)
 

@@ -36,7 +36,17 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, config_text, flag, run_cli, setting
+from common.cli import (
+    UserError,
+    check_non_negative,
+    check_positive,
+    config_dict,
+    config_text,
+    flag,
+    run_cli,
+    setting,
+    write_json,
+)
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from humanoid.env import make_env
@@ -231,7 +241,7 @@ def train_ppo(cfg: TutorialConfig, settings: dict[str, Any], folder: Path) -> di
     model.learn(total_timesteps=cfg.timesteps, progress_bar=False, callback=callback, tb_log_name="ppo")
     seconds = time.perf_counter() - start
     model.save(folder / SB3_FILE)
-    checkpoint.write_json(
+    write_json(
         folder / CONFIG_FILE,
         {"format": "stable-baselines3/PPO", "training": {**settings, "learner": "ppo", "seconds": seconds}},
     )
@@ -298,7 +308,7 @@ def main(cfg: TutorialConfig) -> dict[str, dict[str, Any]]:
             stats = TRAINERS[learner](cfg, settings, staging)
             result = evaluate(str(staging), episodes=cfg.final_eval_episodes, seed=EVAL_SEED, progress=cfg.progress)
             result.update(policy=str(folder), timesteps=cfg.timesteps, **stats)
-            checkpoint.write_json(staging / EVAL_FILE, result)
+            write_json(staging / EVAL_FILE, result)
         results[learner] = result
     return results
 

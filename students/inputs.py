@@ -311,9 +311,9 @@ def ramped_set(base: type[PendingInputs], walking: bool = False, gait: bool = Fa
         # The walker's clock is in a gait set: its demonstrations are the walker's (a walking task's default teacher);
         # the walking set's `planning` flag is the stepping teacher's hand-over.
         recording = (
-            ("make record TASK=walk" if gait else "make record CONTROLLER=expert-sensed-stepping TASK=walk")
+            f"make record{'' if gait else ' CONTROLLER=expert-sensed-stepping'} TASK=walk"
             if walking
-            else "make record"
+            else base.recording
         )
         version = 2 if gait else base.version  # 2: the heading's frame (1 read the world's)
         __doc__ = f"{base.__name__}'s inputs, then the operator's command as the expert's setpoint moves toward it."

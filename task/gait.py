@@ -30,7 +30,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from common.cli import UserError
+from common.cli import UserError, write_json
 from humanoid.capture import capture_offset
 from humanoid.env import step_seconds
 from humanoid.physics import FOOT_GEOMS, TORSO_BODY
@@ -143,9 +143,7 @@ def load_gait(path: Path = GAIT_FILE) -> Gait:
 def save_gait(gait: Gait, path: Path, tuning: dict) -> None:
     """Write `gait` to `path` with its version and how it was tuned, whole or not at all (a kill mid-write leaves the
     file that was there)."""
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(json.dumps({"version": GAIT_VERSION, "gait": asdict(gait), "tuning": tuning}, indent=2) + "\n")
-    partial.replace(path)
+    write_json(path, {"version": GAIT_VERSION, "gait": asdict(gait), "tuning": tuning})
 
 
 def rotation(axis: int, angle: float) -> np.ndarray:

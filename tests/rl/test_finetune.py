@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from common import paths
-from common.cli import config_dict
+from common.cli import config_dict, write_json
 from humanoid.env import make_env
 from humanoid.perturbations import VelocityKick
 from policies import checkpoint
@@ -523,7 +523,7 @@ def test_a_run_killed_in_its_final_evaluation_is_finished_by_the_same_command(
         "kept",
         "resumed_at",
     )
-    checkpoint.write_json(path, {name: whole[name] for name in figures})  # what the kill leaves
+    write_json(path, {name: whole[name] for name in figures})  # what the kill leaves
     weights = (config.policy / policy_files.WEIGHTS_FILE).read_bytes()
     capsys.readouterr()
     assert json.loads(json.dumps(main(config), default=str)) == whole == json.loads(path.read_text())
