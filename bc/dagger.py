@@ -55,6 +55,7 @@ from common.cli import (
     run_cli,
     setting,
 )
+from common.files import PARTIAL_SUFFIX
 from common.workers import default_workers
 from humanoid.conditions import (
     NO_RANDOMIZATION,
@@ -303,7 +304,7 @@ def changed_settings(saved: dict[str, Any], cfg: DaggerConfig, names: Sequence[s
 def copy_demonstrations(cfg: DaggerConfig, made_by: str) -> None:
     """Make OUTPUT a copy of DATASET with its SOURCE_FILE; copied aside, then renamed: a copy killed half-way is
     never taken for the aggregate. Without DATASET's mark: a run killed there is not this one."""
-    partial = cfg.output.with_name(f".{cfg.output.name}.partial")
+    partial = cfg.output.with_name(f".{cfg.output.name}{PARTIAL_SUFFIX}")
     shutil.rmtree(partial, ignore_errors=True)
     source = {"path": str(cfg.dataset), "fingerprint": fingerprint(cfg.dataset), "made_by": made_by}
     shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))

@@ -12,7 +12,6 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 import sys
 import types
 import typing
@@ -21,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+from common.files import write_atomically
 from common.threads import PINNED, one_blas_thread, unpinned
 
 Config = TypeVar("Config")
@@ -284,9 +284,7 @@ def _finite(value: Any) -> Any:
 def write_json(path: Path, content: Any, indent: int = 2) -> None:
     """Write `content` as strict JSON (`json_text`) to `path` through a file beside it, renamed: a kill leaves the old
     file or the new one, never half of it (a checkpoint's eval.json, the walker's gait: what a later run trusts)."""
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(json_text(content, indent) + "\n")
-    os.replace(partial, path)
+    write_atomically(path, lambda partial: partial.write_text(json_text(content, indent) + "\n"))
 
 
 def counted(count: int, noun: str) -> str:

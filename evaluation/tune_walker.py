@@ -35,6 +35,7 @@ from common.cli import (
     run_cli,
     setting,
 )
+from common.files import write_atomically
 from common.seed_ranges import SELECTION_SEED
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
@@ -268,10 +269,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
 
 def _save(state: dict[str, Any], path: Path) -> None:
     """The run's state, replaced whole (a kill mid-write leaves the previous generation's)."""
-    partial = path.with_suffix(".partial")
-    with partial.open("wb") as f:
-        pickle.dump(state, f)
-    partial.replace(path)
+    write_atomically(path, lambda partial: partial.write_bytes(pickle.dumps(state)))
 
 
 def _main_and_print(cfg: TuneConfig) -> None:

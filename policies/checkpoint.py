@@ -29,13 +29,13 @@ from safetensors.torch import load_file
 from safetensors.torch import save as save_weights
 
 from common.cli import UserError, first_line, write_json
+from common.files import PARTIAL_SUFFIX
 from common.workers import owner_gone, process_owner
 from policies.folder import CONFIG_FILE, DATASET_FILE, WEIGHTS_FILE, checkpoint_problem, is_checkpoint, is_sb3_policy
 from policies.mlp import MLPPolicy, MLPSpec
 
 FORMAT = "humanoid-bc/policy"
 FORMAT_VERSION = 1
-STAGING_SUFFIX = ".partial"
 POLICY_CLASSES = {"MLPPolicy": (MLPPolicy, MLPSpec)}
 
 
@@ -173,8 +173,8 @@ def _remove_abandoned(path: Path) -> None:
     """Remove the staging folders of `path` (`staged`) whose run is gone (killed before it could clean up): those of
     a process of this machine that no longer runs. Another machine's, a live run's, or an unnamed one stays."""
     prefix = f".{path.name}."
-    for folder in path.parent.glob(f"{glob.escape(prefix)}*{STAGING_SUFFIX}"):
-        if owner_gone(folder.name.removeprefix(prefix).removesuffix(STAGING_SUFFIX).rpartition(".")[0]):
+    for folder in path.parent.glob(f"{glob.escape(prefix)}*{PARTIAL_SUFFIX}"):
+        if owner_gone(folder.name.removeprefix(prefix).removesuffix(PARTIAL_SUFFIX).rpartition(".")[0]):
             shutil.rmtree(folder, ignore_errors=True)
 
 
@@ -188,7 +188,7 @@ def staged(path: Path, overwrite: bool) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_abandoned(path)
         # Not tempfile.mkdtemp: its 0700 mode would stay on the published checkpoint.
-        staging = path.parent / f".{path.name}.{process_owner()}.{uuid.uuid4().hex[:8]}{STAGING_SUFFIX}"
+        staging = path.parent / f".{path.name}.{process_owner()}.{uuid.uuid4().hex[:8]}{PARTIAL_SUFFIX}"
         staging.mkdir()
     except OSError as error:
         raise CheckpointError(f"cannot write a checkpoint in {path.parent}: {error.strerror or error}") from None

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from common.files import write_atomically
 from rl.curriculum import PushCurriculum
 from rl.rollouts import WorkerRolloutPPO
 from rl.validation import Validator
@@ -75,12 +76,14 @@ def snapshot(
 
 def save(folder: Path, state: dict[str, Any]) -> None:
     """Replace `folder/resume.pt` with `state`: a kill leaves the old file or the new one, never a part."""
-    partial = folder / f"{RESUME_FILE}.partial"
-    with partial.open("wb") as stream:
-        torch.save(state, stream)
-        stream.flush()
-        os.fsync(stream.fileno())
-    os.replace(partial, folder / RESUME_FILE)
+
+    def write(partial: Path) -> None:
+        with partial.open("wb") as stream:
+            torch.save(state, stream)
+            stream.flush()
+            os.fsync(stream.fileno())  # the newest snapshot outlives a power cut, not only a kill
+
+    write_atomically(folder / RESUME_FILE, write)
 
 
 def load(folder: Path) -> dict[str, Any] | None:

@@ -34,6 +34,7 @@ import numpy as np
 
 from common import columns, paths
 from common.cli import DatasetError, UserError, check_positive, run_cli, setting
+from common.files import PARTIAL_SUFFIX
 from common.seed_ranges import EVAL_SEED
 from humanoid.env import ENV_ID, make_env
 from rollout.controllers import make_controller
@@ -181,7 +182,7 @@ def export_minari(cfg: ExportConfig) -> str:
     name = dataset_id(cfg.dataset)
     # Minari writes into a hidden staging root beside OUT, renamed at the end: OUT appears complete or not at all.
     out = out_folder(cfg)
-    staging = out.with_name(f".{out.name}.partial")
+    staging = out.with_name(f".{out.name}{PARTIAL_SUFFIX}")
     shutil.rmtree(staging, ignore_errors=True)  # what a killed export of the same OUT left
     previous = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(staging.resolve())  # where Minari writes
@@ -241,7 +242,7 @@ def to_lerobot_command(dataset: Path, out: Path) -> None:
     import pandas as pd  # noqa: PLC0415 - as above
 
     task_names = pd.read_parquet(dataset / TASKS_PATH).sort_values("task_index").index.to_numpy()
-    staging = out.with_name(f".{out.name}.partial")
+    staging = out.with_name(f".{out.name}{PARTIAL_SUFFIX}")
     shutil.rmtree(staging, ignore_errors=True)  # what a killed export of the same OUT left
     staging.parent.mkdir(parents=True, exist_ok=True)
     try:

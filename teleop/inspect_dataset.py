@@ -44,6 +44,7 @@ from mcap.reader import make_reader
 from common import columns, paths
 from common.cli import DatasetError, one_line, run_cli, setting
 from common.figures import save_figure
+from common.files import PARTIAL_SUFFIX
 from humanoid.sensors import observation_index
 from teleop import recordings
 from teleop.dataset_reader import read_episodes, read_frames, read_info, read_mcap_final, read_steps
@@ -505,7 +506,7 @@ def _leftovers(root: Path, info: dict, data_paths: set[Path], mcap_paths: set[Pa
     stray_data = [path for path in data_files(root) if path not in data_paths]
     stray_mcap = [path for path in (root / MCAP_DIR).glob("*.mcap") if path not in mcap_paths]
     stray_videos = len(video_files(root)) - info["total_episodes"] * len(video_keys(info["features"]))
-    partial = [path for path in root.rglob("*.partial") if path.parent.name not in SPOOLS]  # a spool's: below
+    partial = [path for path in root.rglob(f"*{PARTIAL_SUFFIX}") if path.parent.name not in SPOOLS]  # a spool's: below
     if extra_rows > 0 or stray_data or stray_mcap or partial or stray_videos > 0:
         notes.append(
             f"uncommitted files of an interrupted recording: {max(extra_rows, 0)} episode rows, "

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from common.files import write_atomically
 from common.workers import owner_gone, process_owner
 
 log = logging.getLogger(__name__)
@@ -40,7 +41,7 @@ SESSIONS_KEY = "sessions"
 """A merge's line holds under it each shard's own lines, by shard (`teleop.merge`)."""
 RUN_FILE = ".run.json"
 """The mark of a run writing episodes into the dataset (`mark`); a dataset copied for another run leaves it out
-(and its staging file, `RUN_FILE` + ".partial")."""
+(and its staging file, `RUN_FILE` + `common.files.PARTIAL_SUFFIX`)."""
 MARK_WAIT = 5.0
 """Seconds a run starting on a dataset waits for the line of a run that let the dataset go but still runs."""
 
@@ -130,7 +131,6 @@ def read(root: Path) -> list[dict[str, Any]]:
 def mark(root: Path, made_by: str, config: dict[str, Any], episodes: int, extra: dict[str, Any] | None = None) -> None:
     """Mark `root` as written by this run, which found `episodes` episodes there; atomic, so a kill leaves the old
     mark or the new one."""
-    staging = root / (RUN_FILE + ".partial")
     mark = {
         "made_by": made_by,
         "time": _now(),
@@ -139,8 +139,7 @@ def mark(root: Path, made_by: str, config: dict[str, Any], episodes: int, extra:
         "extra": extra or {},
         "owner": process_owner(),
     }
-    staging.write_text(json.dumps(mark, default=str))
-    os.replace(staging, root / RUN_FILE)
+    write_atomically(root / RUN_FILE, lambda partial: partial.write_text(json.dumps(mark, default=str)))
 
 
 def marked(root: Path) -> dict[str, Any] | None:

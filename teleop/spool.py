@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.files import PARTIAL_SUFFIX, write_atomically
 from humanoid.cameras import CameraTrack
 from rollout.episode import ARRAY_FIELDS, FINAL_FIELDS, Episode
 
@@ -58,10 +59,13 @@ class Spool:
         facts["cameras"] = list(episode.cameras)
         for name, track in episode.cameras.items():
             arrays.update(_camera_arrays(name, track))
-        partial = path.with_name(path.name + ".partial")
-        with partial.open("wb") as stream:
-            np.savez(stream, **arrays, **{_FACTS: np.array(json.dumps(facts))})
-        os.replace(partial, path)
+        arrays[_FACTS] = np.array(json.dumps(facts))
+
+        def save(partial: Path) -> None:
+            with partial.open("wb") as stream:  # a stream: given a path, np.savez would add ".npz" to it
+                np.savez(stream, **arrays)
+
+        write_atomically(path, save)
         return path
 
     def ready(self) -> list[Path]:
@@ -77,7 +81,7 @@ class Spool:
             return 0, 0
         taken = [self._committing_index(path) for path in self.folder.glob(f"*{_COMMITTING}")]
         finished = len(self.ready()) + sum(index >= committed_episodes for index in taken)
-        return finished, len(list(self.folder.glob("*.partial")))
+        return finished, len(list(self.folder.glob(f"*{PARTIAL_SUFFIX}")))
 
     @staticmethod
     def _committing_index(path: Path) -> int:
@@ -105,7 +109,7 @@ class Spool:
         """Settle what a kill left: drop partial files and committed leftovers, return the rest to the spool."""
         if not self.folder.is_dir():
             return
-        for partial in self.folder.glob("*.partial"):
+        for partial in self.folder.glob(f"*{PARTIAL_SUFFIX}"):
             partial.unlink()
         for committing in self.folder.glob(f"*{_COMMITTING}"):
             if self._committing_index(committing) < committed_episodes:

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +28,7 @@ import pyarrow.parquet as pq
 
 from common import columns
 from common.cli import DatasetError
+from common.files import PARTIAL_SUFFIX, write_atomically
 from teleop.lerobot_io.format import (
     DEFAULT_FEATURES,
     EPISODES_PATH,
@@ -56,16 +55,7 @@ from teleop.lerobot_io.format import (
 
 log = logging.getLogger(__name__)
 
-PARTIAL_SUFFIX = ".partial"
 _DATA_PAGE_SIZE = 64 * 1024 * 1024
-
-
-def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
-    """Call `write` on a sibling `.partial` path, then rename it over `path`: readers see old or new."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + PARTIAL_SUFFIX)
-    write(partial)
-    os.replace(partial, path)
 
 
 def _write_json(data: dict, path: Path, indent: int | None = 4) -> None:

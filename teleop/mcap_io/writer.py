@@ -20,7 +20,6 @@ Plus an `episode` metadata record and the MJCF model as an attachment.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import mujoco
@@ -40,6 +39,7 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
+from common.files import write_atomically
 from humanoid.cameras import CameraTrack
 from humanoid.env import nominal_model
 from rollout.episode import Episode
@@ -209,56 +209,62 @@ def write_episode_mcap(
         task=str(episode.tasks[-1]),
     )
     final.timestamp.FromNanoseconds(episode.length * step_ns)
-    partial = path.with_name(path.name + ".partial")
-    with partial.open("wb") as stream:
-        writer = BulkMcapWriter(stream)
-        writer.start(profile="", library="humanoid-bc")
-        kinds = (
-            SceneUpdate,
-            Step,
-            FrameTransforms,
-            Command,
-            *((CompressedImage, CameraCalibration) if cameras else ()),
-        )
-        schemas = {kind: register_schema(writer, kind) for kind in kinds}
-        topics = [
-            (SCENE_TOPIC, SceneUpdate),
-            (STEP_TOPIC, Step),
-            (TF_TOPIC, FrameTransforms),
-            (COMMAND_TOPIC, Command),
-            (FINAL_TOPIC, Step),
-        ]
-        for name, _ in cameras:
-            topics += [
-                (IMAGE_TOPIC.format(name=name), CompressedImage),
-                (CALIBRATION_TOPIC.format(name=name), CameraCalibration),
+
+    def save(partial: Path) -> None:
+        with partial.open("wb") as stream:
+            writer = BulkMcapWriter(stream)
+            writer.start(profile="", library="humanoid-bc")
+            kinds = (
+                SceneUpdate,
+                Step,
+                FrameTransforms,
+                Command,
+                *((CompressedImage, CameraCalibration) if cameras else ()),
+            )
+            schemas = {kind: register_schema(writer, kind) for kind in kinds}
+            topics = [
+                (SCENE_TOPIC, SceneUpdate),
+                (STEP_TOPIC, Step),
+                (TF_TOPIC, FrameTransforms),
+                (COMMAND_TOPIC, Command),
+                (FINAL_TOPIC, Step),
             ]
-        channels = {
-            topic: writer.register_channel(topic, MessageEncoding.Protobuf, schemas[message_type])
-            for topic, message_type in topics
-        }
-        writer.add_attachment(create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf)
-        writer.add_metadata(METADATA_NAME, metadata)
-        no_time = np.zeros(1, np.int64)
-        writer.add_messages(np.array([channels[SCENE_TOPIC]]), no_time, no_time, no_time, [scene.SerializeToString()])
-        per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
-        streams = [steps, transforms, commands]
-        for (name, track), calibrated in zip(cameras, calibrations, strict=True):
-            per_step += [IMAGE_TOPIC.format(name=name), CALIBRATION_TOPIC.format(name=name)]
-            streams += camera_messages(name, track, calibrated, times_ns)
-        data: list[bytes] = [b""] * (len(per_step) * episode.length)
-        for offset, messages in enumerate(streams):
-            data[offset :: len(per_step)] = messages
-        step_times = np.repeat(times_ns, len(per_step))
-        writer.add_messages(
-            np.tile([channels[topic] for topic in per_step], episode.length),
-            step_times,
-            step_times,
-            np.repeat(np.arange(episode.length), len(per_step)),
-            data,
-        )
-        end = np.array([episode.length * step_ns], np.int64)
-        length = np.array([episode.length])
-        writer.add_messages(np.array([channels[FINAL_TOPIC]]), end, end, length, [final.SerializeToString()])
-        writer.finish()
-    os.replace(partial, path)
+            for name, _ in cameras:
+                topics += [
+                    (IMAGE_TOPIC.format(name=name), CompressedImage),
+                    (CALIBRATION_TOPIC.format(name=name), CameraCalibration),
+                ]
+            channels = {
+                topic: writer.register_channel(topic, MessageEncoding.Protobuf, schemas[message_type])
+                for topic, message_type in topics
+            }
+            writer.add_attachment(
+                create_time=0, log_time=0, name=MJCF_ATTACHMENT, media_type="application/xml", data=mjcf
+            )
+            writer.add_metadata(METADATA_NAME, metadata)
+            no_time = np.zeros(1, np.int64)
+            writer.add_messages(
+                np.array([channels[SCENE_TOPIC]]), no_time, no_time, no_time, [scene.SerializeToString()]
+            )
+            per_step = [STEP_TOPIC, TF_TOPIC, COMMAND_TOPIC]  # each step's messages, in this order
+            streams = [steps, transforms, commands]
+            for (name, track), calibrated in zip(cameras, calibrations, strict=True):
+                per_step += [IMAGE_TOPIC.format(name=name), CALIBRATION_TOPIC.format(name=name)]
+                streams += camera_messages(name, track, calibrated, times_ns)
+            data: list[bytes] = [b""] * (len(per_step) * episode.length)
+            for offset, messages in enumerate(streams):
+                data[offset :: len(per_step)] = messages
+            step_times = np.repeat(times_ns, len(per_step))
+            writer.add_messages(
+                np.tile([channels[topic] for topic in per_step], episode.length),
+                step_times,
+                step_times,
+                np.repeat(np.arange(episode.length), len(per_step)),
+                data,
+            )
+            end = np.array([episode.length * step_ns], np.int64)
+            length = np.array([episode.length])
+            writer.add_messages(np.array([channels[FINAL_TOPIC]]), end, end, length, [final.SerializeToString()])
+            writer.finish()
+
+    write_atomically(path, save)

@@ -1,0 +1,23 @@
+"""Files written whole: a reader, or a run that a kill -9 stopped mid-write, finds the old file or the new one.
+
+Every file a later run trusts (a dataset's parquet and info, an episode's MCAP, a spooled episode, a run's mark, a
+checkpoint's JSON, a tuning run's state) is written here, so that there is one rule for what a kill leaves: at most a
+`PARTIAL_SUFFIX` file beside it, which the next run may delete.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+PARTIAL_SUFFIX = ".partial"
+"""What a file being written is called until it is complete: its final name and this."""
+
+
+def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
+    """Call `write` on a sibling of `path` named with `PARTIAL_SUFFIX`, then rename it over `path`."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    write(partial)
+    os.replace(partial, path)

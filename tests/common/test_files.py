@@ -1,0 +1,30 @@
+"""`common.files.write_atomically`: a write that fails part-way leaves the old file whole, and only a partial file
+beside it (what a kill leaves, and what the next run deletes)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from common.files import PARTIAL_SUFFIX, write_atomically
+
+
+def test_a_write_cut_short_leaves_the_old_file_and_a_partial_one(tmp_path: Path) -> None:
+    path = tmp_path / "info.json"
+    path.write_text("old")
+
+    def cut_short(partial: Path) -> None:
+        partial.write_text("ne")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomically(path, cut_short)
+    assert path.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["info.json", f"info.json{PARTIAL_SUFFIX}"]
+
+
+def test_a_whole_write_replaces_the_file_in_a_new_folder(tmp_path: Path) -> None:
+    path = tmp_path / "meta" / "info.json"
+    write_atomically(path, lambda partial: partial.write_text("new"))
+    assert path.read_text() == "new" and [p.name for p in path.parent.iterdir()] == ["info.json"]
