@@ -138,6 +138,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError(f"--plot must be a .png path, got {cfg.plot}")
     if cfg.hold:
         parse_held(cfg.hold)
+        if cfg.task != POSTURE_TASK:
+            raise UserError(f"--hold holds one command instead of --task {cfg.task}'s schedule: give one of them")
 
 
 def evaluate(
@@ -223,7 +225,7 @@ def evaluate(
         "video": None if video is None else str(video),
         "takes_command": controller.takes_command,
         "walks": controller.walks,
-        "task": task,
+        "task": None if hold is not None else task,  # a held command runs no task's schedule
         "tracking": tracking(results, measure, env.unwrapped.dt) if task != STAND or hold is not None else None,
         "held": None if hold is None else held_motion(results, hold, env.unwrapped.dt),
     }

@@ -92,6 +92,7 @@ def test_a_held_arrow_walks_the_walker_a_metre_and_the_expert_stands(capsys: pyt
     result = json.loads(out[-1], parse_constant=lambda name: pytest.fail(f"{name} is no JSON"))
     assert result["tracking"]["moved_error"]["turn_rate"] is None
     held = result["held"]
+    assert result["task"] is None  # no task's schedule ran
     assert code == 0 and result["survived"] == 1 and held["command"] == {"forward_speed": 0.5}
     assert held["walked_1m"] == 1 and held["forward"] >= 1.0 and abs(held["sideways"]) < 0.2 and held["after"] > 0
     assert result["tracking"]["moved_error"]["forward_speed"] > 0 and result["config"]["hold"] == "forward_speed=0.5"
@@ -293,6 +294,7 @@ def test_bad_policy_is_refused_in_one_line(
         (["--condition", "mass", "--push", "10"], "--condition brings its own perturbation"),
         (["--hold", "forward=0.5"], "--hold: 'forward=0.5' is not FIELD=VALUE"),
         (["--hold", "turn_rate=fast"], "with a number VALUE"),
+        (["--hold", "forward_speed=0.5", "--task", "walk"], "instead of --task walk's schedule: give one of them"),
     ],
 )
 def test_bad_settings_are_refused(args: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
