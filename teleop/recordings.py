@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from common.files import write_atomically
+from common.cli import write_json
 from common.workers import owner_gone, process_owner
 
 log = logging.getLogger(__name__)
@@ -139,7 +139,7 @@ def mark(root: Path, made_by: str, config: dict[str, Any], episodes: int, extra:
         "extra": extra or {},
         "owner": process_owner(),
     }
-    write_atomically(root / RUN_FILE, lambda partial: partial.write_text(json.dumps(mark, default=str)))
+    write_json(root / RUN_FILE, mark)
 
 
 def marked(root: Path) -> dict[str, Any] | None:
