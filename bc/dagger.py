@@ -28,7 +28,6 @@ text).
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import sys
 import time
@@ -54,6 +53,7 @@ from common.cli import (
     flag,
     run_cli,
     setting,
+    write_json,
 )
 from common.files import PARTIAL_SUFFIX
 from common.workers import default_workers
@@ -308,7 +308,7 @@ def copy_demonstrations(cfg: DaggerConfig, made_by: str) -> None:
     shutil.rmtree(partial, ignore_errors=True)
     source = {"path": str(cfg.dataset), "fingerprint": fingerprint(cfg.dataset), "made_by": made_by}
     shutil.copytree(cfg.dataset, partial, ignore=shutil.ignore_patterns(recordings.RUN_FILE + "*"))
-    (partial / SOURCE_FILE).write_text(json.dumps(source, indent=2) + "\n")
+    write_json(partial / SOURCE_FILE, source)
     partial.rename(cfg.output)
 
 

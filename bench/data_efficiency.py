@@ -22,7 +22,6 @@ reused, and policies are retrained).
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import tempfile
 import time
@@ -36,6 +35,7 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from bench.bc_benchmark import RESULTS
 from common import columns
+from common.cli import write_json
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from students.learned import PolicyController
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> None:
         "expert": {key: expert[key] for key in ("survived", "episodes", "mean_return", "seeds")},
         "seconds": seconds,
     }
-    args.json.write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(args.json, summary)
 
 
 if __name__ == "__main__":

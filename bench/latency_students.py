@@ -19,7 +19,6 @@ odometry beside them. Prints a Markdown table and writes every cell to a JSON fi
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from dataclasses import asdict, dataclass
@@ -28,6 +27,7 @@ from pathlib import Path
 from bc.train import TrainConfig
 from bc.train import main as train
 from bench.data_efficiency import EVAL_EPISODES, RESULTS, check_seeds, dataset_dir, recorded
+from common.cli import write_json
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from humanoid.conditions import LATENCY_PARAMETER
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> None:
         "teacher": {"survived": teacher[0], "mean_return": teacher[1]},
         "seconds": seconds,
     }
-    args.json.write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(args.json, summary)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ Results: docs/decisions/worker-overhead.md.
 from __future__ import annotations
 
 import argparse
-import json
 import pickle
 import time
 from collections.abc import Callable
@@ -34,6 +33,7 @@ import mujoco
 import numpy as np
 import torch
 
+from common.cli import write_json
 from humanoid.env import humanoid_model, model_and_data
 from policies.mlp import MLPPolicy, MLPSpec
 from rl.finetune import FinetuneConfig
@@ -223,7 +223,7 @@ def main() -> None:
     print()
     print(table(f"PPO worker ({args.envs} environments), per environment step", results["ppo"]))
     if args.json is not None:
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
+        write_json(args.json, results)
 
 
 if __name__ == "__main__":

@@ -524,7 +524,7 @@ def main(cfg: FinetuneConfig, made_by: str = "rl.finetune") -> dict[str, Any]:
             if curriculum is not None:
                 record["curriculum_stages"] = curriculum.history
             checkpoint.save(actor, folder, record, demonstrations)
-            (folder / CURVE_FILE).write_text(json.dumps(validator.curve, indent=1))
+            write_json(folder / CURVE_FILE, validator.curve, indent=1)
             bc_eval = cfg.bc_policy / EVAL_FILE
             bc = json.loads(bc_eval.read_text()) if bc_eval.is_file() else None
             figures = {
