@@ -29,7 +29,7 @@ from rollout.episode import run_episode
 from students.inputs import INPUT_SETS
 from students.learned import PolicyController, input_set_of
 from support import SHORT_EPISODE, TINY_PPO, StandingWalker, record_short, registered, snapshot
-from task.command_fields import POSTURE_NAMES, task_fields
+from task.command_fields import COMMAND_NAMES, POSTURE_NAMES, task_fields
 from task.schedules import command_schedule
 from task.tracking import COMMAND_INFO, Tracking
 from teachers.expert import LQRExpert
@@ -199,8 +199,8 @@ def test_pending_command_inputs_without_latency_are_refused_for_the_latency(
 def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_takes_the_command(
     operated: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """The same settings on the operator's episodes train; the checkpoint says it takes a command, its controller
-    reads it, and it runs under schedules."""
+    """The same settings on the operator's episodes train; the checkpoint says it takes a command, and its controller
+    reads it: the same seed under a held lean acts otherwise than under the zero command."""
     folder = tmp_path / "policy"
     args = [*TINY, "--dataset", str(operated), "--policy", str(folder), "--inputs", "pending+command"]
     code, _, err = stage_cli(train_stage, args, capsys)
@@ -210,10 +210,14 @@ def test_commanded_inputs_train_on_the_operators_episodes_into_a_policy_that_tak
     try:
         controller = PolicyController.load(folder, env)
         assert controller.takes_command
-        episode = run_episode(env, controller, 0, task="posture")
+        steps = env.spec.max_episode_steps
+        lean = np.zeros((steps, len(COMMAND_NAMES)), np.float32)
+        lean[:, COMMAND_NAMES.index(POSTURE_NAMES[0])] = 0.2
+        zero, leaned = (run_episode(env, controller, 0, commands=c) for c in (np.zeros_like(lean), lean))
     finally:
         env.close()
-    assert episode.length >= 1 and np.isfinite(episode.action).all()
+    shared = min(zero.length, leaned.length)
+    assert shared > 1 and np.abs(zero.action[1:shared] - leaned.action[1:shared]).max() > 1e-4
 
 
 # make play / teleop.record

@@ -40,7 +40,7 @@ from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomizati
 from humanoid.env import make_env
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
-from rollout.episode import run_episode
+from rollout.episode import injected_noise, run_episode
 from students.inputs import INPUT_SETS, INPUTS
 from support import committed_episodes, drawn_delay, join_observation, snapshot, wait_for_episodes
 from teachers.expert import LQRExpert, SensedExpert
@@ -408,11 +408,24 @@ def test_a_merged_dataset_is_read_by_its_shards_recordings(tmp_path: Path) -> No
 
 
 def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Path) -> None:
-    """NOISE: the round's episodes are rolled out with that noise on the executed actions, and say so."""
-    config = DaggerConfig(dataset=recorded, output=tmp_path / "aggregate", policy=tmp_path / "policy")
-    main(dataclasses.replace(config, **{**ONE_ROUND, "noise": 0.05}))
-    rounds = read_episodes(config.output).to_pylist()[3:]
-    assert [e[columns.EPISODE_NOISE_STD] for e in rounds] == [0.05, 0.05]
+    """NOISE: the round's episodes are rolled out with that noise on the executed actions, and say so: the first
+    executed action of each is the same round policy's without noise plus the episode's drawn noise (clipped)."""
+    first: dict[float, list[np.ndarray]] = {}
+    for noise in (0.0, 0.05):
+        config = DaggerConfig(dataset=recorded, output=tmp_path / f"aggregate{noise}", policy=tmp_path / f"p{noise}")
+        main(dataclasses.replace(config, **{**ONE_ROUND, "noise": noise}))
+        rounds = read_episodes(config.output).to_pylist()[3:]
+        assert [e[columns.EPISODE_NOISE_STD] for e in rounds] == [noise, noise]
+        frames = read_frames(config.output, [columns.EXECUTED_ACTION, "episode_index", "frame_index"])
+        starts = (frames["frame_index"] == 0) & (frames["episode_index"] >= 3)
+        first[noise] = list(frames[columns.EXECUTED_ACTION][starts])
+    env = make_env()
+    for episode, clean, noisy in zip(rounds, first[0.0], first[0.05], strict=True):
+        drawn = injected_noise(episode[columns.EPISODE_SEED], 1, 0.05, clean.size)[0]
+        expected = np.clip(clean + drawn, env.action_space.low, env.action_space.high)
+        np.testing.assert_allclose(noisy, expected, atol=1e-6)
+        assert np.abs(noisy - clean).max() > 0.02
+    env.close()
 
 
 @pytest.mark.parametrize(

@@ -17,13 +17,14 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bc import dagger as bc_dagger
 from bc import train as bc_train
 from bc.dagger import SOURCE_FILE, DaggerConfig
 from bc.train import TrainConfig
-from common import paths
+from common import columns, paths
 from common.cli import UserError, parse_config
 from humanoid.conditions import SUITE
 from pipeline import report
@@ -53,7 +54,7 @@ from support import snapshot
 from task.command_fields import POSTURE_NAMES
 from task.tracking import ERROR_KINDS
 from teleop import recordings
-from teleop.dataset_reader import fingerprint
+from teleop.dataset_reader import fingerprint, read_frames
 from teleop.record import DART_NOISE, LATENCY_SHARE, RecordConfig, record
 
 pytestmark = pytest.mark.slow  # `make test-fast` leaves this module out (seconds per test)
@@ -222,6 +223,7 @@ def test_the_pipeline_records_the_operator_and_its_students_read_the_command_or_
     folder = first_run[0]
     (run,) = recordings.read(folder / "data")
     assert run["config"]["task"] == "posture" and run["config"]["controller"] == "expert-sensed"
+    assert len(np.unique(read_frames(folder / "data", [columns.OBS_COMMAND])[columns.OBS_COMMAND], axis=0)) > 1
     assert checkpoint.load(folder / "bc").spec.inputs == STUDENT_INPUTS
     assert checkpoint.load(folder / "blind").spec.inputs == BLIND_INPUTS
     assert checkpoint.load(folder / "dagger").spec.inputs == STUDENT_INPUTS

@@ -226,7 +226,9 @@ def test_every_evaluation_includes_the_robustness_conditions(tiny_run: tuple[Fin
     """Each point of the learning curve has the survival and return under each of --eval-conditions (push20,
     mass by default), beside the validation ones, for the figure's survival panel."""
     _, result = tiny_run
+    assert len(result["training_curve"]) == 4
     for point in result["training_curve"]:
+        assert 0.0 <= point["survival_rate"] <= 1.0 and point["mean_return"] > 0
         for name in ("push20", "mass"):
             assert 0.0 <= point[f"{name}_survival_rate"] <= 1.0 and point[f"{name}_mean_return"] > 0
 

@@ -37,10 +37,13 @@ def test_a_rewarded_action_pulls_the_mean_by_the_step_size() -> None:
 
 
 def test_the_noise_decays_from_its_start_to_its_end_over_the_run() -> None:
+    """Geometrically: 0.2 at the start, the geometric mean of start and end halfway (0.045), 0.01 at the end."""
     preferred = learner()
+    seen = [preferred.noise]
     for _ in range(100):
         preferred.learn(np.zeros(17), reward=0.0)
-    assert preferred.noise == pytest.approx(0.01)
+        seen.append(preferred.noise)
+    assert seen[0] == 0.2 and seen[50] == pytest.approx(0.2**0.5 * 0.01**0.5) and seen[100] == pytest.approx(0.01)
 
 
 def test_the_saved_policy_outputs_the_mean_action_for_any_observation(tmp_path: Path) -> None:

@@ -228,6 +228,16 @@ def test_delay_aware_expert_stands_where_the_plain_one_falls(model: mujoco.MjMod
     assert not aware.fell and aware.length == 300 and aware.episode_return > 4.9 * 300
 
 
+class DelayOnly(Untold):
+    """The expert told the action latency but not the body: it predicts on the nominal body."""
+
+    def set_delay(self, steps: int) -> None:
+        self.expert.set_delay(steps)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.expert.reset(seed)
+
+
 def drawn_masses(seed: int, max_episode_steps: int = 1000) -> DomainRandomization:
     """Humanoid-v5 reset with the suite's `mass` draw of `seed` (each body x U(0.8, 1.2))."""
     env = gym.make("Humanoid-v5", max_episode_steps=max_episode_steps)
@@ -277,5 +287,7 @@ def test_told_a_body_and_a_delay_the_expert_predicts_on_that_body() -> None:
     """Seed 1007's drawn masses under a step of latency: predicting on the nominal body falls at step 90, on the
     told body it stands."""
     env = ActionLatency(drawn_masses(1007, max_episode_steps=300), steps=1)
+    nominal = run_episode(env, DelayOnly(make_controller("expert", env)), 1007)
     episode = run_episode(env, make_controller("expert", env), 1007)
+    assert nominal.fell and nominal.length < 100
     assert not episode.fell and episode.length == 300

@@ -193,6 +193,8 @@ def test_the_last_step_lands_the_feet_side_by_side() -> None:
 
 
 def test_the_sensed_walkers_odometry_trusts_only_the_feet_its_gait_holds_still() -> None:
+    """Walking, the feet the odometry takes as still are those the clock holds still: the stance foot alone in single
+    support."""
     env = make_env(EPISODE_STEPS)
     walker = SensedWalker()
     walk(walker, env, 2.0, forward(0.2))
@@ -202,6 +204,7 @@ def test_the_sensed_walkers_odometry_trusts_only_the_feet_its_gait_holds_still()
     assert held.sum() == (1 if clock.phase == clock.SINGLE else 2)
     if clock.phase == clock.SINGLE:
         assert held[SIDES.index(clock.stance)]
+    np.testing.assert_array_equal(walker.balance.still, held)
     env.close()
 
 

@@ -30,6 +30,7 @@ def test_frame_transforms_decode_to_the_api_built_message() -> None:
     positions, orientations = rng.normal(size=(3, 2, 3)), rng.normal(size=(3, 2, 4))
     positions[1, 0] = 0.0  # zeros are written explicitly; they must still decode as zeros
     encoded = FrameTransformsEncoder("world", frames).encode(times, positions, orientations)
+    assert len(encoded) == len(times)
     for t, data in enumerate(encoded):
         expected = FrameTransforms()
         for frame, p, q in zip(frames, positions[t], orientations[t], strict=True):
@@ -58,6 +59,7 @@ def test_steps_decode_to_their_fields() -> None:
     )
     tasks = np.array(["stand", "crouch", "stand"], dtype=object)
     encoded = StepEncoder().encode(times, 2, observation, state, action, executed, reward, terminated, truncated, tasks)
+    assert len(encoded) == len(times)
     for t, data in enumerate(encoded):
         step = Step.FromString(data)
         assert (step.episode_index, step.frame_index, step.reward, step.terminated, step.truncated, step.task) == (
