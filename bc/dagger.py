@@ -107,7 +107,7 @@ class DaggerConfig:
     )
     expert: str | None = setting(
         None,
-        f"who labels the policy's states, any registered teacher that labels ({', '.join(able('labels'))}); "
+        f"who labels the policy's states, any registered teacher ({', '.join(TEACHERS)}); "
         f"default: the teacher on leg odometry, {TEACHER}, or for a walking student (INPUTS=...+walk or +gait, "
         f"whose rollouts follow walking schedules) {WALKING_TEACHER} (docs/concepts/controllers.md)",
     )
@@ -214,12 +214,8 @@ def check_settings(cfg: DaggerConfig) -> None:
     """The settings alone, refused in one line (`validate` also checks the folders)."""
     cfg = for_student(cfg)
     expert = teacher_named(cfg.expert, "--expert")
-    if not expert.labels:
-        raise UserError(
-            f"--expert {cfg.expert} cannot label states it did not lead to: give {' or '.join(able('labels'))}"
-        )
     if input_set_named(cfg.inputs).walks and not expert.walks:
-        walkers = " or ".join(f"--expert {name}" for name in able("walks") if TEACHERS[name].labels)
+        walkers = " or ".join(f"--expert {name}" for name in able("walks"))
         raise UserError(f"--inputs {cfg.inputs} learns to walk, and --expert {cfg.expert} does not: give {walkers}")
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
     check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "kick", "seed")

@@ -3,7 +3,7 @@
 A teacher is a `rollout.controllers.Controller` a student learns from, built as ``cls(delay=steps)`` (the episode's
 action latency, which it may predict through) and told the rest by the rollout. What it can do is declared here once,
 on its class, and every stage's choices derive from it: `make record`'s CONTROLLER (a walking task needs one that
-walks), `make dagger`'s EXPERT (one that labels; one that walks for a walking student), `make eval`'s POLICY.
+walks), `make dagger`'s EXPERT (one that walks for a walking student), `make eval`'s POLICY.
 """
 
 from __future__ import annotations
@@ -25,5 +25,3 @@ class Teacher:
     handover: ClassVar[HandOver | None] = None
     """The rule by which it hands the body from its balance to another law, which a walking student computes
     (`task.handover`); None: one law throughout."""
-    labels: ClassVar[bool] = True
-    """Whether it can label a DAgger round's states: act on states another controller led to, told what ran."""

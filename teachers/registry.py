@@ -1,7 +1,7 @@
 """The registered teachers, by name: one line each (docs/concepts/controllers.md, "Adding a teacher").
 
 A teacher is a class deriving from `teachers.base.Teacher`, which declares what it can do (`takes_command`, `walks`,
-`handover`, `labels`). `make record CONTROLLER=`, `make dagger EXPERT=`, `make eval POLICY=` and `make robustness
+`handover`). `make record CONTROLLER=`, `make dagger EXPERT=`, `make eval POLICY=` and `make robustness
 POLICY=` accept every name here and check each capability they need against the class; `rollout.controllers` builds
 one as ``cls(delay=steps)``. A new teacher is its own module and one line in `TEACHERS`.
 """
@@ -42,5 +42,5 @@ def teacher_named(name: str, role: str = "teacher") -> type[Teacher]:
 
 
 def able(capability: str) -> tuple[str, ...]:
-    """The names of the teachers that declare `capability` (`walks`, `labels`, `takes_command`)."""
+    """The names of the teachers that declare `capability` (`walks`, `takes_command`)."""
     return tuple(name for name, teacher in TEACHERS.items() if getattr(teacher, capability))
