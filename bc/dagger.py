@@ -281,8 +281,8 @@ def resolved(cfg: DaggerConfig) -> DaggerConfig:
 
 def condition(cfg: DaggerConfig) -> Condition:
     """What each rollout's environment changes: the recording's conditions (RANDOMIZE, LATENCY, resolved) and the
-    KICK (`humanoid.conditions.recording_condition`)."""
-    return recording_condition(parse_randomization(cfg.randomize), cfg.latency, cfg.kick)
+    KICK, as `make record` builds them (`humanoid.conditions.recording_condition`)."""
+    return recording_condition(cfg.randomize, cfg.latency, cfg.kick)
 
 
 def is_dagger_run(line: dict[str, Any]) -> bool:

@@ -284,10 +284,12 @@ def action_delay(env: gym.Env) -> int:
     return delay
 
 
-def recording_condition(randomization: Randomization, latency_share: float, kick: float = 0.0) -> Condition:
-    """The condition `make record` (and DAgger's rollouts) records under: the physical parameters drawn per episode,
-    one step of action latency on `latency_share` of the episodes (also drawn per episode), and one `kick` (m/s) per
-    episode as the suite's kick conditions give it (`VelocityKick`, recorded in the push column)."""
+def recording_condition(randomize: str, latency_share: float, kick: float = 0.0) -> Condition:
+    """The condition `make record` (and DAgger's rollouts) records under, from their RANDOMIZE, LATENCY and KICK: the
+    physical parameters drawn per episode (`parse_randomization`), one step of action latency on `latency_share` of
+    the episodes (also drawn per episode), and one `kick` (m/s) per episode as the suite's kick conditions give it
+    (`VelocityKick`, recorded in the push column)."""
+    randomization = parse_randomization(randomize)
     return Condition(
         randomization=randomization, latency=1 if latency_share > 0 else 0, latency_share=latency_share, kick=kick
     )

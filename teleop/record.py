@@ -61,7 +61,6 @@ from humanoid.conditions import (
     NO_RANDOMIZATION,
     PRESETS,
     RANDOMIZE_EXAMPLE,
-    Condition,
     parse_randomization,
     recorded_parameters,
     recording_condition,
@@ -411,19 +410,15 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
     return {"randomization": ranges} if ranges else {}
 
 
-def condition(cfg: RecordConfig) -> Condition:
-    """What each episode's environment changes (`humanoid.conditions.recording_condition`)."""
-    return recording_condition(parse_randomization(cfg.randomize), cfg.latency, cfg.kick)
-
-
 def _record(
     cfg: RecordConfig,
     rollouts: ParallelRollouts | RayRollouts | None,
     summary: RecordSummary,
     made_by: str | None,
 ) -> RecordSummary:
-    env = condition(cfg).wrap(make_env(cfg.max_steps))
-    parameters = recorded_parameters(condition(cfg))
+    recorded = recording_condition(cfg.randomize, cfg.latency, cfg.kick)
+    env = recorded.wrap(make_env(cfg.max_steps))
+    parameters = recorded_parameters(recorded)
     # Before the dataset opens: a port in use or a bad host is refused with nothing written.
     cameras = parse_cameras(cfg.cameras)
     live = start_live(env, cfg.live_host, cfg.live_port, cameras) if cfg.live else None
@@ -507,7 +502,12 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
     from teleop.parallel import ParallelRollouts, RolloutSettings  # noqa: PLC0415
 
     settings = RolloutSettings(
-        built(cfg.controller), cfg.noise, cfg.max_steps, condition(cfg), cfg.task, cameras=parse_cameras(cfg.cameras)
+        built(cfg.controller),
+        cfg.noise,
+        cfg.max_steps,
+        recording_condition(cfg.randomize, cfg.latency, cfg.kick),
+        cfg.task,
+        cameras=parse_cameras(cfg.cameras),
     )
     count = min(workers(cfg), cfg.episodes)
     if cfg.backend == "ray":

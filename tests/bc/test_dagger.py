@@ -36,7 +36,7 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from common import columns
 from common.cli import DatasetError, UserError, config_dict
-from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, Randomization, recording_condition
+from humanoid.conditions import LATENCY_PARAMETER, NO_RANDOMIZATION, recording_condition
 from humanoid.env import make_env
 from policies import checkpoint
 from policies.folder import CONFIG_FILE
@@ -267,7 +267,7 @@ def one_round(
     4 on) under `latency`, labelled by `expert`, appended to `root`; the seeds `waiting` rolled out beforehand and
     left in the spool, as a killed run leaves episodes it finished beyond one it had not."""
     shutil.copytree(delayed, root)
-    condition = recording_condition(Randomization(), latency)
+    condition = recording_condition("none", latency)
     env = condition.wrap(make_env(STEPS))
     training = TrainConfig(inputs=inputs, epochs=1, min_updates=0, progress=False)
     rollouts = RolloutSettings("dagger", 0.0, STEPS, condition, labeller=TEACHERS[expert])
