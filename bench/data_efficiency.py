@@ -35,7 +35,7 @@ from bc.train import TrainConfig
 from bc.train import main as train
 from bench.bc_benchmark import RESULTS
 from common import columns
-from common.cli import write_json
+from common.cli import counted, write_json
 from common.seed_ranges import EVAL_SEED
 from evaluation.evaluate import evaluate
 from students.learned import PolicyController
@@ -232,8 +232,7 @@ def notes(cells: Sequence[Cell], eval_seed: int, eval_episodes: int) -> str:
         f"`bc.train` defaults (at least {defaults.epochs} epochs and {defaults.min_updates:,} Adam steps, learning "
         f"rate {defaults.lr:g} on a cosine schedule, the last kept), split by "
         "episode with 10 % held out for "
-        f"validation and at least one, so N = {fewest.demos} trains on {fewest.train_episodes} "
-        f"episode{'s' if fewest.train_episodes != 1 else ''}. "
+        f"validation and at least one, so N = {fewest.demos} trains on {counted(fewest.train_episodes, 'episode')}. "
         f"Recorded episodes in which the noisy teacher fell (kept in the data): {'. '.join(falls)}."
     )
 

@@ -18,12 +18,12 @@ import numpy as np
 
 from humanoid.env import make_env, model_and_data
 from humanoid.perturbations import VelocityKick
+from humanoid.physics import FOOT_GEOMS
 from task.posture import Posture
 from task.schedules import command_vector
 from teachers.expert import LQRExpert
 from teachers.stepping import SteppingExpert
 
-FEET = ("left_foot", "right_foot")
 STILL_SECONDS = 10.0
 
 
@@ -42,7 +42,7 @@ def standing(seed: int) -> tuple[int, float]:
             obs, _, terminated, _, _ = env.step(expert.act(obs))
             if terminated:
                 return expert.planned, float("inf")
-            now = np.array([data.geom(name).xpos[:2] for name in FEET])
+            now = np.array([data.geom(name).xpos[:2] for name in FOOT_GEOMS])
             if t == start:
                 feet = now
             elif feet is not None:

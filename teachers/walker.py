@@ -28,14 +28,13 @@ import numpy as np
 
 from humanoid.env import QPOS_OBS, QVEL_OBS
 from humanoid.physics import FOOT_GEOMS
-from task.command_fields import VELOCITY_NAMES
+from task.command_fields import ARM_JOINTS, VELOCITY_NAMES
 from task.gait import SIDES, Gait, GaitClock, load_gait, other, rotation
 from task.handover import STEPPING
 from teachers.expert import Balanced
 from teachers.lqr import CTRL_LIMIT
 
 WAIST = ("abdomen_z", "abdomen_y", "abdomen_x")
-ARMS = tuple(f"{side}_{joint}" for side in SIDES for joint in ("shoulder1", "shoulder2", "elbow"))
 
 # What the whole-body control weighs (task weights), fixed: the tuning scales the gains, not these.
 ATTITUDE_WEIGHT = 100.0
@@ -107,7 +106,7 @@ class WholeBody:
         self.radius = float(m.geom_size[self.foot[SIDES[0]]][0])
         self.pelvis = m.body("pelvis").id
         self.mass = np.zeros((m.nv, m.nv))
-        upper = WAIST + ARMS
+        upper = WAIST + ARM_JOINTS
         self._upper = self._addresses(upper)
         self._with_hips = self._addresses((*upper, *(f"{side}_hip_z" for side in SIDES)))
         self._lean = upper.index("abdomen_x")

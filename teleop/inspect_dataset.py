@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
 from common import columns, paths
-from common.cli import DatasetError, one_line, run_cli, setting
+from common.cli import DatasetError, counted, one_line, run_cli, setting
 from common.figures import save_figure
 from common.files import PARTIAL_SUFFIX
 from humanoid.sensors import observation_index
@@ -582,7 +582,7 @@ def _drawn_range(values: list) -> str:
     drawn_values = [value for value in values if value is not None]
     if drawn_values and np.issubdtype(np.asarray(drawn_values).dtype, np.integer):
         counts = Counter(int(value) for value in drawn_values)
-        return ", ".join(f"{value} in {n} episode{'s' if n != 1 else ''}" for value, n in sorted(counts.items()))
+        return ", ".join(f"{value} in {counted(n, 'episode')}" for value, n in sorted(counts.items()))
     per_episode = [np.atleast_1d(np.array(value, dtype=float)) for value in drawn_values]
     if not per_episode:
         return "no value"
