@@ -68,11 +68,6 @@ class Target:
         return {name.upper(): name for name in self.fields}
 
     @property
-    def removed_variables(self) -> dict[str, str]:
-        """Removed Make variable -> the removed flag's field name."""
-        return {name.upper(): name for name in self.removed}
-
-    @property
     def preset_flags(self) -> list[str]:
         """The words the recipe passes before `$(flags)`."""
         return [f"{flag(name)}={value}" for name, value in self.preset]

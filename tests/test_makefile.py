@@ -23,8 +23,15 @@ from pipeline.targets import ARGS, TARGETS, Target, help_text
 
 ROOT = Path(__file__).resolve().parent.parent
 MAKEFILE = ROOT / "Makefile"
+
+
+def removed_variables(target: Target) -> dict[str, str]:
+    """Removed Make variable -> the removed flag's field name."""
+    return {name.upper(): name for name in target.removed}
+
+
 EVERY_VARIABLE = sorted(
-    {var for target in TARGETS.values() for var in (*target.variables, *target.removed_variables)} | {ARGS}
+    {var for target in TARGETS.values() for var in (*target.variables, *removed_variables(target))} | {ARGS}
 )
 PPO_ARGS = "--target-kl 0.01 --learning-rate 1e-4"
 
@@ -117,7 +124,7 @@ def makefile_variables(target: str, kind: str = "VARS") -> set[str]:
 def test_the_table_lists_the_variables_the_makefile_passes(target: str) -> None:
     """The Makefile's variable list of each target is the table's: no variable passed that the table does not map."""
     assert makefile_variables(target) == set(TARGETS[target].variables)
-    assert makefile_variables(target, "REMOVED") == set(TARGETS[target].removed_variables)
+    assert makefile_variables(target, "REMOVED") == set(removed_variables(TARGETS[target]))
 
 
 @pytest.mark.parametrize("target", [name for name, target in TARGETS.items() if target.removed])
@@ -125,7 +132,7 @@ def test_a_removed_variable_is_refused_by_its_stage_in_one_line(target: str, sta
     """`make pipeline PPO_FROM=full` reaches the stage, which refuses it naming what to do instead (not make
     ignoring it, nor argparse's "unrecognized arguments")."""
     spec = TARGETS[target]
-    for var, field in spec.removed_variables.items():
+    for var, field in removed_variables(spec).items():
         assert field not in {name for name, _ in flat_fields(spec.config)}
         words = stage_command(target, stamp, **{var: "value"})
         assert words == [f"{flag(field)}=value"]
@@ -155,7 +162,7 @@ def test_each_variable_becomes_its_flag(target: str, stamp: Path) -> None:
     if spec.passes_args:
         assert words[-len(shlex.split(values[ARGS])) :] == shlex.split(values[ARGS])
         words = words[: -len(shlex.split(values[ARGS]))]
-    passed = {**spec.variables, **spec.removed_variables}
+    passed = {**spec.variables, **removed_variables(spec)}
     assert flags_given(words) == {flag(field): values[var] for var, field in passed.items()}
 
 
