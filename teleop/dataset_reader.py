@@ -28,7 +28,15 @@ from common.cli import DatasetError
 from common.lerobot_stats import QUANTILES, quantile_key
 from humanoid.sensors import observation_index
 from task.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
-from teleop.lerobot_io.format import EPISODES_DIR, INFO_PATH, episode_files, unflatten_stats, video_keys
+from teleop.lerobot_io.format import (
+    EPISODES_DIR,
+    INFO_PATH,
+    data_file,
+    episode_files,
+    unflatten_stats,
+    video_file,
+    video_keys,
+)
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
@@ -92,7 +100,7 @@ def read_videos(root: Path) -> list[dict[str, tuple[Path, dict[str, np.ndarray]]
 
     def path(row: dict[str, Any], key: str) -> Path:
         chunk, file = row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"]
-        return root / info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+        return video_file(root, info, key, chunk, file)
 
     return [{key: (path(row, key), unflatten_stats(row)[key]) for key in keys} for row in rows]
 
@@ -139,7 +147,7 @@ def data_files(root: Path) -> list[Path]:
     episodes = read_episodes(root, ["data/chunk_index", "data/file_index"])
     return sorted(
         {
-            root / info["data_path"].format(chunk_index=chunk, file_index=file)
+            data_file(root, info, chunk, file)
             for chunk, file in zip(
                 episodes["data/chunk_index"].to_pylist(), episodes["data/file_index"].to_pylist(), strict=True
             )

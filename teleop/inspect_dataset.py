@@ -55,9 +55,11 @@ from teleop.lerobot_io.format import (
     STATS_PATH,
     TASKS_PATH,
     VIDEO_DIR,
+    data_file,
     data_files,
     episode_files,
     read_footer,
+    video_file,
     video_files,
     video_keys,
 )
@@ -381,7 +383,7 @@ def _read(root: Path, info: dict) -> Dataset:
             raise DatasetError(f"{root / EPISODES_DIR}: {table[column].null_count} episodes have no {column!r}")
     episodes = table.to_pydict()
     data_paths = [
-        root / info["data_path"].format(chunk_index=chunk, file_index=file)
+        data_file(root, info, chunk, file)
         for chunk, file in zip(episodes["data/chunk_index"], episodes["data/file_index"], strict=True)
     ]
     data_rows = _check_data_files(root, info, data_paths)
@@ -801,7 +803,7 @@ def video_path(dataset: Dataset, key: str, episode: int) -> Path:
     """Where episode `episode`'s frames of the video feature `key` are."""
     row = {name: values[episode] for name, values in dataset.episodes.items() if name.startswith(f"videos/{key}/")}
     chunk, file = row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"]
-    return dataset.root / dataset.info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+    return video_file(dataset.root, dataset.info, key, chunk, file)
 
 
 def _video_times(path: Path) -> tuple[np.ndarray, tuple[int, int]]:

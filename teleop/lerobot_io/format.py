@@ -48,6 +48,17 @@ DEFAULT_FEATURES = {
 }
 
 
+def data_file(root: Path, info: dict, chunk: int, file: int) -> Path:
+    """The frames' parquet file (`chunk`, `file`) of the dataset at `root`, as its info.json's `data_path` names it."""
+    return root / info["data_path"].format(chunk_index=chunk, file_index=file)
+
+
+def video_file(root: Path, info: dict, key: str, chunk: int, file: int) -> Path:
+    """Camera `key`'s video file (`chunk`, `file`) of the dataset at `root`, as its info.json's `video_path` names
+    it."""
+    return root / info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+
+
 def episode_files(root: Path) -> list[Path]:
     """The episode metadata's parquet files on disk (`EPISODES_DIR`), committed or not, in order."""
     return sorted((root / EPISODES_DIR).glob("*/*.parquet"))

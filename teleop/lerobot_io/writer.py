@@ -39,6 +39,7 @@ from teleop.lerobot_io.format import (
     aggregate_stats,
     cameras_spec,
     check_destination,
+    data_file,
     data_files,
     episode_files,
     episode_stats,
@@ -49,6 +50,7 @@ from teleop.lerobot_io.format import (
     stats_from_json,
     stats_to_json,
     unflatten_stats,
+    video_file,
     video_files,
     video_keys,
 )
@@ -187,7 +189,7 @@ class LeRobotWriter:
             "task_index": np.array([task_index[task] for task in tasks.tolist()], dtype=np.int64),
         }
         chunk, file = (0, 0) if self._last_file is None else next_chunk_file(*self._last_file)
-        data_path = self.root / self.info["data_path"].format(chunk_index=chunk, file_index=file)
+        data_path = data_file(self.root, self.info, chunk, file)
         # Dictionary encoding, parquet's default, makes writing float frames 40 times slower; one page
         # per column (an episode's column is at most a few MB) instead of 1 MB pages saves a third more.
         write_atomically(
@@ -203,7 +205,7 @@ class LeRobotWriter:
         stats = episode_stats(frames)
         located: dict[str, Any] = {}
         for key, (video, video_stats) in videos.items():
-            path = self.root / self.info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+            path = video_file(self.root, self.info, key, chunk, file)
             write_atomically(path, lambda p, video=video: p.write_bytes(video))
             stats[key] = video_stats
             located |= {
@@ -310,21 +312,15 @@ def _remove_uncommitted(root: Path, info: dict) -> list[dict[str, Any]]:
         else:
             rows += file_rows
     rows.sort(key=lambda row: row["episode_index"])
-    referenced = {
-        root / info["data_path"].format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
-        for row in rows
-    }
+    referenced = {data_file(root, info, row["data/chunk_index"], row["data/file_index"]) for row in rows}
     for key in video_keys(info["features"]):
         referenced |= {
-            root
-            / info["video_path"].format(
-                video_key=key, chunk_index=row[f"videos/{key}/chunk_index"], file_index=row[f"videos/{key}/file_index"]
-            )
+            video_file(root, info, key, row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"])
             for row in rows
         }
-    for data_file in [*data_files(root), *video_files(root)]:
-        if data_file not in referenced:
-            _remove(root, data_file)
+    for path in [*data_files(root), *video_files(root)]:
+        if path not in referenced:
+            _remove(root, path)
     return rows
 
 
