@@ -61,23 +61,23 @@ LANDING_STEPS = 5
 in the one force sample per step the sensors give."""
 
 
+def pitch_roll(gravity: np.ndarray) -> tuple[float, float]:
+    """The pitch and roll (rad) of an orientation R = Rz(yaw) Ry(pitch) Rx(roll) whose body frame sees `gravity` (the
+    down direction): minus R's third row, (sin pitch, -cos pitch sin roll, -cos pitch cos roll), whatever the yaw."""
+    return np.arcsin(np.clip(gravity[0], -1.0, 1.0)), np.arctan2(-gravity[1], -gravity[2])
+
+
 def heading_rate(gravity: np.ndarray, gyro: np.ndarray) -> float:
     """The rate of change (rad/s) of the heading (yaw) of an orientation R = Rz(yaw) Ry(pitch) Rx(roll) whose body
     frame sees `gravity` (the down direction) and turns at `gyro` (rad/s, body frame): (q sin roll + r cos roll) /
     cos pitch, the z-y-x Euler angles' kinematics."""
-    pitch = np.arcsin(np.clip(gravity[0], -1.0, 1.0))
-    roll = np.arctan2(-gravity[1], -gravity[2])
+    pitch, roll = pitch_roll(gravity)
     return float((gyro[1] * np.sin(roll) + gyro[2] * np.cos(roll)) / np.cos(pitch))
 
 
 def level_quaternion(gravity: np.ndarray) -> np.ndarray:
-    """The orientation (w, x, y, z) with zero heading whose body frame sees `gravity` (the down direction).
-
-    With R = Rz(yaw) Ry(pitch) Rx(roll), the body frame's down direction is minus R's third row,
-    (sin pitch, -cos pitch sin roll, -cos pitch cos roll), whatever the yaw.
-    """
-    pitch = np.arcsin(np.clip(gravity[0], -1.0, 1.0))
-    roll = np.arctan2(-gravity[1], -gravity[2])
+    """The orientation (w, x, y, z) with zero heading whose body frame sees `gravity` (the down direction)."""
+    pitch, roll = pitch_roll(gravity)
     cy, sy, cx, sx = np.cos(pitch / 2), np.sin(pitch / 2), np.cos(roll / 2), np.sin(roll / 2)
     return np.array([cy * cx, cy * sx, sy * cx, -sy * sx])  # Ry(pitch) ⊗ Rx(roll)
 
