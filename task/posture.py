@@ -222,7 +222,8 @@ def blend(start: Posture, target: Posture, s: float) -> Posture:
 
 
 def smoothstep(s: float) -> float:
-    # Zero velocity at both ends: a ramp that starts or stops at full speed jolts the body.
+    """The cubic 0 → 1 at `s` in [0, 1], with zero velocity at both ends: a ramp that starts or stops at full speed
+    jolts the body."""
     return s * s * (3.0 - 2.0 * s)
 
 

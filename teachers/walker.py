@@ -73,7 +73,7 @@ def _pd(frequency: float, error: np.ndarray | float, velocity: np.ndarray | floa
     return np.asarray(frequency**2 * error - 2.0 * frequency * velocity)
 
 
-def smoothstep(phase: float) -> tuple[float, float]:
+def quintic_step(phase: float) -> tuple[float, float]:
     """The quintic 0 → 1 with zero velocity and acceleration at both ends, and its derivative, at `phase` in [0, 1].
     The swing foot follows it by PD with its velocity fed forward, not its acceleration: fed forward, the tuned gait
     fell on five of six walking probes (docs/decisions/walking-teacher.md)."""
@@ -176,7 +176,7 @@ class WholeBody:
         side = other(clock.stance)
         swing, stance = feet[side], feet[clock.stance]
         phase = min(clock.t / clock.period, 1.0)
-        blend, rate = smoothstep(phase)
+        blend, rate = quintic_step(phase)
         move = clock.target - clock.lift
         want, speed = np.empty(3), np.zeros(3)
         want[:2] = stance[:2] + clock.lift + blend * move
