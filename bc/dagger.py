@@ -48,6 +48,7 @@ from common.cli import (
     UserError,
     check_non_negative,
     check_positive,
+    check_seed,
     check_share,
     config_dict,
     flag,
@@ -218,7 +219,8 @@ def check_settings(cfg: DaggerConfig) -> None:
         walkers = " or ".join(f"--expert {name}" for name in able("walks"))
         raise UserError(f"--inputs {cfg.inputs} learns to walk, and --expert {cfg.expert} does not: give {walkers}")
     check_positive(cfg, "rounds", "episodes", "epochs", "workers")
-    check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "kick", "seed")
+    check_non_negative(cfg, "min_updates", "eval_episodes", "noise", "kick")
+    check_seed(cfg, "seed")
     if cfg.latency is not None:
         check_share(cfg, "latency")
     if cfg.randomize is not None:

@@ -39,6 +39,7 @@ from common.cli import (
     UserError,
     check_non_negative,
     check_positive,
+    check_seed,
     config_dict,
     config_text,
     run_cli,
@@ -160,7 +161,8 @@ def validate(cfg: TrainConfig) -> None:
     """Reject bad settings before anything is read or written."""
     input_set_named(cfg.inputs)
     check_positive(cfg, "hidden", "layers", "batch_size", "epochs", "lr")
-    check_non_negative(cfg, "min_updates", "eval_episodes", "seed")
+    check_non_negative(cfg, "min_updates", "eval_episodes")
+    check_seed(cfg, "seed")
 
 
 def rows_of(demos: Demonstrations, episodes: list[int]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from common.files import write_atomically
+from common.seed_ranges import RUN_SEED_LIMIT
 from common.threads import PINNED, one_blas_thread, unpinned
 
 Config = TypeVar("Config")
@@ -201,6 +202,14 @@ def check_non_negative(config: Any, *names: str) -> None:
         value = getattr(config, name)
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise UserError(f"{flag(name)} must be >= 0, got {value}")
+
+
+def check_seed(config: Any, *names: str) -> None:
+    """UserError in one line unless each setting `names` of `config` is a seed: an integer in [0, 2**32)."""
+    for name in names:
+        value = getattr(config, name)
+        if not 0 <= value < RUN_SEED_LIMIT:
+            raise UserError(f"{flag(name)} must be a seed, at least 0 and below 2**32, got {value}")
 
 
 def check_share(config: Any, name: str) -> None:

@@ -15,5 +15,8 @@ SELECTION_SEED = 3000
 """First seed of the comparisons that choose a default (docs/decisions/), so no held-out seed picks one."""
 TRAINING_SEEDS = (1_000_000, 2**31 - 1)
 """PPO's training episodes draw their schedule's seed from here: never a recording's or an evaluation's."""
+RUN_SEED_LIMIT = 2**32
+"""A run's own seeds (its learner's, its sampler's, its first episode's) lie below this: CMA-ES takes 32 bits, torch
+overflows past 63 (`common.cli.check_seed`)."""
 SEED_LIMIT = 2**63
 """Seeds a dataset can hold: below this (an int64 column)."""

@@ -47,7 +47,16 @@ import torch
 from tqdm import tqdm
 
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, json_text, run_cli, setting
+from common.cli import (
+    UserError,
+    check_non_negative,
+    check_positive,
+    check_seed,
+    config_dict,
+    json_text,
+    run_cli,
+    setting,
+)
 from common.figures import save_figure
 from common.paths import NEWEST
 from common.seed_ranges import EVAL_SEED
@@ -120,7 +129,7 @@ def validate(cfg: EvalConfig) -> None:
     """Reject bad settings before anything runs."""
     check_positive(cfg, "episodes")
     check_port(cfg.live_port)
-    check_non_negative(cfg, "seed")
+    check_seed(cfg, "seed")
     if not (math.isfinite(cfg.push) and cfg.push >= 0):
         raise UserError(f"--push must be a force >= 0 in newtons, got {cfg.push}")
     if not (math.isfinite(cfg.kick) and cfg.kick >= 0):

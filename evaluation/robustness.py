@@ -24,8 +24,8 @@ from tqdm import tqdm
 from common import paths
 from common.cli import (
     UserError,
-    check_non_negative,
     check_positive,
+    check_seed,
     config_dict,
     flag,
     json_text,
@@ -103,7 +103,7 @@ def selected(cfg: RobustnessConfig) -> list[str]:
 def validate(cfg: RobustnessConfig) -> list[str]:
     """Reject bad settings before anything runs; returns the conditions to run."""
     check_positive(cfg, "episodes", "workers")
-    check_non_negative(cfg, "seed")
+    check_seed(cfg, "seed")
     try:
         check_controller(cfg.policy, interactive=False)
     except ValueError as error:

@@ -29,6 +29,7 @@ from common.cli import (
     UserError,
     check_non_negative,
     check_positive,
+    check_seed,
     field_default,
     json_text,
     parse_ranges,
@@ -39,7 +40,7 @@ from common.files import write_atomically
 from common.seed_ranges import SELECTION_SEED
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
-from task.gait import GAIT_FILE, Gait, read_gait, save_gait
+from task.gait import GAIT_FILE, Gait, is_gait_file, read_gait, save_gait
 from teachers.walker import SensedWalker, Walker
 
 Bounds = dict[str, Range]
@@ -166,6 +167,8 @@ def _cost(x: np.ndarray, cfg: TuneConfig, bounds: Bounds) -> tuple[float, dict[s
     return cost(unscaled(x, bounds), cfg)
 
 
+STATE_FILE = "state.pkl"
+"""The run's state in its folder, after every generation: what a run resumes from."""
 ADDED_SETTINGS = {name: field_default(TuneConfig, name) for name in ("bounds", "turn_weight")}
 """Settings added since runs were first saved, at their defaults: what an older run ran with, so that it resumes."""
 
@@ -190,17 +193,45 @@ def _settings(cfg: TuneConfig) -> dict[str, Any]:
     }
 
 
-def main(cfg: TuneConfig) -> dict[str, Any]:
+def validate(cfg: TuneConfig) -> None:
+    """The settings alone, refused in one line before anything runs."""
     check_positive(cfg, "generations", "population", "walks", "workers")
     check_non_negative(cfg, "kicks", "kick", "noise", "turn_weight")
+    check_seed(cfg, "seed", "cma_seed")
+    if cfg.population < 2:
+        raise UserError(f"--population must be at least 2 (CMA-ES ranks its candidates), got {cfg.population}")
     if not (0 < cfg.sigma <= 0.5):
         raise UserError(f"--sigma must be in (0, 0.5], a share of each parameter's range, got {cfg.sigma}")
+    if cfg.run.exists() and not cfg.run.is_dir():
+        raise UserError(f"--run {cfg.run} is a file: give a folder for the run's state")
+    if cfg.run.is_dir() and any(cfg.run.iterdir()) and not (cfg.run / STATE_FILE).exists():
+        raise UserError(f"--run {cfg.run} holds files of no tuning run: give another --run")
+
+
+def check_out(out: Path) -> None:
+    """UserError in one line unless `out` may take the gait: a new file, or one that holds a gait (of any version)."""
+    if out.is_dir():
+        raise UserError(f"--out {out} is a folder: give the gait's file")
+    if out.exists() and not is_gait_file(out):
+        raise UserError(f"--out {out} holds something other than a walker gait: give another --out")
+
+
+def read_state(state_file: Path) -> dict[str, Any]:
+    """The run saved in `state_file`; UserError in one line where it cannot be read."""
+    try:
+        with state_file.open("rb") as f:
+            return pickle.load(f)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError) as error:
+        raise UserError(f"{state_file} holds no tuning run that loads ({error}): give another --run") from None
+
+
+def main(cfg: TuneConfig) -> dict[str, Any]:
+    validate(cfg)
     bounds = search_bounds(cfg.bounds)
-    state_file = cfg.run / "state.pkl"
+    state_file = cfg.run / STATE_FILE
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in _settings(cfg).items()}
     if state_file.exists():
-        with state_file.open("rb") as f:
-            state = pickle.load(f)
+        state = read_state(state_file)
         if {**ADDED_SETTINGS, **state["settings"]} != settings:
             raise UserError(f"{cfg.run} holds a run with other settings ({state['settings']}): give another --run")
         if "out" not in state and cfg.out is None:  # saved before runs kept theirs: it may have begun elsewhere
@@ -220,7 +251,12 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
             "best": (math.inf, None, None),
             "out": None if cfg.out is None else str(cfg.out),
         }
-    cfg.run.mkdir(parents=True, exist_ok=True)
+    out = Path(cfg.out or state["out"] or GAIT_FILE)  # a resumed run's, as it began
+    check_out(out)
+    try:
+        cfg.run.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UserError(f"cannot write the run's state in {cfg.run}: {error.strerror or error}") from None
     es = state["es"]
     with evaluation_pool(cfg.workers) as pool, (cfg.run / "log.jsonl").open("a") as log:
         bar = tqdm(total=cfg.generations, initial=state["generation"], unit="gen", file=sys.stderr, dynamic_ncols=True)
@@ -262,8 +298,13 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         "start": state["start"],
         "start_tuning": state["start_tuning"],
     }
-    out = cfg.out or state["out"]  # a resumed run's, as it began
-    save_gait(gait, GAIT_FILE if out is None else Path(out), tuning)
+    try:
+        save_gait(gait, out, tuning)
+    except OSError as error:
+        raise UserError(
+            f"cannot write the gait to {out}: {error.strerror or error}; the run is saved in {cfg.run}: run again with "
+            "another --out to write it"
+        ) from None
     return {"gait": dataclasses.asdict(gait), "tuning": tuning}
 
 

@@ -44,7 +44,17 @@ from tqdm import tqdm
 
 from bc.data import load_demonstrations
 from common import paths
-from common.cli import UserError, check_non_negative, check_positive, config_dict, flag, run_cli, setting, write_json
+from common.cli import (
+    UserError,
+    check_non_negative,
+    check_positive,
+    check_seed,
+    config_dict,
+    flag,
+    run_cli,
+    setting,
+    write_json,
+)
 from common.paths import NEWEST
 from common.ray_backend import BACKENDS, check_backend
 from common.seed_ranges import EVAL_SEED, VALIDATION_SEED
@@ -259,8 +269,8 @@ def validate(cfg: FinetuneConfig) -> None:
         "final_eval_episodes",
         "update_threads",
         "tracking_weight",
-        "seed",
     )
+    check_seed(cfg, "seed")
     check_backend(cfg.backend, cfg.ray_address)
     if workers(cfg) > cfg.envs:
         raise UserError(f"--workers ({workers(cfg)}) must not exceed --envs ({cfg.envs})")

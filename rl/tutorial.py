@@ -38,8 +38,8 @@ from tqdm import tqdm
 from common import paths
 from common.cli import (
     UserError,
-    check_non_negative,
     check_positive,
+    check_seed,
     config_dict,
     config_text,
     flag,
@@ -107,7 +107,7 @@ def selected(cfg: TutorialConfig) -> list[str]:
 def validate(cfg: TutorialConfig) -> list[str]:
     """The learners to run; UserError in one line for a bad setting."""
     check_positive(cfg, "timesteps", "learning_rate", "final_eval_episodes")
-    check_non_negative(cfg, "seed")
+    check_seed(cfg, "seed")
     return selected(cfg)
 
 

@@ -130,6 +130,15 @@ def read_gait(path: Path) -> tuple[Gait, dict | None]:
         raise ValueError(f"{path} holds no walker gait of version {GAIT_VERSION} ({error})") from None
 
 
+def is_gait_file(path: Path) -> bool:
+    """Whether `path` holds a walker gait of any version: a file `make tune-walker` may replace."""
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(saved, dict) and {"version", "gait"} <= saved.keys()
+
+
 def load_gait(path: Path = GAIT_FILE) -> Gait:
     """The tuned gait at `path`; UserError in one line naming `make tune-walker` if it is missing, unreadable or of
     another version (and, for the committed file, how to restore it)."""

@@ -348,12 +348,19 @@ def test_incompatible_dataset_is_refused(
     assert not (tmp_path / "policy").exists()
 
 
-@pytest.mark.parametrize("name", ["min-updates", "seed"])
-def test_negative_counts_are_refused(
-    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        ("min-updates", "-1", "must be >= 0, got -1"),
+        ("seed", "-1", "must be a seed, at least 0 and below 2**32, got -1"),
+        ("seed", str(2**70), f"must be a seed, at least 0 and below 2**32, got {2**70}"),  # torch would overflow
+    ],
+)
+def test_counts_and_seeds_out_of_range_are_refused(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, value: str, message: str
 ) -> None:
-    code, err = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "p"), f"--{name}", "-1"], capsys)
-    assert (code, err) == (1, [f"error: --{name} must be >= 0, got -1"])
+    code, err = train_cli(["--dataset", str(recorded), "--policy", str(tmp_path / "p"), f"--{name}", value], capsys)
+    assert (code, err) == (1, [f"error: --{name} {message}"])
     assert not (tmp_path / "p").exists()
 
 

@@ -291,7 +291,10 @@ def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_pat
     ("args", "message"),
     [
         (["--plot", "TMP/x.txt"], "--plot must be a .png path, got TMP/x.txt"),
-        (["--seed", "-1", "--task", "posture"], "--seed must be >= 0, got -1"),  # a schedule's seed, too
+        (
+            ["--seed", "-1", "--task", "posture"],
+            "--seed must be a seed, at least 0 and below 2**32, got -1",
+        ),  # a schedule's seed, too
         (["--walking", "true"], "--walking was removed; give --task (TASK=stand|posture|walk; WALKING=1 is TASK=walk)"),
         (["--schedules", "0"], "--schedules was removed; give --task (TASK=stand|posture|walk; SCHEDULES=0 is"),
     ],

@@ -435,6 +435,7 @@ def test_rollout_noise_goes_with_each_round_episode(recorded: Path, tmp_path: Pa
         ("--noise", "nan"),
         ("--noise", "inf"),
         ("--seed", "-1"),
+        ("--seed", str(2**70)),
         ("--kick", "-0.4"),
         ("--latency", "1.5"),
         ("--randomize", "heavy"),

@@ -101,3 +101,29 @@ def test_a_run_starts_from_start_or_the_tuned_gait_or_the_middle_of_the_ranges(t
     assert tuning is None and gait.period == pytest.approx(0.375) and gait.k_y == pytest.approx(1.05)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].endswith("the search starts at the middle of its ranges"), err
+
+
+@pytest.mark.parametrize(
+    "args, problem",
+    [
+        (["--population", "1"], "--population must be at least 2"),
+        (["--seed", "-1"], "--seed must be a seed, at least 0 and below 2**32, got -1"),
+        (["--cma-seed", str(2**32)], "--cma-seed must be a seed"),
+        (["--out", "{tmp}/notes.txt"], "--out {tmp}/notes.txt holds something other than a walker gait"),
+        (["--out", "{tmp}"], "is a folder: give the gait's file"),
+        (["--run", "{tmp}/notes.txt"], "is a file: give a folder for the run's state"),
+        (["--run", "{tmp}"], "holds files of no tuning run: give another --run"),
+    ],
+)
+def test_bad_places_and_settings_are_one_line_before_any_search(args, problem, tmp_path, capsys) -> None:
+    """An OUT that holds something else than a gait, or a RUN folder of something else, is refused before the search
+    (the file is not replaced, nothing is written in the folder), as are settings CMA-ES cannot run."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a gait")
+    places = {"--run": str(tmp_path / "run"), "--out": str(tmp_path / "gait.json")}
+    given = [arg.format(tmp=tmp_path) for arg in args]
+    places.update(dict(zip(given[::2], given[1::2], strict=True)))
+    code = cli([item for pair in places.items() for item in pair])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and problem.format(tmp=tmp_path) in err[0], err
+    assert notes.read_text() == "not a gait" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

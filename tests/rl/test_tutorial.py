@@ -122,7 +122,8 @@ def test_a_finished_run_is_reused(trained: tuple[TutorialConfig, dict], capsys: 
         (["--learners", "preferred,dqn"], "--learners 'preferred,dqn': choose from preferred, ppo"),
         (["--timesteps", "0"], "--timesteps must be positive"),
         (["--learning-rate", "-1"], "--learning-rate must be positive"),
-        (["--seed", "-1"], "--seed must be >= 0"),
+        (["--seed", "-1"], "--seed must be a seed, at least 0 and below 2**32"),
+        (["--seed", str(2**70)], "--seed must be a seed"),
     ],
 )
 def test_bad_settings_are_refused_in_one_line(
