@@ -238,6 +238,11 @@ def validate(cfg: DaggerConfig) -> None:
         raise DatasetError(
             f"{cfg.output} exists and holds no LeRobot dataset: OUTPUT is DAgger's own copy of DATASET, give another"
         )
+    if cfg.output.exists() and not is_aggregate(cfg.output):
+        raise DatasetError(
+            f"{cfg.output} holds a dataset DAgger did not copy (no {SOURCE_FILE}, no round): OUTPUT is DAgger's own "
+            "copy of DATASET, give another"
+        )
     if not (cfg.dataset / INFO_PATH).is_file() and not cfg.output.exists():
         raise DatasetError(f"no LeRobot dataset at {cfg.dataset}; record one with `make record DATASET={cfg.dataset}`")
 
@@ -313,6 +318,12 @@ def copy_demonstrations(cfg: DaggerConfig, made_by: str) -> None:
 def copied_from(output: Path) -> dict[str, Any]:
     """OUTPUT's SOURCE_FILE; {} if it has none (a copy made before it existed, or no DAgger copy)."""
     return json_object(output / SOURCE_FILE)
+
+
+def is_aggregate(output: Path) -> bool:
+    """Whether the dataset at `output` is a DAgger run's aggregate: copied by one (its SOURCE_FILE), or, copied before
+    that file existed, holding a round."""
+    return bool(copied_from(output)) or any(is_dagger_run(line) for line in recordings.read(output))
 
 
 def check_resume(cfg: DaggerConfig) -> None:

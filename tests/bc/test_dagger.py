@@ -229,6 +229,22 @@ def test_an_output_that_is_not_a_dataset_is_refused_and_left_alone(
     assert snapshot(tmp_path) == before and not (tmp_path / "p").exists()
 
 
+def test_an_output_holding_a_dataset_dagger_did_not_copy_is_refused_and_left_alone(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """OUTPUT holding a recording of its own (no copy of DATASET, no round): one line, and it stays as it was; a
+    resume would have appended the rounds to it."""
+    output = tmp_path / "other"
+    shutil.copytree(recorded, output)
+    before = snapshot(tmp_path)
+    code = cli(
+        ["--dataset", str(recorded), "--output", str(output), "--policy", str(tmp_path / "p"), "--progress", "false"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "holds a dataset DAgger did not copy" in err[0], err
+    assert snapshot(tmp_path) == before and not (tmp_path / "p").exists()
+
+
 def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tuple, tmp_path: Path) -> None:
     """The rounds' frames held in memory are the ones on disk: `make train-bc` on OUTPUT with the same settings gives
     the final policy's weights exactly."""
