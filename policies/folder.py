@@ -47,6 +47,32 @@ def checkpoint_problem(path: Path) -> str | None:
     return None
 
 
+def damage(path: Path) -> str | None:
+    """Why checkpoint folder `path`'s files cannot load, in one line, read without torch (a process that only records
+    checks a policy before its workers load it); None if they look whole."""
+    if not json_object(path / CONFIG_FILE):
+        return f"{path / CONFIG_FILE} holds no JSON object: the checkpoint is damaged, train it again"
+    if not weights_whole(path / WEIGHTS_FILE):
+        return f"{path / WEIGHTS_FILE} is cut short or not safetensors: the checkpoint is damaged, train it again"
+    return None
+
+
+def weights_whole(path: Path) -> bool:
+    """Whether `path` is a whole safetensors file, read without torch: an 8-byte header length, the JSON header, and
+    exactly the bytes its tensors' offsets end at (a copy cut short, or another file, is not)."""
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as stream:
+            length = int.from_bytes(stream.read(8), "little")
+            if size < 8 + length:
+                return False
+            header = json.loads(stream.read(length))
+        ends = [entry["data_offsets"][1] for name, entry in header.items() if name != "__metadata__"]
+        return size == 8 + length + max(ends, default=0)
+    except (OSError, ValueError, TypeError, KeyError, IndexError, AttributeError):
+        return False
+
+
 def is_checkpoint(path: Path) -> bool:
     """Whether `path` is a folder with a checkpoint's files."""
     return checkpoint_problem(path) is None

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from humanoid.conditions import action_delay
-from policies.folder import checkpoint_problem, is_sb3_policy  # torch-free: policies are imported on use
+from policies.folder import checkpoint_problem, damage, is_sb3_policy  # torch-free: policies are imported on use
 from teachers.base import Teacher
 from teachers.expert import LQRExpert
 from teachers.registry import TEACHERS
@@ -127,7 +127,7 @@ def check_controller(name: str, interactive: bool = True) -> None:
     if not _is_path(name):
         known = ", ".join([*registered(), *INTERACTIVE])
         raise ValueError(f"unknown controller {name!r} (known: {known}, or a policy checkpoint folder)")
-    problem = None if is_sb3_policy(Path(name)) else checkpoint_problem(Path(name))
+    problem = None if is_sb3_policy(Path(name)) else checkpoint_problem(Path(name)) or damage(Path(name))
     if problem:
         raise ValueError(problem)
 

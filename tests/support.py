@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -30,6 +31,8 @@ from common.columns import PUSH_NAMES
 from humanoid.conditions import ActionLatency
 from humanoid.env import humanoid_model, make_env
 from humanoid.sensors import ObservationSplit
+from policies import checkpoint
+from policies.mlp import MLPPolicy, MLPSpec
 from task.command_fields import COMMAND_NAMES
 from teachers.base import Teacher
 from teachers.expert import LQRExpert
@@ -83,6 +86,20 @@ def one_core() -> Iterator[None]:
 # and answers a client offering foxglove.websocket.v1 alone with HTTP 400.
 SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
 MESSAGE_DATA = 0x01  # binary opcode: subscription id (uint32), log time (uint64), payload
+
+
+def untrained_checkpoint(folder: Path, poison: bool = False) -> Path:
+    """A freshly initialised policy saved as a checkpoint; `poison` makes its output NaN."""
+    policy = MLPPolicy(
+        MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,)),
+        -0.4 * np.ones(17),
+        0.4 * np.ones(17),
+    )
+    if poison:
+        with torch.no_grad():
+            policy.net[-1].bias.fill_(float("nan"))
+    checkpoint.save(policy, folder, {}, {})
+    return folder
 
 
 def snapshot(root: Path) -> dict[str, bytes]:

@@ -9,7 +9,6 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pytest
-import torch
 
 from common.cli import config_dict
 from evaluation.evaluate import EvalConfig, cli, evaluate, evaluate_each, evaluation_pool
@@ -21,6 +20,7 @@ from policies import checkpoint
 from policies.checkpoint import load
 from policies.folder import WEIGHTS_FILE
 from policies.mlp import MLPPolicy, MLPSpec
+from support import untrained_checkpoint
 from task.schedules import parse_held
 
 FIELDS = {"mean_return", "std_return", "mean_length", "survival_rate", "episodes", "seeds"}
@@ -34,20 +34,6 @@ def eval_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
     code = cli(["--progress", "false", *args])
     out, err = capsys.readouterr()
     return code, out.strip().splitlines(), err.strip().splitlines()
-
-
-def untrained_checkpoint(folder: Path, poison: bool = False) -> Path:
-    """A freshly initialised policy saved as a checkpoint; `poison` makes its output NaN."""
-    policy = MLPPolicy(
-        MLPSpec(("observation.state", "observation.environment_state"), 348, 17, hidden=(8,)),
-        -0.4 * np.ones(17),
-        0.4 * np.ones(17),
-    )
-    if poison:
-        with torch.no_grad():
-            policy.net[-1].bias.fill_(float("nan"))
-    checkpoint.save(policy, folder, {}, {})
-    return folder
 
 
 def corrupt_checkpoint(folder: Path) -> Path:
@@ -271,7 +257,7 @@ def test_non_finite_actions_stop_with_one_line(tmp_path: Path, capsys: pytest.Ca
     [
         (lambda root: root, "not a policy checkpoint"),
         (lambda root: root / "missing", "no policy checkpoint at"),
-        (lambda root: corrupt_checkpoint(root / "corrupt"), "not a loadable checkpoint"),
+        (lambda root: corrupt_checkpoint(root / "corrupt"), "the checkpoint is damaged, train it again"),
         (lambda root: "expertt", "unknown controller 'expertt'"),
     ],
 )

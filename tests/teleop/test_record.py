@@ -14,6 +14,7 @@ import teleop.record
 from common import columns
 from common.cli import config_dict, parse_config
 from humanoid.env import make_env
+from policies.folder import CONFIG_FILE, WEIGHTS_FILE
 from rollout.episode import injected_noise, run_episode
 from support import (
     SHORT_EPISODE,
@@ -23,6 +24,7 @@ from support import (
     record_short,
     registered,
     snapshot,
+    untrained_checkpoint,
 )
 from teachers.registry import TEACHER, WALKING_TEACHER
 from teleop import recordings
@@ -137,6 +139,23 @@ def test_bad_settings_are_refused_before_touching_the_disk(
     """A bad setting gives one error line and a non-zero exit; the dataset folder is not even created."""
     code, err = run_cli(["--dataset", str(tmp_path / "new"), *args], capsys)
     assert code != 0 and len(err) == 1 and message in err[0]
+    assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("damage", ["weights", "config"])
+def test_a_damaged_policy_is_refused_before_the_dataset_is_made(
+    damage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A checkpoint whose weights were cut short (or whose config.json is not JSON) is refused in one line by the
+    recorder, which loads no policy itself (its workers do): no empty dataset is left to refuse a retry."""
+    policy = untrained_checkpoint(tmp_path / "policy")
+    if damage == "weights":
+        weights = policy / WEIGHTS_FILE
+        weights.write_bytes(weights.read_bytes()[:-10])
+    else:
+        (policy / CONFIG_FILE).write_text('{"format": ')
+    code, err = run_cli(["--dataset", str(tmp_path / "new"), "--controller", str(policy), "--workers", "2"], capsys)
+    assert code != 0 and len(err) == 1 and "the checkpoint is damaged, train it again" in err[0], err
     assert not (tmp_path / "new").exists()
 
 
