@@ -132,11 +132,11 @@ def check_compatible(root: Path, env: gym.Env, inputs: str = "full") -> tuple[di
     if not (root / INFO_PATH).is_file():
         reason = "no such folder" if not root.exists() else f"no {INFO_PATH}"
         raise DatasetError(f"no LeRobot dataset at {root} ({reason}); record one with `make record DATASET={root}`")
+    info = read_info(root)
     try:
-        info = read_info(root)
         features = info["features"]
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as error:
-        raise DatasetError(f"{root / INFO_PATH} is unreadable: {error}") from None
+    except KeyError:
+        raise DatasetError(f"{root / INFO_PATH} has no features") from None
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(f"{root} is a LeRobot {info.get('codebase_version')} dataset; this reads {CODEBASE_VERSION}")
     missing = [key for key in (*input_set.columns, columns.ACTION) if key not in features]

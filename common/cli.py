@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import errno
 import json
 import math
 import sys
@@ -365,6 +366,13 @@ def _build(config_class: type[Config], values: dict[str, Any]) -> Config:
     return config_class(**settings)
 
 
+PLACE_ERRORS = frozenset(
+    {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EISDIR, errno.ENOTDIR, errno.EEXIST}
+)
+"""What the disk says of a place given (unwritable, read-only, full, a file for a folder): one line naming the path,
+not a traceback; other OS errors are a defect's and keep theirs."""
+
+
 def run_cli(
     main: Callable[[Config], Any],
     config_class: type[Config],
@@ -386,6 +394,11 @@ def run_cli(
         main(parse_config(config_class, argv, description, prog))
     except UserError as error:
         print(f"error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
+    except OSError as error:
+        if error.errno not in PLACE_ERRORS:
+            raise
+        print(f"error: {error.filename}: {error.strerror}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

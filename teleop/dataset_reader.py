@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
-from common.cli import DatasetError
+from common.cli import DatasetError, one_line
 from common.lerobot_stats import QUANTILES, quantile_key
 from humanoid.sensors import observation_index
 from task.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
@@ -41,8 +41,15 @@ from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
-    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts)."""
-    return json.loads((root / INFO_PATH).read_text())
+    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts); DatasetError in one line if it cannot
+    be read or holds no JSON object (a copy cut short)."""
+    try:
+        info = json.loads((root / INFO_PATH).read_text())
+    except (OSError, ValueError) as error:
+        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
+    if not isinstance(info, dict):
+        raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
+    return info
 
 
 PARALLEL_FILES = 2  # parquet files decoded at once: Arrow releases the GIL, so one per core

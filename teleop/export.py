@@ -142,6 +142,9 @@ def validate(cfg: ExportConfig) -> None:
     what = "a Minari datasets root" if cfg.format == MINARI else "a LeRobot dataset"
     if out_folder(cfg).exists():
         raise UserError(f"{out_folder(cfg)} exists; OUT must be a new folder ({what})")
+    if out_folder(cfg).resolve().is_relative_to(cfg.dataset.resolve()):
+        raise UserError(f"OUT {out_folder(cfg)} lies inside DATASET {cfg.dataset}, left unchanged: give another")
+    read_info(cfg.dataset)  # readable, before any work
 
 
 def main(cfg: ExportConfig) -> str:

@@ -336,12 +336,7 @@ def _open(root: Path) -> dict:
         raise DatasetError(f"{root} is a file, not a dataset folder")
     if not (root / INFO_PATH).is_file():
         raise DatasetError(f"{root} holds no LeRobot dataset (no {INFO_PATH})")
-    try:
-        info = read_info(root)
-    except (OSError, ValueError) as error:
-        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
-    if not isinstance(info, dict):
-        raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
+    info = read_info(root)
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise DatasetError(
             f"{root / INFO_PATH}: codebase_version is {info.get('codebase_version')!r}, not {CODEBASE_VERSION!r}"

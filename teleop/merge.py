@@ -168,10 +168,7 @@ def _plan(shards: list[Path]) -> tuple[list[tuple[int, Path, dict]], tuple[str, 
         if not (shard / INFO_PATH).is_file():
             raise UserError(f"{shard} is not a dataset (no {INFO_PATH})")
         check_finished(shard)
-        try:
-            info = read_info(shard)
-        except (OSError, ValueError) as error:
-            raise UserError(f"{shard / INFO_PATH} is unreadable ({error}): copy the shard again") from None
+        info = read_info(shard)
         if features is not None and info["features"] != features:
             raise UserError(f"{shard} was recorded with other features than {shards[0]}: they cannot be one dataset")
         features = info["features"]

@@ -4,6 +4,7 @@ the operator's command beside each observation where one was commanded."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -123,6 +124,38 @@ def test_existing_out_is_refused_and_left_alone(recorded: Path, tmp_path: Path) 
     run = export_cli("--dataset", str(recorded), "--out", str(tmp_path / "out"))
     assert run.returncode == 1 and len(run.stderr.splitlines()) == 1 and "exists" in run.stderr
     assert snapshot(tmp_path / "out") == before
+
+
+def test_an_out_inside_the_dataset_is_refused_and_the_dataset_left_alone(recorded: Path, tmp_path: Path) -> None:
+    dataset = tmp_path / "dataset"
+    shutil.copytree(recorded, dataset)
+    before = snapshot(dataset)
+    run = export_cli("--dataset", str(dataset), "--out", str(dataset / "minari"))
+    assert run.returncode == 1 and len(run.stderr.splitlines()) == 1 and "lies inside DATASET" in run.stderr
+    assert snapshot(dataset) == before
+
+
+@pytest.mark.parametrize("out_format", ["minari", "lerobot-command"])
+def test_a_dataset_whose_info_is_cut_short_is_refused_in_one_line(
+    recorded: Path, tmp_path: Path, out_format: str
+) -> None:
+    dataset = tmp_path / "dataset"
+    shutil.copytree(recorded, dataset)
+    info = dataset / "meta" / "info.json"
+    info.write_text(info.read_text()[:40])
+    run = export_cli("--dataset", str(dataset), "--out", str(tmp_path / "out"), "--format", out_format)
+    assert run.returncode == 1 and len(run.stderr.splitlines()) == 1, run.stderr
+    assert "meta/info.json is not readable JSON" in run.stderr and not (tmp_path / "out").exists()
+
+
+def test_an_out_the_disk_refuses_is_one_line_naming_it(recorded: Path, tmp_path: Path) -> None:
+    """An OUT below a file (as below a folder the user may not write): the disk's refusal in one line, not a
+    traceback (`common.cli.PLACE_ERRORS`)."""
+    (tmp_path / "notes.txt").write_text("keep")
+    run = export_cli("--dataset", str(recorded), "--out", str(tmp_path / "notes.txt" / "out"))
+    assert run.returncode == 1 and len(run.stderr.splitlines()) == 1, run.stderr
+    assert run.stderr.startswith(f"error: {tmp_path / 'notes.txt'}") and "Not a directory" in run.stderr
+    assert (tmp_path / "notes.txt").read_text() == "keep"
 
 
 def test_unknown_format_is_refused(recorded: Path, tmp_path: Path) -> None:

@@ -84,7 +84,7 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
         ("itself", "a shard cannot be merged into itself"),
         ("no episode", "no episode was committed to it"),
         ("killed", "holds what a killed run left (its mark, .spool)"),
-        ("cut-short info", "meta/info.json is unreadable"),
+        ("cut-short info", "meta/info.json is not readable JSON"),
         ("missing MCAP", "lacks mcap/"),
     ],
 )
