@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
 from common import columns, paths
-from common.cli import DatasetError, counted, one_line, run_cli, setting
+from common.cli import DatasetError, UserError, counted, one_line, run_cli, setting
 from common.figures import save_figure
 from common.files import PARTIAL_SUFFIX
 from humanoid.sensors import observation_index
@@ -72,7 +72,9 @@ from teleop.store import MCAP_DIR, mcap_name
 class InspectConfig:
     """Settings of one inspection."""
 
-    dataset: Path = setting(paths.DATASET, "dataset folder to summarise and verify (never modified)")
+    dataset: Path = setting(
+        paths.DATASET, "dataset folder to summarise and verify (its files never modified; PLOT's PNG goes into it)"
+    )
     plot: bool = setting(False, "also draw returns per episode, torso height over time and action histograms to a PNG")
     plot_path: Path | None = setting(None, "where the PNG goes; default: DATASET/inspect.png")
     lerobot: bool = setting(
@@ -295,6 +297,16 @@ def _quiet(text: str) -> None:
     """Shows nothing: `main` called from code returns the report instead."""
 
 
+def check_plot_path(cfg: InspectConfig) -> None:
+    """UserError in one line for a PLOT_PATH the plot cannot take: without PLOT, not a .png, or a folder."""
+    if cfg.plot_path is None:
+        return
+    if not cfg.plot:
+        raise UserError(f"--plot-path names where --plot true draws: give --plot true too, got {cfg.plot_path}")
+    if cfg.plot_path.suffix.lower() != ".png" or cfg.plot_path.is_dir():
+        raise UserError(f"--plot-path must be a .png file's path, got {cfg.plot_path}")
+
+
 def main(cfg: InspectConfig, show: Callable[[str], None] = _quiet) -> Report:
     """Summarise and verify `cfg.dataset`; a DatasetError names the first problem.
 
@@ -302,6 +314,7 @@ def main(cfg: InspectConfig, show: Callable[[str], None] = _quiet) -> Report:
     LeRobot's loader), and then the outcome: a user reads the summary even when a problem follows.
     """
     start = time.perf_counter()
+    check_plot_path(cfg)
     root = cfg.dataset
     info = _open(root)
     # Started now, so that its torch import overlaps with the reading below.

@@ -135,6 +135,23 @@ def test_a_plot_path_that_cannot_be_written_is_refused_in_one_line(recorded: Pat
     assert run.code != 0 and len(err) == 1 and err[0].startswith(f"error: cannot write {path}: ")
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--plot-path", "{tmp}/x.png"], "--plot-path names where --plot true draws: give --plot true too"),
+        (["--plot", "true", "--plot-path", "{tmp}/x.txt"], "--plot-path must be a .png file's path"),
+        (["--plot", "true", "--plot-path", "{tmp}"], "--plot-path must be a .png file's path"),
+    ],
+)
+def test_a_plot_path_the_plot_cannot_take_is_refused_before_the_inspection(
+    recorded: Path, tmp_path: Path, args: list[str], message: str
+) -> None:
+    run = inspect("--dataset", recorded, "--lerobot", "false", *(arg.format(tmp=tmp_path) for arg in args))
+    err = run.err.strip().splitlines()
+    assert run.code == 1 and err == [f"error: {message}, got {args[-1].format(tmp=tmp_path)}"] and not run.out.strip()
+    assert not any(tmp_path.iterdir())
+
+
 def test_inspection_writes_nothing_but_the_png(clean: CleanRun) -> None:
     """Every file of the dataset is left byte for byte as it was; the PNG is the only new one."""
     assert set(clean.after) - set(clean.before) == {PLOT_NAME}
