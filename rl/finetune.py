@@ -276,6 +276,8 @@ def validate(cfg: FinetuneConfig) -> None:
         raise UserError(f"--workers ({workers(cfg)}) must not exceed --envs ({cfg.envs})")
     if cfg.rollout_steps % cfg.envs:
         raise UserError(f"--rollout-steps ({cfg.rollout_steps}) must be a multiple of --envs ({cfg.envs})")
+    if cfg.batch_size > cfg.rollout_steps:  # a minibatch is cut from one rollout
+        raise UserError(f"--batch-size ({cfg.batch_size}) must not exceed --rollout-steps ({cfg.rollout_steps})")
     if cfg.policy.resolve() == cfg.bc_policy.resolve():
         raise UserError("--policy must differ from --bc-policy: the BC checkpoint is never overwritten")
     for name in ("curriculum_advance", "latency_share", "obs_noise_share", "gamma", "gae_lambda"):

@@ -472,6 +472,7 @@ def test_a_proprioceptive_run_saves_a_policy_on_the_same_inputs(
         (["--gae-lambda", "-1"], "--gae-lambda must be in [0, 1]"),
         (["--batch-size", "1"], "--batch-size must be at least 2"),
         (["--seed", "-1"], "--seed must be a seed, at least 0 and below 2**32"),
+        (["--batch-size", "100000"], "--batch-size (100000) must not exceed --rollout-steps"),
         (["--seed", str(2**70)], "--seed must be a seed"),
         (["--kick", "-0.4"], "--kick must be >= 0"),
         (["--kick", "0.3"], "--kick must be 0 or one of the suite's kick speeds (0.2, 0.4, 0.6 m/s), got 0.3"),
