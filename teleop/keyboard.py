@@ -503,9 +503,15 @@ def front_end_here(front_end: str, stdin_fd: int | None = None) -> str:
     if front_end == "auto":
         front_end = "viewer" if has_display() else "terminal"
     if front_end == "viewer" and not has_display():
-        raise UserError("the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY); use --front-end terminal")
+        raise UserError(
+            "the viewer front end needs a display (DISPLAY or WAYLAND_DISPLAY): run it on a desktop, or in a terminal "
+            "with --front-end terminal (FRONT_END=terminal)"
+        )
     if front_end == "terminal" and not os.isatty(sys.stdin.fileno() if stdin_fd is None else stdin_fd):
-        raise UserError("keyboard teleoperation needs a terminal: stdin is not a TTY (or use --front-end viewer)")
+        raise UserError(
+            "keyboard teleoperation needs a terminal: stdin is not a TTY (run it in a terminal, or on a desktop with "
+            "--front-end viewer, FRONT_END=viewer)"
+        )
     return front_end
 
 
