@@ -64,7 +64,7 @@ from bc.dagger import DaggerConfig
 from bc.data import MIN_EPISODES
 from bc.train import TrainConfig
 from common import columns, paths
-from common.cli import UserError, config_dict, field_default, flag, run_cli, setting
+from common.cli import DatasetError, UserError, config_dict, field_default, flag, run_cli, setting
 from common.ray_backend import BACKENDS
 from common.seed_ranges import EVAL_SEED
 from evaluation import robustness
@@ -317,7 +317,7 @@ def _committed_episodes(root: Path) -> int | None:
     """info.json's total_episodes, or None without a readable one."""
     try:
         return int(read_info(root)["total_episodes"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, DatasetError, ValueError, KeyError, TypeError):
         return None
 
 
@@ -352,7 +352,7 @@ def _layout_problem(root: Path) -> str | None:
     they are, or if meta/info.json cannot say (the checks that read it report that)."""
     try:
         names = read_info(root)["features"][columns.OBS_STATE]["names"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, DatasetError, KeyError, TypeError):
         return None
     wanted = proprioception_names(nominal_model())
     if names == wanted:
@@ -439,7 +439,7 @@ def checkpoint_decision(
         return Decision(REMAKE, f"{verb} {folder} again: it {problem}", dataclasses.replace(cfg, overwrite=True))
     raise UserError(
         f"{folder} {problem}, and the pipeline did not make it: it is left as it is "
-        f"(--overwrite true replaces it; or choose another {option})"
+        f"(--overwrite true, OVERWRITE=1 with make, replaces it; or choose another {option})"
     )
 
 

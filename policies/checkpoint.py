@@ -99,7 +99,9 @@ def check_replaceable(path: Path, overwrite: bool) -> None:
     if not (is_checkpoint(path) or is_sb3_policy(path)):
         raise CheckpointError(f"{path} exists and is not a policy checkpoint: refusing to replace it")
     if not overwrite:
-        raise CheckpointError(f"{path} already holds a checkpoint; pass --overwrite true to replace it")
+        raise CheckpointError(
+            f"{path} already holds a checkpoint; pass --overwrite true (OVERWRITE=1 with make) to replace it"
+        )
 
 
 def running_folder(path: Path) -> Path:

@@ -41,11 +41,11 @@ from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
 
 
 def read_info(root: Path) -> dict:
-    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts); DatasetError in one line if it cannot
-    be read or holds no JSON object (a copy cut short)."""
+    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts); DatasetError in one line if it holds
+    no JSON object (a copy cut short); OSError if it cannot be read (missing: callers that ask first say so)."""
     try:
         info = json.loads((root / INFO_PATH).read_text())
-    except (OSError, ValueError) as error:
+    except ValueError as error:
         raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
     if not isinstance(info, dict):
         raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")

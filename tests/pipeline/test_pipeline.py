@@ -423,7 +423,7 @@ def test_user_made_checkpoint_downstream_is_refused_before_anything_runs(outputs
         outputs,
         tiny_stages(dagger={"epochs": 3}),
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
-        "it is (--overwrite true replaces it; or choose another --ppo.policy)",
+        "it is (--overwrite true, OVERWRITE=1 with make, replaces it; or choose another --ppo.policy)",
     )
 
 
@@ -530,7 +530,7 @@ def test_remade_student_is_foreseen_to_make_ppo_again(outputs: Path) -> None:
         outputs,
         run_stages,
         "ppo was made from the BC policy the pipeline makes again, and the pipeline did not make it: it is left as "
-        "it is (--overwrite true replaces it; or choose another --ppo.policy)",
+        "it is (--overwrite true, OVERWRITE=1 with make, replaces it; or choose another --ppo.policy)",
     )
 
 
