@@ -50,13 +50,14 @@ from common.figures import save_figure
 from common.seed_ranges import EVAL_SEED
 from common.workers import default_workers, torch_threads
 from evaluation.evaluate import evaluate_each, evaluation_pool
-from humanoid.env import make_env
+from humanoid.env import make_env, nominal_model, step_seconds
 from policies import checkpoint
 from policies.folder import CONFIG_TAG, EVAL_FILE, LEARNING_CURVE_FILE, TENSORBOARD_DIR
 from policies.mlp import MLPPolicy, MLPSpec
 from rollout.controllers import KEYBOARD, KEYBOARD_EXPERT, built
 from students.inputs import INPUTS, STUDENT_INPUTS, input_set_named
 from task.command_fields import VELOCITY_NAMES, field_positions
+from task.schedules import FIRST_NEUTRAL_SECONDS
 from task.tracking import error_text
 from teachers.registry import TEACHER, TEACHERS
 from teleop.dataset_reader import read_commanded_frames, read_episodes
@@ -292,7 +293,9 @@ def check_taught(cfg: TrainConfig) -> None:
         if len(np.unique(commands, axis=0)) < 2:
             raise UserError(
                 f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
-                "record commanded demonstrations (make record: its posture schedules, TASK=posture, are the default; "
+                "record commanded demonstrations (make record: its posture schedules, TASK=posture, are the default, "
+                f"and hold the zero command for their first {FIRST_NEUTRAL_SECONDS:g} s: episodes must be longer, "
+                f"MAX_STEPS past {math.ceil(FIRST_NEUTRAL_SECONDS / step_seconds(nominal_model()))}; "
                 "or CONTROLLER=keyboard)"
             )
         if input_set.walks and not commands[:, field_positions(VELOCITY_NAMES)].any():

@@ -196,6 +196,10 @@ def main(cfg: MergeConfig) -> int:
     shards = shard_list(cfg.shards)
     if any(shard.resolve() == cfg.dataset.resolve() for shard in shards):
         raise UserError(f"--shards names {cfg.dataset}, the DATASET merged into: a shard cannot be merged into itself")
+    resolved = [shard.resolve() for shard in shards]
+    twice = next((shard for n, shard in enumerate(shards) if resolved[n] in resolved[:n]), None)
+    if twice is not None:
+        raise UserError(f"--shards names {twice} twice: give each shard once")
     episodes, parameters, features = _plan(shards)
     sessions = {recordings.SESSIONS_KEY: {str(shard): recordings.read(shard) for shard in shards}}
     cameras = parse_cameras(cameras_spec(features))
@@ -203,7 +207,10 @@ def main(cfg: MergeConfig) -> int:
     try:
         have = read_episodes(cfg.dataset)[columns.EPISODE_SEED].to_pylist() if store.num_episodes else []
         if have != [seed for seed, _, _ in episodes[: len(have)]]:
-            raise UserError(f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds")
+            raise UserError(
+                f"{cfg.dataset} holds other episodes than the first {len(have)} of these shards' seeds: merge into a "
+                "new DATASET (a merge goes on only where an earlier merge of the same shards stopped)"
+            )
         commands: dict[Path, dict[str, np.ndarray]] = {}  # each shard's FRAME_COLUMNS, read once
         videos: dict[Path, list] = {}  # and its cameras' videos
         with recordings.logged(cfg.dataset, MADE_BY, config_dict(cfg), len(have), lambda: have, sessions) as added:

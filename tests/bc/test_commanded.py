@@ -94,6 +94,7 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
     assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "TASK=posture" in err[0]
+    assert "zero command for their first 3 s: episodes must be longer, MAX_STEPS past 200" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 

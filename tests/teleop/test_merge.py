@@ -80,7 +80,8 @@ def test_a_merge_cut_short_continues_where_it_stopped(shards: tuple[Path, Path, 
     [
         ("overlapping", "are already in"),
         ("not a dataset", "is not a dataset"),
-        ("other episodes", "holds other episodes than the first"),
+        ("other episodes", "holds other episodes than the first 3 of these shards' seeds: merge into a new DATASET"),
+        ("twice", "names {first} twice: give each shard once"),
         ("itself", "a shard cannot be merged into itself"),
         ("no episode", "no episode was committed to it"),
         ("killed", "holds what a killed run left (its mark, .spool)"),
@@ -98,6 +99,7 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
         "not a dataset": [first, tmp_path / "nothing"],
         "other episodes": [second],
         "itself": [first, target],
+        "twice": [first, second, first],
         "no episode": [first, tmp_path / "opened"],  # what a first session refused or killed early leaves
         "killed": [first, tmp_path / "killed"],  # a parallel recording killed with an episode finished past a gap
         "cut-short info": [first, tmp_path / "copied"],  # copies between nodes cut short
@@ -122,5 +124,5 @@ def test_bad_shards_are_refused_in_one_line_and_nothing_changes(
     before = snapshot(target) if target.exists() else None
     code = cli(["--shards", " ".join(map(str, given)), "--dataset", str(target), "--progress", "false"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1 and len(err) == 1 and message in err[0]
+    assert code == 1 and len(err) == 1 and message.format(first=first) in err[0], err
     assert (snapshot(target) if target.exists() else None) == before
