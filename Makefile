@@ -64,8 +64,15 @@ REMOVED.robustness := SCHEDULES WALKING
 REMOVED.pipeline := DATASET EPISODES SEED CONTROLLER NOISE LATENCY MAX_STEPS BC_POLICY EPOCHS DAGGER_OUTPUT \
 	DAGGER_POLICY ROUNDS DAGGER_EPISODES DAGGER_EPOCHS PPO_POLICY TIMESTEPS ENVS PUSH CURRICULUM RANDOMIZE DEPLOYABLE \
 	PPO_FROM ODOMETRY_INPUTS TUTORIAL PROPRIO_POLICY SENSED_DATASET SENSED_NOISE SENSED_LATENCY ODOMETRY_POLICY
+# Variables any target reads: the interpreter and .venv's places, the suite's processes, the pinned kernels, the GL
+# backend, ARGS.
+COMMON_VARS := PYTHON312 VENV PY STAMP TEST_WORKERS OPENBLAS_CORETYPE MKL_CBWR NPY_DISABLE_CPU_FEATURES MUJOCO_GL ARGS
+# A variable given on the command line that the target being made ($@) does not take: a typo (EPOCH=1), refused.
+unknown = $(filter-out $(VARS.$@) $(REMOVED.$@) $(COMMON_VARS),$(foreach v,$(.VARIABLES),$(if \
+	$(filter command line,$(origin $(v))),$(v))))
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
-flags = $(strip $(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
+flags = $(if $(unknown),$(error make $@ takes no $(firstword $(unknown)); its variables: make help))$(strip \
+	$(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
 
 .PHONY: help venv record play merge inspect export train-bc eval robustness tune-walker dagger finetune-rl scratch-rl baseline-rl tutorial-rl pipeline test test-fast lint lock bench clean-venv
 

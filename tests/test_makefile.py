@@ -155,15 +155,35 @@ def test_the_recipe_passes_only_its_variables(target: str) -> None:
 
 @pytest.mark.parametrize("target", TARGETS)
 def test_each_variable_becomes_its_flag(target: str, stamp: Path) -> None:
-    """With every stage variable of every target set, a target passes exactly its own, each as its flag and value."""
-    values = {var: f"value of {var}" for var in EVERY_VARIABLE}
-    words = stage_command(target, stamp, **values)
+    """With each of its variables set (and ARGS), a target passes each as its flag and value."""
     spec = TARGETS[target]
+    own = [*spec.variables, *removed_variables(spec), *([ARGS] if spec.passes_args else [])]
+    values = {var: f"value of {var}" for var in own}
+    words = stage_command(target, stamp, **values)
     if spec.passes_args:
         assert words[-len(shlex.split(values[ARGS])) :] == shlex.split(values[ARGS])
         words = words[: -len(shlex.split(values[ARGS]))]
     passed = {**spec.variables, **removed_variables(spec)}
     assert flags_given(words) == {flag(field): values[var] for var, field in passed.items()}
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_a_variable_the_target_does_not_take_is_refused_in_one_line(target: str, stamp: Path) -> None:
+    """Another target's variable, or a typo (EPOCH for EPOCHS): make stops in one line naming it, and runs nothing."""
+    spec = TARGETS[target]
+    own = {*spec.variables, *removed_variables(spec), ARGS}
+    for var in [next(var for var in EVERY_VARIABLE if var not in own), "EPOCH"]:
+        result = subprocess.run(
+            ["make", "--no-print-directory", "-n", target, f"STAMP={stamp}", f"{var}=1"],
+            cwd=ROOT,
+            env=make_env(),
+            capture_output=True,
+            text=True,
+        )
+        assert result.returncode == 2 and result.stdout == "", result
+        (line,) = result.stderr.splitlines()
+        refusal = rf"Makefile:\d+: \*\*\* make {target} takes no {var}; its variables: make help\.  Stop\."
+        assert re.fullmatch(refusal, line), line
 
 
 @pytest.mark.parametrize("target", TARGETS)
