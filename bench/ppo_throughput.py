@@ -56,9 +56,15 @@ def timed(method: Callable[..., Any], seconds: list[float]) -> Callable[..., Any
 def settings(
     bc_policy: Path, workers: int, envs: int, timesteps: int, rollout_steps: int = FinetuneConfig.rollout_steps
 ) -> FinetuneConfig:
-    """`make finetune-rl`'s settings but these; UserError in one line where the stage would refuse them."""
+    """`make finetune-rl`'s settings but these (its minibatch at most the rollout); UserError in one line where the
+    stage would refuse them."""
     config = FinetuneConfig(
-        bc_policy=bc_policy, workers=workers, envs=envs, timesteps=timesteps, rollout_steps=rollout_steps
+        bc_policy=bc_policy,
+        workers=workers,
+        envs=envs,
+        timesteps=timesteps,
+        rollout_steps=rollout_steps,
+        batch_size=min(FinetuneConfig.batch_size, rollout_steps),
     )
     validate(config)
     return config
