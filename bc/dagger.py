@@ -322,8 +322,15 @@ def copied_from(output: Path) -> dict[str, Any]:
 
 def is_aggregate(output: Path) -> bool:
     """Whether the dataset at `output` is a DAgger run's aggregate: copied by one (its SOURCE_FILE), or, copied before
-    that file existed, holding a round."""
-    return bool(copied_from(output)) or any(is_dagger_run(line) for line in recordings.read(output))
+    that file existed, holding a round's episodes (a copy killed before its first round is not told from a recording:
+    refused, the demonstrations are copied again elsewhere)."""
+    if copied_from(output):
+        return True
+    try:
+        rounds = read_episodes(output, [columns.EPISODE_DAGGER_ROUND])[columns.EPISODE_DAGGER_ROUND].to_pylist()
+    except (OSError, KeyError, ValueError):
+        return False
+    return any(rounds)
 
 
 def check_resume(cfg: DaggerConfig) -> None:

@@ -25,6 +25,7 @@ from bc.dagger import (
     check_settings,
     cli,
     expert_of,
+    is_aggregate,
     main,
     recorded_conditions,
     resolved,
@@ -243,6 +244,19 @@ def test_an_output_holding_a_dataset_dagger_did_not_copy_is_refused_and_left_alo
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and "holds a dataset DAgger did not copy" in err[0], err
     assert snapshot(tmp_path) == before and not (tmp_path / "p").exists()
+
+
+def test_an_aggregate_copied_before_its_source_file_existed_is_still_dagger_s(dagger: tuple, tmp_path: Path) -> None:
+    """An aggregate with rounds but no demonstrations.json (copied by an earlier version) is DAgger's own: it resumes;
+    its demonstrations alone, without the file, are a recording."""
+    _, output, _, _, _ = dagger
+    older = tmp_path / "older"
+    shutil.copytree(output, older)
+    (older / SOURCE_FILE).unlink()
+    assert is_aggregate(output) and is_aggregate(older) and not is_aggregate(tmp_path / "missing")
+    copied = tmp_path / "copied"
+    shutil.copytree(dagger[0], copied)
+    assert not is_aggregate(copied)
 
 
 def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tuple, tmp_path: Path) -> None:
