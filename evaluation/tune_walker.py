@@ -36,7 +36,7 @@ from common.cli import (
     run_cli,
     setting,
 )
-from common.files import write_atomically
+from common.files import PARTIAL_SUFFIX, write_atomically
 from common.seed_ranges import SELECTION_SEED
 from evaluation.evaluate import evaluate, evaluation_pool
 from task.command_fields import STAND, WALK
@@ -169,6 +169,11 @@ def _cost(x: np.ndarray, cfg: TuneConfig, bounds: Bounds) -> tuple[float, dict[s
 
 STATE_FILE = "state.pkl"
 """The run's state in its folder, after every generation: what a run resumes from."""
+LOG_FILE = "log.jsonl"
+"""A line per generation: its best and mean cost, the best candidate's parts and gait."""
+RUN_FILES = {STATE_FILE, LOG_FILE, STATE_FILE + PARTIAL_SUFFIX, "state.partial"}
+"""What a run's folder may hold (a run killed in its first generation: its log alone; "state.partial": an earlier
+version's staging name)."""
 ADDED_SETTINGS = {name: field_default(TuneConfig, name) for name in ("bounds", "turn_weight")}
 """Settings added since runs were first saved, at their defaults: what an older run ran with, so that it resumes."""
 
@@ -204,7 +209,7 @@ def validate(cfg: TuneConfig) -> None:
         raise UserError(f"--sigma must be in (0, 0.5], a share of each parameter's range, got {cfg.sigma}")
     if cfg.run.exists() and not cfg.run.is_dir():
         raise UserError(f"--run {cfg.run} is a file: give a folder for the run's state")
-    if cfg.run.is_dir() and any(cfg.run.iterdir()) and not (cfg.run / STATE_FILE).exists():
+    if cfg.run.is_dir() and any(path.name not in RUN_FILES for path in cfg.run.iterdir()):
         raise UserError(f"--run {cfg.run} holds files of no tuning run: give another --run")
 
 
@@ -258,7 +263,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
     except OSError as error:
         raise UserError(f"cannot write the run's state in {cfg.run}: {error.strerror or error}") from None
     es = state["es"]
-    with evaluation_pool(cfg.workers) as pool, (cfg.run / "log.jsonl").open("a") as log:
+    with evaluation_pool(cfg.workers) as pool, (cfg.run / LOG_FILE).open("a") as log:
         bar = tqdm(total=cfg.generations, initial=state["generation"], unit="gen", file=sys.stderr, dynamic_ncols=True)
         while state["generation"] < cfg.generations:
             xs = es.ask()

@@ -127,3 +127,15 @@ def test_bad_places_and_settings_are_one_line_before_any_search(args, problem, t
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and problem.format(tmp=tmp_path) in err[0], err
     assert notes.read_text() == "not a gait" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_a_run_killed_in_its_first_generation_is_run_again(tmp_path) -> None:
+    """Its folder holds its log alone (the state is saved at a generation's end): the same RUN is taken, not refused
+    as another's folder."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / tune_walker.LOG_FILE).write_text("")
+    tune_walker.validate(TuneConfig(run=run))
+    (run / "notes.txt").write_text("")
+    with pytest.raises(UserError, match="holds files of no tuning run"):
+        tune_walker.validate(TuneConfig(run=run))
