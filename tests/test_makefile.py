@@ -171,8 +171,8 @@ def test_each_variable_becomes_its_flag(target: str, stamp: Path) -> None:
 def test_a_variable_the_target_does_not_take_is_refused_in_one_line(target: str, stamp: Path) -> None:
     """Another target's variable, or a typo (EPOCH for EPOCHS): make stops in one line naming it, and runs nothing."""
     spec = TARGETS[target]
-    own = {*spec.variables, *removed_variables(spec), ARGS}
-    for var in [next(var for var in EVERY_VARIABLE if var not in own), "EPOCH"]:
+    own = {*spec.variables, *removed_variables(spec), *([ARGS] if spec.passes_args else [])}
+    for var in [next(var for var in EVERY_VARIABLE if var not in own), "EPOCH", *([] if spec.passes_args else [ARGS])]:
         result = subprocess.run(
             ["make", "--no-print-directory", "-n", target, f"STAMP={stamp}", f"{var}=1"],
             cwd=ROOT,
