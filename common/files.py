@@ -19,5 +19,10 @@ def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
     """Call `write` on a sibling of `path` named with `PARTIAL_SUFFIX`, then rename it over `path`."""
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(path.name + PARTIAL_SUFFIX)
-    write(partial)
+    try:
+        write(partial)
+    except OSError as error:
+        if error.filename is None:  # a full disk names no file: the one being written is the one to name
+            raise OSError(error.errno, error.strerror, str(partial)) from error
+        raise
     os.replace(partial, path)
