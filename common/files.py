@@ -22,7 +22,7 @@ def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
     try:
         write(partial)
     except OSError as error:
-        if error.filename is None:  # a full disk names no file: the one being written is the one to name
+        if error.filename is None and error.errno is not None:  # a full disk names no file: name the one written
             raise OSError(error.errno, error.strerror, str(partial)) from error
         raise
     os.replace(partial, path)
