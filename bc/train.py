@@ -291,12 +291,17 @@ def check_taught(cfg: TrainConfig) -> None:
         except (OSError, KeyError, ValueError) as error:
             raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
         if len(np.unique(commands, axis=0)) < 2:
+            neutral = math.ceil(FIRST_NEUTRAL_SECONDS / step_seconds(nominal_model()))  # steps
+            short = max(read_episodes(cfg.dataset, ["length"])["length"].to_pylist(), default=0) <= neutral
+            why = (
+                f"their first {FIRST_NEUTRAL_SECONDS:g} s hold the zero command: record longer episodes, MAX_STEPS "
+                f"past {neutral}"
+                if short
+                else "TASK=posture, the default, or CONTROLLER=keyboard"
+            )
             raise UserError(
                 f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
-                "record commanded demonstrations (make record: its posture schedules, TASK=posture, are the default, "
-                f"and hold the zero command for their first {FIRST_NEUTRAL_SECONDS:g} s: episodes must be longer, "
-                f"MAX_STEPS past {math.ceil(FIRST_NEUTRAL_SECONDS / step_seconds(nominal_model()))}; "
-                "or CONTROLLER=keyboard)"
+                f"record commanded demonstrations (make record's posture schedules: {why})"
             )
         if input_set.walks and not commands[:, field_positions(VELOCITY_NAMES)].any():
             raise no_walks(cfg.inputs, cfg.dataset)

@@ -54,6 +54,18 @@ def stage_cli(stage: object, args: list[str], capsys: pytest.CaptureFixture[str]
     return code, out.strip().splitlines(), err.strip().splitlines()
 
 
+def test_command_inputs_on_long_standing_episodes_are_told_to_record_the_schedules(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Episodes past a schedule's first zero command that still never change it were recorded standing: the refusal
+    names the posture task, not the episodes' length."""
+    record_short(tmp_path / "standing", episodes=2, max_steps=210)
+    args = [*TINY, "--dataset", str(tmp_path / "standing"), "--policy", str(tmp_path / "p"), "--inputs", "full+command"]
+    code, out, err = stage_cli(train_stage, args, capsys)
+    assert code == 1 and out == [] and len(err) == 1
+    assert err[0].endswith("(make record's posture schedules: TASK=posture, the default, or CONTROLLER=keyboard)")
+
+
 @pytest.fixture(scope="module")
 def operated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 short episodes of the scripted operator, each under a step of action latency: commands that change."""
@@ -93,8 +105,8 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     args = [*TINY, "--dataset", str(delayed), "--policy", str(tmp_path / "policy"), "--inputs", inputs]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
-    assert f"--inputs {inputs} learns to follow the operator's command" in err[0] and "TASK=posture" in err[0]
-    assert "zero command for their first 3 s: episodes must be longer, MAX_STEPS past 200" in err[0]
+    assert f"--inputs {inputs} learns to follow the operator's command" in err[0]
+    assert "their first 3 s hold the zero command: record longer episodes, MAX_STEPS past 200" in err[0]
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 
