@@ -61,6 +61,7 @@ from humanoid.conditions import (
     NO_RANDOMIZATION,
     PRESETS,
     RANDOMIZE_EXAMPLE,
+    Condition,
     parse_randomization,
     recorded_parameters,
     recording_condition,
@@ -410,13 +411,18 @@ def _logged_ranges(cfg: RecordConfig) -> dict[str, Any]:
     return {"randomization": ranges} if ranges else {}
 
 
+def condition(cfg: RecordConfig) -> Condition:
+    """What each episode's environment changes (`humanoid.conditions.recording_condition`)."""
+    return recording_condition(cfg.randomize, cfg.latency, cfg.kick)
+
+
 def _record(
     cfg: RecordConfig,
     rollouts: ParallelRollouts | RayRollouts | None,
     summary: RecordSummary,
     made_by: str | None,
 ) -> RecordSummary:
-    recorded = recording_condition(cfg.randomize, cfg.latency, cfg.kick)
+    recorded = condition(cfg)
     env = recorded.wrap(make_env(cfg.max_steps))
     parameters = recorded_parameters(recorded)
     # Before the dataset opens: a port in use or a bad host is refused with nothing written.
@@ -505,7 +511,7 @@ def _start_workers(cfg: RecordConfig) -> ParallelRollouts | RayRollouts:
         built(cfg.controller),
         cfg.noise,
         cfg.max_steps,
-        recording_condition(cfg.randomize, cfg.latency, cfg.kick),
+        condition(cfg),
         cfg.task,
         cameras=parse_cameras(cfg.cameras),
     )

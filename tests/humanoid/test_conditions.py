@@ -22,7 +22,6 @@ from humanoid.conditions import (
     action_delay,
     condition,
     parse_randomization,
-    recording_condition,
 )
 from humanoid.env import QPOS_OBS, QVEL_OBS, make_env, model_and_data
 from rl.learner import training_condition
@@ -237,18 +236,13 @@ def stacks(conditions: dict[str, Condition]) -> dict[str, list[tuple[str, tuple]
     return built
 
 
-def recorded(cfg: record.RecordConfig) -> Condition:
-    """The condition `make record` records under with `cfg`'s settings."""
-    return recording_condition(cfg.randomize, cfg.latency, cfg.kick)
-
-
 def test_one_condition_builds_one_stack_in_every_stage() -> None:
     """Recording, DAgger's rollouts, evaluation, the robustness suite and PPO's training build a condition's
     environment with the one builder (`Condition.wrap`), in one order: a kick alone, and a kick on a drawn body whose
     every episode is delayed, give the same wrappers in each stage that can express them."""
     kicked = stacks(
         {
-            "record": recorded(record.RecordConfig(kick=0.4, latency=0.0)),
+            "record": record.condition(record.RecordConfig(kick=0.4, latency=0.0)),
             "dagger": dagger.condition(dagger.DaggerConfig(kick=0.4, latency=0.0, randomize="none")),
             "eval": evaluated_condition("clean", kick=0.4),
             "robustness": evaluated_condition("kick0.4"),
@@ -261,7 +255,7 @@ def test_one_condition_builds_one_stack_in_every_stage() -> None:
     drawn = Randomization(mass=(0.8, 1.2))
     combined = stacks(
         {
-            "record": recorded(record.RecordConfig(kick=0.4, latency=1.0, randomize="mass=0.8:1.2")),
+            "record": record.condition(record.RecordConfig(kick=0.4, latency=1.0, randomize="mass=0.8:1.2")),
             "dagger": dagger.condition(dagger.DaggerConfig(kick=0.4, latency=1.0, randomize="mass=0.8:1.2")),
             "ppo": training_condition(None, drawn, latency=1.0, kick=0.4),
         }
