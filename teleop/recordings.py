@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from common.cli import write_json
+from common.cli import json_text, write_json
 from common.workers import owner_gone, process_owner
 
 log = logging.getLogger(__name__)
@@ -108,7 +108,7 @@ def _write(root: Path, line: dict[str, Any]) -> None:
     try:
         start = "\n" if _cut_short(path) else ""  # a line cut short stays alone, unreadable; this one starts anew
         with path.open("a") as stream:
-            stream.write(start + json.dumps(line, default=str) + "\n")
+            stream.write(start + json_text(line) + "\n")
     except OSError as error:  # the episodes are committed: a missing line costs only their history
         log.warning("cannot add the run to %s: %s", path, error.strerror or error)
 
