@@ -24,33 +24,20 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from common import columns
-from common.cli import DatasetError, one_line
+from common.cli import DatasetError
 from common.lerobot_stats import QUANTILES, quantile_key
 from humanoid.sensors import observation_index
 from task.command_fields import COMMAND_NAMES, COMMAND_SIZE, field_positions
 from teleop.lerobot_io.format import (
     EPISODES_DIR,
-    INFO_PATH,
     data_file,
     episode_files,
+    read_info,
     unflatten_stats,
     video_file,
     video_keys,
 )
 from teleop.mcap_io.writer import FINAL_TOPIC, STEP_TOPIC
-
-
-def read_info(root: Path) -> dict:
-    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts); DatasetError in one line if it holds
-    no JSON object (a copy cut short); OSError if it cannot be read (missing: callers that ask first say so)."""
-    try:
-        info = json.loads((root / INFO_PATH).read_text())
-    except ValueError as error:
-        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
-    if not isinstance(info, dict):
-        raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
-    return info
-
 
 PARALLEL_FILES = 2  # parquet files decoded at once: Arrow releases the GIL, so one per core
 

@@ -8,6 +8,7 @@ info.json, same parquet schemas, same statistics keys and aggregation.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +47,18 @@ DEFAULT_FEATURES = {
     "index": {"dtype": "int64", "shape": (1,), "names": None},
     "task_index": {"dtype": "int64", "shape": (1,), "names": None},
 }
+
+
+def read_info(root: Path) -> dict:
+    """meta/info.json as a dict (the LeRobot dataset's features, fps and counts); DatasetError in one line if it holds
+    no JSON object (a copy cut short); OSError if it cannot be read (missing: callers that ask first say so)."""
+    try:
+        info = json.loads((root / INFO_PATH).read_text())
+    except ValueError as error:
+        raise DatasetError(f"{root / INFO_PATH} is not readable JSON ({one_line(error)})") from None
+    if not isinstance(info, dict):
+        raise DatasetError(f"{root / INFO_PATH} holds {type(info).__name__}, not an object")
+    return info
 
 
 def data_file(root: Path, info: dict, chunk: int, file: int) -> Path:

@@ -47,6 +47,7 @@ from teleop.lerobot_io.format import (
     hf_features,
     new_info,
     next_chunk_file,
+    read_info,
     stats_from_json,
     stats_to_json,
     unflatten_stats,
@@ -106,10 +107,7 @@ class LeRobotWriter:
             _write_json(info, info_path)
             return cls(root, info, _empty_tasks(), None, None)
 
-        try:
-            existing = json.loads(info_path.read_text())
-        except ValueError as error:
-            raise DatasetError(f"{info_path} is not valid JSON ({error})") from None
+        existing = read_info(root)
         problems = [
             f"{key} {existing.get(key)!r}, not {info[key]!r}"
             for key in ("codebase_version", "fps", "robot_type")

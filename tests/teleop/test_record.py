@@ -171,6 +171,21 @@ def test_the_teacher_and_the_delayed_share_recorded_by_default_are_the_tasks() -
     assert effective(RecordConfig(task="walk", latency=0.5)).latency == 0.5
 
 
+@pytest.mark.parametrize(
+    ("content", "message"), [("[]", "holds list, not an object"), ('{"fps": ', "is not readable JSON")]
+)
+def test_a_dataset_whose_info_is_no_json_object_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str, message: str
+) -> None:
+    """Appending to a dataset whose meta/info.json is damaged: one line naming it, the file untouched."""
+    info = tmp_path / "dataset" / "meta" / "info.json"
+    info.parent.mkdir(parents=True)
+    info.write_text(content)
+    code, err = run_cli(["--dataset", str(tmp_path / "dataset"), "--writer", "inline", *STANDING_FLAGS], capsys)
+    assert code != 0 and len(err) == 1 and f"meta/info.json {message}" in err[0], err
+    assert info.read_text() == content
+
+
 def test_dataset_that_is_a_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """DATASET naming a file: one error line, the file untouched."""
     target = tmp_path / "notes.txt"
