@@ -213,6 +213,14 @@ def check_seed(config: Any, *names: str) -> None:
             raise UserError(f"{flag(name)} must be a seed, at least 0 and below 2**32, got {value}")
 
 
+def check_file(config: Any, name: str, suffix: str) -> None:
+    """UserError in one line unless setting `name` of `config` (a path; None passes) names a `suffix` file: a path
+    ending so that is not a folder (an output's: a video, a figure)."""
+    path = getattr(config, name)
+    if path is not None and (path.suffix.lower() != suffix or path.is_dir()):
+        raise UserError(f"{flag(name)} must be a {suffix} file's path, got {path}")
+
+
 def check_share(config: Any, name: str) -> None:
     """UserError in one line unless setting `name` of `config` is a share of episodes, in [0, 1] (NaN is not)."""
     value = getattr(config, name)

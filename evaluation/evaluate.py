@@ -49,6 +49,7 @@ from tqdm import tqdm
 from common import paths
 from common.cli import (
     UserError,
+    check_file,
     check_non_negative,
     check_positive,
     check_seed,
@@ -141,10 +142,8 @@ def validate(cfg: EvalConfig) -> None:
         raise UserError(f"unknown --condition {cfg.condition!r}; known: {', '.join(SUITE)}")
     if cfg.condition != "clean" and (cfg.push or cfg.noise or cfg.kick):
         raise UserError("--condition brings its own perturbation: leave --push, --kick and --noise at 0 with it")
-    if cfg.video is not None and cfg.video.suffix.lower() != ".mp4":
-        raise UserError(f"--video must be an .mp4 path, got {cfg.video}")
-    if cfg.plot is not None and cfg.plot.suffix.lower() != ".png":
-        raise UserError(f"--plot must be a .png path, got {cfg.plot}")
+    check_file(cfg, "video", ".mp4")
+    check_file(cfg, "plot", ".png")
     if cfg.hold:
         parse_held(cfg.hold)
         if cfg.task != POSTURE_TASK:

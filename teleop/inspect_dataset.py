@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
 from common import columns, paths
-from common.cli import DatasetError, UserError, counted, one_line, run_cli, setting
+from common.cli import DatasetError, UserError, check_file, counted, one_line, run_cli, setting
 from common.figures import save_figure
 from common.files import PARTIAL_SUFFIX
 from humanoid.sensors import observation_index
@@ -303,8 +303,7 @@ def check_plot_path(cfg: InspectConfig) -> None:
         return
     if not cfg.plot:
         raise UserError(f"--plot-path names where --plot true draws: give --plot true too, got {cfg.plot_path}")
-    if cfg.plot_path.suffix.lower() != ".png" or cfg.plot_path.is_dir():
-        raise UserError(f"--plot-path must be a .png file's path, got {cfg.plot_path}")
+    check_file(cfg, "plot_path", ".png")
 
 
 def main(cfg: InspectConfig, show: Callable[[str], None] = _quiet) -> Report:

@@ -303,7 +303,8 @@ def test_play_says_in_one_line_when_the_policy_takes_no_velocity_command(tmp_pat
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--plot", "TMP/x.txt"], "--plot must be a .png path, got TMP/x.txt"),
+        (["--plot", "TMP/x.txt"], "--plot must be a .png file's path, got TMP/x.txt"),
+        (["--plot", "TMP"], "--plot must be a .png file's path, got TMP"),
         (
             ["--seed", "-1", "--task", "posture"],
             "--seed must be a seed, at least 0 and below 2**32, got -1",

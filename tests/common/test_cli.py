@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.cli import REMOVED_FLAGS, REMOVED_VALUES, counted, json_text, parse_config
+from common.cli import REMOVED_FLAGS, REMOVED_VALUES, UserError, check_file, counted, json_text, parse_config
 from evaluation import evaluate
 from pipeline import run as pipeline
 from pipeline.targets import TARGETS
@@ -105,3 +105,18 @@ def test_a_number_that_is_not_finite_is_written_null_in_strict_json() -> None:
 
 def test_a_count_names_its_noun_in_the_singular_only_for_one() -> None:
     assert [counted(n, "episode") for n in (0, 1, 2)] == ["0 episodes", "1 episode", "2 episodes"]
+
+
+def test_a_file_setting_takes_its_suffix_and_no_folder(tmp_path: Path) -> None:
+    """`check_file`: None passes, a path with the suffix (any case) passes, another suffix or a folder so named not."""
+
+    @dataclasses.dataclass
+    class Outputs:
+        plot: Path | None
+
+    for fine in (None, tmp_path / "new.png", tmp_path / "NEW.PNG"):
+        check_file(Outputs(fine), "plot", ".png")
+    (tmp_path / "folder.png").mkdir()
+    for bad in (tmp_path / "x.txt", tmp_path / "folder.png"):
+        with pytest.raises(UserError, match=r"^--plot must be a \.png file's path, got "):
+            check_file(Outputs(bad), "plot", ".png")

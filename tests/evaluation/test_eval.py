@@ -275,7 +275,7 @@ def test_bad_policy_is_refused_in_one_line(
         (["--episodes", "0"], "--episodes must be positive"),
         (["--push", "-1"], "--push must be a force >= 0"),
         (["--noise", "nan"], "--noise must be >= 0"),
-        (["--video", "x.avi"], "--video must be an .mp4 path"),
+        (["--video", "x.avi"], "--video must be a .mp4 file's path, got x.avi"),
         (["--condition", "gravity"], "unknown --condition 'gravity'"),
         (["--condition", "mass", "--push", "10"], "--condition brings its own perturbation"),
         (["--hold", "forward=0.5"], "--hold: 'forward=0.5' is not FIELD=VALUE"),
