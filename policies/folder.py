@@ -51,7 +51,7 @@ def damage(path: Path) -> str | None:
     """Why checkpoint folder `path`'s files cannot load, in one line, read without torch (a process that only records
     checks a policy before its workers load it); None if they look whole."""
     if not json_object(path / CONFIG_FILE):
-        return f"{path / CONFIG_FILE} holds no JSON object: the checkpoint is damaged, train it again"
+        return f"{path / CONFIG_FILE} is empty or no JSON object: the checkpoint is damaged, train it again"
     if not weights_whole(path / WEIGHTS_FILE):
         return f"{path / WEIGHTS_FILE} is cut short or not safetensors: the checkpoint is damaged, train it again"
     return None
