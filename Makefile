@@ -70,8 +70,9 @@ COMMON_VARS := PYTHON312 VENV PY STAMP TEST_WORKERS OPENBLAS_CORETYPE MKL_CBWR N
 ARGS_TARGETS := finetune-rl scratch-rl pipeline
 # A variable given on the command line that the target being made ($@) does not take: a typo (EPOCH=1), refused;
 # not in a make run by another (MAKELEVEL > 0), whose command line's variables reach every target it makes.
-unknown = $(if $(filter 0,$(MAKELEVEL)),$(filter-out $(VARS.$@) $(REMOVED.$@) $(COMMON_VARS) $(if $(filter $@,$(ARGS_TARGETS)),ARGS),$(foreach \
-	v,$(.VARIABLES),$(if $(filter command line,$(origin $(v))),$(v)))))
+given = $(foreach v,$(.VARIABLES),$(if $(filter command line,$(origin $(v))),$(v)))
+takes = $(VARS.$@) $(REMOVED.$@) $(COMMON_VARS) $(if $(filter $@,$(ARGS_TARGETS)),ARGS)
+unknown = $(if $(filter 0,$(MAKELEVEL)),$(filter-out $(takes),$(given)))
 # --name='value' for each variable (or removed one) of the target being made ($@) that is set.
 flags = $(if $(unknown),$(error make $@ takes no $(firstword $(unknown)); its variables: make help))$(strip \
 	$(foreach v,$(VARS.$@) $(REMOVED.$@),$(if $($(v)),--$(shell echo $(v) | tr A-Z_ a-z-)='$($(v))')))
