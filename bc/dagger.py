@@ -322,10 +322,12 @@ def copied_from(output: Path) -> dict[str, Any]:
 
 def is_aggregate(output: Path) -> bool:
     """Whether the dataset at `output` is a DAgger run's aggregate: copied by one (its SOURCE_FILE), or, copied before
-    that file existed, holding a round's episodes (a copy killed before its first round is not told from a recording:
-    refused, the demonstrations are copied again elsewhere)."""
+    that file existed, holding a round's episodes and no merge (a copy killed before its first round is not told from a
+    recording: refused, the demonstrations are copied again elsewhere)."""
     if copied_from(output):
         return True
+    if any(recordings.SESSIONS_KEY in line for line in recordings.read(output)):
+        return False  # a merge: its rounds may be another aggregate's, copied from no DATASET of this run
     try:
         rounds = read_episodes(output, [columns.EPISODE_DAGGER_ROUND])[columns.EPISODE_DAGGER_ROUND].to_pylist()
     except (OSError, KeyError, ValueError):

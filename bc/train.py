@@ -288,20 +288,20 @@ def check_taught(cfg: TrainConfig) -> None:
     if input_set.takes_command:
         try:
             commands = read_commanded_frames(cfg.dataset, [columns.OBS_COMMAND])[columns.OBS_COMMAND]
+            lengths = read_episodes(cfg.dataset, ["length"])["length"].to_pylist()
         except (OSError, KeyError, ValueError) as error:
             raise DatasetError(f"cannot read the commands of {cfg.dataset}: {error}") from None
         if len(np.unique(commands, axis=0)) < 2:
             neutral = math.ceil(FIRST_NEUTRAL_SECONDS / step_seconds(nominal_model()))  # steps
-            short = max(read_episodes(cfg.dataset, ["length"])["length"].to_pylist(), default=0) <= neutral
             why = (
-                f"their first {FIRST_NEUTRAL_SECONDS:g} s hold the zero command: record longer episodes, MAX_STEPS "
-                f"past {neutral}"
-                if short
-                else "TASK=posture, the default, or CONTROLLER=keyboard"
+                f"make record's posture schedules hold the zero command for their first {FIRST_NEUTRAL_SECONDS:g} s: "
+                f"record longer episodes, MAX_STEPS past {neutral}"
+                if max(lengths, default=0) <= neutral
+                else "record with TASK=posture (the default) or CONTROLLER=keyboard"
             )
             raise UserError(
                 f"--inputs {cfg.inputs} learns to follow the operator's command, and {cfg.dataset} never changes it: "
-                f"record commanded demonstrations (make record's posture schedules: {why})"
+                f"{why}"
             )
         if input_set.walks and not commands[:, field_positions(VELOCITY_NAMES)].any():
             raise no_walks(cfg.inputs, cfg.dataset)

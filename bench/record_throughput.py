@@ -13,7 +13,6 @@ noisy, so only side-by-side ratios mean something.
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import os
 import statistics
@@ -28,7 +27,7 @@ from typing import Any
 from humanoid.env import make_env
 from rollout.controllers import make_controller
 from rollout.episode import EpisodeBuffer, run_episode
-from teleop.lerobot_io.format import INFO_PATH
+from teleop.lerobot_io.format import INFO_PATH, read_info
 from teleop.record import STANDING, STANDING_NOISE, RecordConfig, main
 
 
@@ -166,8 +165,8 @@ class MemorySampler(threading.Thread):
 
     def run(self) -> None:
         while not self.stop.wait(0.1):
-            info = self.root / INFO_PATH  # written by a rename: whole whenever it is there
-            committed = json.loads(info.read_text())["total_episodes"] if info.exists() else 0
+            # info.json is written by a rename: whole whenever it is there
+            committed = read_info(self.root)["total_episodes"] if (self.root / INFO_PATH).exists() else 0
             writers = [grandchild for child in children(os.getpid()) for grandchild in children(child)]
             self.samples.append((committed, rss_mib(os.getpid()), sum(rss_mib(k) for k in writers)))
 

@@ -16,13 +16,15 @@ PARTIAL_SUFFIX = ".partial"
 
 
 def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
-    """Call `write` on a sibling of `path` named with `PARTIAL_SUFFIX`, then rename it over `path`."""
+    """Call `write` on a sibling of `path` named with `PARTIAL_SUFFIX`, then rename it over `path`; if `write` fails,
+    the sibling is deleted and `path` is left as it was."""
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(path.name + PARTIAL_SUFFIX)
     try:
         write(partial)
-    except OSError as error:
-        if error.filename is None and error.errno is not None:  # a full disk names no file: name the one written
-            raise OSError(error.errno, error.strerror, str(partial)) from error
+    except BaseException as error:
+        partial.unlink(missing_ok=True)  # what a kill leaves, the next run deletes; an error's, this one
+        if isinstance(error, OSError) and error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(partial)) from error  # a full disk names no file
         raise
     os.replace(partial, path)

@@ -209,7 +209,8 @@ def validate(cfg: TuneConfig) -> None:
         raise UserError(f"--sigma must be in (0, 0.5], a share of each parameter's range, got {cfg.sigma}")
     if cfg.run.exists() and not cfg.run.is_dir():
         raise UserError(f"--run {cfg.run} is a file: give a folder for the run's state")
-    if cfg.run.is_dir() and any(path.name not in RUN_FILES for path in cfg.run.iterdir()):
+    saved = (cfg.run / STATE_FILE).exists()  # a run's folder, whatever else it holds (its OUT, say)
+    if cfg.run.is_dir() and not saved and any(path.name not in RUN_FILES for path in cfg.run.iterdir()):
         raise UserError(f"--run {cfg.run} holds files of no tuning run: give another --run")
 
 

@@ -186,6 +186,18 @@ def test_a_variable_the_target_does_not_take_is_refused_in_one_line(target: str,
         assert re.fullmatch(refusal, line), line
 
 
+def test_a_make_run_by_another_passes_on_the_variables_it_does_not_take(stamp: Path) -> None:
+    """A wrapper Makefile's command-line variables reach every target it makes (MAKELEVEL 1): not refused there."""
+    result = subprocess.run(
+        ["make", "--no-print-directory", "-n", "train-bc", f"STAMP={stamp}", "EPOCH=1"],
+        cwd=ROOT,
+        env={**make_env(), "MAKELEVEL": "1"},
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("-m bc.train"), result
+
+
 @pytest.mark.parametrize("target", TARGETS)
 def test_unset_variables_pass_nothing(target: str, stamp: Path) -> None:
     """With no variable set the stage runs bare, so every setting is its config's default."""

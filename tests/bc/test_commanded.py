@@ -63,7 +63,7 @@ def test_command_inputs_on_long_standing_episodes_are_told_to_record_the_schedul
     args = [*TINY, "--dataset", str(tmp_path / "standing"), "--policy", str(tmp_path / "p"), "--inputs", "full+command"]
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
-    assert err[0].endswith("(make record's posture schedules: TASK=posture, the default, or CONTROLLER=keyboard)")
+    assert err[0].endswith("never changes it: record with TASK=posture (the default) or CONTROLLER=keyboard")
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +106,7 @@ def test_a_command_input_on_a_dataset_whose_command_never_changes_is_refused(
     code, out, err = stage_cli(train_stage, args, capsys)
     assert code == 1 and out == [] and len(err) == 1
     assert f"--inputs {inputs} learns to follow the operator's command" in err[0]
-    assert "their first 3 s hold the zero command: record longer episodes, MAX_STEPS past 200" in err[0]
+    assert err[0].endswith("hold the zero command for their first 3 s: record longer episodes, MAX_STEPS past 200")
     assert not (tmp_path / "policy").exists() and snapshot(delayed) == before
 
 

@@ -48,6 +48,8 @@ from teachers.expert import LQRExpert, SensedExpert
 from teachers.registry import TEACHER, TEACHERS, WALKING_TEACHER
 from teleop import recordings
 from teleop.dataset_reader import fingerprint, read_episodes, read_frames, read_parameters
+from teleop.merge import MergeConfig
+from teleop.merge import main as merge_datasets
 from teleop.parallel import RolloutSettings, Simulator
 from teleop.record import RecordConfig, record
 from teleop.spool import DAGGER_SPOOL, Spool
@@ -248,7 +250,7 @@ def test_an_output_holding_a_dataset_dagger_did_not_copy_is_refused_and_left_alo
 
 def test_an_aggregate_copied_before_its_source_file_existed_is_still_dagger_s(dagger: tuple, tmp_path: Path) -> None:
     """An aggregate with rounds but no demonstrations.json (copied by an earlier version) is DAgger's own: it resumes;
-    its demonstrations alone, without the file, are a recording."""
+    its demonstrations alone, without the file, are a recording, and so is a merge of it."""
     _, output, _, _, _ = dagger
     older = tmp_path / "older"
     shutil.copytree(output, older)
@@ -257,6 +259,9 @@ def test_an_aggregate_copied_before_its_source_file_existed_is_still_dagger_s(da
     copied = tmp_path / "copied"
     shutil.copytree(dagger[0], copied)
     assert not is_aggregate(copied)
+    merged = tmp_path / "merged"  # a merge holding an aggregate's rounds: copied from no DATASET of a run
+    merge_datasets(MergeConfig(shards=str(output), dataset=merged, progress=False))
+    assert not is_aggregate(merged)
 
 
 def test_the_final_policy_is_the_one_train_bc_fits_on_the_aggregate(dagger: tuple, tmp_path: Path) -> None:

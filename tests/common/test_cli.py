@@ -4,13 +4,23 @@ use instead, before anything is written: argument parsing only, through each sta
 from __future__ import annotations
 
 import dataclasses
+import errno
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from common.cli import REMOVED_FLAGS, REMOVED_VALUES, UserError, check_file, counted, json_text, parse_config
+from common.cli import (
+    REMOVED_FLAGS,
+    REMOVED_VALUES,
+    UserError,
+    check_file,
+    counted,
+    json_text,
+    parse_config,
+    run_cli,
+)
 from evaluation import evaluate
 from pipeline import run as pipeline
 from pipeline.targets import TARGETS
@@ -120,3 +130,31 @@ def test_a_file_setting_takes_its_suffix_and_no_folder(tmp_path: Path) -> None:
     for bad in (tmp_path / "x.txt", tmp_path / "folder.png"):
         with pytest.raises(UserError, match=r"^--plot must be a \.png file's path, got "):
             check_file(Outputs(bad), "plot", ".png")
+
+
+@dataclasses.dataclass
+class Nothing:
+    """A stage with no setting."""
+
+
+@pytest.mark.parametrize(
+    ("error", "line"),
+    [
+        (OSError(errno.ENOSPC, "No space left on device"), "error: [Errno 28] No space left on device\n"),
+        (PermissionError(errno.EACCES, "Permission denied", "/out/x"), "error: /out/x: Permission denied\n"),
+    ],
+)
+def test_the_disks_refusal_is_one_line_with_or_without_a_file(
+    error: OSError, line: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`run_cli` turns the disk's refusals (`PLACE_ERRORS`) into one line, naming the file where the error does; any
+    other OS error keeps its traceback."""
+
+    def fails(config: Nothing) -> None:
+        raise error
+
+    assert run_cli(fails, Nothing, [], "a stage") == 1
+    out, err = capsys.readouterr()
+    assert err.endswith(line) and out == ""
+    with pytest.raises(FileNotFoundError):
+        run_cli(lambda config: open("/no/such/file"), Nothing, [], "a stage")

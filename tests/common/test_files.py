@@ -1,5 +1,5 @@
-"""`common.files.write_atomically`: a write that fails part-way leaves the old file whole, and only a partial file
-beside it (what a kill leaves, and what the next run deletes)."""
+"""`common.files.write_atomically`: a write that fails part-way leaves the old file whole and deletes its partial file
+(a kill leaves that file, which the next run deletes)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from common.files import PARTIAL_SUFFIX, write_atomically
 
 
-def test_a_write_cut_short_leaves_the_old_file_and_a_partial_one(tmp_path: Path) -> None:
+def test_a_write_that_fails_leaves_the_old_file_and_no_partial_one(tmp_path: Path) -> None:
     path = tmp_path / "info.json"
     path.write_text("old")
 
@@ -22,7 +22,7 @@ def test_a_write_cut_short_leaves_the_old_file_and_a_partial_one(tmp_path: Path)
     with pytest.raises(OSError, match="disk full"):
         write_atomically(path, cut_short)
     assert path.read_text() == "old"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["info.json", f"info.json{PARTIAL_SUFFIX}"]
+    assert [p.name for p in tmp_path.iterdir()] == ["info.json"]
 
 
 def test_a_whole_write_replaces_the_file_in_a_new_folder(tmp_path: Path) -> None:

@@ -139,3 +139,5 @@ def test_a_run_killed_in_its_first_generation_is_run_again(tmp_path) -> None:
     (run / "notes.txt").write_text("")
     with pytest.raises(UserError, match="holds files of no tuning run"):
         tune_walker.validate(TuneConfig(run=run))
+    (run / tune_walker.STATE_FILE).write_bytes(b"")  # a saved run resumes whatever else its folder holds (its OUT)
+    tune_walker.validate(TuneConfig(run=run))
