@@ -259,10 +259,7 @@ def main(cfg: TuneConfig) -> dict[str, Any]:
         }
     out = Path(cfg.out or state["out"] or GAIT_FILE)  # a resumed run's, as it began
     check_out(out)
-    try:
-        cfg.run.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise UserError(f"cannot write the run's state in {cfg.run}: {error.strerror or error}") from None
+    cfg.run.mkdir(parents=True, exist_ok=True)  # a place the disk refuses: one line (`common.cli.run_cli`)
     es = state["es"]
     with evaluation_pool(cfg.workers) as pool, (cfg.run / LOG_FILE).open("a") as log:
         bar = tqdm(total=cfg.generations, initial=state["generation"], unit="gen", file=sys.stderr, dynamic_ncols=True)
